@@ -1,0 +1,40 @@
+"""The object model (paper Section III): polyhedra, their builders and their symmetry."""
+
+from nonprehensile.geometry.build import (
+    box,
+    convex_hull,
+    cube,
+    face_name,
+    from_mesh,
+    octahedron,
+    prism,
+    tetrahedron,
+)
+from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron, check_polyhedron, wrap_index
+from nonprehensile.geometry.symmetry import (
+    Symmetry,
+    apply_to_state,
+    equivalence_classes,
+    equivalent,
+    rotation_group,
+)
+
+__all__ = [
+    "DEFAULT_RTOL",
+    "Polyhedron",
+    "Symmetry",
+    "apply_to_state",
+    "box",
+    "check_polyhedron",
+    "convex_hull",
+    "cube",
+    "equivalence_classes",
+    "equivalent",
+    "face_name",
+    "from_mesh",
+    "octahedron",
+    "prism",
+    "rotation_group",
+    "tetrahedron",
+    "wrap_index",
+]

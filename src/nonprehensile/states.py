@@ -1,0 +1,322 @@
+"""States of an object resting on the ground: the paper's ``{F_b, theta}`` (Section II).
+
+A state is a face on the ground and the orientation ``theta`` of that face's edge 1, projected
+on the ground and counted counterclockwise seen from above from ``+x`` (``shared/spec``).
+This module gives the value type, the pose (a rigid transform) of a state and the state of a
+pose, static stability, and state sets.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.errors import GeometryError, StateError
+from nonprehensile.geometry.polyhedron import Polyhedron
+
+__all__ = [
+    "DEFAULT_ANGLE_TOL",
+    "State",
+    "angle_diff",
+    "angles_close",
+    "check_states",
+    "is_stable",
+    "stability_margin",
+    "stable_faces",
+    "state_of_pose",
+    "state_pose",
+    "states_by_step",
+]
+
+#: Default tolerance on angles, in degrees, for exact models (the spec's default).
+DEFAULT_ANGLE_TOL = 1e-6
+
+FloatArray = NDArray[np.float64]
+
+_STATE_RE = re.compile(r"^\s*([^:\s]+)\s*:\s*([-+0-9.eE]+)\s*$")
+
+
+def _normalize_deg(theta: float) -> float:
+    t = float(theta) % 360.0
+    # keep round-off from producing 359.99999999999 where 0 is meant, and make the value
+    # stable for hashing; 1e-9 degree is far below any tolerance in use
+    t = round(t, 9)
+    return 0.0 if t >= 360.0 else t + 0.0
+
+
+def angle_diff(a: float, b: float) -> float:
+    """Signed difference ``a - b`` of two angles in degrees, in ``(-180, 180]``."""
+    d = (a - b) % 360.0
+    return d - 360.0 if d > 180.0 else d
+
+
+def angles_close(a: float, b: float, tol: float = DEFAULT_ANGLE_TOL) -> bool:
+    """Whether two angles in degrees are equal modulo 360 within ``tol`` degrees."""
+    return abs(angle_diff(a, b)) <= tol
+
+
+@dataclass(frozen=True, order=True)
+class State:
+    """A resting state ``{F_b, theta}`` of the object.
+
+    Parameters
+    ----------
+    face : str
+        ID of the bottom face ``F_b``.
+    theta : float
+        Orientation of edge 1 of ``F_b`` in degrees, normalised to ``[0, 360)``.
+    """
+
+    face: str
+    theta: float
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.face, str) or not self.face:
+            raise StateError(f"a state's face must be a face ID (a string), got {self.face!r}")
+        try:
+            theta = float(self.theta)
+        except (TypeError, ValueError):
+            raise StateError(
+                f"state {self.face}: theta must be a number of degrees, got {self.theta!r}"
+            ) from None
+        if not math.isfinite(theta):
+            raise StateError(f"state {self.face}: theta must be finite, got {self.theta!r}")
+        object.__setattr__(self, "theta", _normalize_deg(theta))
+
+    def __str__(self) -> str:
+        return f"{self.face}:{self.theta:g}"
+
+    @classmethod
+    def parse(cls, text: str) -> State:
+        """Parse the command-line form ``FACE:THETA`` (e.g. ``a:0``, ``d:90``).
+
+        Raises
+        ------
+        StateError
+            If ``text`` is not of that form.
+        """
+        m = _STATE_RE.match(text)
+        if not m:
+            raise StateError(f"expected a state written FACE:THETA (e.g. a:90), got {text!r}")
+        try:
+            return cls(m.group(1), float(m.group(2)))
+        except ValueError:
+            raise StateError(
+                f"expected a state written FACE:THETA (e.g. a:90), got {text!r}"
+            ) from None
+
+    def to_dict(self) -> dict[str, object]:
+        """The spec's JSON form ``{"face": ..., "theta": ...}``."""
+        return {"face": self.face, "theta": self.theta}
+
+    @classmethod
+    def from_dict(cls, data: object) -> State:
+        """Read ``{"face": ..., "theta": ...}``.
+
+        Raises
+        ------
+        StateError
+            If keys are missing or of the wrong type.
+        """
+        if not isinstance(data, dict) or "face" not in data or "theta" not in data:
+            raise StateError(f'expected a state {{"face": ..., "theta": ...}}, got {data!r}')
+        theta = data["theta"]
+        if isinstance(theta, bool) or not isinstance(theta, (int, float)):
+            raise StateError(f"state {data!r}: theta must be a number of degrees")
+        return cls(str(data["face"]), float(theta))
+
+    def isclose(self, other: State, tol: float = DEFAULT_ANGLE_TOL) -> bool:
+        """Same face and angles equal within ``tol`` degrees."""
+        return self.face == other.face and angles_close(self.theta, other.theta, tol)
+
+
+def _frame(u: FloatArray, up: FloatArray) -> FloatArray:
+    """Right-handed orthonormal frame ``[u, up x u, up]`` as columns, shape (3, 3)."""
+    return np.column_stack([u, np.cross(up, u), up])
+
+
+def state_pose(poly: Polyhedron, state: State) -> tuple[FloatArray, FloatArray]:
+    """The rigid transform that puts the object in ``state``.
+
+    The bottom face lies on the ground plane ``z = 0`` with its outward normal pointing down;
+    the centre of mass is above the origin.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+        The object.
+    state : State
+        ``{F_b, theta}``.
+
+    Returns
+    -------
+    R : array, shape (3, 3)
+        Rotation from the object frame to the world frame.
+    t : array, shape (3,)
+        Translation: a point ``x`` of the object is at ``R @ x + t`` in the world.
+    """
+    f = state.face
+    poly.loop(f)
+    n_in = -poly.normals[f]
+    e1 = poly.edge_direction(f, 1)
+    th = math.radians(state.theta)
+    c = np.array([math.cos(th), math.sin(th), 0.0])
+    # edge 1 lies in the face, so it is perpendicular to the normal: both frames are orthonormal
+    rot = _frame(c, np.array([0.0, 0.0, 1.0])) @ _frame(e1, n_in).T
+    world = poly.vertices @ rot.T
+    com = rot @ poly.com
+    t = np.array([-com[0], -com[1], -world[:, 2].min()])
+    return rot, t
+
+
+def state_of_pose(
+    poly: Polyhedron, rotation: FloatArray, tol: float = DEFAULT_ANGLE_TOL
+) -> State:
+    """The state whose bottom face points straight down under ``rotation``.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+        The object.
+    rotation : array, shape (3, 3)
+        Object-to-world rotation.
+    tol : float
+        Angle tolerance in degrees between the face's normal and straight down.
+
+    Returns
+    -------
+    State
+
+    Raises
+    ------
+    GeometryError
+        If no face points down within ``tol``: the object would rest on an edge or a vertex
+        that is not a face of the model.
+    """
+    rot = np.asarray(rotation, dtype=float)
+    down = np.array([0.0, 0.0, -1.0])
+    best, best_cos = None, -2.0
+    for f, n in poly.normals.items():
+        cos = float((rot @ n) @ down)
+        if cos > best_cos:
+            best, best_cos = f, cos
+    assert best is not None
+    off = math.degrees(math.acos(min(1.0, max(-1.0, best_cos))))
+    if off > tol:
+        raise GeometryError(
+            f"no face of {poly.name!r} points down (closest: face {best!r}, {off:.6g} degrees "
+            f"off; tolerance {tol:g}); the pose does not rest on a face"
+        )
+    e1 = rot @ poly.edge_direction(best, 1)
+    return State(best, math.degrees(math.atan2(e1[1], e1[0])))
+
+
+def stability_margin(poly: Polyhedron, face: str) -> float:
+    """Distance from the centre of mass's projection on ``face`` to the face's boundary.
+
+    Gravity acts along the outward normal of the bottom face, so the centre of mass projects
+    along that normal. Positive inside the face, negative outside.
+
+    Returns
+    -------
+    float
+        Signed distance in the model's length units.
+    """
+    loop = poly.loop(face)
+    n_out = poly.normals[face]
+    p = poly.vertices[list(loop)]
+    q = poly.com - ((poly.com - p[0]) @ n_out) * n_out
+    e = np.roll(p, -1, axis=0) - p
+    e /= np.linalg.norm(e, axis=1)[:, None]
+    # the loop is counterclockwise about the inward normal, so the interior is to the left
+    inward = np.cross(-n_out, e)
+    return float(np.min(np.einsum("ij,ij->i", q - p, inward)))
+
+
+def is_stable(poly: Polyhedron, face: str, margin: float = 0.0) -> bool:
+    """Whether the object rests statically on ``face``.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    face : str
+    margin : float
+        Required distance (model length units) between the centre of mass's projection and
+        the face's boundary; at least the model's tolerance is always required.
+    """
+    return stability_margin(poly, face) > max(margin, poly.atol)
+
+
+def stable_faces(poly: Polyhedron, margin: float = 0.0) -> list[str]:
+    """The faces the object can rest on, in model order."""
+    return [f for f in poly.faces if is_stable(poly, f, margin)]
+
+
+def states_by_step(
+    poly: Polyhedron,
+    step: float,
+    *,
+    faces: Iterable[str] | None = None,
+    margin: float = 0.0,
+) -> list[State]:
+    """The discretised state set: every stable face at ``theta = 0, step, 2 step, ...``.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    step : float
+        Angle step in degrees; must divide 360 (the paper's cube example uses 90).
+    faces : iterable of str, optional
+        Restrict to these faces; default all stable faces.
+    margin : float
+        Stability margin (see :func:`is_stable`).
+
+    Returns
+    -------
+    list of State
+        Face-major, in model order then increasing ``theta``.
+    """
+    step = float(step)
+    if not math.isfinite(step) or step <= 0 or step > 360:
+        raise StateError(f"the angle step must be in (0, 360] degrees, got {step!r}")
+    n = round(360.0 / step)
+    if abs(n * step - 360.0) > 1e-9 * 360:
+        raise StateError(
+            f"the angle step must divide 360 degrees evenly, got {step:g} (360/{step:g} = "
+            f"{360 / step:.6g}); try one of 1, 5, 15, 30, 45, 60, 90, 120, 180"
+        )
+    chosen = stable_faces(poly, margin) if faces is None else list(faces)
+    for f in chosen:
+        poly.loop(f)
+    return [State(f, i * step) for f in chosen for i in range(n)]
+
+
+def check_states(
+    poly: Polyhedron, states: Sequence[State], *, margin: float = 0.0
+) -> list[State]:
+    """Validate an explicit state set against the object.
+
+    Raises
+    ------
+    StateError
+        Naming the first state whose face the object lacks or cannot rest on.
+    """
+    out = []
+    for s in states:
+        if s.face not in poly.faces:
+            raise StateError(
+                f"state {s} names face {s.face!r}, which {poly.name!r} does not have; its "
+                f"faces are {list(poly.faces)}"
+            )
+        if not is_stable(poly, s.face, margin):
+            raise StateError(
+                f"state {s}: {poly.name!r} cannot rest on face {s.face!r} (its centre of mass "
+                "projects outside it)"
+            )
+        out.append(s)
+    return out
