@@ -11,6 +11,8 @@ Errors caused by the user's input (files, models, states, skills) also derive fr
 from __future__ import annotations
 
 __all__ = [
+    "ContactError",
+    "DemonstrationError",
     "GeometryError",
     "InputError",
     "ManeuverError",
@@ -50,8 +52,20 @@ class ModelError(InputError):
         super().__init__(f"{prefix}{where}{message}")
 
 
+class DemonstrationError(InputError):
+    """A demonstration record or motion-capture file (C3D, Motive CSV) is unreadable or wrong.
+
+    The message names the file (when there is one) and the culprit: a row, a column, a marker,
+    a parameter.
+    """
+
+
 class MeshError(InputError):
     """A mesh (or point set) cannot be made into an object model."""
+
+
+class ContactError(InputError):
+    """A contact element, pair or event is malformed, or names what the object does not have."""
 
 
 class StateError(InputError):

@@ -164,9 +164,12 @@ def state_pose(poly: Polyhedron, state: State) -> tuple[FloatArray, FloatArray]:
     poly.loop(f)
     n_in = -poly.normals[f]
     e1 = poly.edge_direction(f, 1)
+    # edge 1 lies in the face; project it anyway so that a face planar only within the
+    # tolerance still gives an exactly orthonormal frame
+    e1 = e1 - (e1 @ n_in) * n_in
+    e1 /= np.linalg.norm(e1)
     th = math.radians(state.theta)
     c = np.array([math.cos(th), math.sin(th), 0.0])
-    # edge 1 lies in the face, so it is perpendicular to the normal: both frames are orthonormal
     rot = _frame(c, np.array([0.0, 0.0, 1.0])) @ _frame(e1, n_in).T
     world = poly.vertices @ rot.T
     com = rot @ poly.com
@@ -199,14 +202,13 @@ def state_of_pose(
         that is not a face of the model.
     """
     rot = np.asarray(rotation, dtype=float)
-    down = np.array([0.0, 0.0, -1.0])
-    best, best_cos = None, -2.0
-    for f, n in poly.normals.items():
-        cos = float((rot @ n) @ down)
-        if cos > best_cos:
-            best, best_cos = f, cos
-    assert best is not None
-    off = math.degrees(math.acos(min(1.0, max(-1.0, best_cos))))
+    world_normals = np.array([rot @ n for n in poly.normals.values()])
+    i = int(np.argmin(world_normals[:, 2]))
+    best = poly.face_ids[i]
+    n = world_normals[i]
+    # atan2 of sine and cosine keeps full precision near 0, where acos(cos) loses half the
+    # digits (1e-6 degree from one rounding error)
+    off = math.degrees(math.atan2(float(np.hypot(n[0], n[1])), float(-n[2])))
     if off > tol:
         raise GeometryError(
             f"no face of {poly.name!r} points down (closest: face {best!r}, {off:.6g} degrees "

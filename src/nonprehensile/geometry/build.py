@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -85,7 +86,9 @@ def box(width: float, depth: float, height: float, *, name: str = "box") -> Poly
     return convex_hull(corners * dims, name=name)
 
 
-def prism(n: int, radius: float = 1.0, height: float = 1.0, *, name: str | None = None) -> Polyhedron:
+def prism(
+    n: int, radius: float = 1.0, height: float = 1.0, *, name: str | None = None
+) -> Polyhedron:
     """A right prism on a regular ``n``-gon of circumradius ``radius``."""
     if n < 3:
         raise ModelError(f"a prism needs a polygon of at least 3 sides, got {n}")
@@ -93,7 +96,7 @@ def prism(n: int, radius: float = 1.0, height: float = 1.0, *, name: str | None 
         raise ModelError(f"prism radius and height must be positive, got {radius}, {height}")
     ang = 2 * np.pi * np.arange(n) / n
     ring = np.column_stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(n)])
-    top = ring + [0.0, 0.0, height]
+    top = ring + np.array([0.0, 0.0, height])
     return convex_hull(np.vstack([ring, top]), name=name or f"prism{n}")
 
 
@@ -270,7 +273,7 @@ def from_mesh(
     """An object model from a mesh file (STL, OBJ, PLY, OFF, GLB, ... anything trimesh reads).
 
     The model is the mesh's convex hull, with coplanar triangles merged into polygon faces
-    within ``rtol``. For a non-convex mesh, hull faces that are not faces of the mesh (the
+    within ``rtol``. For a non-convex mesh, hull faces on which the mesh has no face (the
     object rests there on edges or vertices: the paper's virtual bottom faces) are marked
     virtual, and the centre of mass is the mesh's own (the hull's would be wrong).
 
@@ -314,7 +317,11 @@ def from_mesh(
     if len(pts) < 4:
         raise MeshError(f"{path}: a solid needs at least 4 points, the mesh has {len(pts)}")
     if not mesh.is_watertight and not allow_open:
-        n_open = int(len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)))
+        n_open = len(
+            trimesh.grouping.group_rows(  # type: ignore[no-untyped-call]
+                mesh.edges_sorted, require_count=1
+            )
+        )
         raise MeshError(
             f"{path}: the mesh is not closed ({n_open} edges border only one triangle), so "
             "its volume and centre of mass are undefined; repair it, or accept the hull of "
@@ -343,11 +350,14 @@ def from_mesh(
     )
 
 
-def _virtual_faces(hull: Polyhedron, mesh: object, rtol: float) -> frozenset[str]:
-    """Hull faces not covered by coplanar triangles of the mesh."""
-    tri = np.asarray(mesh.triangles, dtype=float)  # type: ignore[attr-defined]
-    normals = np.asarray(mesh.face_normals, dtype=float)  # type: ignore[attr-defined]
-    areas = np.asarray(mesh.area_faces, dtype=float)  # type: ignore[attr-defined]
+def _virtual_faces(hull: Polyhedron, mesh: Any, rtol: float) -> frozenset[str]:
+    """Hull faces on which the mesh has no triangle: the object touches them only along
+    edges or at vertices (the paper's virtual bottom faces). A hull face partly covered by a
+    mesh face (a non-convex face, such as the side of an L) is a real face: the object rests
+    on that face, and the hull face is its supporting polygon."""
+    tri = np.asarray(mesh.triangles, dtype=np.float64)
+    normals = np.asarray(mesh.face_normals, dtype=np.float64)
+    areas = np.asarray(mesh.area_faces, dtype=np.float64)
     atol = rtol * hull.diameter
     out = set()
     for f in hull.faces:
@@ -355,6 +365,6 @@ def _virtual_faces(hull: Polyhedron, mesh: object, rtol: float) -> frozenset[str
         p0 = hull.vertices[hull.faces[f][0]]
         on_plane = np.all(np.abs((tri - p0) @ n) <= atol, axis=1) & (normals @ n > 0.5)
         covered = float(areas[on_plane].sum())
-        if covered < hull.face_areas[f] * (1 - 1e-6) - atol * hull.diameter:
+        if covered <= 1e-6 * hull.face_areas[f]:
             out.add(f)
     return frozenset(out)

@@ -63,7 +63,7 @@ def _newell(points: FloatArray) -> FloatArray:
         Twice the vector area of the polygon (not normalised).
     """
     nxt = np.roll(points, -1, axis=0)
-    return np.sum(np.cross(points, nxt), axis=0)
+    return np.asarray(np.sum(np.cross(points, nxt), axis=0), dtype=np.float64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -219,7 +219,7 @@ class Polyhedron:
         """Unit direction of edge ``k`` of ``face`` in the object frame, shape (3,)."""
         i, j = self.edge_vertices(face, k)
         d = self.vertices[j] - self.vertices[i]
-        return d / np.linalg.norm(d)
+        return np.asarray(d / np.linalg.norm(d), dtype=np.float64)
 
     # ------------------------------------------------------------------ adjacency
     @cached_property
@@ -450,7 +450,10 @@ def check_polyhedron(
         nv = _newell(p)
         norm = float(np.linalg.norm(nv))
         if norm <= atol * diameter:
-            raise ModelError("the face has no area (its vertices are collinear)", face=f)
+            raise ModelError(
+                "the face has no area: its vertices are collinear, or its loop crosses itself",
+                face=f,
+            )
         n_loop = nv / norm
         off = np.abs((p - p.mean(axis=0)) @ n_loop)
         if off.max() > atol:

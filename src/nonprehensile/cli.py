@@ -1,0 +1,295 @@
+"""The ``nonprehensile`` command line: parse, call the library, format.
+
+Every command that prints a result takes ``--json`` and then prints exactly one JSON document
+on stdout; messages go to stderr. Exit codes: 0 success, 2 bad input (the message names the
+file and the culprit), 1 anything else (``shared/spec/files-and-cli.md``).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any, TypeVar
+
+import click
+from rich.console import Console
+from rich.table import Table
+
+from nonprehensile.errors import InputError, NonprehensileError
+from nonprehensile.geometry.build import from_mesh
+from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
+from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
+from nonprehensile.io import load_model, read_states, write_model
+from nonprehensile.maneuvers import classify, roll
+from nonprehensile.states import State, check_states, is_stable, states_by_step
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+out = Console(soft_wrap=True)
+err = Console(stderr=True, soft_wrap=True)
+
+
+def _fmt_num(x: float) -> str:
+    return f"{x:.6g}"
+
+
+def handle_errors(fn: F) -> F:
+    """Turn library errors into one-line messages and the spec's exit codes."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except InputError as exc:
+            err.print(f"[bold red]error:[/] {exc}", highlight=False)
+            sys.exit(2)
+        except NonprehensileError as exc:
+            err.print(f"[bold red]error:[/] {exc}", highlight=False)
+            sys.exit(1)
+
+    return wrapper  # type: ignore[return-value]
+
+
+def emit_json(data: Any) -> None:
+    """Print one JSON document on stdout."""
+    click.echo(json.dumps(data, indent=2))
+
+
+def _model(path: str, rtol: float) -> Polyhedron:
+    return load_model(path, rtol=rtol)
+
+
+rtol_option = click.option(
+    "--rtol",
+    type=float,
+    default=DEFAULT_RTOL,
+    show_default=True,
+    help="Length tolerance relative to the object's diameter (raise it for measured models).",
+)
+json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
+
+
+@click.group()
+@click.version_option(package_name="nonprehensile")
+def main() -> None:
+    """Learn nonprehensile manipulation of polyhedral objects from demonstration."""
+
+
+# ---------------------------------------------------------------------------- object
+@main.group("object")
+def object_group() -> None:
+    """Object models: show one, or make one from a mesh."""
+
+
+def object_summary(poly: Polyhedron) -> dict[str, Any]:
+    """The spec's ``object show --json`` document."""
+    faces = {}
+    for f, loop in poly.faces.items():
+        faces[f] = {
+            "loop": list(loop),
+            "delta": list(poly.delta[f]),
+            "normal": [round(float(c), 12) + 0.0 for c in poly.normals[f]],
+            "stable": is_stable(poly, f),
+            "virtual": f in poly.virtual_faces,
+        }
+    return {
+        "name": poly.name,
+        "units": poly.units,
+        "n_vertices": len(poly.vertices),
+        "center_of_mass": [float(c) for c in poly.com],
+        "hull_volume": poly.volume,
+        "faces": faces,
+        "adjacency": poly.adjacency,
+        "symmetry_order": len(rotation_group(poly)),
+    }
+
+
+def adjacency_table(poly: Polyhedron) -> Table:
+    """The adjacency matrix of edge numbers as the paper prints it (Fig. 3(b))."""
+    labels, a = poly.adjacency_matrix()
+    t = Table(title="Adjacency matrix A (A\\[row]\\[col] = edge number on the row face)")
+    t.add_column("A", style="bold")
+    for f in labels:
+        t.add_column(f, justify="center")
+    for i, f in enumerate(labels):
+        t.add_row(f, *[str(k) if k else "-" for k in a[i]])
+    return t
+
+
+@object_group.command("show")
+@click.argument("model")
+@rtol_option
+@json_option
+@handle_errors
+def object_show(model: str, rtol: float, as_json: bool) -> None:
+    """Show MODEL (a model file, or a bundled name such as `cube`): faces, A, Delta."""
+    poly = _model(model, rtol)
+    summary = object_summary(poly)
+    if as_json:
+        emit_json(summary)
+        return
+    out.print(
+        f"[bold]{poly.name}[/]: {len(poly.faces)} faces, {len(poly.vertices)} vertices, "
+        f"hull volume {_fmt_num(poly.volume)} {poly.units}^3, centre of mass "
+        f"({', '.join(_fmt_num(c) for c in poly.com)}), rotation symmetry order "
+        f"{summary['symmetry_order']}"
+    )
+    faces = Table(title="Faces")
+    for col in ("face", "loop (clockwise from outside)", "Delta (deg)", "outward normal",
+                "stable"):
+        faces.add_column(col)
+    for f, info in summary["faces"].items():
+        name = f + (" (virtual)" if info["virtual"] else "")
+        faces.add_row(
+            name,
+            " ".join(map(str, info["loop"])),
+            ", ".join(_fmt_num(d) for d in info["delta"]),
+            "(" + ", ".join(_fmt_num(c) for c in info["normal"]) + ")",
+            "yes" if info["stable"] else "no",
+        )
+    out.print(faces)
+    out.print(adjacency_table(poly))
+
+
+@object_group.command("from-mesh")
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Model file to write (.json, or .yaml/.yml).")
+@click.option("--name", default=None, help="Object name (default: the mesh file's stem).")
+@click.option("--rtol", type=float, default=1e-6, show_default=True,
+              help="Tolerance, relative to the diameter, for merging coplanar triangles.")
+@click.option("--allow-open", is_flag=True,
+              help="Accept a mesh that is not closed (use the hull of its vertices).")
+@click.option("--units", default="m", show_default=True, help="Length units of the mesh.")
+@json_option
+@handle_errors
+def object_from_mesh(
+    mesh: str, output: str, name: str | None, rtol: float, allow_open: bool, units: str,
+    as_json: bool,
+) -> None:
+    """Make an object model from MESH (STL, OBJ, PLY, OFF, GLB, ...): its convex hull."""
+    poly = from_mesh(mesh, name=name, rtol=rtol, allow_open=allow_open, units=units)
+    write_model(poly, output)
+    if as_json:
+        emit_json({"output": str(Path(output)), **object_summary(poly)})
+        return
+    virtual = sorted(poly.virtual_faces)
+    out.print(
+        f"wrote {output}: {poly.name}, {len(poly.faces)} faces "
+        f"({len(virtual)} virtual{': ' + ', '.join(virtual) if virtual else ''}), "
+        f"{len(poly.vertices)} vertices"
+    )
+
+
+# ---------------------------------------------------------------------------- states
+def state_set(poly: Polyhedron, step: float | None, states_file: str | None) -> list[State]:
+    """The state set chosen on the command line (``--step`` or ``--states``)."""
+    if (step is None) == (states_file is None):
+        raise InputError("give exactly one of --step DEG or --states FILE")
+    if step is not None:
+        return states_by_step(poly, step)
+    assert states_file is not None
+    return check_states(poly, read_states(states_file))
+
+
+step_option = click.option("--step", type=float, default=None,
+                           help="Orientation step in degrees (e.g. 90).")
+states_option = click.option("--states", "states_file", type=click.Path(dir_okay=False),
+                             default=None, help="JSON list of {face, theta} states.")
+
+
+@main.command("states")
+@click.argument("model")
+@step_option
+@states_option
+@rtol_option
+@json_option
+@handle_errors
+def states_cmd(
+    model: str, step: float | None, states_file: str | None, rtol: float, as_json: bool
+) -> None:
+    """The stable states of MODEL and their geometric-equivalence classes."""
+    poly = _model(model, rtol)
+    states = state_set(poly, step, states_file)
+    classes = equivalence_classes(poly, states)
+    n_classes = max(classes) + 1 if classes else 0
+    if as_json:
+        emit_json({
+            "states": [{**s.to_dict(), "class": c} for s, c in zip(states, classes, strict=True)],
+            "n_classes": n_classes,
+        })
+        return
+    t = Table(title=f"{len(states)} states of {poly.name}, {n_classes} equivalence classes")
+    t.add_column("state")
+    t.add_column("face")
+    t.add_column("theta (deg)", justify="right")
+    t.add_column("class", justify="right")
+    for s, c in zip(states, classes, strict=True):
+        t.add_row(str(s), s.face, _fmt_num(s.theta), str(c))
+    out.print(t)
+
+
+# ---------------------------------------------------------------------------- demo
+@main.command("demo")
+@click.option("--model", default="cube", show_default=True,
+              help="Object model file or bundled name.")
+@json_option
+@handle_errors
+def demo(model: str, as_json: bool) -> None:
+    """The main job on the bundled example: object model, states, and exact maneuvers."""
+    poly = load_model(model)
+    states = states_by_step(poly, 90)
+    classes = equivalence_classes(poly, states)
+    start = states[0]
+    rolls = [roll(poly, start, edge=k) for k in range(1, poly.n_edges(start.face) + 1)]
+    round_trip = roll(poly, rolls[0].end, edge=poly.adjacency[rolls[0].end.face][start.face])
+    summary: dict[str, Any] = {
+        "object": object_summary(poly),
+        "n_states": len(states),
+        "n_classes": max(classes) + 1,
+        "rolls_from": start.to_dict(),
+        "rolls": [m.to_dict() for m in rolls],
+        "roll_back": round_trip.to_dict(),
+        "tumble_example": _tumble_example(poly, start),
+    }
+    if as_json:
+        emit_json(summary)
+        return
+    out.rule(f"[bold]nonprehensile demo: {poly.name}")
+    out.print(adjacency_table(poly))
+    out.print(
+        f"{len(states)} states at a 90-degree step, {summary['n_classes']} geometric "
+        f"equivalence class(es); rotation symmetry order {summary['object']['symmetry_order']}"
+    )
+    t = Table(title=f"Exact rolls from {start}")
+    for col in ("over edge", "pivot", "to", "angle (deg)"):
+        t.add_column(col)
+    for k, m in enumerate(rolls, start=1):
+        t.add_row(str(k), f"E({m.pivot[0]},{m.pivot[1]})", str(m.end), _fmt_num(m.angle))
+    out.print(t)
+    out.print(f"rolling back from {rolls[0].end} returns to {round_trip.end}")
+    tumble = summary["tumble_example"]
+    if tumble:
+        out.print(f"tumbling over V({','.join(tumble['pivot'])}) from {start} reaches "
+                  f"{State.from_dict(tumble['to'])} ({_fmt_num(tumble['angle'])} degrees)")
+
+
+def _tumble_example(poly: Polyhedron, start: State) -> dict[str, Any] | None:
+    """One tumbling transition from ``start`` found from the geometry, if any."""
+    for s in states_by_step(poly, 90):
+        if s.face == start.face:
+            continue
+        try:
+            m = classify(poly, start, s)
+        except NonprehensileError:
+            continue
+        if m.kind == "tumbling":
+            return m.to_dict()
+    return None
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

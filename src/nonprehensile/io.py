@@ -1,0 +1,208 @@
+"""Reading and writing the spec's files: object models and state lists (JSON or YAML).
+
+Every reading error names the file and the culprit (key, face, line) and is an
+:class:`~nonprehensile.errors.InputError`, so the command line exits with code 2.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from nonprehensile.errors import InputError, ModelError, StateError
+from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
+from nonprehensile.states import State
+
+__all__ = [
+    "BUNDLED_MODELS",
+    "load_document",
+    "load_model",
+    "model_from_dict",
+    "model_to_dict",
+    "read_model",
+    "read_states",
+    "save_document",
+    "write_model",
+]
+
+#: Object models shipped inside the package, by name.
+BUNDLED_MODELS = ("cube",)
+
+_MODEL_KEYS = {"name", "vertices", "faces", "center_of_mass", "virtual_faces", "units"}
+
+
+def load_document(path: str | Path) -> Any:
+    """Parse a JSON or YAML file (by suffix; ``.yaml``/``.yml`` are YAML, others JSON).
+
+    Raises
+    ------
+    InputError
+        Missing file, or a syntax error (with its line and column).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read it: {exc}") from None
+    if path.suffix.lower() in (".yaml", ".yml"):
+        try:
+            return yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+            raise InputError(f"{path}: malformed YAML{where}: {exc}") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(
+            f"{path}: malformed JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
+
+
+def save_document(data: Any, path: str | Path) -> None:
+    """Write ``data`` as JSON, or YAML when the suffix is ``.yaml``/``.yml``.
+
+    The file is written to a temporary name and renamed, so a crash never leaves half a file.
+    """
+    path = Path(path)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        text = yaml.safe_dump(data, sort_keys=False)
+    else:
+        text = json.dumps(data, indent=2) + "\n"
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+
+
+def model_from_dict(
+    data: Any, *, source: str | None = None, rtol: float = DEFAULT_RTOL
+) -> Polyhedron:
+    """Build a model from the spec's dictionary form.
+
+    Parameters
+    ----------
+    data : dict
+        ``{"name", "vertices", "faces", ["center_of_mass"], ["virtual_faces"], ["units"]}``.
+    source : str, optional
+        Where it came from, for error messages.
+    rtol : float
+        Length tolerance relative to the diameter.
+
+    Raises
+    ------
+    ModelError
+        Missing or unknown keys, wrong types, or an invalid polyhedron (naming the face).
+    """
+    if not isinstance(data, Mapping):
+        raise ModelError(
+            f"an object model must be a JSON/YAML object with keys 'vertices' and 'faces', "
+            f"got {type(data).__name__}",
+            source=source,
+        )
+    missing = [k for k in ("vertices", "faces") if k not in data]
+    if missing:
+        raise ModelError(f"missing key(s) {missing}", source=source)
+    unknown = sorted(set(data) - _MODEL_KEYS)
+    if unknown:
+        raise ModelError(
+            f"unknown key(s) {unknown}; an object model has {sorted(_MODEL_KEYS)}",
+            source=source,
+        )
+    faces = data["faces"]
+    if not isinstance(faces, Mapping):
+        raise ModelError(
+            "'faces' must map face IDs to vertex loops, e.g. {\"a\": [0, 1, 2, 3]}",
+            source=source,
+        )
+    virtual = data.get("virtual_faces", [])
+    if not isinstance(virtual, list) or not all(isinstance(f, str) for f in virtual):
+        raise ModelError("'virtual_faces' must be a list of face IDs", source=source)
+    units = data.get("units", "m")
+    if not isinstance(units, str):
+        raise ModelError(f"'units' must be a string, got {units!r}", source=source)
+    try:
+        return Polyhedron(
+            data["vertices"],
+            {str(k): v for k, v in faces.items()},
+            name=str(data.get("name", Path(source).stem if source else "object")),
+            center_of_mass=data.get("center_of_mass"),
+            virtual_faces=frozenset(virtual),
+            units=units,
+            rtol=rtol,
+        )
+    except ModelError as exc:
+        if source is None or exc.source is not None:
+            raise
+        raise ModelError(str(exc), source=source) from None
+
+
+def model_to_dict(poly: Polyhedron) -> dict[str, Any]:
+    """The spec's dictionary form of a model (centre of mass always written)."""
+    out: dict[str, Any] = {
+        "name": poly.name,
+        "vertices": [[float(c) for c in row] for row in np.asarray(poly.vertices)],
+        "faces": {f: list(loop) for f, loop in poly.faces.items()},
+        "center_of_mass": [float(c) for c in poly.com],
+        "units": poly.units,
+    }
+    if poly.virtual_faces:
+        out["virtual_faces"] = sorted(poly.virtual_faces)
+    return out
+
+
+def read_model(path: str | Path, *, rtol: float = DEFAULT_RTOL) -> Polyhedron:
+    """Read an object model file (JSON or YAML)."""
+    return model_from_dict(load_document(path), source=str(path), rtol=rtol)
+
+
+def load_model(spec: str | Path, *, rtol: float = DEFAULT_RTOL) -> Polyhedron:
+    """A model from a file path, or a bundled model by name (``"cube"``) when no such file.
+
+    Raises
+    ------
+    InputError
+        Neither a file nor a bundled model.
+    """
+    path = Path(spec)
+    if path.exists():
+        return read_model(path, rtol=rtol)
+    if str(spec) in BUNDLED_MODELS:
+        ref = resources.files("nonprehensile").joinpath("data", f"{spec}.json")
+        with resources.as_file(ref) as p:
+            return read_model(p, rtol=rtol)
+    raise InputError(
+        f"{spec}: no such model file (bundled models: {', '.join(BUNDLED_MODELS)})"
+    )
+
+
+def write_model(poly: Polyhedron, path: str | Path) -> None:
+    """Write a model file (JSON, or YAML by suffix)."""
+    save_document(model_to_dict(poly), path)
+
+
+def read_states(path: str | Path) -> list[State]:
+    """Read a state list file: a JSON/YAML list of ``{"face": ..., "theta": ...}``.
+
+    Raises
+    ------
+    StateError
+        Not a list, or an entry that is not a state (naming its position).
+    """
+    data = load_document(path)
+    if not isinstance(data, list):
+        raise StateError(f'{path}: expected a list of {{"face": ..., "theta": ...}}')
+    out = []
+    for i, item in enumerate(data):
+        try:
+            out.append(State.from_dict(item))
+        except StateError as exc:
+            raise StateError(f"{path}: entry {i}: {exc}") from None
+    return out

@@ -1,0 +1,73 @@
+"""Shared fixtures and hypothesis strategies."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import settings, strategies as st
+
+from nonprehensile.geometry import (
+    Polyhedron,
+    box,
+    convex_hull,
+    cube,
+    octahedron,
+    prism,
+    tetrahedron,
+)
+
+settings.register_profile("default", max_examples=40, deadline=None)
+settings.load_profile("default")
+
+DATA = Path(__file__).parent / "data"
+
+
+def scalene() -> Polyhedron:
+    """An irregular solid with no rotation symmetry."""
+    pts = [[0, 0, 0], [2.0, 0.1, 0], [0.3, 1.7, 0.2], [0.1, 0.2, 1.3], [1.4, 1.1, 0.9],
+           [1.9, 1.2, 0.1]]
+    return convex_hull(np.array(pts, dtype=float), name="scalene")
+
+
+SOLIDS = {
+    "cube": cube,
+    "box112": lambda: box(1, 1, 2),
+    "tetrahedron": tetrahedron,
+    "octahedron": octahedron,
+    "prism3": lambda: prism(3),
+    "prism6": lambda: prism(6),
+    "scalene": scalene,
+}
+
+#: Orders of the proper rotation groups, from the classification of finite rotation groups.
+GROUP_ORDERS = {
+    "cube": 24,
+    "box112": 8,
+    "tetrahedron": 12,
+    "octahedron": 24,
+    "prism3": 6,
+    "prism6": 12,
+    "scalene": 1,
+}
+
+
+@pytest.fixture(params=sorted(SOLIDS))
+def solid(request: pytest.FixtureRequest) -> tuple[str, Polyhedron]:
+    return request.param, SOLIDS[request.param]()
+
+
+@st.composite
+def random_hulls(draw: st.DrawFn) -> Polyhedron:
+    """Convex hulls of 6..16 random points (general position, almost surely)."""
+    seed = draw(st.integers(0, 2**31 - 1))
+    n = draw(st.integers(6, 16))
+    rng = np.random.default_rng(seed)
+    return convex_hull(rng.normal(size=(n, 3)), name=f"hull{seed}")
+
+
+def rotation_matrix(seed: int) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return np.asarray(Rotation.random(random_state=seed).as_matrix())

@@ -1,0 +1,67 @@
+"""Model and state files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+
+from conftest import random_hulls
+from nonprehensile.errors import InputError, ModelError
+from nonprehensile.geometry import Polyhedron, cube
+from nonprehensile.io import load_model, read_model, read_states, write_model
+from nonprehensile.states import State
+
+
+@settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(random_hulls())
+def test_model_file_round_trip(tmp_path: Path, p: Polyhedron) -> None:
+    for suffix in ("json", "yaml"):
+        path = tmp_path / f"m.{suffix}"
+        write_model(p, path)
+        q = read_model(path)
+        assert q.faces == p.faces and q.name == p.name
+        assert np.array_equal(q.vertices, p.vertices)
+        assert np.array_equal(q.com, p.com)
+
+
+def test_bundled_cube_is_the_builder_cube() -> None:
+    a, b = load_model("cube"), cube()
+    assert a.faces == b.faces and np.array_equal(a.vertices, b.vertices)
+    examples = Path(__file__).parents[1] / "examples" / "cube.json"
+    assert read_model(examples).faces == a.faces
+
+
+def write(tmp_path: Path, text: str, name: str = "m.json") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_bad_model_files(tmp_path: Path) -> None:
+    with pytest.raises(InputError, match=r"m.json: malformed JSON at line 1, column"):
+        read_model(write(tmp_path, '{"vertices": [[0,0,0]'))
+    with pytest.raises(InputError, match=r"m.yaml: malformed YAML at line"):
+        read_model(write(tmp_path, "vertices: [[0,0,0]\nfaces: {", "m.yaml"))
+    with pytest.raises(ModelError, match=r"m.json: missing key\(s\) \['faces'\]"):
+        read_model(write(tmp_path, '{"vertices": []}'))
+    with pytest.raises(ModelError, match=r"unknown key\(s\) \['centre'\]"):
+        read_model(write(tmp_path, '{"vertices": [], "faces": {}, "centre": 1}'))
+    with pytest.raises(ModelError, match="must be a JSON/YAML object"):
+        read_model(write(tmp_path, "[1, 2]"))
+    good = json.loads(Path(__file__).parents[1].joinpath("examples", "cube.json").read_text())
+    good["vertices"][6] = [1, 1, 1.5]
+    with pytest.raises(ModelError, match=r"m.json: face '.': the face is not planar"):
+        read_model(write(tmp_path, json.dumps(good)))
+    with pytest.raises(InputError, match="no such model file"):
+        load_model(tmp_path / "nope.json")
+
+
+def test_states_file(tmp_path: Path) -> None:
+    path = write(tmp_path, '[{"face": "a", "theta": 90}, {"face": "b", "theta": 0}]')
+    assert read_states(path) == [State("a", 90), State("b", 0)]
+    with pytest.raises(InputError, match="entry 1"):
+        read_states(write(tmp_path, '[{"face": "a", "theta": 90}, {"face": "b"}]'))

@@ -1,0 +1,126 @@
+"""States: the value type, poses, stability and state sets."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, strategies as st
+
+from conftest import SOLIDS, random_hulls
+from nonprehensile.errors import GeometryError, StateError
+from nonprehensile.geometry import Polyhedron, convex_hull, cube
+from nonprehensile.states import (
+    State,
+    angle_diff,
+    check_states,
+    is_stable,
+    stability_margin,
+    stable_faces,
+    state_of_pose,
+    state_pose,
+    states_by_step,
+)
+
+
+def test_state_normalises_and_parses() -> None:
+    assert State("a", 360).theta == 0.0
+    assert State("a", -90).theta == 270.0
+    assert State("a", 359.9999999999999).theta == 0.0
+    assert State.parse("d:90") == State("d", 90)
+    assert State.parse(" top : -45 ") == State("top", 315)
+    assert str(State("a", 90)) == "a:90"
+    assert State.from_dict({"face": "a", "theta": 90}) == State("a", 90.0)
+    assert State("a", 0.0000001).isclose(State("a", 359.9999999))
+    assert angle_diff(10, 350) == pytest.approx(20)
+
+
+@pytest.mark.parametrize("text", ["a", "a:", ":90", "a:ninety", "a:90:1"])
+def test_bad_state_text(text: str) -> None:
+    with pytest.raises(StateError, match="FACE:THETA"):
+        State.parse(text)
+
+
+def test_bad_state_values() -> None:
+    with pytest.raises(StateError, match="finite"):
+        State("a", float("nan"))
+    with pytest.raises(StateError, match="theta must be a number"):
+        State.from_dict({"face": "a", "theta": "ninety"})
+    with pytest.raises(StateError):
+        State.from_dict({"face": "a"})
+
+
+def test_cube_state_pose_by_hand() -> None:
+    c = cube()
+    # a:0: face a down; its edge 1 (vertex 3 -> 0, direction -y in the object) along +x
+    rot, t = state_pose(c, State("a", 0))
+    assert np.allclose(rot @ c.normals["a"], [0, 0, -1])
+    assert np.allclose(rot @ [0, -1, 0], [1, 0, 0])
+    world = c.vertices @ rot.T + t
+    assert world[:, 2].min() == pytest.approx(0.0)
+    assert np.allclose(rot @ c.com + t, [0, 0, 0.5])
+
+
+@given(random_hulls(), st.floats(0, 360, exclude_max=True), st.data())
+def test_pose_round_trip(p: Polyhedron, theta: float, data: st.DataObject) -> None:
+    face = data.draw(st.sampled_from(list(p.faces)))
+    s = State(face, theta)
+    rot, t = state_pose(p, s)
+    assert np.allclose(rot.T @ rot, np.eye(3)) and np.linalg.det(rot) == pytest.approx(1.0)
+    back = state_of_pose(p, rot)
+    assert back.isclose(s, 1e-6)
+    world = p.vertices @ rot.T + t
+    on_ground = world[list(p.loop(face)), 2]
+    assert np.allclose(on_ground, 0.0, atol=1e-9) and world[:, 2].min() > -1e-9
+
+
+def test_state_of_pose_rejects_a_pose_on_an_edge() -> None:
+    from scipy.spatial.transform import Rotation
+
+    rot = Rotation.from_euler("x", 45, degrees=True).as_matrix()
+    with pytest.raises(GeometryError, match="points down"):
+        state_of_pose(cube(), rot)
+
+
+def test_stability_by_hand() -> None:
+    # a leaning solid: the top is shifted so far that the centre of mass overhangs a side
+    bottom = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]
+    top = [[3, 0, 1], [4, 0, 1], [4, 1, 1], [3, 1, 1]]
+    p = convex_hull(np.array(bottom + top, float))
+    down = next(f for f in p.faces if np.allclose(p.normals[f], [0, 0, -1]))
+    # the centroid of this parallelepiped is at x = 2, outside the bottom [0, 1]
+    assert p.com[0] == pytest.approx(2.0)
+    assert not is_stable(p, down)
+    assert stability_margin(p, down) == pytest.approx(-1.0)
+    assert down not in stable_faces(p)
+    with pytest.raises(StateError, match="cannot rest on face"):
+        check_states(p, [State(down, 0)])
+    # the cube's margin is half its side; a margin demand above that makes it unstable
+    assert stability_margin(cube(), "a") == pytest.approx(0.5)
+    assert not is_stable(cube(), "a", margin=0.6)
+
+
+def test_states_by_step() -> None:
+    c = cube()
+    s = states_by_step(c, 90)
+    assert len(s) == 24 and s[:4] == [State("a", t) for t in (0, 90, 180, 270)]
+    assert len(states_by_step(SOLIDS["prism6"](), 1)) == 8 * 360
+    with pytest.raises(StateError, match="divide 360"):
+        states_by_step(c, 7)
+    with pytest.raises(StateError, match=r"\(0, 360\]"):
+        states_by_step(c, 0)
+    with pytest.raises(StateError, match="does not have"):
+        check_states(c, [State("z", 0)])
+
+
+def test_theta_convention_edge_k_points_along_theta_plus_delta() -> None:
+    p = SOLIDS["scalene"]()
+    for f in stable_faces(p):
+        s = State(f, 30.0)
+        rot, _ = state_pose(p, s)
+        for k in range(1, p.n_edges(f) + 1):
+            d = rot @ p.edge_direction(f, k)
+            assert abs(d[2]) < 1e-12
+            ang = math.degrees(math.atan2(d[1], d[0]))
+            assert angle_diff(ang, 30.0 + p.delta[f][k - 1]) == pytest.approx(0, abs=1e-9)
