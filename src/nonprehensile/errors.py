@@ -19,6 +19,7 @@ __all__ = [
     "MeshError",
     "ModelError",
     "NonprehensileError",
+    "SkillError",
     "StateError",
 ]
 
@@ -66,6 +67,10 @@ class MeshError(InputError):
 
 class ContactError(InputError):
     """A contact element, pair or event is malformed, or names what the object does not have."""
+
+
+class SkillError(InputError):
+    """A skill (or a skills file) is malformed or contradicts the object's geometry."""
 
 
 class StateError(InputError):

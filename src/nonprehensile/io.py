@@ -15,9 +15,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from nonprehensile.errors import InputError, ModelError, StateError
+from nonprehensile.errors import InputError, ModelError, SkillError, StateError
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
-from nonprehensile.states import State
+from nonprehensile.skills.skill import Skill, skill_from_dict, skill_to_dict
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State
 
 __all__ = [
     "BUNDLED_MODELS",
@@ -26,8 +27,10 @@ __all__ = [
     "model_from_dict",
     "model_to_dict",
     "read_model",
+    "read_skills",
     "read_states",
     "save_document",
+    "skills_to_dict",
     "write_model",
 ]
 
@@ -206,3 +209,51 @@ def read_states(path: str | Path) -> list[State]:
         except StateError as exc:
             raise StateError(f"{path}: entry {i}: {exc}") from None
     return out
+
+
+def read_skills(
+    path: str | Path,
+    *,
+    rtol: float = DEFAULT_RTOL,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> tuple[Polyhedron, list[Skill]]:
+    """Read a skills file (``shared/spec/files-and-cli.md``) and its object model.
+
+    ``object`` is a path relative to the skills file, a bundled model name, or the model
+    inline. Every skill is validated against the model.
+
+    Raises
+    ------
+    SkillError
+        Naming the file, the skill and the culprit.
+    """
+    path = Path(path)
+    data = load_document(path)
+    if not isinstance(data, Mapping) or "object" not in data or "skills" not in data:
+        raise SkillError(f'{path}: a skills file is {{"object": ..., "skills": [...]}}')
+    obj = data["object"]
+    if isinstance(obj, Mapping):
+        poly = model_from_dict(obj, source=f"{path} (inline object)", rtol=rtol)
+    elif isinstance(obj, str):
+        target = path.parent / obj
+        poly = load_model(target if target.exists() else obj, rtol=rtol)
+    else:
+        raise SkillError(f"{path}: 'object' must be a model file path or an inline model")
+    raw = data["skills"]
+    if not isinstance(raw, list) or not raw:
+        raise SkillError(f"{path}: 'skills' must be a non-empty list")
+    skills: list[Skill] = []
+    for item in raw:
+        try:
+            skill = skill_from_dict(item, poly, angle_tol=angle_tol)
+        except InputError as exc:
+            raise SkillError(f"{path}: {exc}") from None
+        if any(s.name == skill.name for s in skills):
+            raise SkillError(f"{path}: two skills are named {skill.name!r}; names must differ")
+        skills.append(skill)
+    return poly, skills
+
+
+def skills_to_dict(poly: Polyhedron, skills: list[Skill]) -> dict[str, Any]:
+    """A skills file's content with the model inline."""
+    return {"object": model_to_dict(poly), "skills": [skill_to_dict(s) for s in skills]}

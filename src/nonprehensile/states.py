@@ -22,6 +22,7 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 __all__ = [
     "DEFAULT_ANGLE_TOL",
     "State",
+    "StateIndex",
     "angle_diff",
     "angles_close",
     "check_states",
@@ -133,6 +134,40 @@ class State:
     def isclose(self, other: State, tol: float = DEFAULT_ANGLE_TOL) -> bool:
         """Same face and angles equal within ``tol`` degrees."""
         return self.face == other.face and angles_close(self.theta, other.theta, tol)
+
+
+class StateIndex:
+    """Find states of a state set by face and angle, within a tolerance.
+
+    Parameters
+    ----------
+    states : sequence of State
+        The state set; positions in it are what :meth:`find` returns.
+    """
+
+    def __init__(self, states: Sequence[State]) -> None:
+        by_face: dict[str, list[tuple[float, int]]] = {}
+        for i, s in enumerate(states):
+            by_face.setdefault(s.face, []).append((s.theta, i))
+        self._by_face = {
+            f: (np.array([t for t, _ in sorted(lst)]), [i for _, i in sorted(lst)])
+            for f, lst in by_face.items()
+        }
+
+    def find_all(self, state: State, tol: float = DEFAULT_ANGLE_TOL) -> list[int]:
+        """Positions of the states equal to ``state`` within ``tol`` degrees."""
+        entry = self._by_face.get(state.face)
+        if entry is None:
+            return []
+        thetas, idx = entry
+        # angular distance on the circle, vectorised over the face's states
+        d = np.abs((thetas - state.theta + 180.0) % 360.0 - 180.0)
+        return [idx[int(j)] for j in np.flatnonzero(d <= tol)]
+
+    def find(self, state: State, tol: float = DEFAULT_ANGLE_TOL) -> int | None:
+        """Position of the state closest to ``state`` within ``tol`` degrees, or None."""
+        found = self.find_all(state, tol)
+        return found[0] if found else None
 
 
 def _frame(u: FloatArray, up: FloatArray) -> FloatArray:

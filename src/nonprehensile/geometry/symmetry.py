@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from nonprehensile.geometry.polyhedron import Polyhedron, wrap_index
-from nonprehensile.states import DEFAULT_ANGLE_TOL, State
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex
 
 __all__ = [
     "Symmetry",
@@ -201,13 +201,7 @@ def equivalence_classes(
         of first appearance.
     """
     group = rotation_group(poly, atol)
-    by_face: dict[str, list[tuple[float, int]]] = {}
-    for i, s in enumerate(states):
-        by_face.setdefault(s.face, []).append((s.theta, i))
-    sorted_by_face = {
-        f: (np.array([t for t, _ in lst]), [i for _, i in lst])
-        for f, lst in ((f, sorted(lst)) for f, lst in by_face.items())
-    }
+    index = StateIndex(states)
 
     parent = list(range(len(states)))
 
@@ -219,15 +213,8 @@ def equivalence_classes(
 
     for i, s in enumerate(states):
         for g in group[1:]:
-            img = apply_to_state(poly, g, s)
-            entry = sorted_by_face.get(img.face)
-            if entry is None:
-                continue
-            thetas, idx = entry
-            # angular distance on the circle, vectorised over the face's states
-            d = np.abs((thetas - img.theta + 180.0) % 360.0 - 180.0)
-            for j in np.flatnonzero(d <= angle_tol):
-                ri, rj = find(i), find(idx[int(j)])
+            for j in index.find_all(apply_to_state(poly, g, s), angle_tol):
+                ri, rj = find(i), find(j)
                 if ri != rj:
                     parent[max(ri, rj)] = min(ri, rj)
     labels: dict[int, int] = {}
