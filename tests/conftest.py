@@ -17,6 +17,7 @@ from nonprehensile.geometry import (
     prism,
     tetrahedron,
 )
+from nonprehensile.states import State, state_pose
 
 settings.register_profile("default", max_examples=40, deadline=None)
 settings.load_profile("default")
@@ -71,3 +72,23 @@ def rotation_matrix(seed: int) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
     return np.asarray(Rotation.random(random_state=seed).as_matrix())
+
+
+def world_points(p: Polyhedron, s: State) -> np.ndarray:
+    """Vertices of ``p`` in the world when it rests in state ``s``, shape (n_vertices, 3)."""
+    rot, t = state_pose(p, s)
+    return np.asarray(p.vertices @ rot.T + t)
+
+
+def occupies_same_space(p: Polyhedron, a: State, b: State, atol: float = 1e-7) -> bool:
+    """Independent truth of geometric equivalence: the world vertex sets coincide up to a
+    horizontal translation, and so do the centres of mass."""
+    ra, ta = state_pose(p, a)
+    rb, tb = state_pose(p, b)
+    shift = (ra @ p.com + ta) - (rb @ p.com + tb)
+    if abs(shift[2]) > atol:
+        return False
+    wa = world_points(p, a)
+    wb = world_points(p, b) + shift
+    d = np.linalg.norm(wa[:, None] - wb[None], axis=-1)
+    return bool(d.min(axis=1).max() <= atol and d.min(axis=0).max() <= atol)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
-from conftest import SOLIDS
+from conftest import SOLIDS, occupies_same_space
 from nonprehensile.geometry import (
     Polyhedron,
     apply_to_state,
@@ -16,22 +16,7 @@ from nonprehensile.geometry import (
     equivalent,
     rotation_group,
 )
-from nonprehensile.states import State, state_pose, states_by_step
-
-
-def occupies_same_space(p: Polyhedron, a: State, b: State, atol: float = 1e-7) -> bool:
-    """Independent truth: the world vertex sets coincide up to a horizontal translation, and
-    so do the centres of mass."""
-    ra, ta = state_pose(p, a)
-    rb, tb = state_pose(p, b)
-    wa = p.vertices @ ra.T + ta
-    wb = p.vertices @ rb.T + tb
-    shift = (ra @ p.com + ta) - (rb @ p.com + tb)
-    if abs(shift[2]) > atol:
-        return False
-    wb = wb + shift
-    d = np.linalg.norm(wa[:, None] - wb[None], axis=-1)
-    return bool(d.min(axis=1).max() <= atol and d.min(axis=0).max() <= atol)
+from nonprehensile.states import State, states_by_step
 
 
 @pytest.mark.parametrize("name", ["cube", "box112", "tetrahedron", "prism3", "prism6", "scalene"])

@@ -22,9 +22,18 @@ from nonprehensile.errors import InputError, NonprehensileError
 from nonprehensile.geometry.build import from_mesh
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
 from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
-from nonprehensile.io import load_model, read_states, write_model
+from nonprehensile.inference import METHODS, Expansion, cross_check, expand
+from nonprehensile.io import load_model, read_skills, read_states, write_model
 from nonprehensile.maneuvers import classify, roll
-from nonprehensile.states import State, check_states, is_stable, states_by_step
+from nonprehensile.skills.contacts import format_event
+from nonprehensile.skills.skill import Skill, group_by_maneuver, skill_graph, skill_to_dict
+from nonprehensile.states import (
+    DEFAULT_ANGLE_TOL,
+    State,
+    check_states,
+    is_stable,
+    states_by_step,
+)
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -230,6 +239,128 @@ def states_cmd(
     for s, c in zip(states, classes, strict=True):
         t.add_row(str(s), s.face, _fmt_num(s.theta), str(c))
     out.print(t)
+
+
+# ---------------------------------------------------------------------------- skills
+angle_tol_option = click.option(
+    "--angle-tol", type=float, default=DEFAULT_ANGLE_TOL, show_default=True,
+    help="Angle tolerance in degrees for matching states (raise it for measured models).",
+)
+atol_option = click.option(
+    "--atol", type=float, default=None,
+    help="Length tolerance of the symmetry group (default: the model's own, rtol x diameter).",
+)
+
+
+@main.group("skills")
+def skills_group() -> None:
+    """Demonstrated skills: contact events, motions and skill graphs."""
+
+
+def skill_graphs_summary(poly: Polyhedron, skills: list[Skill]) -> list[dict[str, Any]]:
+    """Each maneuver's skill graph (paper Fig. 5(b)) as nodes and arcs."""
+    out = []
+    for grp in group_by_maneuver(poly, skills):
+        g = skill_graph(poly, grp)
+        names = {key: f"n{i}" for i, key in enumerate(g.nodes)}
+        out.append({
+            "skills": [s.name for s in grp],
+            "maneuver": grp[0].maneuver,
+            "from": grp[0].initial.to_dict(),
+            "to": grp[0].final.to_dict(),
+            "nodes": [{"node": names[k], "ids": sorted(d["ids"]),
+                       "contacts": format_event(d["event"])} for k, d in g.nodes(data=True)],
+            "arcs": [{"from": names[a], "to": names[b], "skill": d["skill"],
+                      "label": d["motion"].label} for a, b, d in g.edges(data=True)],
+        })
+    return out
+
+
+@skills_group.command("show")
+@click.argument("skills_file", type=click.Path(dir_okay=False))
+@rtol_option
+@angle_tol_option
+@json_option
+@handle_errors
+def skills_show(skills_file: str, rtol: float, angle_tol: float, as_json: bool) -> None:
+    """Show the skills of SKILLS_FILE and the skill graph of each maneuver."""
+    poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
+    graphs = skill_graphs_summary(poly, skills)
+    if as_json:
+        emit_json({"object": poly.name, "skills": [skill_to_dict(s) for s in skills],
+                   "graphs": graphs})
+        return
+    for s in skills:
+        t = Table(title=f"{s.name}: {s.initial} -> {s.final} ({s.maneuver}"
+                        f"{', invertible' if s.invertible else ''})")
+        t.add_column("event")
+        t.add_column("contacts")
+        t.add_column("motion to next")
+        for i, e in enumerate(s.events):
+            motion = s.motions[i].label or "-" if i < len(s.motions) else ""
+            t.add_row(e.id, format_event(e, "paper"), motion)
+        out.print(t)
+    for gsum in graphs:
+        out.print(
+            f"skill graph of {State.from_dict(gsum['from'])} -> {State.from_dict(gsum['to'])} "
+            f"({gsum['maneuver']}): skills {', '.join(gsum['skills'])}; "
+            f"{len(gsum['nodes'])} contact events, {len(gsum['arcs'])} motion arcs"
+        )
+
+
+def _expansion_table(exp: Expansion) -> Table:
+    t = Table(title=f"{len(exp.transitions)} transitions ({exp.method} inference)")
+    for col in ("from", "to", "skill", "maneuver", "shown", "faces mapped"):
+        t.add_column(col)
+    for tr in exp.transitions:
+        changed = ", ".join(f"{k}->{v}" for k, v in sorted(tr.mapping.items()) if k != v)
+        t.add_row(str(tr.start), str(tr.end), tr.skill.name, tr.skill.maneuver,
+                  "demonstrated" if tr.demonstrated else "inferred", changed or "-")
+    return t
+
+
+@main.command("infer")
+@click.argument("skills_file", type=click.Path(dir_okay=False))
+@step_option
+@states_option
+@click.option("--method", type=click.Choice(METHODS), default="exact", show_default=True,
+              help="exact: through the symmetry group; paper: the paper's edge-index method.")
+@click.option("--compare", is_flag=True,
+              help="Also run the other method and report where the two disagree.")
+@rtol_option
+@atol_option
+@angle_tol_option
+@json_option
+@handle_errors
+def infer_cmd(
+    skills_file: str, step: float | None, states_file: str | None, method: str, compare: bool,
+    rtol: float, atol: float | None, angle_tol: float, as_json: bool,
+) -> None:
+    """Infer undemonstrated transitions of SKILLS_FILE over a state set (paper Section V)."""
+    poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
+    states = state_set(poly, step, states_file)
+    exp = expand(poly, skills, states, method=method, atol=atol,  # type: ignore[arg-type]
+                 angle_tol=angle_tol)
+    doc = exp.to_dict(poly.name)
+    if compare:
+        doc["disagreements"] = [d.to_dict() for d in cross_check(
+            poly, skills, states, atol=atol, angle_tol=angle_tol)]
+    if as_json:
+        emit_json(doc)
+        return
+    out.print(_expansion_table(exp))
+    n_demo = sum(t.demonstrated for t in exp.transitions)
+    out.print(
+        f"expanded graph: {len(exp.graph.states)} states, {len(exp.transitions)} transitions "
+        f"({n_demo} demonstrated, {len(exp.transitions) - n_demo} inferred)"
+    )
+    if compare:
+        dis = doc["disagreements"]
+        if not dis:
+            out.print("the paper's method and the exact one agree on every transition")
+        for d in dis:
+            out.print(f"disagree [{d['kind']}] {d['skill']} from {State.from_dict(d['from'])}: "
+                      f"exact {d['exact'] or '(none)'}, paper {d['paper'] or '(none)'}")
 
 
 # ---------------------------------------------------------------------------- demo

@@ -218,7 +218,7 @@ def check_skill(
         try:
             check_event(e, poly)
         except ContactError as exc:
-            raise SkillError(f"skill {skill.name!r}: event {e.id!r}: {exc}") from None
+            raise SkillError(f"skill {skill.name!r}: {exc}") from None
     for s, which in ((skill.initial, "initial"), (skill.final, "final")):
         if s.face not in poly.faces:
             raise SkillError(
