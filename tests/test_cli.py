@@ -150,3 +150,17 @@ def test_demo_json() -> None:
     doc = json.loads(out)
     assert code == 0 and doc["n_states"] == 24 and doc["n_classes"] == 1
     assert doc["roll_back"]["to"] == doc["rolls_from"]
+
+
+def test_figures_from_the_cli(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    skills = str(Path(EXAMPLE).parent / "cube_skills.json")
+    for args, name in [
+        (["object", "figure", "cube"], "object.png"),
+        (["skills", "show", skills], "skills.png"),
+        (["infer", skills, "--step", "90"], "graph.png"),
+    ]:
+        path = tmp_path / name
+        opt = "-o" if args[0] == "object" else "--figure"
+        code, _, err = run(*args, opt, str(path))
+        assert code == 0 and path.stat().st_size > 10_000, err

@@ -163,6 +163,20 @@ def object_show(model: str, rtol: float, as_json: bool) -> None:
     out.print(adjacency_table(poly))
 
 
+@object_group.command("figure")
+@click.argument("model")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Image file to write (PNG, SVG or PDF, by suffix).")
+@rtol_option
+@handle_errors
+def object_figure_cmd(model: str, output: str, rtol: float) -> None:
+    """Draw MODEL labeled like the paper's Fig. 3: faces, edge numbers, A and Delta."""
+    from nonprehensile.viz import object_figure
+
+    object_figure(_model(model, rtol)).savefig(output, dpi=100)
+    err.print(f"wrote {output}")
+
+
 @object_group.command("from-mesh")
 @click.argument("mesh", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
@@ -278,14 +292,24 @@ def skill_graphs_summary(poly: Polyhedron, skills: list[Skill]) -> list[dict[str
 
 @skills_group.command("show")
 @click.argument("skills_file", type=click.Path(dir_okay=False))
+@click.option("--figure", type=click.Path(dir_okay=False), default=None,
+              help="Also draw the skill graph of each maneuver to this image.")
 @rtol_option
 @angle_tol_option
 @json_option
 @handle_errors
-def skills_show(skills_file: str, rtol: float, angle_tol: float, as_json: bool) -> None:
+def skills_show(
+    skills_file: str, figure: str | None, rtol: float, angle_tol: float, as_json: bool
+) -> None:
     """Show the skills of SKILLS_FILE and the skill graph of each maneuver."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
     graphs = skill_graphs_summary(poly, skills)
+    if figure:
+        from nonprehensile.viz import skill_graphs_figure
+
+        groups = group_by_maneuver(poly, skills)
+        skill_graphs_figure([skill_graph(poly, g) for g in groups]).savefig(figure, dpi=80)
+        err.print(f"wrote {figure}")
     if as_json:
         emit_json({"object": poly.name, "skills": [skill_to_dict(s) for s in skills],
                    "graphs": graphs})
@@ -327,6 +351,8 @@ def _expansion_table(exp: Expansion) -> Table:
               help="exact: through the symmetry group; paper: the paper's edge-index method.")
 @click.option("--compare", is_flag=True,
               help="Also run the other method and report where the two disagree.")
+@click.option("--figure", type=click.Path(dir_okay=False), default=None,
+              help="Also draw the expanded graph and its transition matrix to this image.")
 @rtol_option
 @atol_option
 @angle_tol_option
@@ -334,7 +360,7 @@ def _expansion_table(exp: Expansion) -> Table:
 @handle_errors
 def infer_cmd(
     skills_file: str, step: float | None, states_file: str | None, method: str, compare: bool,
-    rtol: float, atol: float | None, angle_tol: float, as_json: bool,
+    figure: str | None, rtol: float, atol: float | None, angle_tol: float, as_json: bool,
 ) -> None:
     """Infer undemonstrated transitions of SKILLS_FILE over a state set (paper Section V)."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
@@ -342,6 +368,11 @@ def infer_cmd(
     exp = expand(poly, skills, states, method=method, atol=atol,  # type: ignore[arg-type]
                  angle_tol=angle_tol)
     doc = exp.to_dict(poly.name)
+    if figure:
+        from nonprehensile.viz import state_graph_figure
+
+        state_graph_figure(exp).savefig(figure, dpi=80)
+        err.print(f"wrote {figure}")
     if compare:
         doc["disagreements"] = [d.to_dict() for d in cross_check(
             poly, skills, states, atol=atol, angle_tol=angle_tol)]

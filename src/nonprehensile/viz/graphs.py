@@ -21,7 +21,13 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["plot_skill_graph", "plot_state_graph", "plot_transition_matrix", "state_graph_figure"]
+__all__ = [
+    "plot_skill_graph",
+    "plot_state_graph",
+    "plot_transition_matrix",
+    "skill_graphs_figure",
+    "state_graph_figure",
+]
 
 #: Above this many states the drawn graph is unreadable; only the matrix is drawn.
 MAX_DRAWN_STATES = 60
@@ -246,3 +252,12 @@ def plot_skill_graph(graph: nx.MultiDiGraph, ax: Axes | None = None) -> Axes:
     ax.set_title(f"Skill graph of {title[0]} -> {title[1]} ({title[2]}): "
                  f"skills {', '.join(skills)}", fontsize=9)
     return ax
+
+
+def skill_graphs_figure(graphs: Sequence[nx.MultiDiGraph]) -> Figure:
+    """Several skill graphs stacked, one per maneuver."""
+    fig = _figure(figsize=(12, 3.6 * len(graphs)), layout="constrained")
+    axes = fig.subplots(len(graphs), 1, squeeze=False)[:, 0]
+    for g, ax in zip(graphs, axes, strict=True):
+        plot_skill_graph(g, ax)
+    return fig
