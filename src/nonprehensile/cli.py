@@ -25,6 +25,7 @@ from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
 from nonprehensile.inference import METHODS, Expansion, cross_check, expand
 from nonprehensile.io import load_model, read_skills, read_states, write_model
 from nonprehensile.maneuvers import classify, roll
+from nonprehensile.planning import plan
 from nonprehensile.skills.contacts import format_event
 from nonprehensile.skills.skill import Skill, group_by_maneuver, skill_graph, skill_to_dict
 from nonprehensile.states import (
@@ -37,8 +38,8 @@ from nonprehensile.states import (
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-out = Console(soft_wrap=True)
-err = Console(stderr=True, soft_wrap=True)
+out = Console(soft_wrap=True, emoji=False, highlight=False)
+err = Console(stderr=True, soft_wrap=True, emoji=False, highlight=False)
 
 
 def _fmt_num(x: float) -> str:
@@ -392,6 +393,91 @@ def infer_cmd(
         for d in dis:
             out.print(f"disagree [{d['kind']}] {d['skill']} from {State.from_dict(d['from'])}: "
                       f"exact {d['exact'] or '(none)'}, paper {d['paper'] or '(none)'}")
+
+
+# ---------------------------------------------------------------------------- plan
+def _parse_state(ctx: click.Context, param: click.Parameter, value: str) -> State:
+    try:
+        return State.parse(value)
+    except InputError as exc:
+        raise click.BadParameter(str(exc)) from None
+
+
+def _parse_costs(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> dict[
+        str, float] | None:
+    if not value:
+        return None
+    out = {}
+    for item in value:
+        name, sep, num = item.partition("=")
+        try:
+            out[name] = float(num)
+        except ValueError:
+            raise click.BadParameter(
+                f"expected SKILL=COST (e.g. push-roll=2.5), got {item!r}") from None
+        if not sep or not name:
+            raise click.BadParameter(f"expected SKILL=COST (e.g. push-roll=2.5), got {item!r}")
+    return out
+
+
+def print_plan(plan_doc: dict[str, Any]) -> None:
+    """A plan as a person reads it: offset, then each step's events and motions."""
+    off = plan_doc["offset"]
+    out.print(
+        f"plan {State.from_dict(plan_doc['start'])} -> {State.from_dict(plan_doc['goal'])}: "
+        f"{len(plan_doc['steps'])} step(s), cost {_fmt_num(plan_doc['cost'])}; relocate the "
+        f"agent by {_fmt_num(off['rotate_deg'])} degrees and ({_fmt_num(off['translate'][0])}, "
+        f"{_fmt_num(off['translate'][1])})"
+    )
+    for i, step in enumerate(plan_doc["steps"], start=1):
+        t = Table(title=f"step {i}: {State.from_dict(step['from'])} -> "
+                        f"{State.from_dict(step['to'])} by {step['skill']} ({step['maneuver']}, "
+                        f"{'demonstrated' if step['demonstrated'] else 'inferred'})")
+        t.add_column("event")
+        t.add_column("contacts")
+        t.add_column("then")
+        t.add_column("reference motion")
+        for j, ev in enumerate(step["events"]):
+            m = step["motions"][j] if j < len(step["motions"]) else None
+            ref = m["reference"] if m else None
+            ref_text = (f"cluster {ref['cluster']} medoid of {ref['n_demonstrations']}, "
+                        f"{ref['n_frames']} frames" if ref else ("-" if m else ""))
+            t.add_row(ev["id"], " ∧ ".join(ev["contacts"]), m["label"] if m else "", ref_text)
+        out.print(t)
+
+
+@main.command("plan")
+@click.argument("skills_file", type=click.Path(dir_okay=False))
+@click.option("--from", "start", required=True, callback=_parse_state,
+              help="Start state FACE:THETA as the object lies (any orientation).")
+@click.option("--to", "goal", required=True, callback=_parse_state,
+              help="Goal state FACE:THETA in the same (world) frame.")
+@step_option
+@states_option
+@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+              help="Where the object is on the table (x y), for the agent's offset.")
+@click.option("--cost", "costs", multiple=True, callback=_parse_costs,
+              help="Cost of a skill, SKILL=COST (repeatable); default 1 per transition.")
+@rtol_option
+@atol_option
+@angle_tol_option
+@json_option
+@handle_errors
+def plan_cmd(
+    skills_file: str, start: State, goal: State, step: float | None, states_file: str | None,
+    position: tuple[float, float], costs: dict[str, float] | None, rtol: float,
+    atol: float | None, angle_tol: float, as_json: bool,
+) -> None:
+    """Plan transitions, contact events and finger motions from --from to --to."""
+    poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
+    states = state_set(poly, step, states_file)
+    exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
+    result = plan(poly, exp, start, goal, position=position, costs=costs, angle_tol=angle_tol)
+    doc = result.to_dict()
+    if as_json:
+        emit_json(doc)
+        return
+    print_plan(doc)
 
 
 # ---------------------------------------------------------------------------- demo

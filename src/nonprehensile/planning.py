@@ -1,0 +1,372 @@
+"""Planning: from a task to an executable plan (paper Section VII).
+
+Given an initial state and a goal state of the object:
+
+1. if the initial state is not a state of the model (any orientation, any position on the
+   table), find the offset (a rotation of the agent about the vertical, and a translation) that
+   maps it onto a model state;
+2. plan the transitions with Dijkstra's algorithm over the expanded state-transition graph
+   (cost: one per transition, or a cost per skill such as duration or failure rate);
+3. for each transition, the adapted skill: its contact events with mapped faces, edges and
+   vertices;
+4. for each motion arc, the reference finger trajectory (from a :class:`MotionLibrary`),
+   expressed in the world frame after the offset.
+
+The plan is a value; :meth:`Plan.steps` can be run one at a time (the seam a simulator or a
+robot controller uses).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import networkx as nx
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.errors import InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.inference import Expansion, InferredTransition
+from nonprehensile.skills.contacts import format_event
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex, angle_diff
+
+__all__ = [
+    "MotionLibrary",
+    "NoPlanError",
+    "Offset",
+    "Plan",
+    "PlanStep",
+    "ReferenceMotion",
+    "find_offset",
+    "plan",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+class NoPlanError(InputError):
+    """The goal cannot be reached from the start with the known skills.
+
+    Attributes
+    ----------
+    reachable : list of State
+        The states that can be reached (in the frame after the offset).
+    """
+
+    def __init__(self, message: str, reachable: Sequence[State]) -> None:
+        super().__init__(message)
+        self.reachable = list(reachable)
+
+
+@dataclass(frozen=True)
+class Offset:
+    """How the agent must be relocated so that the start becomes a model state.
+
+    A point ``p`` of the model's (agent's) frame is at ``R(rotate_deg) p + translate`` in
+    the world, where ``R`` turns about the vertical, counterclockwise seen from above.
+    """
+
+    rotate_deg: float = 0.0
+    translate: tuple[float, float] = (0.0, 0.0)
+
+    def to_world(self, points: FloatArray) -> FloatArray:
+        """Map points (shape (..., 3)) from the agent's frame to the world frame."""
+        c, s = math.cos(math.radians(self.rotate_deg)), math.sin(math.radians(self.rotate_deg))
+        rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        return np.asarray(points @ rot.T + np.array([*self.translate, 0.0]))
+
+    def state_to_model(self, state: State) -> State:
+        """The world state as the relocated agent sees it."""
+        return State(state.face, state.theta - self.rotate_deg)
+
+    def state_to_world(self, state: State) -> State:
+        """A model state as it lies in the world."""
+        return State(state.face, state.theta + self.rotate_deg)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The spec's JSON form."""
+        return {"rotate_deg": self.rotate_deg, "translate": list(self.translate)}
+
+
+@dataclass(frozen=True)
+class ReferenceMotion:
+    """A reference finger trajectory for one motion arc.
+
+    Attributes
+    ----------
+    positions : array, shape (n_frames, n_markers, 3)
+        Marker positions in the world frame (after the offset).
+    marker_names : tuple of str
+    rate : float
+        Sample rate in Hz.
+    cluster : int
+        Cluster of the demonstrations it represents (its medoid).
+    n_demonstrations : int
+        How many demonstrations that cluster holds.
+    """
+
+    positions: FloatArray
+    marker_names: tuple[str, ...]
+    rate: float
+    cluster: int
+    n_demonstrations: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form (positions as nested lists)."""
+        return {
+            "marker_names": list(self.marker_names),
+            "rate": self.rate,
+            "cluster": self.cluster,
+            "n_demonstrations": self.n_demonstrations,
+            "n_frames": int(self.positions.shape[0]),
+            "positions": np.round(self.positions, 6).tolist(),
+        }
+
+
+class MotionLibrary(Protocol):
+    """Where reference finger motions come from (clustered demonstrations)."""
+
+    def reference(self, skill: str, source: str, target: str) -> ReferenceMotion | None:
+        """The reference motion of a demonstrated skill's arc ``source -> target``, in the
+        frame of the skill's demonstrated initial state (``state_pose``: the centre of mass
+        above the origin), or None if there is none."""
+        ...
+
+
+@dataclass(frozen=True)
+class PlanStep:
+    """One transition of a plan, with its adapted skill and reference motions."""
+
+    transition: InferredTransition
+    start_world: State
+    end_world: State
+    motions: tuple[tuple[str, str, str, ReferenceMotion | None], ...]
+    cost: float
+
+    def to_dict(self, *, with_positions: bool = False) -> dict[str, Any]:
+        """The spec's JSON form of a step."""
+        t = self.transition
+        motions = []
+        for source, target, label, ref in self.motions:
+            m: dict[str, Any] = {"from": source, "to": target, "label": label}
+            if ref is not None:
+                r = ref.to_dict()
+                if not with_positions:
+                    r.pop("positions")
+                m["reference"] = r
+            else:
+                m["reference"] = None
+            motions.append(m)
+        return {
+            "from": self.start_world.to_dict(),
+            "to": self.end_world.to_dict(),
+            "skill": t.skill.name,
+            "maneuver": t.skill.maneuver,
+            "demonstrated": t.demonstrated,
+            "mapping": dict(sorted(t.mapping.items())),
+            "events": [{"id": e.id, "contacts": format_event(e)} for e in t.skill.events],
+            "motions": motions,
+            "cost": self.cost,
+        }
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A plan from ``start`` to ``goal`` (world frame)."""
+
+    start: State
+    goal: State
+    offset: Offset
+    steps: tuple[PlanStep, ...] = field(default_factory=tuple)
+
+    @property
+    def cost(self) -> float:
+        """Total cost."""
+        return float(sum(s.cost for s in self.steps))
+
+    def to_dict(self, *, with_positions: bool = False) -> dict[str, Any]:
+        """The spec's ``nonprehensile plan --json`` document."""
+        return {
+            "start": self.start.to_dict(),
+            "goal": self.goal.to_dict(),
+            "offset": self.offset.to_dict(),
+            "cost": self.cost,
+            "steps": [s.to_dict(with_positions=with_positions) for s in self.steps],
+        }
+
+
+def find_offset(
+    poly: Polyhedron,
+    states: Sequence[State],
+    start: State,
+    *,
+    position: tuple[float, float] = (0.0, 0.0),
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> tuple[State, Offset]:
+    """The model state the start maps onto, and the agent's offset that does it.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    states : sequence of State
+        The model's state set.
+    start : State
+        The start as it lies in the world (any orientation).
+    position : (float, float)
+        Where the object's centre of mass is on the table (world ``x``, ``y``).
+    angle_tol : float
+        Below this many degrees no rotation is needed.
+
+    Returns
+    -------
+    (State, Offset)
+        The model state with the same bottom face and the nearest orientation, and the
+        smallest rotation of the agent that maps the start onto it.
+
+    Raises
+    ------
+    InputError
+        If no state of the model rests on the start's bottom face.
+    """
+    poly.loop(start.face)
+    index = StateIndex(states)
+    if index.find(start, angle_tol) is not None:
+        return states[index.find(start, angle_tol)], Offset(0.0, position)  # type: ignore[index]
+    same_face = [s for s in states if s.face == start.face]
+    if not same_face:
+        raise InputError(
+            f"the start {start} rests on face {start.face!r}, on which the model has no state; "
+            f"its states rest on {sorted({s.face for s in states})}"
+        )
+    best = min(same_face, key=lambda s: abs(angle_diff(start.theta, s.theta)))
+    return best, Offset(angle_diff(start.theta, best.theta), position)
+
+
+def _arc_cost(
+    data: Mapping[str, Any], costs: Mapping[str, float] | None, default: float
+) -> tuple[float, str]:
+    """Cheapest parallel arc: (cost, skill); demonstrated arcs win ties, then names."""
+    best = None
+    for skill, d in data.items():
+        t = d["transition"]
+        source = t.skill.split(":")[0] if costs is not None else t.skill
+        c = float(costs.get(source, default)) if costs is not None else default
+        key = (c, not t.demonstrated, skill)
+        if best is None or key < best:
+            best = key
+    assert best is not None
+    return best[0], best[2]
+
+
+def plan(
+    poly: Polyhedron,
+    expansion: Expansion,
+    start: State,
+    goal: State,
+    *,
+    position: tuple[float, float] = (0.0, 0.0),
+    costs: Mapping[str, float] | None = None,
+    default_cost: float = 1.0,
+    motions: MotionLibrary | None = None,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> Plan:
+    """Plan the transitions, contact events and finger motions from ``start`` to ``goal``.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    expansion : Expansion
+        The expanded state-transition graph (:func:`nonprehensile.inference.expand`).
+    start, goal : State
+        In the world frame; the start may be any orientation (see :func:`find_offset`).
+    position : (float, float)
+        The object's position on the table.
+    costs : mapping of str to float, optional
+        Cost per skill (a demonstrated skill's name; reverses share it); default one per
+        transition.
+    default_cost : float
+        Cost of a skill missing from ``costs``.
+    motions : MotionLibrary, optional
+        Source of reference finger motions; without it, motions carry no reference.
+    angle_tol : float
+
+    Returns
+    -------
+    Plan
+
+    Raises
+    ------
+    NoPlanError
+        If the goal cannot be reached; it lists the reachable states.
+    """
+    graph = expansion.graph.graph
+    model_states = expansion.graph.states
+    first, offset = find_offset(poly, model_states, start, position=position,
+                                angle_tol=angle_tol)
+    target_model = offset.state_to_model(goal)
+    index = StateIndex(model_states)
+    hit = index.find(target_model, angle_tol)
+    reachable = sorted(nx.descendants(graph, first) | {first})
+    if hit is None:
+        raise NoPlanError(
+            f"the goal {goal} is not a state of the model"
+            + (f" once the agent turns by {offset.rotate_deg:g} degrees (it would be "
+               f"{target_model})" if offset.rotate_deg else "")
+            + f"; reachable states: {', '.join(map(str, reachable))}",
+            reachable,
+        )
+    target = model_states[hit]
+    if target == first:
+        return Plan(start, goal, offset, ())
+
+    def weight(u: State, v: State, data: Mapping[str, Any]) -> float:
+        return _arc_cost(data, costs, default_cost)[0]
+
+    try:
+        path = nx.dijkstra_path(graph, first, target, weight=weight)
+    except nx.NetworkXNoPath:
+        raise NoPlanError(
+            f"no sequence of known skills takes {first} to {target}; reachable from {first}: "
+            f"{', '.join(map(str, reachable))}",
+            reachable,
+        ) from None
+    steps = []
+    for u, v in itertools.pairwise(path):
+        cost, skill = _arc_cost(graph.get_edge_data(u, v), costs, default_cost)
+        t = expansion.adapted(u, v, skill)
+        steps.append(PlanStep(
+            t, offset.state_to_world(u), offset.state_to_world(v),
+            _step_motions(t, offset, motions), cost,
+        ))
+    return Plan(start, goal, offset, tuple(steps))
+
+
+def _step_motions(
+    t: InferredTransition, offset: Offset, library: MotionLibrary | None
+) -> tuple[tuple[str, str, str, ReferenceMotion | None], ...]:
+    out = []
+    source = t.source
+    demo_name = source.name.removesuffix(":reverse")
+    reverse = source.name.endswith(":reverse")
+    for step in t.skill.steps():
+        ref = None
+        if library is not None:
+            a, b = step.motion.source, step.motion.target
+            # a reversed skill replays its demonstrated arc backwards in time
+            got = library.reference(demo_name, b, a) if reverse else library.reference(
+                demo_name, a, b)
+            if got is not None:
+                pos = got.positions[::-1] if reverse else got.positions
+                # an equivalent start state occupies the same space as the demonstrated one
+                # (both poses put the centre of mass above the origin), so the finger motion
+                # is the same in the agent's frame; the offset carries it to the world
+                ref = ReferenceMotion(
+                    offset.to_world(pos), got.marker_names, got.rate, got.cluster,
+                    got.n_demonstrations,
+                )
+        out.append((step.motion.source, step.motion.target, step.motion.label, ref))
+    return tuple(out)
