@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 import click
 from rich.console import Console
 from rich.table import Table
+from rich.text import Text
 
 from nonprehensile.errors import InputError, NonprehensileError
 from nonprehensile.geometry.build import from_mesh
@@ -54,10 +55,11 @@ def handle_errors(fn: F) -> F:
         try:
             return fn(*args, **kwargs)
         except InputError as exc:
-            err.print(f"[bold red]error:[/] {exc}", highlight=False)
+            # the message may hold brackets (lists of faces): never read it as markup
+            err.print(Text.assemble(("error: ", "bold red"), str(exc)))
             sys.exit(2)
         except NonprehensileError as exc:
-            err.print(f"[bold red]error:[/] {exc}", highlight=False)
+            err.print(Text.assemble(("error: ", "bold red"), str(exc)))
             sys.exit(1)
 
     return wrapper  # type: ignore[return-value]
