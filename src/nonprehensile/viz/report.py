@@ -1,0 +1,115 @@
+"""A self-contained HTML report: sections of text, tables and figures with images embedded.
+
+The report is one file (``index.html``) that opens anywhere, with no network and no other
+file: every figure is a PNG embedded as a ``data:`` URI. A small script marks the page once
+every image has loaded (``<body data-images-loaded="N/M">``), so a headless browser can check
+that the page renders completely.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["Section", "figure_to_png", "render_report", "write_report"]
+
+_STYLE = """
+body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 2em auto;
+       max-width: 1200px; color: #222; line-height: 1.45; padding: 0 1em; }
+h1 { border-bottom: 2px solid #444; padding-bottom: .2em; }
+h2 { margin-top: 2em; border-bottom: 1px solid #bbb; }
+figure { margin: 1em 0; }
+figure img { max-width: 100%; border: 1px solid #ddd; }
+figcaption { font-size: .9em; color: #555; }
+table { border-collapse: collapse; margin: .8em 0; font-size: .9em; }
+th, td { border: 1px solid #ccc; padding: .25em .6em; text-align: left; vertical-align: top; }
+th { background: #f0f0f0; }
+code { background: #f4f4f4; padding: 0 .2em; }
+.note { color: #555; font-size: .9em; }
+"""
+
+_SCRIPT = """
+window.addEventListener("load", function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var ok = imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length;
+  document.body.setAttribute("data-images-loaded", ok + "/" + imgs.length);
+});
+"""
+
+
+@dataclass
+class Section:
+    """One section of the report.
+
+    Attributes
+    ----------
+    title : str
+    paragraphs : list of str
+        Plain text (escaped when rendered).
+    figures : list of (bytes, str)
+        PNG data and a caption.
+    tables : list of (list of str, list of list of str)
+        Header and rows, plain text.
+    """
+
+    title: str
+    paragraphs: list[str] = field(default_factory=list)
+    figures: list[tuple[bytes, str]] = field(default_factory=list)
+    tables: list[tuple[list[str], list[list[str]]]] = field(default_factory=list)
+
+
+def figure_to_png(fig: Figure, dpi: int = 80) -> bytes:
+    """A matplotlib figure as PNG bytes."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi)
+    return buf.getvalue()
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows
+    )
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def render_report(title: str, intro: str, sections: Sequence[Section]) -> str:
+    """The report as one HTML document."""
+    parts = [
+        "<!DOCTYPE html>",
+        '<html lang="en"><head><meta charset="utf-8">',
+        f"<title>{html.escape(title)}</title>",
+        f"<style>{_STYLE}</style><script>{_SCRIPT}</script></head>",
+        f'<body data-images-loaded="pending"><h1>{html.escape(title)}</h1>',
+        f"<p>{html.escape(intro)}</p>",
+    ]
+    for sec in sections:
+        parts.append(f"<h2>{html.escape(sec.title)}</h2>")
+        parts += [f"<p>{html.escape(p)}</p>" for p in sec.paragraphs]
+        for header, rows in sec.tables:
+            parts.append(_table(header, rows))
+        for png, caption in sec.figures:
+            data = base64.b64encode(png).decode("ascii")
+            parts.append(
+                f'<figure><img alt="{html.escape(caption)}" src="data:image/png;base64,{data}">'
+                f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+            )
+    parts.append("</body></html>")
+    return "\n".join(parts)
+
+
+def write_report(path: str | Path, title: str, intro: str, sections: Sequence[Section]) -> Path:
+    """Write the report (``path`` is a folder: ``index.html`` goes in it)."""
+    folder = Path(path)
+    folder.mkdir(parents=True, exist_ok=True)
+    out = folder / "index.html"
+    out.write_text(render_report(title, intro, sections), encoding="utf-8")
+    return out
