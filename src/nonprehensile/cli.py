@@ -541,5 +541,10 @@ def _tumble_example(poly: Polyhedron, start: State) -> dict[str, Any] | None:
     return None
 
 
+# command groups defined in their own modules import the helpers above, so they come last
+from nonprehensile.cli_dataset import dataset_group  # noqa: E402
+
+main.add_command(dataset_group)
+
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -1,0 +1,723 @@
+"""Demonstration datasets: a folder of recordings plus an annotations file (paper Section VI).
+
+A dataset is a folder holding one marker-trajectory file per demonstration (C3D or OptiTrack
+Motive CSV), the skills file the demonstrations realise, and an annotations file
+(``annotations.json`` or ``annotations.yaml``) that says, for each file, which skill was
+demonstrated, by which mentor, between which states, and at which times the skill's contact
+events happened. The layout is specified in ``docs/dataset.md``.
+
+Loading is all or nothing: :func:`load_dataset` checks every demonstration, collects every
+problem (unknown skill, event times out of range or out of order, events that do not match the
+skill's chain, markers missing for longer than the gap limit, NaN, unreadable files) and
+raises one :class:`~nonprehensile.errors.DemonstrationError` listing them all, by file and
+demonstration, so that a user fixes a dataset in one pass and never works on half of it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.demonstrations.formats import (
+    read_c3d,
+    read_motive_csv,
+    write_c3d,
+    write_motive_csv,
+)
+from nonprehensile.demonstrations.record import MarkerTrajectory
+from nonprehensile.errors import DemonstrationError, InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.io import load_document, read_skills, save_document, skills_to_dict
+from nonprehensile.skills.contacts import Finger
+from nonprehensile.skills.skill import Skill
+from nonprehensile.states import State
+
+__all__ = [
+    "ANNOTATION_FILES",
+    "BUNDLED_DATASETS",
+    "DATASET_FORMAT",
+    "DEFAULT_FINGERS",
+    "DEFAULT_GAP_LIMIT",
+    "DEFAULT_MARKERS",
+    "Dataset",
+    "Demonstration",
+    "EventTime",
+    "Problem",
+    "check_dataset",
+    "dataset_path",
+    "dataset_summary",
+    "load_dataset",
+    "save_dataset",
+]
+
+FloatArray = NDArray[np.float64]
+Progress = Callable[[int, int], None]
+
+#: The value of the annotations' ``format`` key.
+DATASET_FORMAT = "nonprehensile-demonstrations/1"
+#: Names the annotations file may have in a dataset folder, tried in this order.
+ANNOTATION_FILES = ("annotations.json", "annotations.yaml", "annotations.yml")
+#: Datasets shipped inside the package, by name (folder ``data/<name>_demos``).
+BUNDLED_DATASETS = ("cube",)
+#: The four markers of the paper's Fig. 11: tips and knuckles of index finger and thumb.
+DEFAULT_MARKERS = ("index_tip", "index_knuckle", "thumb_tip", "thumb_knuckle")
+#: Which marker stands for each finger's contact point: R1 is the index, R2 the thumb.
+DEFAULT_FINGERS: Mapping[str, str] = {"R1": "index_tip", "R2": "thumb_tip"}
+#: Longest run of missing frames per marker that a loader accepts (0.1 s at 120 Hz); longer
+#: dropouts cannot be filled faithfully by interpolation.
+DEFAULT_GAP_LIMIT = 12
+
+_READERS: dict[str, Callable[[Path], MarkerTrajectory]] = {
+    ".c3d": lambda p: read_c3d(p),
+    ".csv": lambda p: read_motive_csv(p),
+}
+_FINGER_RE = re.compile(r"R\d+")
+_TOP_KEYS = {"format", "skills", "scale", "gap_limit", "fingers", "markers", "demonstrations"}
+_DEMO_KEYS = {"file", "skill", "mentor", "initial", "final", "events"}
+
+
+@dataclass(frozen=True)
+class EventTime:
+    """When a contact event of a skill happened in a recording.
+
+    Attributes
+    ----------
+    id : str
+        The event's ID in the skill (e.g. ``"pivot"``).
+    time : float
+        Seconds from the recording's first frame.
+    """
+
+    id: str
+    time: float
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with a dataset.
+
+    Attributes
+    ----------
+    file : str
+        The file at fault (the annotations file, or a trajectory file), relative to the
+        dataset folder where it is inside it.
+    demonstration : int or None
+        Index of the demonstration in the annotations (0-based), None for dataset-wide ones.
+    message : str
+        What is wrong and how to fix it.
+    """
+
+    file: str
+    demonstration: int | None
+    message: str
+
+    def __str__(self) -> str:
+        where = f" (demonstration {self.demonstration})" if self.demonstration is not None else ""
+        return f"{self.file}{where}: {self.message}"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form."""
+        return {"file": self.file, "demonstration": self.demonstration, "message": self.message}
+
+
+@dataclass(frozen=True, eq=False)
+class Demonstration:
+    """One demonstration: a recording of a mentor performing a skill, cut by its events.
+
+    Attributes
+    ----------
+    file : str
+        The trajectory file, relative to the dataset folder.
+    skill : Skill
+        The demonstrated skill.
+    mentor : str
+        Who demonstrated it.
+    initial, final : State
+        The object's initial and final states (those of the skill).
+    events : tuple of EventTime
+        The skill's contact events in chain order with the times they happened, strictly
+        increasing, within the recording.
+    trajectory : MarkerTrajectory
+        The named marker trajectories, shape (n_frames, n_markers, 3), NaN where occluded.
+    """
+
+    file: str
+    skill: Skill
+    mentor: str
+    initial: State
+    final: State
+    events: tuple[EventTime, ...]
+    trajectory: MarkerTrajectory
+
+    @property
+    def event_times(self) -> FloatArray:
+        """Event times in seconds, array, shape (n_events,)."""
+        return np.array([e.time for e in self.events], dtype=np.float64)
+
+    @property
+    def duration(self) -> float:
+        """From the first to the last event, seconds."""
+        return self.events[-1].time - self.events[0].time
+
+    def to_dict(self) -> dict[str, Any]:
+        """The annotations' form of this demonstration."""
+        return {
+            "file": self.file,
+            "skill": self.skill.name,
+            "mentor": self.mentor,
+            "initial": self.initial.to_dict(),
+            "final": self.final.to_dict(),
+            "events": [{"id": e.id, "time": e.time} for e in self.events],
+        }
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """A loaded, fully checked demonstration dataset.
+
+    Attributes
+    ----------
+    poly : Polyhedron
+        The object model of the skills file.
+    skills : tuple of Skill
+        The skills of the skills file.
+    demonstrations : tuple of Demonstration
+        Every demonstration, in annotations order.
+    scale : float
+        Metres per model unit: the demonstrated object is ``poly`` scaled by it (the bundled
+        cube model has edges of 1; the demonstrated cube, 0.05 m).
+    gap_limit : int
+        Longest accepted run of missing frames per marker.
+    fingers : dict of str to str
+        Finger element (``"R1"``, ``"R2"``, ...) to the name of the marker at its tip.
+    root : Path or None
+        The folder it was loaded from.
+    """
+
+    poly: Polyhedron
+    skills: tuple[Skill, ...]
+    demonstrations: tuple[Demonstration, ...]
+    scale: float = 1.0
+    gap_limit: int = DEFAULT_GAP_LIMIT
+    fingers: Mapping[str, str] = field(default_factory=lambda: dict(DEFAULT_FINGERS))
+    root: Path | None = None
+
+    def skill(self, name: str) -> Skill:
+        """The skill called ``name``.
+
+        Raises
+        ------
+        InputError
+            If there is none; the message lists the skills there are.
+        """
+        for s in self.skills:
+            if s.name == name:
+                return s
+        raise InputError(
+            f"no skill named {name!r} in the dataset; its skills are "
+            f"{[s.name for s in self.skills]}"
+        )
+
+    @property
+    def mentors(self) -> tuple[str, ...]:
+        """The mentors, in order of first appearance."""
+        return tuple(dict.fromkeys(d.mentor for d in self.demonstrations))
+
+    def of_skill(self, name: str) -> tuple[Demonstration, ...]:
+        """The demonstrations of one skill."""
+        self.skill(name)
+        return tuple(d for d in self.demonstrations if d.skill.name == name)
+
+
+# ------------------------------------------------------------------------------ locating
+
+
+def dataset_path(spec: str | Path) -> Path:
+    """A dataset folder from a path, or a bundled dataset by name (``"cube"``).
+
+    Raises
+    ------
+    InputError
+        Neither an existing folder nor a bundled name.
+    """
+    path = Path(spec)
+    if path.exists():
+        return path
+    if str(spec) in BUNDLED_DATASETS:
+        # the package is installed as plain files (editable or wheel), so the folder exists
+        return Path(str(resources.files("nonprehensile").joinpath("data", f"{spec}_demos")))
+    raise InputError(
+        f"{spec}: no such dataset folder (bundled datasets: {', '.join(BUNDLED_DATASETS)})"
+    )
+
+
+def _annotations_file(root: Path) -> Path | None:
+    for name in ANNOTATION_FILES:
+        if (root / name).is_file():
+            return root / name
+    return None
+
+
+# ------------------------------------------------------------------------------- checking
+
+
+def _number(value: object) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    return float(value)
+
+
+class _Collector:
+    """Gathers problems so that a load reports all of them at once."""
+
+    def __init__(self) -> None:
+        self.problems: list[Problem] = []
+
+    def add(self, file: str, index: int | None, message: str) -> None:
+        self.problems.append(Problem(file, index, message))
+
+
+def _top_level(
+    data: Any, ann: Path, root: Path, out: _Collector
+) -> tuple[Polyhedron | None, list[Skill], float, int, dict[str, str], tuple[str, ...]]:
+    """Read the dataset-wide keys; what cannot be read is reported and replaced by a default."""
+    name = ann.name
+    poly: Polyhedron | None = None
+    skills: list[Skill] = []
+    unknown = sorted(set(data) - _TOP_KEYS)
+    if unknown:
+        out.add(name, None, f"unknown key(s) {unknown}; the annotations have {sorted(_TOP_KEYS)}")
+    fmt = data.get("format", DATASET_FORMAT)
+    if fmt != DATASET_FORMAT:
+        out.add(name, None, f"'format' is {fmt!r}; this version reads {DATASET_FORMAT!r}")
+    skills_ref = data.get("skills")
+    if not isinstance(skills_ref, str) or not skills_ref:
+        out.add(name, None, "'skills' must name the skills file (a path relative to the "
+                            f"dataset folder), got {skills_ref!r}")
+    else:
+        try:
+            poly, skills = read_skills(root / skills_ref)
+        except InputError as exc:
+            out.add(skills_ref, None, f"cannot use the skills file: {exc}")
+    scale = _number(data.get("scale", 1.0))
+    if scale is None or not math.isfinite(scale) or scale <= 0:
+        out.add(name, None, f"'scale' (metres per model unit) must be a finite positive number, "
+                            f"got {data.get('scale')!r}")
+        scale = 1.0
+    gap = data.get("gap_limit", DEFAULT_GAP_LIMIT)
+    if isinstance(gap, bool) or not isinstance(gap, int) or gap < 0:
+        out.add(name, None, f"'gap_limit' must be a whole number of frames >= 0, got {gap!r}")
+        gap = DEFAULT_GAP_LIMIT
+    fingers_raw = data.get("fingers", dict(DEFAULT_FINGERS))
+    fingers: dict[str, str] = {}
+    if not isinstance(fingers_raw, Mapping):
+        out.add(name, None, "'fingers' must map finger elements to tip markers, e.g. "
+                            f'{{"R1": "index_tip"}}, got {fingers_raw!r}')
+    else:
+        for k, v in fingers_raw.items():
+            if not (_FINGER_RE.fullmatch(str(k)) and isinstance(v, str) and v):
+                out.add(name, None, f"'fingers': entry {k!r}: {v!r} must map a finger R1, R2, "
+                                    "... to the name of its tip marker")
+                if str(k) in DEFAULT_FINGERS:  # reported once here, not once per recording
+                    fingers[str(k)] = DEFAULT_FINGERS[str(k)]
+            else:
+                fingers[str(k)] = str(v)
+    markers_raw = data.get("markers", [])
+    if not isinstance(markers_raw, list) or not all(isinstance(m, str) for m in markers_raw):
+        out.add(name, None, f"'markers' must be a list of marker names, got {markers_raw!r}")
+        markers_raw = []
+    markers = tuple(dict.fromkeys([*markers_raw, *fingers.values()]))
+    return poly, skills, scale, gap, fingers, markers
+
+
+def _states(
+    item: Mapping[str, Any], skill: Skill | None, where: tuple[str, int], out: _Collector
+) -> tuple[State, State] | None:
+    states: list[State] = []
+    for key in ("initial", "final"):
+        ref = None if skill is None else getattr(skill, key)
+        if key not in item:
+            if ref is not None:
+                states.append(ref)
+            continue
+        try:
+            s = State.from_dict(item[key])
+        except InputError as exc:
+            out.add(*where, f"'{key}': {exc}")
+            continue
+        if skill is not None and ref is not None and not s.isclose(ref):
+            out.add(*where, f"the {key} state {s} is not the {key} state {ref} of skill "
+                            f"{skill.name!r}; fix the state or the skill")
+            continue
+        states.append(s)
+    return (states[0], states[1]) if len(states) == 2 else None
+
+
+def _events(
+    item: Mapping[str, Any], skill: Skill | None, where: tuple[str, int], out: _Collector
+) -> list[EventTime] | None:
+    raw = item.get("events")
+    if not isinstance(raw, list) or not raw:
+        out.add(*where, f"'events' must be a list of {{\"id\": ..., \"time\": ...}}, got {raw!r}")
+        return None
+    events: list[EventTime] = []
+    ok = True
+    for j, ev in enumerate(raw):
+        if not isinstance(ev, Mapping) or "id" not in ev or "time" not in ev:
+            out.add(*where, f'event {j} must be {{"id": ..., "time": seconds}}, got {ev!r}')
+            ok = False
+            continue
+        t = _number(ev["time"])
+        if t is None or not math.isfinite(t):
+            out.add(*where, f"event {ev['id']!r}: time must be a finite number of seconds, got "
+                            f"{ev['time']!r}")
+            ok = False
+            continue
+        events.append(EventTime(str(ev["id"]), t))
+    if not ok:
+        return None
+    # a wrong chain or order is reported, and the times are still checked against the
+    # recording, so that one pass lists every problem of the demonstration
+    if skill is not None:
+        want = [e.id for e in skill.events]
+        got = [e.id for e in events]
+        if got != want:
+            out.add(*where, f"events {got} do not match the chain of skill {skill.name!r}, "
+                            f"which is {want}; annotate every event of the skill, in order")
+    bad = [(a, b) for a, b in itertools.pairwise(events) if not b.time > a.time]
+    if bad:
+        a, b = bad[0]
+        more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+        out.add(*where, f"event times out of order: {b.id!r} at {b.time:g} s is not after "
+                        f"{a.id!r} at {a.time:g} s{more}; times must increase along the chain")
+    return events
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """(start, end exclusive) of each run of True in a 1-D mask."""
+    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
+                    strict=True))
+
+
+def _check_trajectory(
+    traj: MarkerTrajectory,
+    events: list[EventTime] | None,
+    markers: Sequence[str],
+    gap: int,
+    where: tuple[str, int],
+    out: _Collector,
+) -> bool:
+    ok = True
+    missing = [m for m in markers if m not in traj.marker_names]
+    if missing:
+        out.add(*where, f"marker(s) {missing} are not in the recording, which has "
+                        f"{list(traj.marker_names)}; rename them or fix 'markers'/'fingers'")
+        ok = False
+    occluded = traj.occluded
+    for k, name in enumerate(traj.marker_names):
+        if occluded[:, k].all():
+            out.add(*where, f"marker {name!r} is missing (NaN) in every frame; drop it from "
+                            "the recording or check its labelling")
+            ok = False
+            continue
+        long = [(s, e) for s, e in _runs(occluded[:, k]) if e - s > gap]
+        if long:
+            s, e = long[0]
+            more = f" (and {len(long) - 1} more gaps that long)" if len(long) > 1 else ""
+            out.add(*where, f"marker {name!r} is missing (NaN) in frames {s}..{e - 1} "
+                            f"({e - s} frames, {(e - s) / traj.rate:.3g} s), more than the gap "
+                            f"limit of {gap} frames{more}; crop the take or raise 'gap_limit'")
+            ok = False
+    if events:
+        end = traj.duration
+        late = [e for e in events if e.time < 0 or e.time > end + 1e-9]
+        if late:
+            ev = late[0]
+            out.add(*where, f"event {ev.id!r} at {ev.time:g} s is out of the recording's range "
+                            f"0..{end:g} s ({traj.n_frames} frames at {traj.rate:g} Hz)"
+                            + (f" (and {len(late) - 1} more)" if len(late) > 1 else ""))
+            ok = False
+    return ok
+
+
+def check_dataset(
+    path: str | Path, *, progress: Progress | None = None
+) -> tuple[Dataset | None, list[Problem]]:
+    """Read and check a dataset folder, collecting every problem.
+
+    Parameters
+    ----------
+    path : str or Path
+        The dataset folder, or a bundled dataset's name (``"cube"``).
+    progress : callable (done, total) -> None, optional
+        Called after each trajectory file is read (for a progress bar).
+
+    Returns
+    -------
+    dataset : Dataset or None
+        The dataset when there is no problem, else None (nothing half-loaded).
+    problems : list of Problem
+        Every problem found, by file and demonstration, in annotations order.
+    """
+    root = dataset_path(path)
+    out = _Collector()
+    if not root.is_dir():
+        out.add(str(root), None, "not a folder; a dataset is a folder with an annotations file")
+        return None, out.problems
+    ann = _annotations_file(root)
+    if ann is None:
+        out.add(str(root), None, f"no annotations file; expected one of {list(ANNOTATION_FILES)}")
+        return None, out.problems
+    try:
+        data = load_document(ann)
+    except InputError as exc:
+        out.add(ann.name, None, str(exc))
+        return None, out.problems
+    if not isinstance(data, Mapping) or not isinstance(data.get("demonstrations"), list):
+        out.add(ann.name, None, "the annotations must be an object with a 'demonstrations' list "
+                                "(see docs/dataset.md)")
+        return None, out.problems
+    poly, skills, scale, gap, fingers, markers = _top_level(data, ann, root, out)
+    by_name = {s.name: s for s in skills}
+    items: list[Any] = data["demonstrations"]
+    demos: list[Demonstration] = []
+    seen: dict[str, int] = {}
+    for i, item in enumerate(items):
+        if progress is not None:
+            progress(i, len(items))
+        if not isinstance(item, Mapping):
+            out.add(ann.name, i, f"a demonstration must be an object with keys "
+                                 f"{sorted(_DEMO_KEYS)}, got {item!r:.60}")
+            continue
+        file = item.get("file")
+        where = (file if isinstance(file, str) and file else ann.name, i)
+        unknown = sorted(set(item) - _DEMO_KEYS)
+        if unknown:
+            out.add(*where, f"unknown key(s) {unknown}; a demonstration has {sorted(_DEMO_KEYS)}")
+        skill_name = item.get("skill")
+        skill = by_name.get(skill_name) if isinstance(skill_name, str) else None
+        if skill is None and poly is not None:
+            out.add(*where, f"unknown skill {skill_name!r}; the skills file has "
+                            f"{sorted(by_name)}")
+        mentor = item.get("mentor")
+        if not isinstance(mentor, str) or not mentor.strip():
+            out.add(*where, f"'mentor' must be a non-empty name, got {mentor!r}")
+        states = _states(item, skill, where, out)
+        events = _events(item, skill, where, out)
+        traj: MarkerTrajectory | None = None
+        if not isinstance(file, str) or not file:
+            out.add(ann.name, i, f"'file' must name the trajectory file, got {file!r}")
+        elif file in seen:
+            out.add(*where, f"the file is also demonstration {seen[file]}; one file per "
+                            "demonstration")
+        else:
+            seen[file] = i
+            traj = _read(root / file, out, where)
+        if traj is None:
+            continue
+        need = list(markers)
+        if skill is not None:
+            used = sorted({f"R{p.x.index}" for e in skill.events for p in e.pairs
+                           if isinstance(p.x, Finger)})
+            unmapped = [r for r in used if r not in fingers]
+            if unmapped:
+                out.add(*where, f"skill {skill.name!r} uses finger(s) {unmapped} but 'fingers' "
+                                f"names no tip marker for them; add them to 'fingers'")
+        if not _check_trajectory(traj, events, need, gap, where, out):
+            continue
+        if skill is None or states is None or events is None or not isinstance(mentor, str):
+            continue
+        demos.append(Demonstration(str(file), skill, mentor.strip(), states[0], states[1],
+                                   tuple(events), traj))
+    if progress is not None:
+        progress(len(items), len(items))
+    if out.problems or poly is None:
+        return None, out.problems
+    return Dataset(poly, tuple(skills), tuple(demos), scale, gap, fingers, root), out.problems
+
+
+def _read(path: Path, out: _Collector, where: tuple[str, int]) -> MarkerTrajectory | None:
+    reader = _READERS.get(path.suffix.lower())
+    if reader is None:
+        out.add(*where, f"unknown trajectory format {path.suffix!r}; use .c3d or a Motive .csv")
+        return None
+    if not path.is_file():
+        out.add(*where, "no such trajectory file in the dataset folder")
+        return None
+    try:
+        return reader(path)
+    except InputError as exc:
+        # the reader's message starts with the full path; the problem already names the file
+        out.add(*where, str(exc).removeprefix(f"{path}: "))
+        return None
+
+
+def load_dataset(path: str | Path, *, progress: Progress | None = None) -> Dataset:
+    """Load a dataset folder, all or nothing.
+
+    Parameters
+    ----------
+    path : str or Path
+        The dataset folder (see ``docs/dataset.md``), or a bundled dataset's name (``"cube"``).
+    progress : callable (done, total) -> None, optional
+        Called after each trajectory file is read.
+
+    Returns
+    -------
+    Dataset
+
+    Raises
+    ------
+    DemonstrationError
+        Listing every problem found (one per line, by file and demonstration); nothing is
+        returned half-loaded. :func:`check_dataset` gives the problems as values.
+    """
+    dataset, problems = check_dataset(path, progress=progress)
+    if dataset is None:
+        lines = "\n".join(f"  - {p}" for p in problems)
+        raise DemonstrationError(
+            f"{path}: {len(problems)} problem(s) in the dataset, nothing was loaded; fix them "
+            f"all and load again:\n{lines}"
+        )
+    return dataset
+
+
+# -------------------------------------------------------------------------------- writing
+
+
+def save_dataset(
+    dataset: Dataset,
+    out_dir: str | Path,
+    *,
+    trajectory_format: str = "c3d",
+    markers: Sequence[str] | None = None,
+) -> Path:
+    """Write a dataset folder: the trajectories, ``skills.json`` and ``annotations.json``.
+
+    Each demonstration's trajectory is written to its ``file`` (its suffix replaced by the
+    chosen format's); the skills file holds the object model inline, so the folder stands
+    alone.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        What to write (its ``root`` is ignored).
+    out_dir : str or Path
+        The folder (created if missing; files of the same names are overwritten).
+    trajectory_format : {"c3d", "csv"}
+        C3D (compact, needs the ``mocap`` extra) or Motive CSV.
+    markers : sequence of str, optional
+        The markers every recording must have (the annotations' ``markers``); by default the
+        markers of the first demonstration.
+
+    Returns
+    -------
+    Path
+        The annotations file.
+
+    Raises
+    ------
+    InputError
+        An unknown format, or a file that cannot be written.
+    """
+    if trajectory_format not in ("c3d", "csv"):
+        raise InputError(
+            f"trajectory_format must be 'c3d' or 'csv', got {trajectory_format!r}"
+        )
+    root = Path(out_dir)
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{root}: cannot create the dataset folder: {exc}") from None
+    save_document(skills_to_dict(dataset.poly, list(dataset.skills)), root / "skills.json")
+    entries = []
+    for d in dataset.demonstrations:
+        name = str(Path(d.file).with_suffix(f".{trajectory_format}"))
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        if trajectory_format == "c3d":
+            write_c3d(d.trajectory, root / name)
+        else:
+            write_motive_csv(d.trajectory, root / name)
+        entry = d.to_dict()
+        entry["file"] = name
+        entries.append(entry)
+    if markers is None:
+        markers = dataset.demonstrations[0].trajectory.marker_names if entries else ()
+    doc = {
+        "format": DATASET_FORMAT,
+        "skills": "skills.json",
+        "scale": dataset.scale,
+        "gap_limit": dataset.gap_limit,
+        "fingers": dict(dataset.fingers),
+        "markers": list(markers),
+        "demonstrations": entries,
+    }
+    path = root / ANNOTATION_FILES[0]
+    save_document(doc, path)
+    return path
+
+
+# -------------------------------------------------------------------------------- summary
+
+
+def dataset_summary(dataset: Dataset) -> dict[str, Any]:
+    """Skills, mentors, counts and durations of a dataset (``dataset show --json``).
+
+    Durations are from the first to the last event of each demonstration, in seconds.
+    """
+    def stats(values: list[float]) -> dict[str, float]:
+        a = np.asarray(values, dtype=np.float64)
+        return {"mean": round(float(a.mean()), 4), "min": round(float(a.min()), 4),
+                "max": round(float(a.max()), 4)}
+
+    skills = []
+    for s in dataset.skills:
+        demos = [d for d in dataset.demonstrations if d.skill.name == s.name]
+        if not demos:
+            skills.append({"name": s.name, "maneuver": s.maneuver, "count": 0, "mentors": {}})
+            continue
+        mentors: dict[str, int] = {}
+        for d in demos:
+            mentors[d.mentor] = mentors.get(d.mentor, 0) + 1
+        skills.append({
+            "name": s.name,
+            "maneuver": s.maneuver,
+            "initial": s.initial.to_dict(),
+            "final": s.final.to_dict(),
+            "count": len(demos),
+            "mentors": mentors,
+            "duration_s": stats([d.duration for d in demos]),
+        })
+    mentors_doc = []
+    for m in dataset.mentors:
+        demos = [d for d in dataset.demonstrations if d.mentor == m]
+        mentors_doc.append({"name": m, "count": len(demos),
+                            "duration_s": stats([d.duration for d in demos])})
+    n_occluded = sum(int(d.trajectory.occluded.sum()) for d in dataset.demonstrations)
+    n_samples = sum(d.trajectory.occluded.size for d in dataset.demonstrations)
+    first = dataset.demonstrations[0].trajectory if dataset.demonstrations else None
+    return {
+        "root": str(dataset.root) if dataset.root else None,
+        "object": dataset.poly.name,
+        "scale": dataset.scale,
+        "n_demonstrations": len(dataset.demonstrations),
+        "rate_hz": first.rate if first else None,
+        "units": first.units if first else None,
+        "markers": list(first.marker_names) if first else [],
+        "fingers": dict(dataset.fingers),
+        "gap_limit": dataset.gap_limit,
+        "occluded_fraction": round(n_occluded / n_samples, 5) if n_samples else 0.0,
+        "skills": skills,
+        "mentors": mentors_doc,
+        "problems": [],
+    }

@@ -1,0 +1,399 @@
+"""Dataset folders: the annotations format, all-or-nothing loading with every problem listed,
+saving, the summary, and the ``dataset`` commands.
+
+Truths used: hand-made defects of a freshly generated dataset (each case below breaks one
+thing on purpose and the loader must name the file, the demonstration and the culprit), and
+round trips through the files.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from nonprehensile.cli_dataset import dataset_group
+from nonprehensile.demonstrations import MarkerTrajectory, read_c3d, write_c3d
+from nonprehensile.demonstrations.dataset import (
+    DATASET_FORMAT,
+    DEFAULT_MARKERS,
+    check_dataset,
+    dataset_path,
+    dataset_summary,
+    load_dataset,
+    save_dataset,
+)
+from nonprehensile.demonstrations.synth import synthesize
+from nonprehensile.errors import DemonstrationError, InputError
+
+Doc = dict[str, Any]
+
+
+@pytest.fixture(scope="module")
+def pristine(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    root = tmp_path_factory.mktemp("pristine") / "ds"
+    synthesize(root, seed=11, n_per_skill=2, mentors=2, dropouts=0.0)
+    return root
+
+
+@pytest.fixture
+def ds_dir(pristine: Path, tmp_path: Path) -> Path:
+    out = tmp_path / "ds"
+    shutil.copytree(pristine, out)
+    return out
+
+
+def _edit(root: Path, change: Callable[[Doc], None]) -> None:
+    path = root / "annotations.json"
+    doc = json.loads(path.read_text())
+    change(doc)
+    path.write_text(json.dumps(doc))
+
+
+def _problems(root: Path) -> list[str]:
+    ds, problems = check_dataset(root)
+    assert (ds is None) == bool(problems)
+    return [str(p) for p in problems]
+
+
+def _one(root: Path, *needles: str) -> str:
+    probs = _problems(root)
+    assert len(probs) == 1, probs
+    for n in needles:
+        assert n in probs[0], probs[0]
+    return probs[0]
+
+
+# ----------------------------------------------------------------------- the good case
+
+
+def test_pristine_dataset_loads(pristine: Path) -> None:
+    ds = load_dataset(pristine)
+    assert len(ds.demonstrations) == 12
+    assert ds.mentors == ("ana", "ben")
+    assert ds.scale == 0.05
+    assert dict(ds.fingers) == {"R1": "index_tip", "R2": "thumb_tip"}
+    doc = json.loads((pristine / "annotations.json").read_text())
+    assert doc["format"] == DATASET_FORMAT
+    assert doc["markers"] == list(DEFAULT_MARKERS)
+    first = doc["demonstrations"][0]
+    assert set(first) == {"file", "skill", "mentor", "initial", "final", "events"}
+    d = ds.demonstrations[0]
+    assert [e.id for e in d.events] == [e.id for e in d.skill.events]
+    assert d.trajectory == read_c3d(pristine / first["file"])
+
+
+def test_save_and_load_round_trip_in_motive_csv(pristine: Path, tmp_path: Path) -> None:
+    ds = load_dataset(pristine)
+    save_dataset(ds, tmp_path / "csv", trajectory_format="csv")
+    back = load_dataset(tmp_path / "csv")
+    assert all(f.endswith(".csv") for f in (d.file for d in back.demonstrations))
+    for a, b in zip(ds.demonstrations, back.demonstrations, strict=True):
+        assert a.events == b.events and a.skill.name == b.skill.name and a.mentor == b.mentor
+        # Motive CSV keeps 6 decimals (of mm here)
+        np.testing.assert_allclose(a.trajectory.positions, b.trajectory.positions, atol=1e-5)
+
+
+def test_yaml_annotations_are_read(ds_dir: Path) -> None:
+    yaml = pytest.importorskip("yaml")
+    doc = json.loads((ds_dir / "annotations.json").read_text())
+    (ds_dir / "annotations.json").unlink()
+    (ds_dir / "annotations.yaml").write_text(yaml.safe_dump(doc))
+    assert len(load_dataset(ds_dir).demonstrations) == 12
+
+
+def test_summary_counts_and_durations(pristine: Path) -> None:
+    ds = load_dataset(pristine)
+    s = dataset_summary(ds)
+    assert s["n_demonstrations"] == 12 and s["rate_hz"] == 120.0 and s["units"] == "mm"
+    by = {k["name"]: k for k in s["skills"]}
+    assert by["roll-arc"]["count"] == 2 and by["roll-arc"]["mentors"] == {"ana": 1, "ben": 1}
+    d = [x.duration for x in ds.of_skill("twist")]
+    assert by["twist"]["duration_s"]["max"] == pytest.approx(max(d), abs=1e-4)
+    assert s["problems"] == []
+
+
+def test_bundled_dataset_meets_the_issue() -> None:
+    ds = load_dataset("cube")
+    assert dataset_path("cube").name == "cube_demos"
+    assert len(ds.skills) >= 4 and len(ds.mentors) >= 3
+    for s in ds.skills:
+        assert len(ds.of_skill(s.name)) >= 30
+    assert {d.trajectory.rate for d in ds.demonstrations} == {120.0}
+    assert any(d.trajectory.occluded.any() for d in ds.demonstrations)
+    size = sum(p.stat().st_size for p in dataset_path("cube").iterdir())
+    assert size < 5_000_000
+
+
+# -------------------------------------------------------------------- every bad case
+
+
+def test_unknown_skill(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d["demonstrations"][3].update(skill="moonwalk"))
+    msg = _one(ds_dir, "(demonstration 3)", "unknown skill 'moonwalk'", "roll-arc")
+    assert msg.startswith(json.loads((ds_dir / "annotations.json").read_text())
+                          ["demonstrations"][3]["file"])
+
+
+def test_event_time_after_the_recording(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d["demonstrations"][0]["events"][-1].update(time=99.0))
+    _one(ds_dir, "(demonstration 0)", "out of the recording's range", "99 s")
+
+
+def test_negative_event_time(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d["demonstrations"][1]["events"][0].update(time=-0.5))
+    _one(ds_dir, "(demonstration 1)", "out of the recording's range")
+
+
+def test_event_times_out_of_order(ds_dir: Path) -> None:
+    def swap(d: Doc) -> None:
+        ev = d["demonstrations"][2]["events"]
+        ev[1]["time"], ev[2]["time"] = ev[2]["time"], ev[1]["time"]
+    _edit(ds_dir, swap)
+    _one(ds_dir, "(demonstration 2)", "out of order")
+
+
+def test_equal_event_times_are_out_of_order(ds_dir: Path) -> None:
+    def same(d: Doc) -> None:
+        ev = d["demonstrations"][2]["events"]
+        ev[2]["time"] = ev[1]["time"]
+    _edit(ds_dir, same)
+    _one(ds_dir, "out of order")
+
+
+def test_two_problems_of_one_demonstration_are_both_reported(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d["demonstrations"][5]["events"][2].update(time=99.0))
+    probs = _problems(ds_dir)
+    assert len(probs) == 2
+    assert "out of order" in probs[0] and "out of the recording's range" in probs[1]
+    assert all("(demonstration 5)" in p for p in probs)
+
+
+@pytest.mark.parametrize("change", ["drop", "rename", "swap"])
+def test_events_that_do_not_match_the_chain(ds_dir: Path, change: str) -> None:
+    def edit(d: Doc) -> None:
+        ev = d["demonstrations"][4]["events"]
+        if change == "drop":
+            del ev[2]
+        elif change == "rename":
+            ev[1]["id"] = "poke"
+        else:
+            ev[1]["id"], ev[2]["id"] = ev[2]["id"], ev[1]["id"]
+    _edit(ds_dir, edit)
+    _one(ds_dir, "(demonstration 4)", "do not match the chain")
+
+
+def test_nan_event_time(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d["demonstrations"][5]["events"][1].update(time=float("nan")))
+    _one(ds_dir, "(demonstration 5)", "finite number of seconds")
+
+
+def _rewrite(root: Path, index: int, change: Callable[[np.ndarray], None],
+             names: tuple[str, ...] | None = None) -> None:
+    doc = json.loads((root / "annotations.json").read_text())
+    path = root / doc["demonstrations"][index]["file"]
+    t = read_c3d(path)
+    pos = np.array(t.positions)
+    change(pos)
+    write_c3d(MarkerTrajectory(pos, names or t.marker_names, t.rate, t.units), path)
+
+
+def test_marker_missing_beyond_the_gap_limit(ds_dir: Path) -> None:
+    def gap(p: np.ndarray) -> None:
+        p[30:43, 2] = np.nan  # 13 frames > gap limit 12
+    _rewrite(ds_dir, 6, gap)
+    _one(ds_dir, "(demonstration 6)", "'thumb_tip'", "frames 30..42", "gap limit of 12")
+
+
+def test_a_gap_at_the_limit_is_accepted(ds_dir: Path) -> None:
+    def gap(p: np.ndarray) -> None:
+        p[30:42, 2] = np.nan  # 12 frames
+    _rewrite(ds_dir, 6, gap)
+    assert _problems(ds_dir) == []
+
+
+def test_marker_nan_in_every_frame(ds_dir: Path) -> None:
+    _rewrite(ds_dir, 7, lambda p: p.__setitem__((slice(None), 1), np.nan))
+    _one(ds_dir, "(demonstration 7)", "'index_knuckle'", "every frame")
+
+
+def test_missing_marker(ds_dir: Path) -> None:
+    names = ("index_tip", "index_knuckle", "Thumb", "thumb_knuckle")
+    _rewrite(ds_dir, 8, lambda p: None, names)
+    _one(ds_dir, "(demonstration 8)", "['thumb_tip']", "not in the recording")
+
+
+def test_missing_and_unreadable_files(ds_dir: Path) -> None:
+    doc = json.loads((ds_dir / "annotations.json").read_text())
+    (ds_dir / doc["demonstrations"][0]["file"]).unlink()
+    (ds_dir / doc["demonstrations"][1]["file"]).write_bytes(b"not a c3d file")
+    probs = _problems(ds_dir)
+    assert len(probs) == 2
+    assert "(demonstration 0)" in probs[0] and "no such trajectory file" in probs[0]
+    assert "(demonstration 1)" in probs[1] and "C3D" in probs[1]
+
+
+def test_state_that_is_not_the_skills(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d["demonstrations"][9].update(final={"face": "b", "theta": 0}))
+    _one(ds_dir, "(demonstration 9)", "final state b:0", "d:")
+
+
+def test_one_file_for_two_demonstrations(ds_dir: Path) -> None:
+    def dup(d: Doc) -> None:
+        d["demonstrations"][1]["file"] = d["demonstrations"][0]["file"]
+    _edit(ds_dir, dup)
+    _one(ds_dir, "(demonstration 1)", "also demonstration 0")
+
+
+def test_bad_dataset_wide_keys(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d.update(scale=-1, gap_limit="many", colour="red"))
+    probs = _problems(ds_dir)
+    assert len(probs) == 3
+    assert all(p.startswith("annotations.json: ") for p in probs)
+    assert any("'scale'" in p for p in probs) and any("'gap_limit'" in p for p in probs)
+    assert any("colour" in p for p in probs)
+
+
+def test_missing_skills_file_still_checks_the_rest(ds_dir: Path) -> None:
+    (ds_dir / "skills.json").unlink()
+    _edit(ds_dir, lambda d: d["demonstrations"][2]["events"][0].update(time=-1.0))
+    probs = _problems(ds_dir)
+    assert probs[0].startswith("skills.json: ") and "no such file" in probs[0]
+    assert any("(demonstration 2)" in p and "out of the recording's range" in p for p in probs)
+
+
+def test_no_annotations_file(ds_dir: Path) -> None:
+    (ds_dir / "annotations.json").unlink()
+    _one(ds_dir, "no annotations file")
+    with pytest.raises(InputError, match="no such dataset folder"):
+        check_dataset(ds_dir / "nowhere")
+
+
+def test_every_problem_is_reported_and_nothing_is_loaded(ds_dir: Path) -> None:
+    def many(d: Doc) -> None:
+        d["demonstrations"][0]["skill"] = "moonwalk"
+        d["demonstrations"][3]["events"][-1]["time"] = 99.0
+        d["demonstrations"][5]["events"][1]["id"] = "poke"
+        d["demonstrations"][7]["mentor"] = ""
+    _edit(ds_dir, many)
+    _rewrite(ds_dir, 10, lambda p: p.__setitem__((slice(5, 40), 0), np.nan))
+    ds, problems = check_dataset(ds_dir)
+    assert ds is None
+    assert [p.demonstration for p in problems] == [0, 3, 5, 7, 10]
+    with pytest.raises(DemonstrationError) as info:
+        load_dataset(ds_dir)
+    text = str(info.value)
+    assert "5 problem(s)" in text and "nothing was loaded" in text
+    for p in problems:
+        assert str(p) in text
+
+
+# ------------------------------------------------------------------------ the commands
+
+
+def test_show_prints_the_summary() -> None:
+    res = CliRunner().invoke(dataset_group, ["show", "cube"])
+    assert res.exit_code == 0, res.output
+    for word in ("push-roll", "tumble-twist", "ana", "ben", "chen", "180 demonstrations"):
+        assert word in res.output
+
+
+def test_show_json_with_arcs() -> None:
+    res = CliRunner().invoke(dataset_group, ["show", "cube", "--json", "--arcs"])
+    assert res.exit_code == 0
+    doc = json.loads(res.stdout)
+    assert doc["n_demonstrations"] == 180 and doc["problems"] == []
+    assert sum(a["segments"] for a in doc["arcs"]) == 30 * (5 * 4 + 2)
+    labels = {a["label"] for a in doc["arcs"] if a["from"] == "pivot" and a["to"] == "landed"}
+    assert {"quarter-circle", "straight-pull"} <= labels
+
+
+def test_show_a_bad_dataset_exits_2_listing_problems(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d["demonstrations"][1].update(skill="moonwalk"))
+    res = CliRunner().invoke(dataset_group, ["show", str(ds_dir), "--json"])
+    assert res.exit_code == 2
+    doc = json.loads(res.stdout)
+    assert doc["problems"][0]["demonstration"] == 1
+    assert "moonwalk" in doc["problems"][0]["message"]
+    assert "moonwalk" in res.stderr
+
+
+def test_show_an_empty_dataset(ds_dir: Path) -> None:
+    _edit(ds_dir, lambda d: d.update(demonstrations=[]))
+    res = CliRunner().invoke(dataset_group, ["show", str(ds_dir)])
+    assert res.exit_code == 0 and "no demonstrations" in res.output
+    res = CliRunner().invoke(dataset_group, ["show", str(ds_dir), "--json"])
+    assert json.loads(res.stdout)["n_demonstrations"] == 0
+
+
+def test_malformed_entries_are_problems_not_tracebacks(ds_dir: Path) -> None:
+    def junk(d: Doc) -> None:
+        d["demonstrations"][0] = "take1.c3d"
+        d["demonstrations"][1].update(mentor=5, initial="a:0")
+        d["demonstrations"][2]["events"][0]["time"] = True
+        d["demonstrations"][3]["file"] = 7
+        d["fingers"] = {"R1": 5, "R2": "thumb_tip"}
+        d["markers"] = "index_tip"
+    _edit(ds_dir, junk)
+    probs = _problems(ds_dir)
+    assert len(probs) == 7
+    text = "\n".join(probs)
+    for needle in ("'fingers'", "'markers'", "(demonstration 0)", "'mentor'", "'initial'",
+                   "finite number", "'file' must name"):
+        assert needle in text
+
+
+def test_synth_command_writes_a_dataset(tmp_path: Path) -> None:
+    res = CliRunner().invoke(dataset_group, [
+        "synth", str(tmp_path / "s"), "--n-per-skill", "1", "--mentors", "1", "--seed", "5",
+        "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["n_demonstrations"] == 6
+    assert len(load_dataset(tmp_path / "s").demonstrations) == 6
+
+
+def test_synth_command_bad_input_exits_2(tmp_path: Path) -> None:
+    res = CliRunner().invoke(dataset_group, ["synth", str(tmp_path / "s"), "--n-per-skill", "0"])
+    assert res.exit_code == 2 and "n_per_skill" in res.stderr
+
+
+def test_figure_command(pristine: Path, tmp_path: Path) -> None:
+    res = CliRunner().invoke(dataset_group, [
+        "figure", str(pristine), "-o", str(tmp_path / "f.png"), "--color-by", "mentor"])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_trajectory_figure_draws_one_line_per_demonstration(pristine: Path) -> None:
+    from nonprehensile.viz.trajectories import trajectory_figure
+
+    ds = load_dataset(pristine)
+    fig = trajectory_figure(ds)  # default: the tumbling pair of Fig. 12
+    ax = fig.axes[0]
+    n_demos = len(ds.of_skill("tumble-lift")) + len(ds.of_skill("tumble-twist"))
+    assert len(ax.lines) == n_demos + 12  # and the cube's 12 edges
+    legend = ax.get_legend()
+    assert legend is not None
+    assert sorted(t.get_text() for t in legend.get_texts()) == ["tumble-lift", "tumble-twist"]
+    # the drawn index-tip path is the recording between the first and last events
+    d = ds.of_skill("tumble-lift")[0]
+    a, b = (round(d.events[k].time * 120) for k in (0, -1))
+    x, _, _ = ax.lines[0].get_data_3d()  # type: ignore[attr-defined]
+    np.testing.assert_array_equal(x, d.trajectory.marker("index_tip")[a:b + 1, 0])
+    fig = trajectory_figure(ds, ["twist"], color_by="mentor", marker="thumb_tip")
+    legend = fig.axes[0].get_legend()
+    assert legend is not None
+    assert sorted(t.get_text() for t in legend.get_texts()) == ["ana", "ben"]
+    with pytest.raises(InputError, match="moonwalk"):
+        trajectory_figure(ds, ["moonwalk"])
+    with pytest.raises(InputError, match="no marker"):
+        trajectory_figure(ds, marker="pinky")
+    with pytest.raises(InputError, match="color_by"):
+        trajectory_figure(ds, color_by="colour")
