@@ -7,18 +7,14 @@ file and the culprit), 1 anything else (``shared/spec/files-and-cli.md``).
 
 from __future__ import annotations
 
-import functools
-import json
-import sys
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import click
-from rich.console import Console
 from rich.table import Table
-from rich.text import Text
 
+from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out
+from nonprehensile.cli_dataset import dataset_group
 from nonprehensile.errors import InputError, NonprehensileError
 from nonprehensile.geometry.build import from_mesh
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
@@ -36,38 +32,6 @@ from nonprehensile.states import (
     is_stable,
     states_by_step,
 )
-
-F = TypeVar("F", bound=Callable[..., Any])
-
-out = Console(soft_wrap=True, emoji=False, highlight=False)
-err = Console(stderr=True, soft_wrap=True, emoji=False, highlight=False)
-
-
-def _fmt_num(x: float) -> str:
-    return f"{x:.6g}"
-
-
-def handle_errors(fn: F) -> F:
-    """Turn library errors into one-line messages and the spec's exit codes."""
-
-    @functools.wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return fn(*args, **kwargs)
-        except InputError as exc:
-            # the message may hold brackets (lists of faces): never read it as markup
-            err.print(Text.assemble(("error: ", "bold red"), str(exc)))
-            sys.exit(2)
-        except NonprehensileError as exc:
-            err.print(Text.assemble(("error: ", "bold red"), str(exc)))
-            sys.exit(1)
-
-    return wrapper  # type: ignore[return-value]
-
-
-def emit_json(data: Any) -> None:
-    """Print one JSON document on stdout."""
-    click.echo(json.dumps(data, indent=2))
 
 
 def _model(path: str, rtol: float) -> Polyhedron:
@@ -145,8 +109,8 @@ def object_show(model: str, rtol: float, as_json: bool) -> None:
         return
     out.print(
         f"[bold]{poly.name}[/]: {len(poly.faces)} faces, {len(poly.vertices)} vertices, "
-        f"hull volume {_fmt_num(poly.volume)} {poly.units}^3, centre of mass "
-        f"({', '.join(_fmt_num(c) for c in poly.com)}), rotation symmetry order "
+        f"hull volume {fmt_num(poly.volume)} {poly.units}^3, centre of mass "
+        f"({', '.join(fmt_num(c) for c in poly.com)}), rotation symmetry order "
         f"{summary['symmetry_order']}"
     )
     faces = Table(title="Faces")
@@ -158,8 +122,8 @@ def object_show(model: str, rtol: float, as_json: bool) -> None:
         faces.add_row(
             name,
             " ".join(map(str, info["loop"])),
-            ", ".join(_fmt_num(d) for d in info["delta"]),
-            "(" + ", ".join(_fmt_num(c) for c in info["normal"]) + ")",
+            ", ".join(fmt_num(d) for d in info["delta"]),
+            "(" + ", ".join(fmt_num(c) for c in info["normal"]) + ")",
             "yes" if info["stable"] else "no",
         )
     out.print(faces)
@@ -254,7 +218,7 @@ def states_cmd(
     t.add_column("theta (deg)", justify="right")
     t.add_column("class", justify="right")
     for s, c in zip(states, classes, strict=True):
-        t.add_row(str(s), s.face, _fmt_num(s.theta), str(c))
+        t.add_row(str(s), s.face, fmt_num(s.theta), str(c))
     out.print(t)
 
 
@@ -427,9 +391,9 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
     off = plan_doc["offset"]
     out.print(
         f"plan {State.from_dict(plan_doc['start'])} -> {State.from_dict(plan_doc['goal'])}: "
-        f"{len(plan_doc['steps'])} step(s), cost {_fmt_num(plan_doc['cost'])}; relocate the "
-        f"agent by {_fmt_num(off['rotate_deg'])} degrees and ({_fmt_num(off['translate'][0])}, "
-        f"{_fmt_num(off['translate'][1])})"
+        f"{len(plan_doc['steps'])} step(s), cost {fmt_num(plan_doc['cost'])}; relocate the "
+        f"agent by {fmt_num(off['rotate_deg'])} degrees and ({fmt_num(off['translate'][0])}, "
+        f"{fmt_num(off['translate'][1])})"
     )
     for i, step in enumerate(plan_doc["steps"], start=1):
         t = Table(title=f"step {i}: {State.from_dict(step['from'])} -> "
@@ -518,13 +482,13 @@ def demo(model: str, as_json: bool) -> None:
     for col in ("over edge", "pivot", "to", "angle (deg)"):
         t.add_column(col)
     for k, m in enumerate(rolls, start=1):
-        t.add_row(str(k), f"E({m.pivot[0]},{m.pivot[1]})", str(m.end), _fmt_num(m.angle))
+        t.add_row(str(k), f"E({m.pivot[0]},{m.pivot[1]})", str(m.end), fmt_num(m.angle))
     out.print(t)
     out.print(f"rolling back from {rolls[0].end} returns to {round_trip.end}")
     tumble = summary["tumble_example"]
     if tumble:
         out.print(f"tumbling over V({','.join(tumble['pivot'])}) from {start} reaches "
-                  f"{State.from_dict(tumble['to'])} ({_fmt_num(tumble['angle'])} degrees)")
+                  f"{State.from_dict(tumble['to'])} ({fmt_num(tumble['angle'])} degrees)")
 
 
 def _tumble_example(poly: Polyhedron, start: State) -> dict[str, Any] | None:
@@ -540,9 +504,6 @@ def _tumble_example(poly: Polyhedron, start: State) -> dict[str, Any] | None:
             return m.to_dict()
     return None
 
-
-# command groups defined in their own modules import the helpers above, so they come last
-from nonprehensile.cli_dataset import dataset_group  # noqa: E402
 
 main.add_command(dataset_group)
 

@@ -16,7 +16,7 @@ import click
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from nonprehensile.cli import emit_json, err, handle_errors, out
+from nonprehensile.cli_common import emit_json, err, handle_errors, out
 from nonprehensile.demonstrations.dataset import (
     DEFAULT_GAP_LIMIT,
     Dataset,

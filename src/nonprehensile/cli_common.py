@@ -1,0 +1,54 @@
+"""What every command module of the command line shares: consoles, errors, JSON output.
+
+Exit codes (``shared/spec/files-and-cli.md``): 0 success, 2 bad input (the message names the
+file and the culprit), 1 anything else.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import sys
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import click
+from rich.console import Console
+from rich.text import Text
+
+from nonprehensile.errors import InputError, NonprehensileError
+
+__all__ = ["emit_json", "err", "fmt_num", "handle_errors", "out"]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+out = Console(soft_wrap=True, emoji=False, highlight=False)
+err = Console(stderr=True, soft_wrap=True, emoji=False, highlight=False)
+
+
+def fmt_num(x: float) -> str:
+    """A number as a person reads it (6 significant digits)."""
+    return f"{x:.6g}"
+
+
+def handle_errors(fn: F) -> F:
+    """Turn library errors into one-line messages and the spec's exit codes."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except InputError as exc:
+            # the message may hold brackets (lists of faces): never read it as markup
+            err.print(Text.assemble(("error: ", "bold red"), str(exc)))
+            sys.exit(2)
+        except NonprehensileError as exc:
+            err.print(Text.assemble(("error: ", "bold red"), str(exc)))
+            sys.exit(1)
+
+    return wrapper  # type: ignore[return-value]
+
+
+def emit_json(data: Any) -> None:
+    """Print one JSON document on stdout."""
+    click.echo(json.dumps(data, indent=2))
