@@ -46,6 +46,16 @@ rtol_option = click.option(
     help="Length tolerance relative to the object's diameter (raise it for measured models).",
 )
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
+angle_tol_option = click.option(
+    "--angle-tol", type=float, default=DEFAULT_ANGLE_TOL, show_default=True,
+    help="Angle tolerance in degrees for matching states (raise it for measured models).",
+)
+atol_option = click.option(
+    "--atol", type=float, default=None,
+    help="Length tolerance of the symmetry group (default: the model's own, rtol x diameter).",
+)
+
+
 
 
 @click.group()
@@ -175,14 +185,17 @@ def object_from_mesh(
 
 
 # ---------------------------------------------------------------------------- states
-def state_set(poly: Polyhedron, step: float | None, states_file: str | None) -> list[State]:
+def state_set(
+    poly: Polyhedron, step: float | None, states_file: str | None,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> list[State]:
     """The state set chosen on the command line (``--step`` or ``--states``)."""
     if (step is None) == (states_file is None):
         raise InputError("give exactly one of --step DEG or --states FILE")
     if step is not None:
         return states_by_step(poly, step)
     assert states_file is not None
-    return check_states(poly, read_states(states_file))
+    return check_states(poly, read_states(states_file), angle_tol=angle_tol)
 
 
 step_option = click.option("--step", type=float, default=None,
@@ -196,15 +209,18 @@ states_option = click.option("--states", "states_file", type=click.Path(dir_okay
 @step_option
 @states_option
 @rtol_option
+@atol_option
+@angle_tol_option
 @json_option
 @handle_errors
 def states_cmd(
-    model: str, step: float | None, states_file: str | None, rtol: float, as_json: bool
+    model: str, step: float | None, states_file: str | None, rtol: float, atol: float | None,
+    angle_tol: float, as_json: bool,
 ) -> None:
     """The stable states of MODEL and their geometric-equivalence classes."""
     poly = _model(model, rtol)
-    states = state_set(poly, step, states_file)
-    classes = equivalence_classes(poly, states)
+    states = state_set(poly, step, states_file, angle_tol)
+    classes = equivalence_classes(poly, states, atol=atol, angle_tol=angle_tol)
     n_classes = max(classes) + 1 if classes else 0
     if as_json:
         emit_json({
@@ -223,16 +239,6 @@ def states_cmd(
 
 
 # ---------------------------------------------------------------------------- skills
-angle_tol_option = click.option(
-    "--angle-tol", type=float, default=DEFAULT_ANGLE_TOL, show_default=True,
-    help="Angle tolerance in degrees for matching states (raise it for measured models).",
-)
-atol_option = click.option(
-    "--atol", type=float, default=None,
-    help="Length tolerance of the symmetry group (default: the model's own, rtol x diameter).",
-)
-
-
 @main.group("skills")
 def skills_group() -> None:
     """Demonstrated skills: contact events, motions and skill graphs."""
@@ -331,9 +337,14 @@ def infer_cmd(
 ) -> None:
     """Infer undemonstrated transitions of SKILLS_FILE over a state set (paper Section V)."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
-    states = state_set(poly, step, states_file)
+    states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, method=method, atol=atol,  # type: ignore[arg-type]
                  angle_tol=angle_tol)
+    applied = {t.source.name for t in exp.transitions}
+    for s in skills:
+        if s.name not in applied:
+            err.print(f"note: skill {s.name!r} (from {s.initial}) applies to no state of the "
+                      "set: no state is equivalent to its initial state")
     doc = exp.to_dict(poly.name)
     if figure:
         from nonprehensile.viz import state_graph_figure

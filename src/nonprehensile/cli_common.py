@@ -45,6 +45,11 @@ def handle_errors(fn: F) -> F:
         except NonprehensileError as exc:
             err.print(Text.assemble(("error: ", "bold red"), str(exc)))
             sys.exit(1)
+        except OSError as exc:
+            # a file the user named cannot be read or written: bad input, not a crash
+            where = f"{exc.filename}: " if exc.filename else ""
+            err.print(Text.assemble(("error: ", "bold red"), f"{where}{exc.strerror or exc}"))
+            sys.exit(2)
 
     return wrapper  # type: ignore[return-value]
 

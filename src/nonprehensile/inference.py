@@ -33,6 +33,7 @@ from typing import Any, Literal
 
 import networkx as nx
 
+from nonprehensile.checks import check_tolerance
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron, wrap_index
 from nonprehensile.geometry.symmetry import apply_to_state, rotation_group
@@ -292,10 +293,15 @@ def infer(
     method: Method = "exact",
     atol: float | None = None,
     angle_tol: float = DEFAULT_ANGLE_TOL,
+    index: StateIndex | None = None,
 ) -> list[InferredTransition]:
-    """Transitions of one skill over a state set, by ``method`` (``"exact"`` or ``"paper"``)."""
+    """Transitions of one skill over a state set, by ``method`` (``"exact"`` or ``"paper"``).
+
+    ``index`` is a prebuilt :class:`StateIndex` of ``states`` (the exact method uses it).
+    """
+    angle_tol = check_tolerance(angle_tol, "angle_tol", allow_zero=True)
     if method == "exact":
-        return infer_exact(poly, skill, states, atol=atol, angle_tol=angle_tol)
+        return infer_exact(poly, skill, states, atol=atol, angle_tol=angle_tol, index=index)
     if method == "paper":
         return infer_paper(poly, skill, states, angle_tol=angle_tol)
     raise InputError(f"inference method must be one of {list(METHODS)}, got {method!r}")
@@ -371,11 +377,8 @@ def expand(
     found: list[InferredTransition] = []
     index = StateIndex(states)
     for skill in _with_reverses(skills):
-        if method == "exact":
-            got = infer_exact(poly, skill, states, atol=atol, angle_tol=angle_tol, index=index)
-        else:
-            got = infer(poly, skill, states, method=method, atol=atol, angle_tol=angle_tol)
-        found.extend(got)
+        found.extend(infer(poly, skill, states, method=method, atol=atol, angle_tol=angle_tol,
+                           index=index))
     for t in found:
         graph.add(t.transition())
     return Expansion(graph, found, method)

@@ -81,8 +81,11 @@ def save_document(data: Any, path: str | Path) -> None:
     else:
         text = json.dumps(data, indent=2) + "\n"
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def model_from_dict(
@@ -236,7 +239,11 @@ def read_skills(
         poly = model_from_dict(obj, source=f"{path} (inline object)", rtol=rtol)
     elif isinstance(obj, str):
         target = path.parent / obj
-        poly = load_model(target if target.exists() else obj, rtol=rtol)
+        try:
+            poly = load_model(target if target.exists() or obj not in BUNDLED_MODELS else obj,
+                              rtol=rtol)
+        except InputError as exc:
+            raise SkillError(f"{path}: its object: {exc}") from None
     else:
         raise SkillError(f"{path}: 'object' must be a model file path or an inline model")
     raw = data["skills"]

@@ -194,7 +194,7 @@ def roll(
             )
         edge = best
     assert edge is not None
-    if not isinstance(edge, (int, np.integer)) or not 1 <= edge <= n:
+    if isinstance(edge, bool) or not isinstance(edge, (int, np.integer)) or not 1 <= edge <= n:
         raise ManeuverError(f"face {f!r} has edges 1..{n}, got edge {edge!r}")
     g = poly.neighbor(f, int(edge))
     rot, t = state_pose(poly, state)

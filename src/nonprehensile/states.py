@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from nonprehensile.checks import check_tolerance
 from nonprehensile.errors import GeometryError, StateError
 from nonprehensile.geometry.polyhedron import Polyhedron
 
@@ -36,6 +37,8 @@ __all__ = [
 
 #: Default tolerance on angles, in degrees, for exact models (the spec's default).
 DEFAULT_ANGLE_TOL = 1e-6
+#: Largest state set built from an angle step (a finer step is almost surely a typo).
+MAX_STATES = 1_000_000
 
 FloatArray = NDArray[np.float64]
 
@@ -105,11 +108,12 @@ class State:
         if not m:
             raise StateError(f"expected a state written FACE:THETA (e.g. a:90), got {text!r}")
         try:
-            return cls(m.group(1), float(m.group(2)))
+            theta = float(m.group(2))
         except ValueError:
             raise StateError(
                 f"expected a state written FACE:THETA (e.g. a:90), got {text!r}"
             ) from None
+        return cls(m.group(1), theta)
 
     def to_dict(self) -> dict[str, object]:
         """The spec's JSON form ``{"face": ..., "theta": ...}``."""
@@ -160,9 +164,15 @@ class StateIndex:
         if entry is None:
             return []
         thetas, idx = entry
-        # angular distance on the circle, vectorised over the face's states
-        d = np.abs((thetas - state.theta + 180.0) % 360.0 - 180.0)
-        return [idx[int(j)] for j in np.flatnonzero(d <= tol)]
+        tol = check_tolerance(tol, "angle tolerance", allow_zero=True)
+        # thetas are sorted in [0, 360): bisect the window [theta - tol, theta + tol], in up
+        # to three pieces where it wraps around 0 or 360
+        out: list[int] = []
+        for shift in (-360.0, 0.0, 360.0):
+            lo = np.searchsorted(thetas, state.theta - tol + shift, side="left")
+            hi = np.searchsorted(thetas, state.theta + tol + shift, side="right")
+            out.extend(idx[int(j)] for j in range(lo, hi))
+        return sorted(set(out))
 
     def find(self, state: State, tol: float = DEFAULT_ANGLE_TOL) -> int | None:
         """Position of the state closest to ``state`` within ``tol`` degrees, or None."""
@@ -330,20 +340,42 @@ def states_by_step(
     chosen = stable_faces(poly, margin) if faces is None else list(faces)
     for f in chosen:
         poly.loop(f)
+    if n * len(chosen) > MAX_STATES:
+        raise StateError(
+            f"a {step:g}-degree step gives {n * len(chosen)} states on {len(chosen)} faces, more "
+            f"than {MAX_STATES}; use a coarser step"
+        )
     return [State(f, i * step) for f in chosen for i in range(n)]
 
 
 def check_states(
-    poly: Polyhedron, states: Sequence[State], *, margin: float = 0.0
+    poly: Polyhedron,
+    states: Sequence[State],
+    *,
+    margin: float = 0.0,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> list[State]:
     """Validate an explicit state set against the object.
 
     Raises
     ------
     StateError
-        Naming the first state whose face the object lacks or cannot rest on.
+        Naming the first state whose face the object lacks or cannot rest on, or that is
+        listed twice (within ``angle_tol``).
     """
-    out = []
+    by_face: dict[str, list[State]] = {}
+    for s in states:
+        by_face.setdefault(s.face, []).append(s)
+    for same in by_face.values():
+        # neighbours in angle order, and the pair across 360/0
+        same = sorted(same, key=lambda s: s.theta)
+        for i in range(len(same) if len(same) > 1 else 0):
+            a, b = same[i - 1], same[i]
+            if angles_close(a.theta, b.theta, angle_tol):
+                raise StateError(
+                    f"state {b} is listed twice (as {a} and {b}, within {angle_tol:g} degrees)"
+                )
+    out: list[State] = []
     for s in states:
         if s.face not in poly.faces:
             raise StateError(

@@ -79,12 +79,15 @@ class Transition:
             for k, v in data.items()
             if k not in ("from", "to", "skill", "maneuver", "demonstrated")
         }
+        demonstrated = data.get("demonstrated", True)
+        if not isinstance(demonstrated, bool):
+            raise InputError(f"transition {data!r}: 'demonstrated' must be true or false")
         return cls(
             State.from_dict(data["from"]),
             State.from_dict(data["to"]),
             str(data["skill"]),
             data["maneuver"],
-            bool(data.get("demonstrated", True)),
+            demonstrated,
             info,
         )
 

@@ -10,8 +10,8 @@ coordinates. Mesh files are read with trimesh, imported only when needed (the ``
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -178,7 +178,6 @@ def convex_hull(
     name: str = "object",
     rtol: float = DEFAULT_RTOL,
     center_of_mass: ArrayLike | None = None,
-    virtual_faces: Sequence[int] = (),
     units: str = "m",
 ) -> Polyhedron:
     """The convex hull of a point set as an object model.
@@ -193,8 +192,6 @@ def convex_hull(
         Tolerance, relative to the diameter, within which hull triangles are coplanar.
     center_of_mass : array-like, shape (3,), optional
         Default the centroid of the uniform hull.
-    virtual_faces : sequence of int
-        Internal use by :func:`from_mesh`: indices (in naming order) of virtual faces.
     units : str
         Length units.
 
@@ -238,20 +235,16 @@ def convex_hull(
 
     order = sorted(range(len(loops)), key=lambda i: face_key(loops[i]))
     model_faces: dict[str, tuple[int, ...]] = {}
-    virtual_names = set()
     for rank, i in enumerate(order):
         loop = [new_index[j] for j in loops[i][1]]
         start = loop.index(min(loop))
         model_faces[face_name(rank)] = tuple(loop[start:] + loop[:start])
-        if i in set(virtual_faces):
-            virtual_names.add(face_name(rank))
     try:
         return Polyhedron(
             vertices,
             model_faces,
             name=name,
             center_of_mass=None if center_of_mass is None else np.asarray(center_of_mass),
-            virtual_faces=frozenset(virtual_names),
             units=units,
             rtol=rtol,
         )
@@ -338,16 +331,14 @@ def from_mesh(
     convex = abs(mesh.volume - hull.volume) <= 1e-6 * hull.volume
     if convex:
         return hull
-    virtual = _virtual_faces(hull, mesh, rtol)
-    return Polyhedron(
-        hull.vertices,
-        hull.faces,
-        name=hull.name,
-        center_of_mass=np.asarray(mesh.center_mass, dtype=float),
-        virtual_faces=virtual,
-        units=units,
-        rtol=rtol,
-    )
+    try:
+        return dataclasses.replace(
+            hull,
+            center_of_mass=np.asarray(mesh.center_mass, dtype=float),
+            virtual_faces=_virtual_faces(hull, mesh, rtol),
+        )
+    except ModelError as exc:
+        raise MeshError(f"{path}: {exc}") from None
 
 
 def _virtual_faces(hull: Polyhedron, mesh: Any, rtol: float) -> frozenset[str]:

@@ -21,7 +21,8 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
-from nonprehensile.errors import ModelError
+from nonprehensile.checks import check_tolerance
+from nonprehensile.errors import InputError, ModelError
 
 __all__ = ["DEFAULT_RTOL", "Polyhedron", "check_polyhedron", "wrap_index"]
 
@@ -106,6 +107,7 @@ class Polyhedron:
     rtol: float = DEFAULT_RTOL
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "rtol", _check_rtol(self.rtol))
         vertices, faces = check_polyhedron(self.vertices, self.faces, rtol=self.rtol)
         object.__setattr__(self, "vertices", vertices)
         object.__setattr__(self, "faces", faces)
@@ -117,7 +119,10 @@ class Polyhedron:
                 f"expected a subset of {sorted(faces)}"
             )
         if self.center_of_mass is not None:
-            com = np.asarray(self.center_of_mass, dtype=float)
+            try:
+                com = np.array(self.center_of_mass, dtype=float)
+            except (TypeError, ValueError):
+                com = np.full(1, np.nan)
             if com.shape != (3,) or not np.all(np.isfinite(com)):
                 raise ModelError(
                     f"center_of_mass must be 3 finite numbers, got {self.center_of_mass!r}"
@@ -365,6 +370,13 @@ class Polyhedron:
         return vol, acc / vol
 
 
+def _check_rtol(rtol: object) -> float:
+    try:
+        return check_tolerance(rtol, "rtol")
+    except InputError as exc:
+        raise ModelError(str(exc)) from None
+
+
 def check_polyhedron(
     vertices: object, faces: object, *, rtol: float = DEFAULT_RTOL
 ) -> tuple[FloatArray, dict[str, tuple[int, ...]]]:
@@ -391,6 +403,7 @@ def check_polyhedron(
     ModelError
         Naming the face (or vertex) at fault and how to fix it.
     """
+    rtol = _check_rtol(rtol)
     try:
         v = np.array(vertices, dtype=float)
     except (TypeError, ValueError):

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from nonprehensile.checks import check_tolerance
 from nonprehensile.geometry.polyhedron import Polyhedron, wrap_index
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex
 
@@ -66,7 +67,7 @@ class Symmetry:
 
 
 def _default_atol(poly: Polyhedron, atol: float | None) -> float:
-    return poly.atol if atol is None else float(atol)
+    return poly.atol if atol is None else check_tolerance(atol, "atol")
 
 
 @lru_cache(maxsize=128)
@@ -212,7 +213,8 @@ def equivalence_classes(
         return i
 
     for i, s in enumerate(states):
-        for g in group[1:]:
+        # the identity too: it merges copies of one state (equal within the tolerance)
+        for g in group:
             for j in index.find_all(apply_to_state(poly, g, s), angle_tol):
                 ri, rj = find(i), find(j)
                 if ri != rj:

@@ -262,6 +262,9 @@ def skill_from_dict(
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise SkillError(f"a skill needs a non-empty 'name', got {data!r:.80}")
+    if ":" in name:
+        # NAME:reverse names the reverse of an invertible skill: a user name must not clash
+        raise SkillError(f"skill {name!r}: a skill name may not contain ':'; rename it")
     known = {"name", "initial", "final", "maneuver", "invertible", "events", "motions"}
     unknown = sorted(set(data) - known)
     if unknown:
