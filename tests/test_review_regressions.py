@@ -98,7 +98,7 @@ def test_odd_values_in_transitions_and_states() -> None:
     from nonprehensile.errors import ManeuverError
     from nonprehensile.maneuvers import roll
 
-    with pytest.raises(ManeuverError, match="edges 1..4"):
+    with pytest.raises(ManeuverError, match=r"edges 1\.\.4"):
         roll(cube(), State("a", 0), edge=True)  # type: ignore[arg-type]
 
 
