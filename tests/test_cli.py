@@ -145,13 +145,6 @@ def test_real_process_exit_code_and_no_traceback(tmp_path: Path) -> None:
     assert "broken.json" in proc.stderr and "Traceback" not in proc.stderr
 
 
-def test_demo_json() -> None:
-    code, out, _ = run("demo", "--json")
-    doc = json.loads(out)
-    assert code == 0 and doc["n_states"] == 24 and doc["n_classes"] == 1
-    assert doc["roll_back"]["to"] == doc["rolls_from"]
-
-
 def test_figures_from_the_cli(tmp_path: Path) -> None:
     pytest.importorskip("matplotlib")
     skills = str(Path(EXAMPLE).parent / "cube_skills.json")

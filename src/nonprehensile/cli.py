@@ -7,21 +7,36 @@ file and the culprit), 1 anything else (``shared/spec/files-and-cli.md``).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
 import click
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+)
 from rich.table import Table
 
 from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out
 from nonprehensile.cli_dataset import dataset_group
-from nonprehensile.errors import InputError, NonprehensileError
+from nonprehensile.errors import InputError
 from nonprehensile.geometry.build import from_mesh
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
 from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
 from nonprehensile.inference import METHODS, Expansion, cross_check, expand
 from nonprehensile.io import load_model, read_skills, read_states, write_model
-from nonprehensile.maneuvers import classify, roll
+from nonprehensile.pipeline import (
+    DEFAULT_GOAL,
+    DEFAULT_START,
+    motions_from_dataset,
+    run_demo,
+    write_plan_motions,
+)
 from nonprehensile.planning import plan
 from nonprehensile.skills.contacts import format_event
 from nonprehensile.skills.skill import Skill, group_by_maneuver, skill_graph, skill_to_dict
@@ -435,6 +450,10 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
               help="Where the object is on the table (x y), for the agent's offset.")
 @click.option("--cost", "costs", multiple=True, callback=_parse_costs,
               help="Cost of a skill, SKILL=COST (repeatable); default 1 per transition.")
+@click.option("--dataset", default=None,
+              help="Demonstrations (a dataset folder, or `cube`) to attach reference motions.")
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
+              help="Write each step's reference trajectories here (C3D and CSV).")
 @rtol_option
 @atol_option
 @angle_tol_option
@@ -442,15 +461,26 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
 @handle_errors
 def plan_cmd(
     skills_file: str, start: State, goal: State, step: float | None, states_file: str | None,
-    position: tuple[float, float], costs: dict[str, float] | None, rtol: float,
-    atol: float | None, angle_tol: float, as_json: bool,
+    position: tuple[float, float], costs: dict[str, float] | None, dataset: str | None,
+    out_dir: str | None, rtol: float, atol: float | None, angle_tol: float, as_json: bool,
 ) -> None:
     """Plan transitions, contact events and finger motions from --from to --to."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
-    states = state_set(poly, step, states_file)
+    states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
-    result = plan(poly, exp, start, goal, position=position, costs=costs, angle_tol=angle_tol)
+    motions = None
+    if dataset is not None:
+        with progress_bars() as bars:
+            _, motions = motions_from_dataset(dataset, progress=_Bars(bars))
+    if out_dir is not None and motions is None:
+        raise InputError("--out writes reference trajectories: give --dataset too")
+    result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
+                  angle_tol=angle_tol)
     doc = result.to_dict()
+    if out_dir is not None:
+        written = write_plan_motions(result, out_dir)
+        doc["files"] = [str(p) for p in written]
+        err.print(f"wrote {len(written)} files to {out_dir}")
     if as_json:
         emit_json(doc)
         return
@@ -458,62 +488,58 @@ def plan_cmd(
 
 
 # ---------------------------------------------------------------------------- demo
+class _Bars:
+    """Rich progress bars, one per stage of a long job (on stderr)."""
+
+    def __init__(self, progress: Progress) -> None:
+        self.progress = progress
+        self.tasks: dict[str, TaskID] = {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if stage not in self.tasks:
+            self.tasks[stage] = self.progress.add_task(stage, total=total)
+        self.progress.update(self.tasks[stage], completed=done, total=total)
+
+
+def progress_bars() -> Progress:
+    """The progress display used by long commands."""
+    return Progress(TextColumn("{task.description:<12}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), console=err, transient=False)
+
+
 @main.command("demo")
-@click.option("--model", default="cube", show_default=True,
-              help="Object model file or bundled name.")
+@click.option("--out", "out_dir", default="report", show_default=True,
+              type=click.Path(file_okay=False), help="Folder of the report and summary.")
+@click.option("--dataset", default="cube", show_default=True,
+              help="Dataset folder, or the bundled `cube`.")
+@click.option("--from", "start", default=str(DEFAULT_START), show_default=True,
+              callback=_parse_state, help="Start state of the task.")
+@click.option("--to", "goal", default=str(DEFAULT_GOAL), show_default=True,
+              callback=_parse_state, help="Goal state of the task.")
+@click.option("--seed", default=0, show_default=True, help="Seed of the clustering.")
 @json_option
 @handle_errors
-def demo(model: str, as_json: bool) -> None:
-    """The main job on the bundled example: object model, states, and exact maneuvers."""
-    poly = load_model(model)
-    states = states_by_step(poly, 90)
-    classes = equivalence_classes(poly, states)
-    start = states[0]
-    rolls = [roll(poly, start, edge=k) for k in range(1, poly.n_edges(start.face) + 1)]
-    round_trip = roll(poly, rolls[0].end, edge=poly.adjacency[rolls[0].end.face][start.face])
-    summary: dict[str, Any] = {
-        "object": object_summary(poly),
-        "n_states": len(states),
-        "n_classes": max(classes) + 1,
-        "rolls_from": start.to_dict(),
-        "rolls": [m.to_dict() for m in rolls],
-        "roll_back": round_trip.to_dict(),
-        "tumble_example": _tumble_example(poly, start),
-    }
+def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
+         as_json: bool) -> None:
+    """The main job: the whole pipeline on a dataset, ending in an HTML report."""
+    t0 = time.perf_counter()
+    with progress_bars() as bars:
+        result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
+                          progress=_Bars(bars))
+    elapsed = time.perf_counter() - t0
+    summary = result.summary
     if as_json:
-        emit_json(summary)
+        emit_json({**summary, "report": str(result.report), "summary": str(result.summary_path),
+                   "wall_seconds": round(elapsed, 2)})
         return
-    out.rule(f"[bold]nonprehensile demo: {poly.name}")
-    out.print(adjacency_table(poly))
-    out.print(
-        f"{len(states)} states at a 90-degree step, {summary['n_classes']} geometric "
-        f"equivalence class(es); rotation symmetry order {summary['object']['symmetry_order']}"
-    )
-    t = Table(title=f"Exact rolls from {start}")
-    for col in ("over edge", "pivot", "to", "angle (deg)"):
-        t.add_column(col)
-    for k, m in enumerate(rolls, start=1):
-        t.add_row(str(k), f"E({m.pivot[0]},{m.pivot[1]})", str(m.end), fmt_num(m.angle))
-    out.print(t)
-    out.print(f"rolling back from {rolls[0].end} returns to {round_trip.end}")
-    tumble = summary["tumble_example"]
-    if tumble:
-        out.print(f"tumbling over V({','.join(tumble['pivot'])}) from {start} reaches "
-                  f"{State.from_dict(tumble['to'])} ({fmt_num(tumble['angle'])} degrees)")
-
-
-def _tumble_example(poly: Polyhedron, start: State) -> dict[str, Any] | None:
-    """One tumbling transition from ``start`` found from the geometry, if any."""
-    for s in states_by_step(poly, 90):
-        if s.face == start.face:
-            continue
-        try:
-            m = classify(poly, start, s)
-        except NonprehensileError:
-            continue
-        if m.kind == "tumbling":
-            return m.to_dict()
-    return None
+    inf = summary["inference"]
+    out.print(f"object {summary['object']['name']}: {summary['states']['count']} states, "
+              f"{inf['transitions']} transitions ({inf['demonstrated']} demonstrated); "
+              f"{summary['dataset']['demonstrations']} demonstrations, "
+              f"{summary['dataset']['segments']} segments clustered")
+    print_plan(summary["plan"])
+    out.print(f"report: {result.report.resolve()}")
+    out.print(f"summary: {result.summary_path.resolve()}  ({elapsed:.1f} s)")
 
 
 main.add_command(dataset_group)

@@ -1,5 +1,6 @@
-"""The motion model (paper Section VI): trajectory preprocessing and the Hilbert index."""
+"""The motion model (paper Section VI): preprocessing, the Hilbert index, clustering, store."""
 
+from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.hilbert import (
     MAX_ORDER,
     decode,
@@ -8,6 +9,7 @@ from nonprehensile.motion.hilbert import (
     quantize,
     sort_keys,
 )
+from nonprehensile.motion.store import MemoryStore, SampleStore, SQLiteStore, StoreError
 from nonprehensile.motion.trajectory import (
     DEFAULT_N_POINTS,
     crop,
@@ -21,6 +23,11 @@ from nonprehensile.motion.trajectory import (
 __all__ = [
     "DEFAULT_N_POINTS",
     "MAX_ORDER",
+    "HilbertClusterer",
+    "MemoryStore",
+    "SQLiteStore",
+    "SampleStore",
+    "StoreError",
     "crop",
     "decode",
     "encode",

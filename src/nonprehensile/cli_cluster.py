@@ -1,0 +1,271 @@
+"""``nonprehensile cluster``: cluster demonstrated trajectories into a persistent store.
+
+Registered on the main group by :mod:`nonprehensile.cli`. The store is a SQLite file holding
+every sample (flattened trajectory), its Hilbert key and cluster id, and the clusterer's state,
+so that ``cluster add`` registers new demonstrations without refitting (several processes may
+add at once: each takes the write lock for its whole registration). Progress bars and messages
+go to stderr; ``--json`` prints one JSON document on stdout.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+from numpy.typing import NDArray
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from nonprehensile.cli_common import emit_json, err, handle_errors, out
+from nonprehensile.errors import InputError
+from nonprehensile.motion.clustering import HilbertClusterer
+from nonprehensile.motion.store import SQLiteStore
+
+__all__ = ["cluster_group"]
+
+#: Name of the clusterer's state in the store's meta table.
+STATE = "hilbert_clusterer"
+#: Samples registered per step of the progress bar.
+CHUNK = 64
+
+
+@contextmanager
+def _progress(label: str, quiet: bool) -> Iterator[Callable[[int, int], None]]:
+    """A rich progress bar on stderr, fed by a (done, total) callback."""
+    if quiet:
+        yield lambda done, total: None
+        return
+    bar = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                   console=err, transient=True)
+    task = bar.add_task(label, total=None)
+    with bar:
+        yield lambda done, total: bar.update(task, completed=done, total=total)
+
+
+def _load_arrays(path: str) -> tuple[NDArray[np.float64], list[str] | None]:
+    """Samples from ``.npy`` (an array, shape (n_samples, n_features)) or ``.npz`` (key
+    ``X``, optional ``y``: a class per sample)."""
+    p = Path(path)
+    try:
+        data = np.load(p, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputError(
+            f"{path}: cannot read as a numpy .npy or .npz file ({exc}); save the samples "
+            "with numpy.save, shape (n_samples, n_features)"
+        ) from None
+    if isinstance(data, np.ndarray):
+        return np.asarray(data, dtype=np.float64), None
+    with data:
+        if "X" not in data.files:
+            raise InputError(f"{path}: an .npz file needs an array named 'X', it has "
+                             f"{data.files}")
+        y = [str(v) for v in data["y"].tolist()] if "y" in data.files else None
+        return np.asarray(data["X"], dtype=np.float64), y
+
+
+def _load_dataset(spec: str, quiet: bool) -> tuple[NDArray[np.float64], list[str]]:
+    """Flattened demonstrations of a dataset folder (or bundled name) and their skills."""
+    from nonprehensile.demonstrations.dataset import load_dataset
+    from nonprehensile.motion.trajectory import preprocess
+
+    with _progress("reading demonstrations", quiet) as tick:
+        ds = load_dataset(spec, progress=tick)
+    rows, skills = [], []
+    for d in ds.demonstrations:
+        t = d.trajectory
+        rows.append(preprocess(t.positions, t.rate, t_start=d.events[0].time,
+                               t_end=d.events[-1].time, max_gap=ds.gap_limit))
+        skills.append(d.skill.name)
+    if not rows:
+        raise InputError(f"{spec}: the dataset has no demonstration")
+    return np.vstack(rows), skills
+
+
+def _samples(dataset: str | None, arrays: str | None, quiet: bool
+             ) -> tuple[NDArray[np.float64], list[str] | None]:
+    if (dataset is None) == (arrays is None):
+        raise InputError("give exactly one of --dataset DIR (or a bundled name) or "
+                         "--arrays FILE (.npy or .npz)")
+    if dataset is not None:
+        return _load_dataset(dataset, quiet)
+    assert arrays is not None
+    return _load_arrays(arrays)
+
+
+def _register(c: HilbertClusterer, x: NDArray[np.float64], quiet: bool) -> None:
+    with _progress("clustering", quiet) as tick:
+        for s in range(0, x.shape[0], CHUNK):
+            c.partial_fit(x[s : s + CHUNK])
+            tick(min(s + CHUNK, x.shape[0]), x.shape[0])
+
+
+def _load(db: SQLiteStore, path: str) -> HilbertClusterer:
+    state = db.get_meta(STATE)
+    if state is None:
+        raise InputError(
+            f"{path}: no clusterer in this store; create one with "
+            "`nonprehensile cluster fit STORE --dataset ...` first"
+        )
+    return HilbertClusterer.load_state(state, db)
+
+
+def summary(c: HilbertClusterer, path: str) -> dict[str, Any]:
+    """The ``cluster show --json`` document: model and clusters (id, size, key range)."""
+    clusters = []
+    for cid in sorted(set(c.labels_.tolist())):
+        _, keys = c.store.cluster(cid)
+        clusters.append({"id": cid, "size": len(keys), "key_min": min(keys),
+                         "key_max": max(keys)})
+    return {
+        "store": path,
+        "method": c.method,
+        "n_samples": c.n_samples_seen_,
+        "n_features": c.n_features_in_,
+        "n_components": int(c.components_.shape[0]),
+        "order": c.order_,
+        "n_clusters": len(clusters),
+        "n_recalibrations": c.n_recalibrations_,
+        "n_outside": c.n_outside_,
+        "clusters": clusters,
+    }
+
+
+def _print_summary(doc: dict[str, Any]) -> None:
+    out.print(
+        f"{doc['store']}: {doc['n_samples']} samples of {doc['n_features']} features, "
+        f"method {doc['method']}, {doc['n_components']} components x order {doc['order']}, "
+        f"{doc['n_clusters']} clusters, {doc['n_recalibrations']} recalibrations, "
+        f"{doc['n_outside']} registered outside the scale bounds"
+    )
+    t = Table(title="Clusters")
+    for col in ("id", "size", "first key", "last key"):
+        t.add_column(col, justify="right")
+    for cl in doc["clusters"]:
+        t.add_row(str(cl["id"]), str(cl["size"]), str(cl["key_min"]), str(cl["key_max"]))
+    out.print(t)
+
+
+def _with_classes(doc: dict[str, Any], c: HilbertClusterer, classes: list[str] | None,
+                  start: int) -> dict[str, Any]:
+    labels = c.labels_[start:].tolist()
+    doc = {**doc, "labels": labels}
+    if classes is not None and len(classes) == len(labels) and len(set(classes)) > 1:
+        from sklearn.metrics import adjusted_rand_score
+
+        doc["ari_vs_classes"] = float(adjusted_rand_score(classes, labels))
+    return doc
+
+
+store_argument = click.argument("store", type=click.Path(dir_okay=False))
+dataset_option = click.option("--dataset", default=None,
+                              help="Demonstration dataset folder, or a bundled name (cube).")
+arrays_option = click.option("--arrays", default=None, type=click.Path(dir_okay=False),
+                             help="Samples as .npy (n_samples, n_features) or .npz (X, y).")
+json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
+
+
+@click.group("cluster")
+def cluster_group() -> None:
+    """Cluster demonstrated trajectories on a Hilbert-curve index, in a SQLite store."""
+
+
+@cluster_group.command("fit")
+@store_argument
+@dataset_option
+@arrays_option
+@click.option("--method", type=click.Choice(["runs", "paper"]), default="runs",
+              show_default=True, help="runs: ours; paper: the paper's recipe.")
+@click.option("--n-clusters", type=int, default=None,
+              help="Number of clusters (default: chosen by the silhouette).")
+@click.option("--init-size", type=int, default=None,
+              help="Samples of the first batch (default: all given here).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@json_option
+@handle_errors
+def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str,
+                n_clusters: int | None, init_size: int | None, seed: int,
+                as_json: bool) -> None:
+    """Create STORE (replacing its content) and cluster the given samples into it."""
+    x, classes = _samples(dataset, arrays, as_json)
+    db = SQLiteStore(store)
+    try:
+        with db.transaction():
+            db.clear()
+            c = HilbertClusterer(n_clusters, method=method,  # type: ignore[arg-type]
+                                 init_size=init_size if init_size is not None else
+                                 max(x.shape[0], 3), store=db, random_state=seed)
+            _register(c, x, as_json)
+            if not c.n_recalibrations_:
+                c.recalibrate()
+            db.put_meta(STATE, c.save_state())
+        doc = _with_classes(summary(c, store), c, classes, 0)
+    finally:
+        db.close()
+    if as_json:
+        emit_json(doc)
+        return
+    _print_summary(doc)
+    if "ari_vs_classes" in doc:
+        out.print(f"adjusted Rand index against the given classes: {doc['ari_vs_classes']:.3f}")
+
+
+@cluster_group.command("add")
+@store_argument
+@dataset_option
+@arrays_option
+@json_option
+@handle_errors
+def cluster_add(store: str, dataset: str | None, arrays: str | None, as_json: bool) -> None:
+    """Register new demonstrations in STORE without reclustering the stored ones."""
+    x, classes = _samples(dataset, arrays, as_json)
+    db = SQLiteStore(store)
+    try:
+        # the write lock for the whole read-modify-write: concurrent adds take turns
+        with db.transaction():
+            c = _load(db, store)
+            start = c.n_samples_seen_
+            _register(c, x, as_json)
+            db.put_meta(STATE, c.save_state())
+        doc = _with_classes(summary(c, store), c, classes, start)
+    finally:
+        db.close()
+    if as_json:
+        emit_json(doc)
+        return
+    _print_summary(doc)
+    out.print(f"registered {x.shape[0]} samples, cluster ids: "
+              f"{' '.join(map(str, doc['labels']))}")
+
+
+@cluster_group.command("show")
+@store_argument
+@click.option("--histogram", type=click.Path(dir_okay=False), default=None,
+              help="Write the histogram of keys coloured by cluster (the paper's Fig. 12(b)) "
+                   "to this image file (.png, .svg, .pdf).")
+@json_option
+@handle_errors
+def cluster_show(store: str, histogram: str | None, as_json: bool) -> None:
+    """Show the clusters of STORE: sizes and key ranges."""
+    if not Path(store).exists():
+        raise InputError(f"{store}: no such store; create it with `nonprehensile cluster fit`")
+    db = SQLiteStore(store)
+    try:
+        c = _load(db, store)
+        doc = summary(c, store)
+        if histogram is not None:
+            from nonprehensile.viz.clusters import cluster_histogram_figure
+
+            cluster_histogram_figure(c, title=Path(store).name).savefig(histogram, dpi=100)
+            doc["histogram"] = histogram
+    finally:
+        db.close()
+    if as_json:
+        emit_json(doc)
+        return
+    _print_summary(doc)
+    if histogram is not None:
+        out.print(f"wrote {histogram}")

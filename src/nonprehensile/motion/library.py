@@ -1,0 +1,107 @@
+"""Reference finger motions from clustered demonstrations (paper Section VII, step 4).
+
+Segments of the demonstrations (:mod:`nonprehensile.demonstrations.segment`) are registered to
+the arcs of the skill graphs and clustered by their motion. For a skill's arc the reference
+motion is the medoid of the cluster that holds most of that skill's segments on that arc: a
+real demonstration, not an average, so it is a motion a mentor actually made.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.demonstrations.segment import Segment
+from nonprehensile.errors import InputError
+from nonprehensile.motion.trajectory import preprocess
+from nonprehensile.planning import ReferenceMotion
+
+__all__ = ["ClusteredMotions", "flatten_segments", "medoid"]
+
+FloatArray = NDArray[np.float64]
+
+
+def flatten_segments(segments: Sequence[Segment], n_points: int = 400) -> FloatArray:
+    """The paper's flattened vectors of segments (resampled to ``n_points``).
+
+    Returns
+    -------
+    array, shape (n_segments, n_points * n_markers * 3)
+    """
+    if not segments:
+        raise InputError("no segment to flatten")
+    rows = []
+    for s in segments:
+        traj = s.trajectory
+        rows.append(preprocess(traj.positions, traj.rate, max_gap=traj.n_frames,
+                               n_points=n_points))
+    return np.vstack(rows)
+
+
+def medoid(x: FloatArray) -> int:
+    """Index of the row with the least total Euclidean distance to the others.
+
+    Parameters
+    ----------
+    x : array, shape (n_samples, n_features)
+    """
+    sq = np.einsum("ij,ij->i", x, x)
+    d2 = np.maximum(sq[:, None] + sq[None, :] - 2.0 * (x @ x.T), 0.0)
+    return int(np.argmin(np.sqrt(d2).sum(axis=1)))
+
+
+@dataclass(frozen=True)
+class ClusteredMotions:
+    """Segments with their cluster labels; a :class:`~nonprehensile.planning.MotionLibrary`.
+
+    Attributes
+    ----------
+    segments : sequence of Segment
+    labels : array of int, shape (n_segments,)
+        Cluster of each segment (clusters are per arc of the skill graph: the same number on
+        two arcs names two clusters).
+    vectors : array, shape (n_segments, n_features)
+        The flattened vectors the clusters were computed on (for the medoid).
+    """
+
+    segments: Sequence[Segment]
+    labels: NDArray[np.int64]
+    vectors: FloatArray
+
+    def __post_init__(self) -> None:
+        if not len(self.segments) == len(self.labels) == len(self.vectors):
+            raise InputError(
+                f"segments, labels and vectors must have the same length, got "
+                f"{len(self.segments)}, {len(self.labels)}, {len(self.vectors)}"
+            )
+
+    def _rows(self, skill: str, source: str, target: str) -> list[int]:
+        return [
+            i for i, s in enumerate(self.segments)
+            if s.skill == skill and (s.motion.source, s.motion.target) == (source, target)
+        ]
+
+    def clusters_of(self, skill: str, source: str, target: str) -> Mapping[int, int]:
+        """How many of the skill's segments on that arc fall in each cluster."""
+        return dict(Counter(int(self.labels[i]) for i in self._rows(skill, source, target)))
+
+    def reference(self, skill: str, source: str, target: str) -> ReferenceMotion | None:
+        """The medoid of the skill's main cluster on the arc ``source -> target``.
+
+        Positions are in metres, in the frame of the skill's demonstrated initial state.
+        """
+        rows = self._rows(skill, source, target)
+        if not rows:
+            return None
+        counts = Counter(int(self.labels[i]) for i in rows)
+        top = max(counts, key=lambda c: (counts[c], -c))
+        members = [i for i in rows if self.labels[i] == top]
+        best = members[medoid(self.vectors[members])]
+        traj = self.segments[best].trajectory.to_units("m")
+        return ReferenceMotion(
+            np.asarray(traj.positions), tuple(traj.marker_names), traj.rate, top, len(members)
+        )

@@ -1,0 +1,302 @@
+"""HilbertClusterer: the paper's recipe step by step, ours, streams, persistence, bad input."""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hilbertcurve.hilbertcurve import HilbertCurve
+from hypothesis import given, settings, strategies as st
+from sklearn.decomposition import PCA
+from sklearn.metrics import adjusted_rand_score
+
+from nonprehensile.errors import InputError
+from nonprehensile.motion import flatten
+from nonprehensile.motion.clustering import HilbertClusterer
+from nonprehensile.motion.store import SQLiteStore
+
+
+def _skill_trajectories(n_per: int, seed: int, n_skills: int = 2) -> tuple[np.ndarray,
+                                                                            np.ndarray]:
+    """Fingertip paths of ``n_skills`` skills (different arcs), 400 points, flattened."""
+    rng = np.random.default_rng(seed)
+    t = np.linspace(0, 1, 400)
+    rows, y = [], []
+    for s in range(n_skills):
+        for _ in range(n_per):
+            amp = 0.03 * (1 + s) + rng.normal(scale=0.002)
+            path = np.stack([0.1 * t, amp * np.sin(np.pi * t * (1 + s)),
+                             0.02 * t**2 + rng.normal(scale=0.001)], axis=1)
+            path = path + rng.normal(scale=0.001, size=path.shape)
+            rows.append(flatten(path[:, None, :]))
+            y.append(s)
+    return np.array(rows), np.array(y)
+
+
+def _blobs(n: int, k: int, d: int, seed: int, sep: float = 6.0) -> tuple[np.ndarray,
+                                                                         np.ndarray]:
+    rng = np.random.default_rng(seed)
+    centers = rng.normal(scale=sep, size=(k, d))
+    y = rng.integers(0, k, n)
+    return centers[y] + rng.normal(size=(n, d)), y
+
+
+# --------------------------------------------------------------------------- paper
+
+
+def _paper_reference(x: np.ndarray, k: int) -> tuple[list[int], np.ndarray]:
+    """The paper's recipe with independent tools: scikit-learn's PCA, hilbertcurve."""
+    pca = PCA(n_components=2).fit(x)
+    comp = pca.components_.copy()
+    # the sign convention HilbertClusterer documents: largest loading positive
+    idx = np.argmax(np.abs(comp), axis=1)
+    comp *= np.sign(comp[np.arange(2), idx])[:, None]
+    z = (x - x.mean(axis=0)) @ comp.T
+    lo, hi = z.min(axis=0), z.max(axis=0)
+    grid = np.minimum(np.floor((z - lo) / (hi - lo) * 32), 31).astype(int)  # 0..31
+    keys = HilbertCurve(5, 2).distances_from_points(grid.tolist())
+    srt = np.sort(keys)
+    gaps = np.diff(srt)
+    cut_at = np.sort(np.argsort(-gaps, kind="stable")[: k - 1])
+    starts = srt[cut_at + 1]
+    labels = np.searchsorted(starts, keys, side="right")
+    return list(keys), labels
+
+
+def test_paper_method_reproduces_the_recipe() -> None:
+    x, y = _skill_trajectories(30, seed=1)  # the paper's 60 trajectories, 30 per skill
+    c = HilbertClusterer(2, method="paper", random_state=0).fit(x)
+    keys, labels = _paper_reference(x, 2)
+    assert c.order_ == 5 and c.components_.shape == (2, 1200)
+    assert [int(v) for v in c.transform(x)] == keys
+    assert c.store.keys() == keys
+    np.testing.assert_array_equal(c.labels_, labels)
+    assert adjusted_rand_score(y, c.labels_) == 1.0
+
+
+def test_paper_registers_without_reclustering_then_recalibrates() -> None:
+    x, _ = _skill_trajectories(30, seed=2)
+    rng = np.random.default_rng(0)
+    x = x[rng.permutation(60)]
+    c = HilbertClusterer(2, method="paper", init_size=20, recalibration_period=20,
+                         recalibration_size=15, random_state=3)
+    c.partial_fit(x[:20])
+    first = c.labels_.copy()
+    keys_before = c.store.keys()
+    c.partial_fit(x[20:39])
+    # registered by the run its key falls in; nothing stored moved
+    assert c.n_recalibrations_ == 1
+    assert c.store.keys()[:20] == keys_before
+    np.testing.assert_array_equal(c.labels_[:20], first)
+    np.testing.assert_array_equal(c.labels_[20:], c.predict(x[20:39]))
+    c.partial_fit(x[39:40])  # the 40th sample completes the period
+    assert c.n_recalibrations_ == 2
+    # re-keyed with the recalibrated components, bounds from every stored sample
+    assert c.store.keys() == [int(v) for v in c.transform(x[:40])]
+    assert not c.outside(x[:40]).any()
+
+
+# --------------------------------------------------------------------------- ours
+
+
+def test_runs_clusters_separated_skills_in_batch_and_streams() -> None:
+    x, y = _blobs(600, 5, 40, seed=4, sep=1.0)
+    batch = HilbertClusterer(5, random_state=0).fit(x)
+    assert adjusted_rand_score(y, batch.labels_) > 0.99
+    order = np.argsort(y, kind="stable")
+    for idx in (np.random.default_rng(1).permutation(600), order):
+        c = HilbertClusterer(5, init_size=60, random_state=0)
+        for s in range(0, 600, 25):
+            c.partial_fit(x[idx[s : s + 25]])
+        assert adjusted_rand_score(y[idx], c.labels_) > 0.97
+    assert c.n_clusters_ == 5
+
+
+def test_runs_chooses_the_number_of_clusters() -> None:
+    x, y = _blobs(300, 4, 10, seed=5)
+    c = HilbertClusterer(None, random_state=0).fit(x)
+    assert c.n_clusters_ == 4 and adjusted_rand_score(y, c.labels_) == 1.0
+
+
+@pytest.mark.parametrize("method", ["runs", "paper"])
+@settings(max_examples=8)
+@given(cuts=st.lists(st.integers(1, 239), max_size=4, unique=True))
+def test_fit_equals_partial_fit_sequence(method: str, cuts: list[int]) -> None:
+    x, _ = _blobs(240, 3, 12, seed=6, sep=2.0)
+    kw = {"method": method, "init_size": 30, "random_state": 7}
+    whole = HilbertClusterer(3, **kw).fit(x)
+    parts = HilbertClusterer(3, **kw)
+    bounds = [0, *sorted(cuts), 240]
+    for a, b in itertools.pairwise(bounds):
+        parts.partial_fit(x[a:b])
+    np.testing.assert_array_equal(parts.labels_, whole.labels_)
+    assert parts.store.keys() == whole.store.keys()
+    np.testing.assert_array_equal(parts.components_, whole.components_)
+    assert parts.n_recalibrations_ == whole.n_recalibrations_
+
+
+def test_stored_keys_stay_until_a_recalibration_and_ids_are_stable() -> None:
+    x, y = _blobs(1000, 4, 8, seed=8)
+    c = HilbertClusterer(4, init_size=100, random_state=0)
+    c.partial_fit(x[:100])
+    keys, labels = c.store.keys(), c.labels_
+    c.partial_fit(x[100:199])  # the next recalibration is due at 200
+    assert c.n_recalibrations_ == 1 and c.store.keys()[:100] == keys
+    c.partial_fit(x[199:])
+    assert c.n_recalibrations_ >= 3
+    # the same skills keep the same ids through every recalibration
+    np.testing.assert_array_equal(c.labels_[:100], labels)
+    assert adjusted_rand_score(y, c.labels_) == 1.0
+
+
+def test_recalibrations_grow_geometrically() -> None:
+    x, _ = _blobs(4000, 3, 6, seed=9)
+    c = HilbertClusterer(3, init_size=100, random_state=0)
+    for s in range(0, 4000, 100):
+        c.partial_fit(x[s : s + 100])
+    # a stationary stream: one at the first batch, then at 200, 400, ..., 3200
+    assert c.n_recalibrations_ == 6
+
+
+def test_outside_samples_are_flagged_and_get_a_new_cluster() -> None:
+    x, y = _blobs(200, 2, 5, seed=10)
+    c = HilbertClusterer(2, random_state=0).fit(x)
+    far = x[y == 0][:3] + 1000.0  # one new skill, far outside
+    assert c.outside(far).all()
+    c.partial_fit(far)
+    assert c.n_outside_ == 3 and c.n_novel_ == 3
+    new = c.labels_[-3:]
+    assert len(set(new.tolist())) == 1 and new[0] not in set(c.labels_[:200].tolist())
+    # the stored key is the end cell's, flagged rather than silently taken as inside
+    assert c.store.keys()[-3:] == [int(k) for k in c.transform(far)]
+
+
+def test_new_skill_in_an_ordered_stream_becomes_a_cluster() -> None:
+    x, y = _blobs(400, 2, 20, seed=11, sep=2.0)
+    order = np.argsort(y, kind="stable")
+    c = HilbertClusterer(None, init_size=100, random_state=0)
+    c.partial_fit(x[order])
+    assert adjusted_rand_score(y[order], c.labels_) == 1.0
+
+
+# --------------------------------------------------------------------------- persistence
+
+
+def test_state_round_trip_through_sqlite(tmp_path: Path) -> None:
+    x, _ = _blobs(500, 3, 10, seed=12)
+    path = tmp_path / "c.db"
+    ref = HilbertClusterer(3, init_size=50, random_state=1)
+    ref.partial_fit(x)
+    store = SQLiteStore(path)
+    c = HilbertClusterer(3, init_size=50, random_state=1, store=store)
+    c.partial_fit(x[:300])
+    store.put_meta("model", c.save_state())
+    store.close()
+    store = SQLiteStore(path)
+    state = store.get_meta("model")
+    assert state is not None
+    again = HilbertClusterer.load_state(state, store)
+    np.testing.assert_array_equal(again.predict(x[300:]), c.predict(x[300:]))
+    again.partial_fit(x[300:])
+    np.testing.assert_array_equal(again.labels_, ref.labels_)
+    assert store.keys() == ref.store.keys()
+    with pytest.raises(InputError, match="already holds 500 samples"):
+        HilbertClusterer(3, store=store)
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def test_bad_arrays_get_clear_errors() -> None:
+    x, _ = _blobs(50, 2, 6, seed=13)
+    c = HilbertClusterer(2, random_state=0)
+    with pytest.raises(InputError, match="not fitted"):
+        c.predict(x)
+    bad = x.copy()
+    bad[3, 2] = np.nan
+    with pytest.raises(InputError, match="sample 3, feature 2 is nan"):
+        c.fit(bad)
+    with pytest.raises(InputError, match=r"reshape\(1, -1\)"):
+        c.fit(x[0])
+    with pytest.raises(InputError, match=r"shape \(n_samples, n_features\)"):
+        c.fit(x[None])
+    with pytest.raises(InputError, match="at least 3 samples"):
+        c.fit(x[:2])
+    with pytest.raises(InputError, match="array of numbers"):
+        c.fit([[1.0, "a"]])
+    c.fit(x)
+    with pytest.raises(InputError, match="5 features per sample, shorter than the 6"):
+        c.partial_fit(x[:, :5])
+    with pytest.raises(InputError, match="longer"):
+        c.predict(np.hstack([x, x]))
+    for kw, msg in [({"method": "kmeans"}, "method must be"),
+                    ({"n_components": 8, "order": 10}, "signed 64-bit"),
+                    ({"growth": 1.0}, "growth must be"),
+                    ({"n_clusters": 0}, "n_clusters must be >= 1"),
+                    ({"merge": "x"}, "merge must be"),
+                    ({"store": object()}, "must implement SampleStore")]:
+        with pytest.raises(InputError, match=msg):
+            HilbertClusterer(**kw)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- CLI, figure
+
+
+def test_cli_fit_add_show(tmp_path: Path) -> None:
+    import json
+
+    from click.testing import CliRunner
+
+    from nonprehensile.cli_cluster import cluster_group
+
+    x, y = _blobs(150, 3, 12, seed=14)
+    np.savez(tmp_path / "a.npz", X=x[:120], y=y[:120])
+    np.save(tmp_path / "b.npy", x[120:])
+    db = str(tmp_path / "c.db")
+    run = CliRunner()
+    res = run.invoke(cluster_group, ["fit", db, "--arrays", str(tmp_path / "a.npz"),
+                                     "--n-clusters", "3", "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["n_samples"] == 120 and doc["ari_vs_classes"] == 1.0
+    assert sum(c["size"] for c in doc["clusters"]) == 120
+    res = run.invoke(cluster_group, ["add", db, "--arrays", str(tmp_path / "b.npy"), "--json"])
+    assert res.exit_code == 0, res.output
+    added = json.loads(res.stdout)["labels"]
+    # the new samples join the clusters of their skills, named as in the first fit
+    first = dict(zip(y[:120].tolist(), doc["labels"], strict=True))
+    assert added == [first[v] for v in y[120:].tolist()]
+    png = tmp_path / "h.png"
+    res = run.invoke(cluster_group, ["show", db, "--histogram", str(png), "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["n_samples"] == 150 and png.stat().st_size > 1000
+    # bad input: exit code 2 and a message naming the culprit
+    np.save(tmp_path / "bad.npy", x[:5, :4])
+    res = run.invoke(cluster_group, ["add", db, "--arrays", str(tmp_path / "bad.npy")])
+    assert res.exit_code == 2 and "4 features per sample" in res.output
+    res = run.invoke(cluster_group, ["show", str(tmp_path / "none.db")])
+    assert res.exit_code == 2 and "no such store" in res.output
+
+
+def test_histogram_counts_match_the_clusters() -> None:
+    from nonprehensile.viz.clusters import cluster_histogram_figure
+
+    x, y = _skill_trajectories(30, seed=15)
+    c = HilbertClusterer(2, method="paper", random_state=0).fit(x)
+    fig = cluster_histogram_figure(c, truth=y.tolist(), title="Fig. 12(b)")
+    ax = fig.axes[0]
+    # one stacked bar series per cluster; the bars of a cluster add up to its size
+    heights: dict[str, float] = {}
+    for container in ax.containers:
+        label = str(container.get_label())
+        heights[label] = sum(p.get_height() for p in container.patches)
+    sizes = np.bincount(c.labels_)
+    # stacked bars sit on those below (their bottoms), their heights are their own counts
+    assert sorted(heights.values()) == sorted(sizes.tolist())
+    legend = ax.get_legend()
+    assert legend is not None
+    assert sorted(t.get_text() for t in legend.get_texts()) == ["0", "1"]
+    assert ax.get_xlim() == (0.0, 1024.0)  # 10-bit keys: the paper's indices 0..1023
+    assert len(fig.axes) == 2

@@ -1,0 +1,109 @@
+"""The main job end to end, from the command line, and its report in a real browser."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+pytest.importorskip("matplotlib")
+pytest.importorskip("sklearn")
+pytest.importorskip("ezc3d")
+
+from nonprehensile.cli import main
+from nonprehensile.io import load_model
+from nonprehensile.maneuvers import classify
+from nonprehensile.pipeline import write_plan_motions
+from nonprehensile.states import State
+from test_report import CHROMIUM, loaded_images
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, object]]:
+    out = tmp_path_factory.mktemp("demo") / "report"
+    res = CliRunner().invoke(main, ["demo", "--out", str(out), "--json"])
+    assert res.exit_code == 0, res.stderr
+    return out, json.loads(res.stdout)
+
+
+def test_demo_writes_report_and_summary(demo_run: tuple[Path, dict[str, object]]) -> None:
+    out, doc = demo_run
+    page = out / "index.html"
+    assert page.stat().st_size > 100_000
+    html = page.read_text()
+    assert html.count("data:image/png;base64,") >= 5
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["states"]["count"] == 24 and summary["inference"]["transitions"] == 168
+    assert summary["dataset"]["demonstrations"] == 180
+    assert doc["report"] == str(page)
+
+
+def test_demo_plan_is_exact_and_never_demonstrated(
+    demo_run: tuple[Path, dict[str, object]],
+) -> None:
+    _, doc = demo_run
+    plan = doc["plan"]
+    assert isinstance(plan, dict)
+    start, goal = State.from_dict(plan["start"]), State.from_dict(plan["goal"])
+    demonstrated = {State("a", 0), State("d", 0), State("d", 90), State("a", 90)}
+    assert not any(start.isclose(s) or goal.isclose(s) for s in demonstrated)
+    cube = load_model("cube")
+    cur = start
+    for step in plan["steps"]:
+        a, b = State.from_dict(step["from"]), State.from_dict(step["to"])
+        assert a.isclose(cur)
+        assert classify(cube, a, b).kind == step["maneuver"]
+        assert all(m["reference"] is not None for m in step["motions"])
+        cur = b
+    assert cur.isclose(goal)
+    assert plan["offset"]["rotate_deg"] == pytest.approx(20)
+
+
+def test_plan_reference_files(tmp_path: Path) -> None:
+    from nonprehensile.demonstrations.formats import read_c3d
+    from nonprehensile.inference import expand
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.planning import plan
+    from nonprehensile.states import states_by_step
+
+    ds, motions = motions_from_dataset("cube")
+    exp = expand(ds.poly, list(ds.skills), states_by_step(ds.poly, 90))
+    result = plan(ds.poly, exp, State("a", 0), State("d", 0), motions=motions,
+                  position=(0.5, 0.0))
+    files = write_plan_motions(result, tmp_path)
+    assert len(files) == 2 * 4
+    traj = read_c3d(next(f for f in files if f.suffix == ".c3d"))
+    ref = result.steps[0].motions[0][3]
+    assert ref is not None
+    assert traj.to_units("m").positions.shape == ref.positions.shape
+    assert abs(traj.to_units("m").positions - ref.positions).max() < 1e-6
+    # the offset moved the demonstrated motion by half a metre along x
+    assert ref.positions[..., 0].mean() > 0.3
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed")
+def test_demo_report_renders_in_chromium(
+    demo_run: tuple[Path, dict[str, object]], tmp_path: Path
+) -> None:
+    out, _ = demo_run
+    page = out / "index.html"
+    n = page.read_text().count("<img ")
+    assert loaded_images(page, tmp_path / "profile") == f"{n}/{n}"
+
+
+def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:
+    skills = str(Path(__file__).parents[1] / "examples" / "cube_skills.json")
+    out = tmp_path / "refs"
+    res = CliRunner().invoke(main, ["plan", skills, "--from", "a:0", "--to", "a:90", "--step",
+                                    "90", "--dataset", "cube", "--out", str(out), "--json"])
+    assert res.exit_code == 0, res.stderr
+    doc = json.loads(res.stdout)
+    (step,) = doc["steps"]
+    assert step["skill"] == "twist" and step["demonstrated"]
+    assert all(m["reference"]["n_frames"] > 0 for m in step["motions"])
+    assert sorted(p.suffix for p in out.iterdir()) == [".c3d", ".c3d", ".csv", ".csv"]
+    res = CliRunner().invoke(main, ["plan", skills, "--from", "a:0", "--to", "a:90", "--step",
+                                    "90", "--out", str(out)])
+    assert res.exit_code == 2 and "--dataset" in res.stderr
