@@ -81,7 +81,10 @@ def plot_key_histogram(
     x = np.array([float(v) if raw else v / 2.0**n_bits for v in k])
     top = float(2**n_bits) if raw else 1.0
     edges = np.linspace(0.0, top, bins + 1)
-    names = list(dict.fromkeys(g))
+    try:
+        names = sorted(set(g))
+    except TypeError:  # groups of mixed types: keep the order of first appearance
+        names = list(dict.fromkeys(g))
     data = [x[[gi == name for gi in g]] for name in names]
     if data:
         ax.hist(data, bins=edges.tolist(), stacked=True, label=[str(n) for n in names],

@@ -16,6 +16,7 @@ from nonprehensile.errors import InputError
 from nonprehensile.inference import Expansion
 from nonprehensile.skills.contacts import format_event
 from nonprehensile.states import State
+from nonprehensile.viz._figures import new_figure
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -31,16 +32,6 @@ __all__ = [
 
 #: Above this many states the drawn graph is unreadable; only the matrix is drawn.
 MAX_DRAWN_STATES = 60
-
-
-def _figure(**kwargs: Any) -> Figure:
-    try:
-        from matplotlib.figure import Figure
-    except ImportError:
-        raise InputError(
-            "figures need matplotlib; install it with `pip install 'nonprehensile[viz]'`"
-        ) from None
-    return Figure(**kwargs)
 
 
 def _skill_colors(names: Sequence[str]) -> dict[str, Any]:
@@ -92,7 +83,7 @@ def plot_state_graph(
     from matplotlib.patches import FancyArrowPatch
 
     if ax is None:
-        ax = _figure(figsize=(8, 6)).add_subplot()
+        ax = new_figure(figsize=(8, 6)).add_subplot()
     states = list(exp.graph.states)
     if len(states) > MAX_DRAWN_STATES:
         raise InputError(
@@ -139,7 +130,7 @@ def plot_transition_matrix(exp: Expansion, ax: Axes | None = None) -> Axes:
     from matplotlib.patches import Patch, Rectangle
 
     if ax is None:
-        ax = _figure(figsize=(7, 7)).add_subplot()
+        ax = new_figure(figsize=(7, 7)).add_subplot()
     states = exp.graph.states
     idx = {s: i for i, s in enumerate(states)}
     names = _skill_names(exp)
@@ -173,7 +164,7 @@ def plot_transition_matrix(exp: Expansion, ax: Axes | None = None) -> Axes:
 
 def state_graph_figure(exp: Expansion, *, skills: Sequence[str] | None = None) -> Figure:
     """The state graph beside its transition matrix (the paper's Fig. 7)."""
-    fig = _figure(figsize=(15, 6.5), layout="constrained")
+    fig = new_figure(figsize=(15, 6.5), layout="constrained")
     if len(exp.graph.states) <= MAX_DRAWN_STATES:
         a, b = fig.subplots(1, 2, width_ratios=[1.25, 1])
         plot_state_graph(exp, a, skills=skills)
@@ -199,7 +190,7 @@ def plot_skill_graph(graph: nx.MultiDiGraph, ax: Axes | None = None) -> Axes:
     from matplotlib.patches import FancyArrowPatch
 
     if ax is None:
-        ax = _figure(figsize=(11, 4.5)).add_subplot()
+        ax = new_figure(figsize=(11, 4.5)).add_subplot()
     # columns by longest path from the start, rows spread the branches of each column
     layers: dict[Any, int] = {}
     for node in nx.topological_sort(graph):
@@ -256,7 +247,7 @@ def plot_skill_graph(graph: nx.MultiDiGraph, ax: Axes | None = None) -> Axes:
 
 def skill_graphs_figure(graphs: Sequence[nx.MultiDiGraph]) -> Figure:
     """Several skill graphs stacked, one per maneuver."""
-    fig = _figure(figsize=(12, 3.6 * len(graphs)), layout="constrained")
+    fig = new_figure(figsize=(12, 3.6 * len(graphs)), layout="constrained")
     axes = fig.subplots(len(graphs), 1, squeeze=False)[:, 0]
     for g, ax in zip(graphs, axes, strict=True):
         plot_skill_graph(g, ax)

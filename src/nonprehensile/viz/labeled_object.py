@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.states import is_stable
+from nonprehensile.viz._figures import require_matplotlib
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -81,18 +82,6 @@ _COM_STYLE: tuple[dict[str, Any], dict[str, Any]] = (
 # A light box behind each label keeps it readable over hatching and hidden edges.
 _LABEL_BOX = {"boxstyle": "round,pad=0.12", "facecolor": "white", "edgecolor": "none",
               "alpha": 0.65}
-
-
-def _require_matplotlib() -> None:
-    """Import matplotlib's 3-D toolkit or say which extra to install."""
-    try:
-        import matplotlib.figure  # noqa: F401  (imported for its side effect: availability)
-        import mpl_toolkits.mplot3d  # noqa: F401
-    except ImportError:
-        raise InputError(
-            "drawing figures needs matplotlib, which is not installed; install it with "
-            "`pip install 'nonprehensile[viz]'`"
-        ) from None
 
 
 def _check_poly(poly: object) -> Polyhedron:
@@ -275,7 +264,7 @@ def plot_object(
         ``label_offset`` is outside ``(0, 1)``; :class:`~nonprehensile.errors.ModelError` if
         ``labeled_faces`` names a face the object lacks.
     """
-    _require_matplotlib()
+    require_matplotlib()
     from matplotlib.figure import Figure
     from matplotlib.legend_handler import HandlerTuple
     from matplotlib.lines import Line2D
@@ -453,7 +442,7 @@ def plot_adjacency(poly: Polyhedron, ax: Axes | None = None, *, fontsize: float 
     InputError
         If matplotlib is missing or ``poly`` is not an object model.
     """
-    _require_matplotlib()
+    require_matplotlib()
     from matplotlib.figure import Figure
 
     poly = _check_poly(poly)
@@ -521,7 +510,7 @@ def plot_delta(poly: Polyhedron, ax: Axes | None = None, *, fontsize: float = 11
     InputError
         If matplotlib is missing or ``poly`` is not an object model.
     """
-    _require_matplotlib()
+    require_matplotlib()
     from matplotlib.figure import Figure
 
     poly = _check_poly(poly)
@@ -601,7 +590,7 @@ def object_figure(
         If matplotlib is missing, ``poly`` is not an object model or the view is not two
         angles.
     """
-    _require_matplotlib()
+    require_matplotlib()
     from matplotlib.figure import Figure
 
     poly = _check_poly(poly)

@@ -14,6 +14,7 @@ import numpy as np
 from nonprehensile.demonstrations.dataset import Dataset, Demonstration
 from nonprehensile.errors import InputError
 from nonprehensile.states import state_pose
+from nonprehensile.viz._figures import require_matplotlib
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -22,17 +23,6 @@ __all__ = ["plot_trajectories", "trajectory_figure"]
 
 #: The skills of the paper's Fig. 12: a tumbling maneuver realised by two skills (Fig. 9).
 FIG12_SKILLS = ("tumble-lift", "tumble-twist")
-
-
-def _require_matplotlib() -> None:
-    try:
-        import matplotlib.figure  # noqa: F401  (imported to check that it is there)
-        import mpl_toolkits.mplot3d  # noqa: F401
-    except ImportError:
-        raise InputError(
-            "drawing figures needs matplotlib, which is not installed; install it with "
-            "`pip install 'nonprehensile[viz]'`"
-        ) from None
 
 
 def _selection(
@@ -147,7 +137,7 @@ def trajectory_figure(
     -------
     matplotlib.figure.Figure
     """
-    _require_matplotlib()
+    require_matplotlib()
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=figsize, layout="constrained")
