@@ -37,8 +37,7 @@ from nonprehensile.checks import check_tolerance
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron, wrap_index
 from nonprehensile.geometry.symmetry import apply_to_state, rotation_group
-from nonprehensile.skills.contacts import format_event
-from nonprehensile.skills.skill import Skill
+from nonprehensile.skills.skill import Skill, events_to_dicts
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex, angles_close
 from nonprehensile.transitions import Transition, TransitionGraph
 
@@ -100,7 +99,7 @@ class InferredTransition:
             "maneuver": self.skill.maneuver,
             "demonstrated": self.demonstrated,
             "mapping": dict(sorted(self.mapping.items())),
-            "events": [{"id": e.id, "contacts": format_event(e)} for e in self.skill.events],
+            "events": events_to_dicts(self.skill.events),
         }
 
     def transition(self) -> Transition:

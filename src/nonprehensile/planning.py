@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import Expansion, InferredTransition
-from nonprehensile.skills.contacts import format_event
+from nonprehensile.skills.skill import events_to_dicts
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex, angle_diff
 
 __all__ = [
@@ -168,7 +168,7 @@ class PlanStep:
             "maneuver": t.skill.maneuver,
             "demonstrated": t.demonstrated,
             "mapping": dict(sorted(t.mapping.items())),
-            "events": [{"id": e.id, "contacts": format_event(e)} for e in t.skill.events],
+            "events": events_to_dicts(t.skill.events),
             "motions": motions,
             "cost": self.cost,
         }

@@ -40,6 +40,7 @@ __all__ = [
     "Skill",
     "SkillStep",
     "check_skill",
+    "events_to_dicts",
     "group_by_maneuver",
     "skill_from_dict",
     "skill_graph",
@@ -311,6 +312,11 @@ def skill_from_dict(
     return skill
 
 
+def events_to_dicts(events: Sequence[ContactEvent]) -> list[dict[str, Any]]:
+    """Events in the skills file's form ``{"id": ..., "contacts": ["(R1,f)", ...]}``."""
+    return [{"id": e.id, "contacts": format_event(e)} for e in events]
+
+
 def skill_to_dict(skill: Skill) -> dict[str, Any]:
     """The skills file's form of a skill."""
     return {
@@ -319,7 +325,7 @@ def skill_to_dict(skill: Skill) -> dict[str, Any]:
         "final": skill.final.to_dict(),
         "maneuver": skill.maneuver,
         "invertible": skill.invertible,
-        "events": [{"id": e.id, "contacts": format_event(e)} for e in skill.events],
+        "events": events_to_dicts(skill.events),
         "motions": [m.to_dict() for m in skill.motions],
     }
 
