@@ -103,6 +103,18 @@ def inference_figures() -> dict[str, Figure]:
     }
 
 
+def dataset_figures() -> dict[str, Figure]:
+    """The paper's Fig. 12(a) on the bundled demonstrations (``docs/dataset.md``)."""
+    from nonprehensile.demonstrations.dataset import load_dataset
+    from nonprehensile.viz.trajectories import trajectory_figure
+
+    ds = load_dataset("cube")
+    return {
+        "cube-trajectories-tumbling.png": trajectory_figure(ds, ["tumble-lift", "tumble-twist"]),
+        "cube-trajectories-rolling.png": trajectory_figure(ds, ["roll-arc", "roll-pull"]),
+    }
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=IMG, help="output folder (docs/img)")
@@ -114,9 +126,10 @@ def main() -> None:
         "cube-vertices.png": vertex_views(cube),
         "l-block-object.png": object_figure(l_block()),
         **inference_figures(),
+        **dataset_figures(),
     }
     for name, fig in figures.items():
-        fig.savefig(out / name, dpi=GRAPH_DPI if "graph" in name or "skill" in name else DPI)
+        fig.savefig(out / name, dpi=GRAPH_DPI if any(k in name for k in ("graph", "skill", "traj")) else DPI)
         print(out / name)
 
 
