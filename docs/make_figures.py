@@ -129,7 +129,8 @@ def main() -> None:
         **dataset_figures(),
     }
     for name, fig in figures.items():
-        fig.savefig(out / name, dpi=GRAPH_DPI if any(k in name for k in ("graph", "skill", "traj")) else DPI)
+        small = any(k in name for k in ("graph", "skill", "traj"))
+        fig.savefig(out / name, dpi=GRAPH_DPI if small else DPI)
         print(out / name)
 
 

@@ -96,7 +96,7 @@ def test_store_rejects_bad_input(tmp_path: Path) -> None:
             store.add(np.zeros((1, 3)), [2**63], np.zeros(1, dtype=np.int64))
     bad = tmp_path / "not.db"
     bad.write_bytes(b"this is not a database" * 100)
-    with pytest.raises(StoreError, match=r"not\.db"):
+    with pytest.raises(InputError, match=r"not\.db: cannot open as a sample store"):
         SQLiteStore(bad)
 
 
@@ -170,3 +170,15 @@ def test_concurrent_writers(tmp_path: Path) -> None:
         assert mine == sorted(mine)
         _, ks = store.cluster(t)
         assert ks == mine
+
+
+def test_write_lock_timeout_is_a_store_error(tmp_path: Path) -> None:
+    path = tmp_path / "s.db"
+    holder = SQLiteStore(path)
+    waiter = SQLiteStore(path, timeout=0.05)
+    with holder.transaction():
+        holder.add(np.ones((1, 2)), [1], np.zeros(1, dtype=np.int64))
+        with pytest.raises(StoreError, match="write lock"):
+            waiter.add(np.ones((1, 2)), [2], np.zeros(1, dtype=np.int64))
+    waiter.add(np.ones((1, 2)), [2], np.zeros(1, dtype=np.int64))
+    assert waiter.keys() == [1, 2]

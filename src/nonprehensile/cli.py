@@ -12,17 +12,10 @@ from pathlib import Path
 from typing import Any
 
 import click
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TaskID,
-    TextColumn,
-    TimeElapsedColumn,
-)
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out
+from nonprehensile.cli_cluster import cluster_group
+from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out, stage_bars
 from nonprehensile.cli_dataset import dataset_group
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.build import from_mesh
@@ -470,8 +463,8 @@ def plan_cmd(
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
     motions = None
     if dataset is not None:
-        with progress_bars() as bars:
-            _, motions = motions_from_dataset(dataset, progress=_Bars(bars))
+        with stage_bars(as_json) as bars:
+            _, motions = motions_from_dataset(dataset, progress=bars)
     if out_dir is not None and motions is None:
         raise InputError("--out writes reference trajectories: give --dataset too")
     result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
@@ -488,25 +481,6 @@ def plan_cmd(
 
 
 # ---------------------------------------------------------------------------- demo
-class _Bars:
-    """Rich progress bars, one per stage of a long job (on stderr)."""
-
-    def __init__(self, progress: Progress) -> None:
-        self.progress = progress
-        self.tasks: dict[str, TaskID] = {}
-
-    def __call__(self, stage: str, done: int, total: int) -> None:
-        if stage not in self.tasks:
-            self.tasks[stage] = self.progress.add_task(stage, total=total)
-        self.progress.update(self.tasks[stage], completed=done, total=total)
-
-
-def progress_bars() -> Progress:
-    """The progress display used by long commands."""
-    return Progress(TextColumn("{task.description:<12}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), console=err, transient=False)
-
-
 @main.command("demo")
 @click.option("--out", "out_dir", default="report", show_default=True,
               type=click.Path(file_okay=False), help="Folder of the report and summary.")
@@ -523,9 +497,9 @@ def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
          as_json: bool) -> None:
     """The main job: the whole pipeline on a dataset, ending in an HTML report."""
     t0 = time.perf_counter()
-    with progress_bars() as bars:
+    with stage_bars() as bars:
         result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
-                          progress=_Bars(bars))
+                          progress=bars)
     elapsed = time.perf_counter() - t0
     summary = result.summary
     if as_json:
@@ -543,6 +517,7 @@ def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
 
 
 main.add_command(dataset_group)
+main.add_command(cluster_group)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -9,18 +9,15 @@ go to stderr; ``--json`` prints one JSON document on stdout.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import click
 import numpy as np
 from numpy.typing import NDArray
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, handle_errors, out
+from nonprehensile.cli_common import emit_json, handle_errors, out, progress_bar
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.store import SQLiteStore
@@ -31,19 +28,6 @@ __all__ = ["cluster_group"]
 STATE = "hilbert_clusterer"
 #: Samples registered per step of the progress bar.
 CHUNK = 64
-
-
-@contextmanager
-def _progress(label: str, quiet: bool) -> Iterator[Callable[[int, int], None]]:
-    """A rich progress bar on stderr, fed by a (done, total) callback."""
-    if quiet:
-        yield lambda done, total: None
-        return
-    bar = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                   console=err, transient=True)
-    task = bar.add_task(label, total=None)
-    with bar:
-        yield lambda done, total: bar.update(task, completed=done, total=total)
 
 
 def _load_arrays(path: str) -> tuple[NDArray[np.float64], list[str] | None]:
@@ -72,7 +56,7 @@ def _load_dataset(spec: str, quiet: bool) -> tuple[NDArray[np.float64], list[str
     from nonprehensile.demonstrations.dataset import load_dataset
     from nonprehensile.motion.trajectory import preprocess
 
-    with _progress("reading demonstrations", quiet) as tick:
+    with progress_bar("reading demonstrations", quiet) as tick:
         ds = load_dataset(spec, progress=tick)
     rows, skills = [], []
     for d in ds.demonstrations:
@@ -97,7 +81,7 @@ def _samples(dataset: str | None, arrays: str | None, quiet: bool
 
 
 def _register(c: HilbertClusterer, x: NDArray[np.float64], quiet: bool) -> None:
-    with _progress("clustering", quiet) as tick:
+    with progress_bar("clustering", quiet) as tick:
         for s in range(0, x.shape[0], CHUNK):
             c.partial_fit(x[s : s + CHUNK])
             tick(min(s + CHUNK, x.shape[0]), x.shape[0])

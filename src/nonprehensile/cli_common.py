@@ -9,16 +9,25 @@ from __future__ import annotations
 import functools
 import json
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import click
 from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+)
 from rich.text import Text
 
 from nonprehensile.errors import InputError, NonprehensileError
 
-__all__ = ["emit_json", "err", "fmt_num", "handle_errors", "out"]
+__all__ = ["emit_json", "err", "fmt_num", "handle_errors", "out", "progress_bar", "stage_bars"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -57,3 +66,36 @@ def handle_errors(fn: F) -> F:
 def emit_json(data: Any) -> None:
     """Print one JSON document on stdout."""
     click.echo(json.dumps(data, indent=2))
+
+
+def _bars(transient: bool) -> Progress:
+    return Progress(TextColumn("{task.description:<12}"), BarColumn(), MofNCompleteColumn(),
+                    TimeElapsedColumn(), console=err, transient=transient)
+
+
+@contextmanager
+def progress_bar(label: str, quiet: bool = False) -> Iterator[Callable[[int, int], None]]:
+    """One progress bar on stderr, fed by a ``(done, total)`` callback (none when quiet)."""
+    if quiet:
+        yield lambda done, total: None
+        return
+    with _bars(transient=True) as bar:
+        task = bar.add_task(label, total=None)
+        yield lambda done, total: bar.update(task, completed=done, total=total)
+
+
+@contextmanager
+def stage_bars(quiet: bool = False) -> Iterator[Callable[[str, int, int], None]]:
+    """A progress bar per stage of a long job, fed by a ``(stage, done, total)`` callback."""
+    if quiet:
+        yield lambda stage, done, total: None
+        return
+    with _bars(transient=False) as bar:
+        tasks: dict[str, TaskID] = {}
+
+        def update(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = bar.add_task(stage, total=total)
+            bar.update(tasks[stage], completed=done, total=total)
+
+        yield update

@@ -7,16 +7,13 @@ stderr; ``--json`` prints one JSON document on stdout (``shared/spec/files-and-c
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 import click
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, handle_errors, out
+from nonprehensile.cli_common import emit_json, err, handle_errors, out, progress_bar
 from nonprehensile.demonstrations.dataset import (
     DEFAULT_GAP_LIMIT,
     Dataset,
@@ -29,23 +26,6 @@ from nonprehensile.demonstrations.synth import DEFAULT_SEED, synthesize
 from nonprehensile.errors import DemonstrationError
 
 __all__ = ["dataset_group"]
-
-
-@contextmanager
-def _progress(label: str, quiet: bool) -> Iterator[Callable[[int, int], None]]:
-    """A rich progress bar on stderr, fed by a (done, total) callback."""
-    if quiet:
-        yield lambda done, total: None
-        return
-    bar = Progress(TextColumn(label), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                   console=err, transient=True)
-    with bar:
-        task = bar.add_task(label, total=None)
-
-        def update(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
-
-        yield update
 
 
 @click.group("dataset")
@@ -83,7 +63,7 @@ def synth_cmd(
 ) -> None:
     """Generate a seeded synthetic dataset in OUT_DIR (see docs/dataset.md)."""
     start = time.perf_counter()
-    with _progress("generating", as_json) as update:
+    with progress_bar("generating", as_json) as update:
         ds = synthesize(
             out_dir, seed=seed, skills_file=skills_file, n_per_skill=n_per_skill,
             mentors=mentors, rate=rate, scale=scale, noise_mm=noise_mm, dropouts=dropouts,
@@ -137,7 +117,7 @@ def show_cmd(directory: str, arcs: bool, as_json: bool) -> None:
     counts, durations and problems. A dataset with problems lists them all and exits 2."""
     root = dataset_path(directory)
     start = time.perf_counter()
-    with _progress("loading", as_json) as update:
+    with progress_bar("loading", as_json) as update:
         ds, problems = check_dataset(root, progress=update)
     if ds is None:
         _show_problems(problems, as_json, str(root))

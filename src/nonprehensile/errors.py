@@ -21,6 +21,7 @@ __all__ = [
     "NonprehensileError",
     "SkillError",
     "StateError",
+    "StoreError",
 ]
 
 
@@ -75,6 +76,11 @@ class SkillError(InputError):
 
 class StateError(InputError):
     """A state names a face the object does not have, or is not a valid resting state."""
+
+
+class StoreError(NonprehensileError):
+    """A demonstration store cannot be written now (another process holds its write lock
+    too long); retry later."""
 
 
 class GeometryError(NonprehensileError):

@@ -31,7 +31,7 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from nonprehensile.errors import InputError, NonprehensileError
+from nonprehensile.errors import InputError, StoreError
 
 __all__ = ["MemoryStore", "SQLiteStore", "SampleStore", "StoreError"]
 
@@ -40,10 +40,6 @@ IntArray = NDArray[np.int64]
 
 #: Largest key a store accepts: SQLite integers are signed 64-bit.
 MAX_KEY = 2**63 - 1
-
-
-class StoreError(NonprehensileError):
-    """The store cannot be read or written (a locked, corrupt or foreign database file)."""
 
 
 @runtime_checkable
@@ -222,6 +218,8 @@ class SQLiteStore:
     synchronous : {"NORMAL", "FULL"}
         SQLite's ``synchronous`` pragma in WAL mode: ``NORMAL`` survives a killed process,
         ``FULL`` also a power loss, at the cost of an fsync per commit.
+    cache_mib : int
+        SQLite's page cache, in MiB.
 
     Notes
     -----
@@ -231,9 +229,12 @@ class SQLiteStore:
     """
 
     def __init__(self, path: str | Path = ":memory:", *, timeout: float = 30.0,
-                 synchronous: Literal["NORMAL", "FULL"] = "NORMAL") -> None:
+                 synchronous: Literal["NORMAL", "FULL"] = "NORMAL",
+                 cache_mib: int = 64) -> None:
         if synchronous not in ("NORMAL", "FULL"):
             raise InputError(f"synchronous must be 'NORMAL' or 'FULL', got {synchronous!r}")
+        if isinstance(cache_mib, bool) or not isinstance(cache_mib, int) or cache_mib < 1:
+            raise InputError(f"cache_mib must be a positive integer, got {cache_mib!r}")
         self.path = str(path)
         self._depth = 0
         try:
@@ -241,14 +242,18 @@ class SQLiteStore:
             self._db = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute(f"PRAGMA synchronous={synchronous}")
+            # the key indexes' pages stay in memory: a registration then touches the disk
+            # (the WAL) only to write, at any size (SQLite's default cache is 2 MiB)
+            self._db.execute(f"PRAGMA cache_size=-{cache_mib * 1024}")
             with self.transaction():
                 for stmt in _SCHEMA.split(";"):
                     if stmt.strip():
                         self._db.execute(stmt)
         except sqlite3.DatabaseError as exc:
-            raise StoreError(
-                f"{self.path}: cannot open as a sample store ({exc}); is it a SQLite database "
-                "written by nonprehensile, and is its directory writable?"
+            # the user named a file that is not a store (or a folder it cannot write): bad input
+            raise InputError(
+                f"{self.path}: cannot open as a sample store ({exc}); give a SQLite database "
+                "written by nonprehensile, or a new file name in a writable folder"
             ) from None
         self._d: int | None = None
 

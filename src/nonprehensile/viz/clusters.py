@@ -14,13 +14,14 @@ plotted as they are; wider keys as their position along the curve, ``key / 2**bi
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
+from nonprehensile.viz._figures import new_figure
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -30,16 +31,6 @@ __all__ = ["cluster_histogram_figure", "plot_key_histogram"]
 
 #: Widest key plotted as a raw index.
 _RAW_BITS = 16
-
-
-def _figure_class() -> Any:
-    try:
-        from matplotlib.figure import Figure
-    except ImportError:  # pragma: no cover - depends on the environment
-        raise InputError(
-            "figures need matplotlib: pip install 'nonprehensile[viz]'"
-        ) from None
-    return Figure
 
 
 def plot_key_histogram(
@@ -141,9 +132,8 @@ def cluster_histogram_figure(
             "sample"
         )
     n_bits = clusterer.components_.shape[0] * clusterer.order_
-    figure_cls = _figure_class()
     rows = 1 if truth is None else 2
-    fig = figure_cls(figsize=(7.0, 2.6 * rows + 0.4), layout="constrained")
+    fig = new_figure(figsize=(7.0, 2.6 * rows + 0.4), layout="constrained")
     axes = fig.subplots(rows, 1, squeeze=False)[:, 0]
     plot_key_histogram(axes[0], keys, labels.tolist(), n_bits=n_bits, bins=bins)
     axes[0].set_title(f"clusters ({clusterer.method} method, {clusterer.n_clusters_} clusters)",
@@ -154,5 +144,4 @@ def cluster_histogram_figure(
         axes[1].set_title("true classes", fontsize="medium")
     if title:
         fig.suptitle(title)
-    result: Figure = fig
-    return result
+    return fig
