@@ -38,6 +38,12 @@ def test_demo_writes_report_and_summary(demo_run: tuple[Path, dict[str, object]]
     assert summary["states"]["count"] == 24 and summary["inference"]["transitions"] == 168
     assert summary["dataset"]["demonstrations"] == 180
     assert doc["report"] == str(page)
+    # where two skills share contact events but move differently (Fig. 5 skills 2 and 3, and
+    # the tumbling pair of Fig. 9), the clusters separate them exactly
+    moving = [a for a in summary["clustering"] if len(a["labels"]) > 1]
+    assert {tuple(a["labels"]) for a in moving} == {("quarter-circle", "straight-pull"),
+                                                     ("lift-over", "twist-over")}
+    assert all(a["clusters"] == 2 and a["ari_vs_skill"] == 1.0 for a in moving)
 
 
 def test_demo_plan_is_exact_and_never_demonstrated(
