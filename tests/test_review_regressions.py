@@ -110,3 +110,72 @@ def test_states_command_takes_tolerances(tmp_path: Path) -> None:
     assert res.exit_code == 0 and json.loads(res.stdout)["n_classes"] == 1
     res = CliRunner().invoke(main, ["states", "cube", "--states", str(f), "--json"])
     assert json.loads(res.stdout)["n_classes"] == 2
+
+
+# ---------------------------------------------------------------- second review (motion, plans)
+def test_plan_refuses_bad_costs_and_positions() -> None:
+    from nonprehensile.planning import plan
+
+    poly, skills = read_skills(EXAMPLES / "cube_skills.json")
+    exp = expand(poly, skills, states_by_step(poly, 90))
+    for costs, match in [({"twist": float("nan")}, "finite"), ({"twist": -5.0}, ">= 0"),
+                         ({"nosuch": 3.0}, "unknown skill")]:
+        with pytest.raises(InputError, match=match):
+            plan(poly, exp, State("a", 0), State("b", 0), costs=costs)
+    with pytest.raises(InputError, match="position"):
+        plan(poly, exp, State("a", 0), State("b", 0), position=(float("nan"), 0.0))
+
+
+def test_figures_refuse_unknown_suffixes(tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    res = CliRunner().invoke(main, ["object", "figure", "cube", "-o", str(tmp_path / "f.xyz")])
+    assert res.exit_code == 2 and "cannot write a figure as 'xyz'" in res.stderr
+
+
+def test_clusterer_and_store_refuse_bad_data(tmp_path: Path) -> None:
+    import sqlite3
+
+    import numpy as np
+
+    from nonprehensile.motion.clustering import HilbertClusterer
+    from nonprehensile.motion.store import SQLiteStore
+
+    with pytest.raises(InputError, match="n_components=None"):
+        HilbertClusterer(2, order=20)
+    with pytest.raises(InputError, match="below"):
+        HilbertClusterer(2).fit(np.random.default_rng(0).random((50, 10)) * 1e300)
+    strings = tmp_path / "s.npy"
+    np.save(strings, np.array(["a", "b"]))
+    res = CliRunner().invoke(main, ["cluster", "fit", str(tmp_path / "x.db"), "--arrays",
+                                    str(strings)])
+    assert res.exit_code == 2 and "real numbers" in res.stderr
+    db_path = tmp_path / "c.db"
+    store = SQLiteStore(db_path)
+    HilbertClusterer(2, store=store, random_state=0).fit(
+        np.random.default_rng(1).random((30, 4)))
+    store.close()
+    with sqlite3.connect(db_path) as raw:
+        raw.execute("DELETE FROM samples WHERE id = 10")
+    with pytest.raises(InputError, match="deleted outside"):
+        SQLiteStore(db_path)
+    res = CliRunner().invoke(main, ["cluster", "add", str(tmp_path / "none.db"), "--arrays",
+                                    str(strings)])
+    assert res.exit_code == 2 and not (tmp_path / "none.db").exists()
+
+
+def test_small_and_mismatched_datasets_for_plans(tmp_path: Path) -> None:
+    pytest.importorskip("ezc3d")
+    from nonprehensile.demonstrations.dataset import _number
+    from nonprehensile.demonstrations.synth import synthesize
+    from nonprehensile.pipeline import motions_from_dataset
+
+    assert _number(10**400) is None
+    with pytest.raises(InputError, match="gap_limit"):
+        synthesize(tmp_path / "bad", seed=0, n_per_skill=1, gap_limit=2)
+    synthesize(tmp_path / "small", seed=0, n_per_skill=2)
+    poly, skills = read_skills(EXAMPLES / "cube_skills.json")
+    _, motions = motions_from_dataset(tmp_path / "small", skills=skills, poly=poly)
+    assert motions.reference("twist", "rest", "grip") is not None  # 2 demos: one cluster
+    big = Polyhedron(poly.vertices * 3, dict(poly.faces), name="big")
+    with pytest.raises(InputError, match="models differ"):
+        motions_from_dataset(tmp_path / "small", skills=skills, poly=big)

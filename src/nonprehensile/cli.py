@@ -156,9 +156,9 @@ def object_show(model: str, rtol: float, as_json: bool) -> None:
 @handle_errors
 def object_figure_cmd(model: str, output: str, rtol: float) -> None:
     """Draw MODEL labeled like the paper's Fig. 3: faces, edge numbers, A and Delta."""
-    from nonprehensile.viz import object_figure
+    from nonprehensile.viz import object_figure, save_figure
 
-    object_figure(_model(model, rtol)).savefig(output, dpi=100)
+    save_figure(object_figure(_model(model, rtol)), output, dpi=100)
     err.print(f"wrote {output}")
 
 
@@ -286,10 +286,10 @@ def skills_show(
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
     graphs = skill_graphs_summary(poly, skills)
     if figure:
-        from nonprehensile.viz import skill_graphs_figure
+        from nonprehensile.viz import save_figure, skill_graphs_figure
 
         groups = group_by_maneuver(poly, skills)
-        skill_graphs_figure([skill_graph(poly, g) for g in groups]).savefig(figure, dpi=80)
+        save_figure(skill_graphs_figure([skill_graph(poly, g) for g in groups]), figure, dpi=80)
         err.print(f"wrote {figure}")
     if as_json:
         emit_json({"object": poly.name, "skills": [skill_to_dict(s) for s in skills],
@@ -355,9 +355,9 @@ def infer_cmd(
                       "set: no state is equivalent to its initial state")
     doc = exp.to_dict(poly.name)
     if figure:
-        from nonprehensile.viz import state_graph_figure
+        from nonprehensile.viz import save_figure, state_graph_figure
 
-        state_graph_figure(exp).savefig(figure, dpi=80)
+        save_figure(state_graph_figure(exp), figure, dpi=80)
         err.print(f"wrote {figure}")
     if compare:
         doc["disagreements"] = [d.to_dict() for d in cross_check(
@@ -461,12 +461,13 @@ def plan_cmd(
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
+    if out_dir is not None and dataset is None:
+        raise InputError("--out writes reference trajectories: give --dataset too")
     motions = None
     if dataset is not None:
         with stage_bars(as_json) as bars:
-            _, motions = motions_from_dataset(dataset, progress=bars)
-    if out_dir is not None and motions is None:
-        raise InputError("--out writes reference trajectories: give --dataset too")
+            _, motions = motions_from_dataset(dataset, skills=skills, poly=poly,
+                                              progress=bars)
     result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
                   angle_tol=angle_tol)
     doc = result.to_dict()
@@ -497,7 +498,7 @@ def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
          as_json: bool) -> None:
     """The main job: the whole pipeline on a dataset, ending in an HTML report."""
     t0 = time.perf_counter()
-    with stage_bars() as bars:
+    with stage_bars(as_json) as bars:
         result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
                           progress=bars)
     elapsed = time.perf_counter() - t0

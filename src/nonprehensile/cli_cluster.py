@@ -42,13 +42,25 @@ def _load_arrays(path: str) -> tuple[NDArray[np.float64], list[str] | None]:
             "with numpy.save, shape (n_samples, n_features)"
         ) from None
     if isinstance(data, np.ndarray):
-        return np.asarray(data, dtype=np.float64), None
+        return _real(data, path), None
     with data:
         if "X" not in data.files:
             raise InputError(f"{path}: an .npz file needs an array named 'X', it has "
                              f"{data.files}")
+        x = _real(data["X"], path)
         y = [str(v) for v in data["y"].tolist()] if "y" in data.files else None
-        return np.asarray(data["X"], dtype=np.float64), y
+        if y is not None and len(y) != len(x):
+            raise InputError(f"{path}: 'y' has {len(y)} classes for {len(x)} samples in 'X'; "
+                             "give one class per sample")
+        return x, y
+
+
+def _real(a: NDArray[Any], path: str) -> NDArray[np.float64]:
+    """Samples as real floats, or an error naming the file (strings, complex numbers)."""
+    if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise InputError(f"{path}: the samples must be real numbers, got an array of "
+                         f"{a.dtype}; save a float array, shape (n_samples, n_features)")
+    return np.asarray(a, dtype=np.float64)
 
 
 def _load_dataset(spec: str, quiet: bool) -> tuple[NDArray[np.float64], list[str]]:
@@ -205,6 +217,8 @@ def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str
 @handle_errors
 def cluster_add(store: str, dataset: str | None, arrays: str | None, as_json: bool) -> None:
     """Register new demonstrations in STORE without reclustering the stored ones."""
+    if not Path(store).exists():
+        raise InputError(f"{store}: no such store; create it with `nonprehensile cluster fit`")
     x, classes = _samples(dataset, arrays, as_json)
     db = SQLiteStore(store)
     try:
@@ -241,9 +255,10 @@ def cluster_show(store: str, histogram: str | None, as_json: bool) -> None:
         c = _load(db, store)
         doc = summary(c, store)
         if histogram is not None:
+            from nonprehensile.viz import save_figure
             from nonprehensile.viz.clusters import cluster_histogram_figure
 
-            cluster_histogram_figure(c, title=Path(store).name).savefig(histogram, dpi=100)
+            save_figure(cluster_histogram_figure(c, title=Path(store).name), histogram)
             doc["histogram"] = histogram
     finally:
         db.close()

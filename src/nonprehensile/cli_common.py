@@ -65,7 +65,12 @@ def handle_errors(fn: F) -> F:
 
 def emit_json(data: Any) -> None:
     """Print one JSON document on stdout."""
-    click.echo(json.dumps(data, indent=2))
+    try:
+        # strict JSON: a NaN or an infinity would make the document unreadable to others
+        text = json.dumps(data, indent=2, allow_nan=False)
+    except ValueError as exc:
+        raise NonprehensileError(f"the result holds a non-finite number ({exc})") from None
+    click.echo(text)
 
 
 def _bars(transient: bool) -> Progress:

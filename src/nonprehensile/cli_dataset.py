@@ -187,5 +187,7 @@ def figure_cmd(
 
     ds = load_dataset(dataset_path(directory))
     fig = trajectory_figure(ds, skills or None, marker=marker, color_by=color_by)
-    fig.savefig(output, dpi=100)
+    from nonprehensile.viz import save_figure
+
+    save_figure(fig, output)
     err.print(f"wrote {output}")

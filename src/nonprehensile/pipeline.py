@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -21,12 +21,15 @@ import numpy as np
 
 from nonprehensile.demonstrations.dataset import Dataset, load_dataset
 from nonprehensile.demonstrations.segment import Segment, segment_dataset
+from nonprehensile.errors import InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
 from nonprehensile.inference import Expansion, cross_check, expand
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.library import ClusteredMotions, flatten_segments
 from nonprehensile.planning import Plan, plan
 from nonprehensile.skills.contacts import format_event
+from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State, stable_faces, states_by_step
 from nonprehensile.viz.report import Section, figure_to_png, write_report
 
@@ -37,6 +40,9 @@ __all__ = [
     "run_demo",
     "write_plan_motions",
 ]
+
+#: Fewest segments on an arc for it to be clustered (fewer make one cluster).
+MIN_CLUSTERED = 6
 
 #: ``progress(stage, done, total)``: the CLI turns it into progress bars.
 StageProgress = Callable[[str, int, int], None]
@@ -100,16 +106,24 @@ def cluster_segments(
     for (group, _, _), rows in by_pair.items():
         x = flatten_segments([segments[i] for i in rows])
         n_skills = len({segments[i].skill for i in rows})
-        clusterer = HilbertClusterer(n_skills if n_skills > 1 else None, random_state=seed)
-        for start in range(0, len(rows), batch):
-            clusterer.partial_fit(x[start:start + batch])
-            done += min(batch, len(rows) - start)
+        clusterer = None
+        if len(rows) >= max(n_skills + 1, MIN_CLUSTERED):
+            clusterer = HilbertClusterer(n_skills if n_skills > 1 else None, random_state=seed)
+        if clusterer is None:
+            # too few demonstrations on this arc to cluster: one cluster, still a medoid
+            streamed = found = np.zeros(len(rows), dtype=np.int64)
+            done += len(rows)
             progress("clustering", done, total)
-        streamed = np.asarray(clusterer.labels_, dtype=np.int64)
-        # the periodic recalibration, due at the end of the stream: the report shows the
-        # clusters as a recalibrated store holds them (the streamed ids are scored too)
-        clusterer.recalibrate()
-        found = np.asarray(clusterer.labels_, dtype=np.int64)
+        else:
+            for start in range(0, len(rows), batch):
+                clusterer.partial_fit(x[start:start + batch])
+                done += min(batch, len(rows) - start)
+                progress("clustering", done, total)
+            streamed = np.asarray(clusterer.labels_, dtype=np.int64)
+            # the periodic recalibration, due at the end of the stream: the report shows the
+            # clusters as a recalibrated store holds them (the streamed ids are scored too)
+            clusterer.recalibrate()
+            found = np.asarray(clusterer.labels_, dtype=np.int64)
         labels[rows] = found
         for r, v in zip(rows, x, strict=True):
             vectors[r] = v
@@ -137,10 +151,39 @@ def cluster_segments(
 
 
 def motions_from_dataset(
-    dataset: str | Path, *, seed: int = 0, progress: StageProgress = _quiet
+    dataset: str | Path,
+    *,
+    skills: Sequence[Skill] | None = None,
+    poly: Polyhedron | None = None,
+    seed: int = 0,
+    progress: StageProgress = _quiet,
 ) -> tuple[Dataset, ClusteredMotions]:
-    """Load a dataset, segment it and cluster its motions: the planner's reference motions."""
+    """Load a dataset, segment it and cluster its motions: the planner's reference motions.
+
+    When ``skills`` (and ``poly``) are given, the dataset must have demonstrated those very
+    skills on that object: a reference motion is only meaningful for the skill it shows.
+
+    Raises
+    ------
+    InputError
+        A skill the dataset lacks or demonstrates differently, or another object.
+    """
     ds = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n))
+    if poly is not None and (poly.faces != ds.poly.faces
+                             or not np.allclose(poly.vertices, ds.poly.vertices)):
+        raise InputError(
+            f"{dataset}: its demonstrations are of object {ds.poly.name!r}, not of the skills "
+            f"file's {poly.name!r} (their models differ)"
+        )
+    known = {s.name: s for s in ds.skills}
+    for s in skills or ():
+        theirs = known.get(s.name)
+        if theirs is not None and (theirs.initial, theirs.final, theirs.events) != (
+                s.initial, s.final, s.events):
+            raise InputError(
+                f"{dataset}: skill {s.name!r} is demonstrated there differently (its states "
+                "or contact events differ from the skills file's)"
+            )
     _, segments = segment_dataset(ds)
     motions, _ = cluster_segments(segments, seed=seed, progress=progress)
     return ds, motions
@@ -290,7 +333,8 @@ def _write_report(
     sections.append(_inference_section(exp, summary, fig_graph, fig_skills))
 
     # the arcs where skills with the same contact events move differently: the paper's Fig. 12
-    shared = [a for a in arcs if len(a["skills"]) > 1 and len(a["labels"]) > 1]
+    shared = [a for a in arcs
+              if len(a["skills"]) > 1 and len(a["labels"]) > 1 and a["clusterer"] is not None]
     tumbling = next((a for a in shared if a["group"] == 1), shared[0] if shared else None)
     fig_traj = figure_to_png(trajectory_figure(ds, tumbling["skills"] if tumbling else None))
     progress("figures", 4, n_fig)

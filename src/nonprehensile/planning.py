@@ -233,9 +233,13 @@ def find_offset(
         If no state of the model rests on the start's bottom face.
     """
     poly.loop(start.face)
-    index = StateIndex(states)
-    if index.find(start, angle_tol) is not None:
-        return states[index.find(start, angle_tol)], Offset(0.0, position)  # type: ignore[index]
+    x, y = (float(v) for v in position)
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise InputError(f"the object's position must be two finite numbers, got {position!r}")
+    position = (x, y)
+    hit = StateIndex(states).find(start, angle_tol)
+    if hit is not None:
+        return states[hit], Offset(0.0, position)
     same_face = [s for s in states if s.face == start.face]
     if not same_face:
         raise InputError(
@@ -253,13 +257,34 @@ def _arc_cost(
     best = None
     for skill, d in data.items():
         t = d["transition"]
-        source = t.skill.split(":")[0] if costs is not None else t.skill
-        c = float(costs.get(source, default)) if costs is not None else default
+        c = float(costs.get(_demonstrated_name(t.skill), default)) if costs else default
         key = (c, not t.demonstrated, skill)
         if best is None or key < best:
             best = key
     assert best is not None
     return best[0], best[2]
+
+
+def _demonstrated_name(skill: str) -> str:
+    """The demonstrated skill behind an arc (``NAME:reverse`` is NAME run backwards)."""
+    return skill.removesuffix(":reverse")
+
+
+def _check_costs(
+    costs: Mapping[str, float] | None, default: float, skills: set[str]
+) -> dict[str, float] | None:
+    """Costs must be finite, not negative (Dijkstra's condition), and name known skills."""
+    for name, value in [("default_cost", default), *((costs or {}).items())]:
+        v = float(value)
+        if not math.isfinite(v) or v < 0:
+            raise InputError(f"the cost of {name!r} must be a finite number >= 0, got {value!r}")
+    if costs is None:
+        return None
+    unknown = sorted(set(costs) - skills)
+    if unknown:
+        raise InputError(f"costs name unknown skill(s) {unknown}; the skills are "
+                         f"{sorted(skills)}")
+    return {k: float(v) for k, v in costs.items()}
 
 
 def plan(
@@ -305,6 +330,8 @@ def plan(
     """
     graph = expansion.graph.graph
     model_states = expansion.graph.states
+    costs = _check_costs(costs, default_cost,
+                         {_demonstrated_name(t.skill.name) for t in expansion.transitions})
     first, offset = find_offset(poly, model_states, start, position=position,
                                 angle_tol=angle_tol)
     target_model = offset.state_to_model(goal)
@@ -349,9 +376,8 @@ def _step_motions(
     t: InferredTransition, offset: Offset, library: MotionLibrary | None
 ) -> tuple[tuple[str, str, str, ReferenceMotion | None], ...]:
     out = []
-    source = t.source
-    demo_name = source.name.removesuffix(":reverse")
-    reverse = source.name.endswith(":reverse")
+    demo_name = _demonstrated_name(t.source.name)
+    reverse = demo_name != t.source.name
     for step in t.skill.steps():
         ref = None
         if library is not None:

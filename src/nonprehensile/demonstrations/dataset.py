@@ -273,7 +273,10 @@ def _annotations_file(root: Path) -> Path | None:
 def _number(value: object) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:  # an integer too large for a float: not a usable number
+        return None
 
 
 class _Collector:

@@ -90,6 +90,10 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+#: Most dropouts per marker and demonstration the generator accepts.
+MAX_DROPOUTS = 20.0
+#: Lowest sample rate the generator accepts, in Hz.
+MIN_RATE = 30.0
 Progress = Callable[[int, int], None]
 
 #: The seed of the bundled dataset (``data/cube_demos``).
@@ -773,9 +777,19 @@ def synthesize_dataset(
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
             raise InputError(f"{name} must be a finite positive number, got {value!r}")
     if not (math.isfinite(noise_mm) and noise_mm >= 0 and math.isfinite(dropouts)
-            and dropouts >= 0):
+            and 0 <= dropouts <= MAX_DROPOUTS):
         raise InputError(
-            f"noise_mm and dropouts must be finite and >= 0, got {noise_mm!r}, {dropouts!r}"
+            f"noise_mm must be finite and >= 0 and dropouts in 0..{MAX_DROPOUTS} per marker "
+            f"and demonstration, got {noise_mm!r}, {dropouts!r}"
+        )
+    if rate < MIN_RATE:
+        raise InputError(f"rate must be at least {MIN_RATE:g} Hz (a tracker's), got {rate!r}")
+    # dropouts last 2 to gap_limit // 2 frames, so that every one can be filled
+    if isinstance(gap_limit, bool) or not isinstance(gap_limit, int) or gap_limit < 0 or (
+            dropouts > 0 and gap_limit < 4):
+        raise InputError(
+            f"gap_limit must be a whole number of frames >= 0, and >= 4 with dropouts (they "
+            f"last 2 to gap_limit // 2 frames), got {gap_limit!r}"
         )
     rng = np.random.default_rng(seed)
     path = Path(skills_file) if skills_file is not None else _bundled_skills()

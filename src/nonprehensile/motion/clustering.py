@@ -58,6 +58,7 @@ from __future__ import annotations
 import io
 import json
 import math
+import zipfile
 from collections.abc import Iterator
 from typing import Any, Literal
 
@@ -79,6 +80,8 @@ Keys = NDArray[np.uint64]
 _METHODS = ("runs", "paper")
 #: Largest key width: SQLite stores signed 64-bit integers.
 _KEY_BITS = 62
+#: Largest magnitude of a sample's value: squared distances must stay finite.
+_MAX_ABS = 1e150
 #: Rows re-keyed per step of a recalibration (bounds the memory of a pass over the store).
 _BATCH = 65536
 #: Smallest number of novel samples that may trigger a recalibration (a few outliers do not).
@@ -364,12 +367,15 @@ class HilbertClusterer:
         self.n_clusters = _check_int(n_clusters, "n_clusters", 1, allow_none=True)
         self.n_components = _check_int(n_components, "n_components", 1, allow_none=True)
         self.order = _check_int(order, "order", 1, allow_none=True)
-        if self.n_components is not None and self.order is not None and (
-            self.n_components * self.order > _KEY_BITS
-        ):
+        # the most components the key may have to hold: checked now, not at the first
+        # recalibration, where a failure would leave samples half registered
+        k_max = self.n_components or (2 if method == "paper" else 6)
+        if self.order is not None and k_max * self.order > _KEY_BITS:
+            given = (f"{self.n_components}" if self.n_components is not None
+                     else f"up to {k_max} (n_components=None)")
             raise InputError(
                 f"n_components * order must be <= {_KEY_BITS} (a key is a signed 64-bit "
-                f"integer), got {self.n_components} * {self.order}; lower the order"
+                f"integer), got {given} * {self.order}; lower the order or fix n_components"
             )
         self.init_size = _check_int(init_size, "init_size", 2, allow_none=True)
         self.recalibration_size = _check_int(recalibration_size, "recalibration_size", 2,
@@ -482,12 +488,14 @@ class HilbertClusterer:
                 f"shape {x.shape}; flatten each trajectory (nonprehensile.motion.flatten) "
                 "into one row"
             )
-        bad = ~np.isfinite(x)
+        # squared distances of values beyond ~1e150 overflow to inf: refuse them as non-finite
+        bad = ~np.isfinite(x) | (np.abs(x) > _MAX_ABS)
         if bad.any():
             r, c = (int(v) for v in np.argwhere(bad)[0])
             raise InputError(
-                f"{what}: sample {r}, feature {c} is {x[r, c]}; every value must be finite: "
-                "fill gaps in the trajectories (fill_gaps) or drop the sample"
+                f"{what}: sample {r}, feature {c} is {x[r, c]}; every value must be finite and "
+                f"below {_MAX_ABS:g} in magnitude: fill gaps in the trajectories (fill_gaps), "
+                "rescale, or drop the sample"
             )
         d = 0 if fresh else self.n_features_in_ or (self.store.n_features or 0)
         if d and x.shape[1] != d:
@@ -1008,11 +1016,20 @@ class HilbertClusterer:
             npz = np.load(io.BytesIO(data), allow_pickle=False)
             meta = json.loads(bytes(npz["__meta__"]).decode())
             arrays = {name: np.asarray(npz[name]) for name in cls._ARRAYS}
-        except (ValueError, KeyError, OSError) as exc:
-            raise InputError(f"not a saved HilbertClusterer state ({exc})") from None
+        except (ValueError, KeyError, OSError, zipfile.BadZipFile, UnicodeDecodeError) as exc:
+            raise InputError(
+                f"not a saved HilbertClusterer state ({exc}); the store's model is damaged: "
+                "fit the store again"
+            ) from None
         # build without resetting: the store already holds the samples
         obj = cls.__new__(cls)
-        probe = cls(**meta["params"], random_state=0)
+        try:
+            probe = cls(**meta["params"], random_state=0)
+        except (TypeError, InputError) as exc:
+            raise InputError(
+                f"the saved HilbertClusterer's parameters are not valid ({exc}); the store's "
+                "model is damaged: fit the store again"
+            ) from None
         obj.__dict__.update(probe.__dict__)
         obj.store = store
         obj.random_state = None

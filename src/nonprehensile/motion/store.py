@@ -256,6 +256,15 @@ class SQLiteStore:
                 "written by nonprehensile, or a new file name in a writable folder"
             ) from None
         self._d: int | None = None
+        # sample ids run 1..n with no gap (n_samples reads MAX(id) in constant time): a row
+        # deleted by another program is caught once, when the store is opened
+        count, top = self._db.execute("SELECT COUNT(*), MAX(id) FROM samples").fetchone()
+        if count != (top or 0):
+            self._db.close()
+            raise InputError(
+                f"{self.path}: the store holds {count} samples but its ids run to {top}: rows "
+                "were deleted outside nonprehensile; fit the store again"
+            )
 
     def close(self) -> None:
         """Close the connection (committed data stays)."""

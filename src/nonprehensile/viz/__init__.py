@@ -3,6 +3,7 @@
 Install the ``viz`` extra (``pip install 'nonprehensile[viz]'``) to use them.
 """
 
+from nonprehensile.viz._figures import save_figure
 from nonprehensile.viz.graphs import (
     plot_skill_graph,
     plot_state_graph,
@@ -28,6 +29,7 @@ __all__ = [
     "plot_skill_graph",
     "plot_state_graph",
     "plot_transition_matrix",
+    "save_figure",
     "skill_graphs_figure",
     "state_graph_figure",
     "view_direction",

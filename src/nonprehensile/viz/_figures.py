@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from nonprehensile.errors import InputError
@@ -9,7 +10,7 @@ from nonprehensile.errors import InputError
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["new_figure", "require_matplotlib"]
+__all__ = ["new_figure", "require_matplotlib", "save_figure"]
 
 
 def require_matplotlib() -> None:
@@ -36,3 +37,23 @@ def new_figure(**kwargs: Any) -> Figure:
     from matplotlib.figure import Figure
 
     return Figure(**kwargs)
+
+
+def save_figure(fig: Figure, path: str | Path, dpi: int = 100) -> Path:
+    """Save ``fig`` in the format its suffix names (png, svg, pdf, ...).
+
+    Raises
+    ------
+    InputError
+        An unknown suffix (listing the known ones).
+    """
+    path = Path(path)
+    known = fig.canvas.get_supported_filetypes()
+    suffix = path.suffix.lower().lstrip(".")
+    if suffix not in known:
+        raise InputError(
+            f"{path}: cannot write a figure as {suffix or 'a file with no suffix'!r}; use one "
+            f"of {', '.join('.' + k for k in sorted(known))}"
+        )
+    fig.savefig(path, dpi=dpi)
+    return path
