@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -58,13 +59,13 @@ def _quiet(stage: str, done: int, total: int) -> None:
     del stage, done, total
 
 
+@dataclass(frozen=True)
 class DemoResult:
-    """What the main job produced (kept for tests and for the CLI to print)."""
+    """What the main job produced: its summary, and where the report and summary are."""
 
-    def __init__(self, summary: dict[str, Any], report: Path, summary_path: Path) -> None:
-        self.summary = summary
-        self.report = report
-        self.summary_path = summary_path
+    summary: dict[str, Any]
+    report: Path
+    summary_path: Path
 
 
 def cluster_segments(
@@ -160,16 +161,19 @@ def motions_from_dataset(
 ) -> tuple[Dataset, ClusteredMotions]:
     """Load a dataset, segment it and cluster its motions: the planner's reference motions.
 
-    When ``skills`` (and ``poly``) are given, the dataset must have demonstrated those very
-    skills on that object: a reference motion is only meaningful for the skill it shows.
+    When ``skills`` (and ``poly``) are given, the dataset's demonstrations must be of that
+    object, and a skill it shares with them by name must be the same skill: a reference motion
+    is only meaningful for the skill it shows. (Skills it does not demonstrate simply get no
+    reference motion.)
 
     Raises
     ------
     InputError
-        A skill the dataset lacks or demonstrates differently, or another object.
+        Another object, or a skill of the same name demonstrated differently.
     """
     ds = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n))
     if poly is not None and (poly.faces != ds.poly.faces
+                             or poly.vertices.shape != ds.poly.vertices.shape
                              or not np.allclose(poly.vertices, ds.poly.vertices)):
         raise InputError(
             f"{dataset}: its demonstrations are of object {ds.poly.name!r}, not of the skills "
