@@ -179,3 +179,23 @@ def test_small_and_mismatched_datasets_for_plans(tmp_path: Path) -> None:
     big = Polyhedron(poly.vertices * 3, dict(poly.faces), name="big")
     with pytest.raises(InputError, match="models differ"):
         motions_from_dataset(tmp_path / "small", skills=skills, poly=big)
+
+
+def test_dataset_files_must_stay_inside_the_folder(tmp_path: Path) -> None:
+    pytest.importorskip("ezc3d")
+    import shutil
+
+    from nonprehensile.demonstrations.dataset import check_dataset, dataset_path
+
+    root = tmp_path / "d"
+    shutil.copytree(dataset_path("cube"), root)
+    ann = json.loads((root / "annotations.json").read_text())
+    first = ann["demonstrations"][0]
+    shutil.copy(root / first["file"], tmp_path / "outside.c3d")
+    first["file"] = "../outside.c3d"
+    (root / "annotations.json").write_text(json.dumps(ann))
+    ds, problems = check_dataset(root)
+    assert ds is None
+    assert [p.message for p in problems] == [
+        "the file lies outside the dataset folder; copy it in and name it by its path "
+        "relative to the folder"]

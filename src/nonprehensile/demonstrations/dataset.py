@@ -523,6 +523,10 @@ def check_dataset(
         elif file in seen:
             out.add(*where, f"the file is also demonstration {seen[file]}; one file per "
                             "demonstration")
+        elif not (root / file).resolve().is_relative_to(root.resolve()):
+            # a dataset is one folder: it moves, copies and archives whole
+            out.add(*where, "the file lies outside the dataset folder; copy it in and name "
+                            "it by its path relative to the folder")
         else:
             seen[file] = i
             traj = _read(root / file, out, where)
