@@ -314,6 +314,12 @@ class HilbertClusterer:
     random_state : int, numpy Generator or None
         Seed of every random choice.
 
+    Notes
+    -----
+    If :meth:`partial_fit` raises (for instance :class:`~nonprehensile.errors.StoreError` on a
+    lock timeout), the store rolls the batch back but this object may already count it:
+    rebuild it with :meth:`load_state` from the last saved state before registering again.
+
     Attributes
     ----------
     labels_ : array of int, shape (n_samples_seen_,)
