@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.states import is_stable
-from nonprehensile.viz._figures import require_matplotlib
+from nonprehensile.viz._figures import new_figure, require_matplotlib
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -264,8 +264,7 @@ def plot_object(
         ``label_offset`` is outside ``(0, 1)``; :class:`~nonprehensile.errors.ModelError` if
         ``labeled_faces`` names a face the object lacks.
     """
-    require_matplotlib()
-    from matplotlib.figure import Figure
+    require_matplotlib()  # before the imports below, so a missing extra is named
     from matplotlib.legend_handler import HandlerTuple
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -280,7 +279,7 @@ def plot_object(
             f"centroid, got {label_offset!r}; 0.3 is the default"
         )
     if ax is None:
-        ax = Figure(figsize=(6.0, 6.0), layout="constrained").add_subplot(projection="3d")
+        ax = new_figure(figsize=(6.0, 6.0), layout="constrained").add_subplot(projection="3d")
     if not isinstance(ax, Axes3D):
         raise InputError(
             f"ax must be a 3-D axes (made with add_subplot(projection='3d')), got "
@@ -442,13 +441,12 @@ def plot_adjacency(poly: Polyhedron, ax: Axes | None = None, *, fontsize: float 
     InputError
         If matplotlib is missing or ``poly`` is not an object model.
     """
-    require_matplotlib()
-    from matplotlib.figure import Figure
 
     poly = _check_poly(poly)
     if ax is None:
         n = len(poly.faces)
-        ax = Figure(figsize=(1.0 + 0.45 * n, 0.8 + 0.35 * n), layout="constrained").add_subplot()
+        fig = new_figure(figsize=(1.0 + 0.45 * n, 0.8 + 0.35 * n), layout="constrained")
+        ax = fig.add_subplot()
     labels = list(poly.face_ids)
     cells = [
         [str(poly.adjacency[f][g]) if g in poly.adjacency[f] else UNDEFINED for g in labels]
@@ -510,12 +508,11 @@ def plot_delta(poly: Polyhedron, ax: Axes | None = None, *, fontsize: float = 11
     InputError
         If matplotlib is missing or ``poly`` is not an object model.
     """
-    require_matplotlib()
-    from matplotlib.figure import Figure
 
     poly = _check_poly(poly)
     if ax is None:
-        ax = Figure(figsize=(4.5, 0.8 + 0.35 * len(poly.faces)), layout="constrained").add_subplot()
+        fig = new_figure(figsize=(4.5, 0.8 + 0.35 * len(poly.faces)), layout="constrained")
+        ax = fig.add_subplot()
     rows = []
     for f in poly.faces:
         delta = "[" + ", ".join(_format_angle(d) for d in poly.delta[f]) + "]"
@@ -590,8 +587,6 @@ def object_figure(
         If matplotlib is missing, ``poly`` is not an object model or the view is not two
         angles.
     """
-    require_matplotlib()
-    from matplotlib.figure import Figure
 
     poly = _check_poly(poly)
     first = default_view(poly) if view is None else _check_view(view)
@@ -605,7 +600,7 @@ def object_figure(
     table_height = 1.2 + 0.32 * n
     if figsize is None:
         figsize = (max(12.0, 4.0 + 0.5 * n), 6.0 + table_height)
-    fig = Figure(figsize=figsize, layout="constrained")
+    fig = new_figure(figsize=figsize, layout="constrained")
     grid = fig.add_gridspec(2, 2, height_ratios=[6.0, table_height], width_ratios=[1.2, 1.0])
     for col, (v, faces) in enumerate(((first, front), (second, back))):
         ax = fig.add_subplot(grid[0, col], projection="3d")

@@ -14,7 +14,7 @@ import numpy as np
 from nonprehensile.demonstrations.dataset import Dataset, Demonstration
 from nonprehensile.errors import InputError
 from nonprehensile.states import state_pose
-from nonprehensile.viz._figures import require_matplotlib
+from nonprehensile.viz._figures import new_figure
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -137,10 +137,8 @@ def trajectory_figure(
     -------
     matplotlib.figure.Figure
     """
-    require_matplotlib()
-    from matplotlib.figure import Figure
 
-    fig = Figure(figsize=figsize, layout="constrained")
+    fig = new_figure(figsize=figsize, layout="constrained")
     ax = fig.add_subplot(projection="3d")
     plot_trajectories(ax, dataset, skills, marker=marker, color_by=color_by)
     demos, m = _selection(dataset, skills, marker)
