@@ -175,7 +175,7 @@ def test_concurrent_writers(tmp_path: Path) -> None:
 def test_write_lock_timeout_is_a_store_error(tmp_path: Path) -> None:
     path = tmp_path / "s.db"
     holder = SQLiteStore(path)
-    waiter = SQLiteStore(path, timeout=0.05)
+    waiter = SQLiteStore(path, timeout=0.05, lock_wait=0.2)
     with holder.transaction():
         holder.add(np.ones((1, 2)), [1], np.zeros(1, dtype=np.int64))
         with pytest.raises(StoreError, match="write lock"):

@@ -9,6 +9,9 @@ go to stderr; ``--json`` prints one JSON document on stdout.
 
 from __future__ import annotations
 
+import math
+import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 from rich.table import Table
 
+from nonprehensile.bounds import check_path
 from nonprehensile.cli_common import emit_json, handle_errors, out, progress_bar
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
@@ -30,36 +34,92 @@ STATE = "hilbert_clusterer"
 CHUNK = 64
 
 
+#: Largest sample array read from a file, bytes (checked from its header, before reading).
+MAX_ARRAY_BYTES = 2**30
+
+
 def _load_arrays(path: str) -> tuple[NDArray[np.float64], list[str] | None]:
     """Samples from ``.npy`` (an array, shape (n_samples, n_features)) or ``.npz`` (key
-    ``X``, optional ``y``: a class per sample)."""
-    p = Path(path)
-    try:
-        data = np.load(p, allow_pickle=False)
-    except (OSError, ValueError) as exc:
+    ``X``, optional ``y``: a class per sample).
+
+    Headers are read and checked (shape, dtype, size against the file's and
+    :data:`MAX_ARRAY_BYTES`) before any array is allocated; pickled objects are refused.
+    """
+    p = check_path(path, "--arrays")
+    if not p.is_file():
+        raise InputError(f"{path}: no such file; give a .npy or .npz file of samples")
+    with p.open("rb") as fh:
+        head = fh.read(6)
+    if head == b"\x93NUMPY":
+        with p.open("rb") as fh:
+            return _real(_read_npy(fh, p.stat().st_size, path), path), None
+    if head[:4] != b"PK\x03\x04":
         raise InputError(
-            f"{path}: cannot read as a numpy .npy or .npz file ({exc}); save the samples "
+            f"{path}: not a numpy .npy or .npz file (it starts {head!r}); save the samples "
             "with numpy.save, shape (n_samples, n_features)"
-        ) from None
-    if isinstance(data, np.ndarray):
-        return _real(data, path), None
-    with data:
-        if "X" not in data.files:
-            raise InputError(f"{path}: an .npz file needs an array named 'X', it has "
-                             f"{data.files}")
-        x = _real(data["X"], path)
-        y = [str(v) for v in data["y"].tolist()] if "y" in data.files else None
-        if y is not None and len(y) != len(x):
-            raise InputError(f"{path}: 'y' has {len(y)} classes for {len(x)} samples in 'X'; "
-                             "give one class per sample")
-        return x, y
+        )
+    try:
+        with zipfile.ZipFile(p) as zf:
+            names = zf.namelist()
+            if "X.npy" not in names:
+                raise InputError(f"{path}: an .npz file needs an array named 'X', it has "
+                                 f"{[n.removesuffix('.npy') for n in names]}")
+            x = _real(_read_member(zf, "X.npy", path), path)
+            y = None
+            if "y.npy" in names:
+                y = [str(v) for v in _read_member(zf, "y.npy", path).tolist()]
+    except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as exc:
+        raise InputError(f"{path}: a damaged .npz file ({exc}); save it again with "
+                         "numpy.savez") from None
+    if y is not None and len(y) != len(x):
+        raise InputError(f"{path}: 'y' has {len(y)} classes for {len(x)} samples in 'X'; "
+                         "give one class per sample")
+    return x, y
+
+
+def _read_member(zf: zipfile.ZipFile, name: str, path: str) -> NDArray[Any]:
+    info = zf.getinfo(name)
+    with zf.open(info) as fh:
+        return _read_npy(fh, info.file_size, f"{path} ({name.removesuffix('.npy')})")
+
+
+def _read_npy(fh: Any, size: int, what: str) -> NDArray[Any]:
+    """An array from an open ``.npy`` stream of ``size`` bytes, header checked first."""
+    fmt = np.lib.format
+    try:
+        major, _ = fmt.read_magic(fh)
+        read_header = fmt.read_array_header_1_0 if major == 1 else fmt.read_array_header_2_0
+        shape, fortran, dtype = read_header(fh)
+    except (ValueError, EOFError, OSError) as exc:
+        raise InputError(f"{what}: not a readable .npy array header ({exc}); save the samples "
+                         "with numpy.save") from None
+    if dtype.hasobject or dtype.kind not in "biufU":
+        raise InputError(f"{what}: an array of {dtype} cannot hold samples; save a float "
+                         "array, shape (n_samples, n_features)")
+    count = math.prod(shape)
+    nbytes = count * dtype.itemsize
+    if nbytes > MAX_ARRAY_BYTES:
+        raise InputError(f"{what}: its header declares shape {shape} of {dtype} ({nbytes} "
+                         f"bytes), more than the {MAX_ARRAY_BYTES} bytes read at once; split "
+                         "the samples into several files")
+    data = fh.read(nbytes)
+    if len(data) != nbytes or fh.tell() > size:
+        raise InputError(f"{what}: its header declares shape {shape} ({nbytes} bytes of data) "
+                         f"but the file holds {len(data)}; the file is truncated")
+    a = np.frombuffer(data, dtype=dtype, count=count)
+    return a.reshape(shape, order="F" if fortran else "C")
 
 
 def _real(a: NDArray[Any], path: str) -> NDArray[np.float64]:
-    """Samples as real floats, or an error naming the file (strings, complex numbers)."""
-    if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+    """Samples as real floats, shape (n_samples, n_features), or an error naming the file."""
+    if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)
+            or a.dtype == np.bool_):
         raise InputError(f"{path}: the samples must be real numbers, got an array of "
                          f"{a.dtype}; save a float array, shape (n_samples, n_features)")
+    if a.ndim != 2 or 0 in a.shape:
+        raise InputError(f"{path}: the samples must be a 2-D array, shape (n_samples >= 1, "
+                         f"n_features >= 1), got shape {a.shape}; reshape it (one row per "
+                         "sample)")
     return np.asarray(a, dtype=np.float64)
 
 
@@ -250,7 +310,8 @@ def cluster_show(store: str, histogram: str | None, as_json: bool) -> None:
     """Show the clusters of STORE: sizes and key ranges."""
     if not Path(store).exists():
         raise InputError(f"{store}: no such store; create it with `nonprehensile cluster fit`")
-    db = SQLiteStore(store)
+    # read only: no write lock (writers go on), and a store on a read-only mount can be shown
+    db = SQLiteStore(store, readonly=True)
     try:
         c = _load(db, store)
         doc = summary(c, store)

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import functools
 import json
+import math
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 from rich.console import Console
@@ -27,9 +28,24 @@ from rich.text import Text
 
 from nonprehensile.errors import InputError, NonprehensileError
 
-__all__ = ["emit_json", "err", "fmt_num", "handle_errors", "out", "progress_bar", "stage_bars"]
+__all__ = [
+    "Bounded",
+    "bounded",
+    "emit_json",
+    "err",
+    "fmt_num",
+    "handle_errors",
+    "out",
+    "progress_bar",
+    "stage_bars",
+]
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+if TYPE_CHECKING:
+    _ParamBase = click.ParamType[Any, Any]
+else:  # click < 8.2 has no type parameters at run time
+    _ParamBase = click.ParamType
 
 out = Console(soft_wrap=True, emoji=False, highlight=False)
 err = Console(stderr=True, soft_wrap=True, emoji=False, highlight=False)
@@ -40,12 +56,70 @@ def fmt_num(x: float) -> str:
     return f"{x:.6g}"
 
 
+class Bounded(_ParamBase):
+    """A number option with its limits: finite, in ``low..high``, checked before any work.
+
+    click's own ranges let NaN through; this one names the option and the limit.
+    """
+
+    def __init__(self, kind: type[int] | type[float], low: float, high: float) -> None:
+        self.kind, self.low, self.high = kind, low, high
+        self.limits = f"{int(low)}..{int(high)}" if kind is int else f"{low:g}..{high:g}"
+        self.name = f"{kind.__name__} in {self.limits}"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None
+                ) -> Any:
+        if isinstance(value, self.kind) and not isinstance(value, bool):
+            v = value
+        else:
+            try:
+                v = self.kind(str(value).strip())
+            except ValueError:
+                what = "a whole number" if self.kind is int else "a number"
+                self.fail(f"{value!r} is not {what}", param, ctx)
+        if not (math.isfinite(v) and self.low <= v <= self.high):
+            self.fail(f"{value!r} is outside the limits {self.limits}", param, ctx)
+        return v + 0 if self.kind is int else float(v) + 0.0  # -0.0 -> 0.0
+
+
+def bounded(kind: type[int] | type[float], low: float, high: float) -> Bounded:
+    """A :class:`Bounded` option type."""
+    return Bounded(kind, low, high)
+
+
+def _check_text_arguments(kwargs: dict[str, Any]) -> None:
+    """Every text argument must be encodable: a NUL or a lone surrogate in a file name would
+    fail deep inside a system call with an unrelated error."""
+    ctx = click.get_current_context(silent=True)
+    opts = {p.name: (p.opts[0] if p.opts else p.name) for p in ctx.command.params} if ctx else {}
+    for name, value in kwargs.items():
+        values = value if isinstance(value, tuple) else (value,)
+        for v in values:
+            if not isinstance(v, str):
+                continue
+            bad = "\x00" in v
+            if not bad:
+                try:
+                    v.encode("utf-8", "surrogateescape")
+                except UnicodeEncodeError:
+                    bad = True
+            if bad:
+                where = opts.get(name) or name
+                raise InputError(
+                    f"{str(where).upper() if not str(where).startswith('-') else where}: "
+                    f"{v!r} holds a NUL character or a lone surrogate, which no file name or "
+                    "value may hold"
+                )
+
+
 def handle_errors(fn: F) -> F:
-    """Turn library errors into one-line messages and the spec's exit codes."""
+    """Check text arguments, then turn library errors into one-line messages and the spec's
+    exit codes."""
 
     @functools.wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
+            _check_text_arguments(kwargs)
             return fn(*args, **kwargs)
         except InputError as exc:
             # the message may hold brackets (lists of faces): never read it as markup

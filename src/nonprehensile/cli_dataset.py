@@ -13,7 +13,7 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, handle_errors, out, progress_bar
+from nonprehensile.cli_common import bounded, emit_json, err, handle_errors, out, progress_bar
 from nonprehensile.demonstrations.dataset import (
     DEFAULT_GAP_LIMIT,
     Dataset,
@@ -22,7 +22,19 @@ from nonprehensile.demonstrations.dataset import (
     dataset_summary,
 )
 from nonprehensile.demonstrations.segment import segment_dataset, segments_by_arc
-from nonprehensile.demonstrations.synth import DEFAULT_SEED, synthesize
+from nonprehensile.demonstrations.synth import (
+    DEFAULT_SEED,
+    MAX_DROPOUTS,
+    MAX_GAP_LIMIT,
+    MAX_MENTORS,
+    MAX_N_PER_SKILL,
+    MAX_NOISE_MM,
+    MAX_RATE,
+    MAX_SEED,
+    MIN_RATE,
+    SCALE_RANGE,
+    synthesize,
+)
 from nonprehensile.errors import DemonstrationError
 
 __all__ = ["dataset_group"]
@@ -35,31 +47,37 @@ def dataset_group() -> None:
 
 @dataset_group.command("synth")
 @click.argument("out_dir", type=click.Path(file_okay=False))
-@click.option("--seed", type=int, default=DEFAULT_SEED, show_default=True,
-              help="Random seed (the bundled dataset uses the default).")
+@click.option("--seed", type=bounded(int, 0, MAX_SEED), default=DEFAULT_SEED,
+              show_default=True, help="Random seed (the bundled dataset uses the default).")
 @click.option("--skills", "skills_file", type=click.Path(dir_okay=False), default=None,
               help="Skills file to demonstrate (default: the bundled cube skills).")
-@click.option("--n-per-skill", type=int, default=30, show_default=True,
+@click.option("--n-per-skill", type=bounded(int, 1, MAX_N_PER_SKILL), default=30,
+              show_default=True,
               help="Demonstrations per skill, shared round-robin among the mentors.")
-@click.option("--mentors", type=int, default=3, show_default=True,
+@click.option("--mentors", type=bounded(int, 1, MAX_MENTORS), default=3, show_default=True,
               help="Number of mentors (the first three have the documented styles).")
-@click.option("--rate", type=float, default=120.0, show_default=True, help="Sampling rate, Hz.")
-@click.option("--scale", type=float, default=0.05, show_default=True,
+@click.option("--rate", type=bounded(float, MIN_RATE, MAX_RATE), default=120.0,
+              show_default=True, help="Sampling rate, Hz.")
+@click.option("--scale", type=bounded(float, *SCALE_RANGE), default=0.05, show_default=True,
               help="Metres per model unit (0.05: a 5 cm cube).")
-@click.option("--noise", "noise_mm", type=float, default=0.5, show_default=True,
-              help="Measurement noise (standard deviation), mm.")
-@click.option("--dropouts", type=float, default=0.5, show_default=True,
+@click.option("--noise", "noise_mm", type=bounded(float, 0.0, MAX_NOISE_MM), default=0.5,
+              show_default=True, help="Measurement noise (standard deviation), mm.")
+@click.option("--dropouts", type=bounded(float, 0.0, MAX_DROPOUTS), default=0.5,
+              show_default=True,
               help="Mean number of marker dropouts per marker and demonstration.")
-@click.option("--gap-limit", type=int, default=DEFAULT_GAP_LIMIT, show_default=True,
+@click.option("--gap-limit", type=bounded(int, 0, MAX_GAP_LIMIT), default=DEFAULT_GAP_LIMIT,
+              show_default=True,
               help="Longest dropout a loader accepts, frames (dropouts are at most half).")
 @click.option("--format", "trajectory_format", type=click.Choice(["c3d", "csv"]),
               default="c3d", show_default=True, help="Trajectory files: C3D or Motive CSV.")
+@click.option("--force", is_flag=True,
+              help="Replace the dataset already in OUT_DIR (its annotations and recordings).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 @handle_errors
 def synth_cmd(
     out_dir: str, seed: int, skills_file: str | None, n_per_skill: int, mentors: int,
     rate: float, scale: float, noise_mm: float, dropouts: float, gap_limit: int,
-    trajectory_format: str, as_json: bool,
+    trajectory_format: str, force: bool, as_json: bool,
 ) -> None:
     """Generate a seeded synthetic dataset in OUT_DIR (see docs/dataset.md)."""
     start = time.perf_counter()
@@ -68,6 +86,7 @@ def synth_cmd(
             out_dir, seed=seed, skills_file=skills_file, n_per_skill=n_per_skill,
             mentors=mentors, rate=rate, scale=scale, noise_mm=noise_mm, dropouts=dropouts,
             gap_limit=gap_limit, trajectory_format=trajectory_format, progress=update,
+            overwrite=force,
         )
     elapsed = time.perf_counter() - start
     if as_json:

@@ -15,6 +15,14 @@ from typing import Any
 import numpy as np
 import yaml
 
+from nonprehensile.bounds import (
+    MAX_DOCUMENT_BYTES,
+    MAX_DOCUMENT_DEPTH,
+    check_document,
+    check_file_size,
+    check_path,
+    key_list,
+)
 from nonprehensile.errors import InputError, ModelError, SkillError, StateError
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
 from nonprehensile.skills.skill import Skill, skill_from_dict, skill_to_dict
@@ -43,31 +51,54 @@ _MODEL_KEYS = {"name", "vertices", "faces", "center_of_mass", "virtual_faces", "
 def load_document(path: str | Path) -> Any:
     """Parse a JSON or YAML file (by suffix; ``.yaml``/``.yml`` are YAML, others JSON).
 
+    The file is bounded before it is parsed (size, :data:`~nonprehensile.bounds.MAX_DOCUMENT_BYTES`)
+    and the document after (nesting depth and size once YAML aliases are expanded), so that
+    no later step recurses or loops without bound.
+
     Raises
     ------
     InputError
-        Missing file, or a syntax error (with its line and column).
+        Missing file, a file too large, a syntax error (one line, with its line and column),
+        or nesting too deep.
     """
-    path = Path(path)
+    path = check_path(path)
     try:
+        check_file_size(path, MAX_DOCUMENT_BYTES, "JSON/YAML document")
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, expected a JSON/YAML file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read it: {exc}") from None
-    if path.suffix.lower() in (".yaml", ".yml"):
-        try:
-            return yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-            raise InputError(f"{path}: malformed YAML{where}: {exc}") from None
+    kind = "YAML" if path.suffix.lower() in (".yaml", ".yml") else "JSON"
     try:
-        return json.loads(text)
+        data = yaml.safe_load(text) if kind == "YAML" else json.loads(text)
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: malformed YAML{_yaml_error(exc)}") from None
     except json.JSONDecodeError as exc:
         raise InputError(
             f"{path}: malformed JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
         ) from None
+    except RecursionError:
+        # the parsers recurse once per level: thousands of levels overflow the stack
+        raise InputError(
+            f"{path}: lists and mappings nested more than {MAX_DOCUMENT_DEPTH} levels deep; "
+            "the spec's files nest a few levels"
+        ) from None
+    except (ValueError, OverflowError) as exc:
+        # JSON: an integer of more than 4300 digits; YAML: a date like 2019-13-45
+        raise InputError(f"{path}: malformed {kind}: {exc}") from None
+    return check_document(data, str(path))
+
+
+def _yaml_error(exc: yaml.YAMLError) -> str:
+    """A YAML error on one line: where, and what (PyYAML's own text spans several lines)."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    parts = [getattr(exc, "context", None), getattr(exc, "problem", None)]
+    what = "; ".join(str(p) for p in parts if p) or str(exc).splitlines()[0]
+    return f"{where}: {what}"
 
 
 def save_document(data: Any, path: str | Path) -> None:
@@ -116,7 +147,7 @@ def model_from_dict(
     missing = [k for k in ("vertices", "faces") if k not in data]
     if missing:
         raise ModelError(f"missing key(s) {missing}", source=source)
-    unknown = sorted(set(data) - _MODEL_KEYS)
+    unknown = key_list(set(data) - _MODEL_KEYS)
     if unknown:
         raise ModelError(
             f"unknown key(s) {unknown}; an object model has {sorted(_MODEL_KEYS)}",

@@ -296,7 +296,7 @@ def _top_level(
     name = ann.name
     poly: Polyhedron | None = None
     skills: list[Skill] = []
-    unknown = sorted(set(data) - _TOP_KEYS)
+    unknown = sorted({str(k) for k in data} - _TOP_KEYS)
     if unknown:
         out.add(name, None, f"unknown key(s) {unknown}; the annotations have {sorted(_TOP_KEYS)}")
     fmt = data.get("format", DATASET_FORMAT)
@@ -504,7 +504,7 @@ def check_dataset(
             continue
         file = item.get("file")
         where = (file if isinstance(file, str) and file else ann.name, i)
-        unknown = sorted(set(item) - _DEMO_KEYS)
+        unknown = sorted({str(k) for k in item} - _DEMO_KEYS)
         if unknown:
             out.add(*where, f"unknown key(s) {unknown}; a demonstration has {sorted(_DEMO_KEYS)}")
         skill_name = item.get("skill")

@@ -50,7 +50,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from nonprehensile.bounds import check_path
 from nonprehensile.demonstrations.dataset import (
+    ANNOTATION_FILES,
     DEFAULT_FINGERS,
     DEFAULT_GAP_LIMIT,
     DEFAULT_MARKERS,
@@ -94,6 +96,23 @@ FloatArray = NDArray[np.float64]
 MAX_DROPOUTS = 20.0
 #: Lowest sample rate the generator accepts, in Hz.
 MIN_RATE = 30.0
+#: Highest sample rate the generator accepts, in Hz (fast optical trackers run at 2 kHz).
+MAX_RATE = 2000.0
+#: Most demonstrations per skill.
+MAX_N_PER_SKILL = 1000
+#: Most mentors.
+MAX_MENTORS = 100
+#: Most demonstrations times the rate (frames per second of demonstration, summed): a
+#: demonstration lasts a few seconds, so this bounds the frames held in memory (about 400 MB).
+MAX_DEMOS_X_RATE = 1_000_000.0
+#: Largest measurement noise, mm.
+MAX_NOISE_MM = 100.0
+#: Largest longest-dropout, frames.
+MAX_GAP_LIMIT = 100_000
+#: Smallest and largest scale, metres per model unit.
+SCALE_RANGE = (1e-6, 100.0)
+#: Largest seed (numpy seeds are non-negative integers; 64 bits is plenty).
+MAX_SEED = 2**64 - 1
 Progress = Callable[[int, int], None]
 
 #: The seed of the bundled dataset (``data/cube_demos``).
@@ -700,6 +719,22 @@ def _finger_path(
 # --------------------------------------------------------------------------------- dataset
 
 
+def _check_int(name: str, value: object, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not (
+            low <= value <= high):
+        raise InputError(f"{name} must be a whole number in {low}..{high}, got {value!r}")
+    return int(value)
+
+
+def _check_float(name: str, value: object, low: float, high: float, unit: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise InputError(f"{name} must be a number of {unit} in {low:g}..{high:g}, got {value!r}")
+    v = float(value) + 0.0  # -0.0 becomes 0.0 (numpy refuses a noise scale of -0.0)
+    if not (math.isfinite(v) and low <= v <= high):
+        raise InputError(f"{name} must be a number of {unit} in {low:g}..{high:g}, got {value!r}")
+    return v
+
+
 def _bundled_skills() -> Path:
     return Path(str(resources.files("nonprehensile").joinpath("data", "cube_skills.json")))
 
@@ -771,31 +806,36 @@ def synthesize_dataset(
     InputError
         Bad arguments, or a skill the generator cannot demonstrate (naming it).
     """
-    if isinstance(n_per_skill, bool) or not isinstance(n_per_skill, int) or n_per_skill < 1:
-        raise InputError(f"n_per_skill must be a whole number >= 1, got {n_per_skill!r}")
-    for name, value in (("rate", rate), ("scale", scale)):
-        if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-            raise InputError(f"{name} must be a finite positive number, got {value!r}")
-    if not (math.isfinite(noise_mm) and noise_mm >= 0 and math.isfinite(dropouts)
-            and 0 <= dropouts <= MAX_DROPOUTS):
-        raise InputError(
-            f"noise_mm must be finite and >= 0 and dropouts in 0..{MAX_DROPOUTS} per marker "
-            f"and demonstration, got {noise_mm!r}, {dropouts!r}"
-        )
-    if rate < MIN_RATE:
-        raise InputError(f"rate must be at least {MIN_RATE:g} Hz (a tracker's), got {rate!r}")
+    _check_int("n_per_skill", n_per_skill, 1, MAX_N_PER_SKILL)
+    if not isinstance(mentors, int) or isinstance(mentors, bool):
+        pass  # a list of styles: checked by _mentor_list
+    else:
+        _check_int("mentors", mentors, 1, MAX_MENTORS)
+    rate = _check_float("rate", rate, MIN_RATE, MAX_RATE, "Hz (a tracker's)")
+    scale = _check_float("scale", scale, *SCALE_RANGE, "metres per model unit")
+    noise_mm = _check_float("noise_mm", noise_mm, 0.0, MAX_NOISE_MM, "mm")
+    dropouts = _check_float("dropouts", dropouts, 0.0, MAX_DROPOUTS,
+                            "per marker and demonstration")
+    _check_int("gap_limit", gap_limit, 0, MAX_GAP_LIMIT)
     # dropouts last 2 to gap_limit // 2 frames, so that every one can be filled
-    if isinstance(gap_limit, bool) or not isinstance(gap_limit, int) or gap_limit < 0 or (
-            dropouts > 0 and gap_limit < 4):
+    if dropouts > 0 and gap_limit < 4:
         raise InputError(
-            f"gap_limit must be a whole number of frames >= 0, and >= 4 with dropouts (they "
-            f"last 2 to gap_limit // 2 frames), got {gap_limit!r}"
+            f"gap_limit must be >= 4 frames with dropouts (they last 2 to gap_limit // 2 "
+            f"frames), got {gap_limit!r}"
         )
+    if not (seed is None or isinstance(seed, np.random.Generator)):
+        _check_int("seed", seed, 0, MAX_SEED)
     rng = np.random.default_rng(seed)
     path = Path(skills_file) if skills_file is not None else _bundled_skills()
     poly, skills = read_skills(path)
-    styles = _mentor_list(mentors, rng)
     total = n_per_skill * len(skills)
+    if total * rate > MAX_DEMOS_X_RATE:
+        raise InputError(
+            f"{total} demonstrations ({n_per_skill} per skill x {len(skills)} skills) at "
+            f"{rate:g} Hz is more than the generator makes at once (demonstrations x rate <= "
+            f"{MAX_DEMOS_X_RATE:g}); lower n_per_skill or rate"
+        )
+    styles = _mentor_list(mentors, rng)
     demos: list[Demonstration] = []
     for skill in skills:
         for j in range(n_per_skill):
@@ -827,17 +867,34 @@ def synthesize(
     gap_limit: int = DEFAULT_GAP_LIMIT,
     trajectory_format: str = "c3d",
     progress: Progress | None = None,
+    overwrite: bool = False,
 ) -> Dataset:
     """Generate a dataset and write it to ``out_dir`` (``nonprehensile dataset synth``).
 
     See :func:`synthesize_dataset` for the arguments; ``trajectory_format`` is ``"c3d"``
-    (needs the ``mocap`` extra) or ``"csv"`` (Motive CSV).
+    (needs the ``mocap`` extra) or ``"csv"`` (Motive CSV). A folder that already holds a
+    dataset (an annotations file) is refused before any work unless ``overwrite``: its
+    annotations may be a person's work.
+
+    Raises
+    ------
+    InputError
+        Bad arguments, ``out_dir`` a file, or a dataset there already (without ``overwrite``).
 
     Returns
     -------
     Dataset
         What was written, with ``root`` set to ``out_dir``.
     """
+    root = check_path(out_dir, "dataset folder")
+    if root.exists() and not root.is_dir():
+        raise InputError(f"{root}: is a file, not a folder; give a folder for the dataset")
+    present = [name for name in ANNOTATION_FILES if (root / name).exists()]
+    if present and not overwrite:
+        raise InputError(
+            f"{root}: already holds a dataset ({present[0]}); give another folder, or "
+            "--force (overwrite=True) to replace its annotations and recordings"
+        )
     ds = synthesize_dataset(
         seed=seed, skills_file=skills_file, n_per_skill=n_per_skill, mentors=mentors,
         rate=rate, scale=scale, noise_mm=noise_mm, dropouts=dropouts, gap_limit=gap_limit,

@@ -23,7 +23,12 @@ ints below ``2**63`` (SQLite's INTEGER); cluster ids are ints (``-1``: none yet)
 from __future__ import annotations
 
 import contextlib
+import math
+import random
 import sqlite3
+import time
+import urllib.parse
+import zlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any, Literal, Protocol, runtime_checkable
@@ -31,9 +36,10 @@ from typing import Any, Literal, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from nonprehensile.errors import InputError, StoreError
+from nonprehensile.bounds import check_path
+from nonprehensile.errors import InputError, NonprehensileError, StoreError
 
-__all__ = ["MemoryStore", "SQLiteStore", "SampleStore", "StoreError"]
+__all__ = ["MemoryStore", "SQLiteStore", "SampleStore", "StoreError", "StoreFileError"]
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -198,12 +204,54 @@ CREATE TABLE IF NOT EXISTS samples (
     id INTEGER PRIMARY KEY,
     key INTEGER NOT NULL,
     label INTEGER NOT NULL,
-    vector BLOB NOT NULL
+    vector BLOB NOT NULL,
+    crc INTEGER
 );
 CREATE INDEX IF NOT EXISTS samples_key ON samples (key);
 CREATE INDEX IF NOT EXISTS samples_label_key ON samples (label, key);
-CREATE TABLE IF NOT EXISTS meta (name TEXT PRIMARY KEY, value BLOB NOT NULL);
+CREATE TABLE IF NOT EXISTS meta (name TEXT PRIMARY KEY, value BLOB NOT NULL, crc INTEGER);
 """
+
+#: Longest wait for the write lock, seconds, before a transaction gives up: writers take
+#: turns, and a turn is one registration, so this is generous.
+DEFAULT_LOCK_WAIT = 3600.0
+
+
+def _crc(blob: bytes) -> int:
+    """The checksum stored with each vector and blob (CRC-32, as zlib computes it)."""
+    return zlib.crc32(blob)
+
+
+class StoreFileError(StoreError, InputError):
+    """The store file is damaged, read-only, or its disk is full; the message names the file.
+
+    Nothing half-written is committed: SQLite rolls the transaction back.
+    """
+
+
+def _explain(path: str, exc: sqlite3.Error) -> NonprehensileError:
+    """One line for a SQLite error, naming the store file and what to do."""
+    text = str(exc)
+    low = text.lower()
+    if "locked" in low or "busy" in low:
+        return StoreError(f"{path}: the store is locked by another process ({text}); retry")
+    if "full" in low or "too big" in low:
+        return StoreFileError(
+            f"{path}: the disk is full ({text}); nothing of this change was written and the "
+            "store is intact: free some space and run the command again"
+        )
+    if "readonly" in low or "read-only" in low:
+        return StoreFileError(
+            f"{path}: the store is read-only ({text}); commands that change it need write "
+            "access to the file and its folder (`cluster show` only reads)"
+        )
+    damaged = not isinstance(exc, sqlite3.OperationalError)
+    if damaged or any(w in low for w in ("malformed", "not a database", "corrupt")):
+        return StoreFileError(
+            f"{path}: the store file is damaged ({text}); restore it from a copy or fit it "
+            "again"
+        )
+    return StoreFileError(f"{path}: the store cannot be used ({text})")
 
 
 class SQLiteStore:
@@ -212,59 +260,161 @@ class SQLiteStore:
     Parameters
     ----------
     path : str or Path
-        Database file (created if absent), or ``":memory:"``.
+        Database file (created if absent, unless ``readonly``), or ``":memory:"``.
     timeout : float
-        Seconds to wait for another process's write lock before giving up.
+        Seconds SQLite waits for a lock in one attempt (its busy timeout).
     synchronous : {"NORMAL", "FULL"}
         SQLite's ``synchronous`` pragma in WAL mode: ``NORMAL`` survives a killed process,
         ``FULL`` also a power loss, at the cost of an fsync per commit.
     cache_mib : int
         SQLite's page cache, in MiB.
+    readonly : bool
+        Open an existing store for reading only: no lock is taken, and a store on a read-only
+        file system (or a read-only file) can be read.
+    check : bool
+        Run SQLite's ``PRAGMA quick_check`` on opening an existing store, so that a damaged
+        file is reported before anything is read from it.
+    lock_wait : float
+        Longest total wait, seconds, for the write lock: a transaction retries ``BEGIN
+        IMMEDIATE`` with growing pauses until it gets the lock (writers take turns).
 
     Notes
     -----
     Ids are SQLite rowids minus one; rows are never deleted (except by :meth:`clear`), so
     ids run ``0 .. n_samples - 1`` in the order of the commits that added them, also with
-    several writing processes.
+    several writing processes. Each vector and each named blob is stored with its CRC-32,
+    checked whenever it is read: a damaged page that SQLite does not notice is still
+    reported, never returned as data. Every SQLite error becomes a :class:`StoreFileError`
+    (damaged file, full disk, read-only file) or a :class:`StoreError` (lock) naming the file.
     """
 
     def __init__(self, path: str | Path = ":memory:", *, timeout: float = 30.0,
                  synchronous: Literal["NORMAL", "FULL"] = "NORMAL",
-                 cache_mib: int = 64) -> None:
+                 cache_mib: int = 64, readonly: bool = False, check: bool = True,
+                 lock_wait: float = DEFAULT_LOCK_WAIT) -> None:
         if synchronous not in ("NORMAL", "FULL"):
             raise InputError(f"synchronous must be 'NORMAL' or 'FULL', got {synchronous!r}")
         if isinstance(cache_mib, bool) or not isinstance(cache_mib, int) or cache_mib < 1:
             raise InputError(f"cache_mib must be a positive integer, got {cache_mib!r}")
+        for name, value in (("timeout", timeout), ("lock_wait", lock_wait)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                    math.isfinite(value) and value >= 0):
+                raise InputError(f"{name} must be a number of seconds >= 0, got {value!r}")
         self.path = str(path)
+        if self.path != ":memory:":
+            check_path(self.path, "store")
+        self.readonly = readonly
+        self._timeout = float(timeout)
+        self._lock_wait = float(lock_wait)
         self._depth = 0
+        self._d: int | None = None
+        existed = self.path != ":memory:" and Path(self.path).exists()
+        if self.path != ":memory:" and Path(self.path).is_dir():
+            raise InputError(f"{self.path}: is a folder; give the store's file name")
+        if readonly and not existed:
+            raise InputError(f"{self.path}: no such store; create it with `nonprehensile "
+                             "cluster fit`")
         try:
-            # isolation_level=None: we issue BEGIN / COMMIT ourselves (see transaction)
-            self._db = sqlite3.connect(self.path, timeout=timeout, isolation_level=None)
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute(f"PRAGMA synchronous={synchronous}")
-            # the key indexes' pages stay in memory: a registration then touches the disk
-            # (the WAL) only to write, at any size (SQLite's default cache is 2 MiB)
-            self._db.execute(f"PRAGMA cache_size=-{cache_mib * 1024}")
-            with self.transaction():
-                for stmt in _SCHEMA.split(";"):
-                    if stmt.strip():
-                        self._db.execute(stmt)
-        except sqlite3.DatabaseError as exc:
+            self._db = self._connect(synchronous, cache_mib)
+        except sqlite3.Error as exc:
             # the user named a file that is not a store (or a folder it cannot write): bad input
-            raise InputError(
+            raise StoreFileError(
                 f"{self.path}: cannot open as a sample store ({exc}); give a SQLite database "
                 "written by nonprehensile, or a new file name in a writable folder"
             ) from None
-        self._d: int | None = None
-        # sample ids run 1..n with no gap (n_samples reads MAX(id) in constant time): a row
-        # deleted by another program is caught once, when the store is opened
-        count, top = self._db.execute("SELECT COUNT(*), MAX(id) FROM samples").fetchone()
+        try:
+            if existed and check:
+                self._quick_check()
+            if not readonly:
+                self._migrate()
+            # sample ids run 1..n with no gap (n_samples reads MAX(id) in constant time): a
+            # row deleted by another program is caught once, when the store is opened
+            count, top = self._row("SELECT COUNT(*), MAX(id) FROM samples")
+        except BaseException:
+            self._db.close()
+            raise
         if count != (top or 0):
             self._db.close()
-            raise InputError(
+            raise StoreFileError(
                 f"{self.path}: the store holds {count} samples but its ids run to {top}: rows "
                 "were deleted outside nonprehensile; fit the store again"
             )
+
+    def _connect(self, synchronous: str, cache_mib: int) -> sqlite3.Connection:
+        if self.readonly:
+            uri = "file:" + urllib.parse.quote(str(Path(self.path).resolve()))
+            try:
+                db = sqlite3.connect(uri + "?mode=ro", uri=True, timeout=self._timeout,
+                                     isolation_level=None)
+                db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+            except sqlite3.OperationalError:
+                # a WAL store on a read-only file system: SQLite cannot make its shared-memory
+                # file there; nobody can write the file either, so read it as immutable
+                db = sqlite3.connect(uri + "?mode=ro&immutable=1", uri=True,
+                                     timeout=self._timeout, isolation_level=None)
+                db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+            db.execute(f"PRAGMA cache_size=-{cache_mib * 1024}")
+            return db
+        # isolation_level=None: we issue BEGIN / COMMIT ourselves (see transaction)
+        db = sqlite3.connect(self.path, timeout=self._timeout, isolation_level=None)
+        try:
+            db.execute("PRAGMA journal_mode=WAL")
+            db.execute(f"PRAGMA synchronous={synchronous}")
+            # the key indexes' pages stay in memory: a registration then touches the disk
+            # (the WAL) only to write, at any size (SQLite's default cache is 2 MiB)
+            db.execute(f"PRAGMA cache_size=-{cache_mib * 1024}")
+        except BaseException:
+            db.close()
+            raise
+        return db
+
+    def _quick_check(self) -> None:
+        result = self._rows("PRAGMA quick_check")
+        problems = [str(r[0]) for r in result if r[0] != "ok"]
+        if problems:
+            more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
+            raise StoreFileError(
+                f"{self.path}: the store file is damaged (SQLite's integrity check: "
+                f"{problems[0]}{more}); restore it from a copy or fit it again"
+            )
+
+    def _migrate(self) -> None:
+        """Create the tables; give a store written before checksums its checksums."""
+        with self.transaction():
+            for stmt in _SCHEMA.split(";"):
+                if stmt.strip():
+                    self._exec(stmt)
+            for table in ("samples", "meta"):
+                cols = [r[1] for r in self._rows(f"PRAGMA table_info({table})")]
+                if "crc" not in cols:
+                    self._exec(f"ALTER TABLE {table} ADD COLUMN crc INTEGER")
+            self._db.create_function("np_crc", 1, lambda b: _crc(bytes(b)), deterministic=True)
+            self._exec("UPDATE samples SET crc = np_crc(vector) WHERE crc IS NULL")
+            self._exec("UPDATE meta SET crc = np_crc(value) WHERE crc IS NULL")
+
+    # ------------------------------------------------------------------ SQLite, with errors
+    @contextlib.contextmanager
+    def _errors(self) -> Iterator[None]:
+        try:
+            yield
+        except sqlite3.Error as exc:
+            raise _explain(self.path, exc) from None
+
+    def _exec(self, sql: str, args: Any = ()) -> None:
+        with self._errors():
+            self._db.execute(sql, args)
+
+    def _rows(self, sql: str, args: tuple[Any, ...] = ()) -> list[Any]:
+        with self._errors():
+            return self._db.execute(sql, args).fetchall()
+
+    def _row(self, sql: str, args: tuple[Any, ...] = ()) -> Any:
+        with self._errors():
+            return self._db.execute(sql, args).fetchone()
+
+    def _one(self, sql: str, args: tuple[Any, ...] = ()) -> Any:
+        row = self._row(sql, args)
+        return None if row is None else row[0]
 
     def close(self) -> None:
         """Close the connection (committed data stays)."""
@@ -276,14 +426,39 @@ class SQLiteStore:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _begin(self) -> None:
+        """``BEGIN IMMEDIATE``, retried with growing, jittered pauses until ``lock_wait``."""
+        deadline = time.monotonic() + self._lock_wait
+        pause = 0.05
+        while True:
+            try:
+                self._db.execute("BEGIN IMMEDIATE")
+                return
+            except sqlite3.OperationalError as exc:
+                low = str(exc).lower()
+                if "locked" not in low and "busy" not in low:
+                    raise _explain(self.path, exc) from None
+                if time.monotonic() >= deadline:
+                    raise StoreError(
+                        f"{self.path}: could not take the write lock in {self._lock_wait:g} s "
+                        f"({exc}); another process holds it for too long: retry, or raise "
+                        "lock_wait"
+                    ) from None
+            # jitter: waiting writers do not retry in lock step
+            time.sleep(min(pause * (0.5 + random.random()), max(0.0, deadline - time.monotonic())))
+            pause = min(pause * 2, 1.0)
+
     @contextlib.contextmanager
     def transaction(self) -> Iterator[None]:
         """Commit everything inside together; nested uses join the outer transaction.
 
         ``BEGIN IMMEDIATE`` takes the write lock at once, so that a read-modify-write (load
         the clusterer's state, register samples, save it) is not interleaved with another
-        process's.
+        process's; a writer that finds the lock taken waits its turn (see ``lock_wait``).
         """
+        if self.readonly:
+            raise StoreFileError(f"{self.path}: the store was opened read-only; it cannot be "
+                                 "changed")
         if self._depth:
             self._depth += 1
             try:
@@ -291,26 +466,23 @@ class SQLiteStore:
             finally:
                 self._depth -= 1
             return
-        try:
-            self._db.execute("BEGIN IMMEDIATE")
-        except sqlite3.OperationalError as exc:
-            raise StoreError(
-                f"{self.path}: could not take the write lock ({exc}); another process holds "
-                "it for too long: retry, or raise timeout"
-            ) from None
+        self._begin()
         self._depth = 1
         try:
             yield
         except BaseException:
             self._depth = 0
-            self._db.execute("ROLLBACK")
+            with contextlib.suppress(sqlite3.Error):
+                self._db.execute("ROLLBACK")
             raise
         self._depth = 0
-        self._db.execute("COMMIT")
-
-    def _one(self, sql: str, args: tuple[Any, ...] = ()) -> Any:
-        row = self._db.execute(sql, args).fetchone()
-        return None if row is None else row[0]
+        try:
+            self._db.execute("COMMIT")
+        except sqlite3.Error as exc:
+            # a full disk at commit: SQLite keeps the store as it was before the transaction
+            with contextlib.suppress(sqlite3.Error):
+                self._db.execute("ROLLBACK")
+            raise _explain(self.path, exc) from None
 
     @property
     def n_samples(self) -> int:
@@ -320,44 +492,60 @@ class SQLiteStore:
     @property
     def n_features(self) -> int | None:
         if self._d is None:
-            blob = self._one("SELECT vector FROM samples LIMIT 1")
+            blob = self._one("SELECT vector FROM samples ORDER BY id LIMIT 1")
             if blob is not None:
+                if len(blob) % 8 or not blob:
+                    raise StoreFileError(
+                        f"{self.path}: sample 0: its stored vector has {len(blob)} bytes, not "
+                        "a whole number of float64 values; the store is damaged: fit it again"
+                    )
                 self._d = len(blob) // 8
         return self._d
 
     def add(self, vectors: FloatArray, keys: list[int], labels: IntArray) -> None:
         v, lab = _check_batch(vectors, keys, labels, self.n_features)
-        rows = [(int(k), int(c), row.tobytes()) for k, c, row in
-                zip(keys, lab.tolist(), v, strict=True)]
-        with self.transaction():
-            self._db.executemany("INSERT INTO samples (key, label, vector) VALUES (?, ?, ?)",
-                                 rows)
+        rows = []
+        for k, c, row in zip(keys, lab.tolist(), v, strict=True):
+            blob = row.tobytes()
+            rows.append((int(k), int(c), blob, _crc(blob)))
+        with self.transaction(), self._errors():
+            self._db.executemany(
+                "INSERT INTO samples (key, label, vector, crc) VALUES (?, ?, ?, ?)", rows)
         self._d = v.shape[1]
 
     def vectors(self, start: int, stop: int) -> FloatArray:
         d = self.n_features
-        rows = self._db.execute(
-            "SELECT vector FROM samples WHERE id > ? AND id <= ? ORDER BY id", (start, stop)
-        ).fetchall()
+        rows = self._rows(
+            "SELECT id, vector, crc FROM samples WHERE id > ? AND id <= ? ORDER BY id",
+            (start, stop),
+        )
         if not rows or d is None:
             return np.zeros((0, d or 0))
-        return np.frombuffer(b"".join(r[0] for r in rows), dtype=np.float64).reshape(-1, d)
+        for i, blob, crc in rows:
+            if len(blob) != 8 * d or (crc is not None and _crc(blob) != crc):
+                what = (f"has {len(blob)} bytes for {d} features" if len(blob) != 8 * d
+                        else "does not match its checksum")
+                raise StoreFileError(
+                    f"{self.path}: sample {i - 1}: its stored vector {what}; the store is "
+                    "damaged: restore it from a copy or fit it again"
+                )
+        return np.frombuffer(b"".join(r[1] for r in rows), dtype=np.float64).reshape(-1, d)
 
     def update(self, start: int, keys: list[int], labels: IntArray) -> None:
         rows = [(int(k), int(c), start + i + 1)
                 for i, (k, c) in enumerate(zip(keys, labels.tolist(), strict=True))]
-        with self.transaction():
+        with self.transaction(), self._errors():
             self._db.executemany("UPDATE samples SET key = ?, label = ? WHERE id = ?", rows)
 
     def keys(self) -> list[int]:
-        return [r[0] for r in self._db.execute("SELECT key FROM samples ORDER BY id")]
+        return [r[0] for r in self._rows("SELECT key FROM samples ORDER BY id")]
 
     def labels(self) -> IntArray:
-        rows = self._db.execute("SELECT label FROM samples ORDER BY id").fetchall()
+        rows = self._rows("SELECT label FROM samples ORDER BY id")
         return np.array([r[0] for r in rows], dtype=np.int64)
 
     def _ids_keys(self, sql: str, args: tuple[Any, ...]) -> tuple[IntArray, list[int]]:
-        rows = self._db.execute(sql, args).fetchall()
+        rows = self._rows(sql, args)
         return (np.array([r[0] - 1 for r in rows], dtype=np.int64), [r[1] for r in rows])
 
     def cluster(self, label: int) -> tuple[IntArray, list[int]]:
@@ -373,26 +561,55 @@ class SQLiteStore:
         )
 
     def get_meta(self, name: str) -> bytes | None:
-        value = self._one("SELECT value FROM meta WHERE name = ?", (name,))
-        return None if value is None else bytes(value)
+        row = self._row("SELECT value, crc FROM meta WHERE name = ?", (name,))
+        if row is None:
+            return None
+        value = bytes(row[0])
+        if row[1] is not None and _crc(value) != row[1]:
+            raise StoreFileError(
+                f"{self.path}: the stored {name!r} does not match its checksum; the store is "
+                "damaged: restore it from a copy or fit it again"
+            )
+        return value
 
     def put_meta(self, name: str, value: bytes) -> None:
+        blob = bytes(value)
         with self.transaction():
-            self._db.execute("INSERT OR REPLACE INTO meta (name, value) VALUES (?, ?)",
-                             (name, value))
+            self._exec("INSERT OR REPLACE INTO meta (name, value, crc) VALUES (?, ?, ?)",
+                       (name, blob, _crc(blob)))
 
     def clear(self) -> None:
         with self.transaction():
-            self._db.execute("DELETE FROM samples")
-            self._db.execute("DELETE FROM meta")
+            self._exec("DELETE FROM samples")
+            self._exec("DELETE FROM meta")
         self._d = None
 
     def integrity(self) -> str:
         """SQLite's ``PRAGMA integrity_check`` (``"ok"`` for a sound database)."""
         return str(self._one("PRAGMA integrity_check"))
 
+    def verify(self) -> int:
+        """Check every stored vector and blob against its checksum (a full read).
+
+        Returns
+        -------
+        int
+            The number of samples checked.
+
+        Raises
+        ------
+        StoreFileError
+            Naming the first damaged sample or blob.
+        """
+        n = self.n_samples
+        for s in range(0, n, 4096):
+            self.vectors(s, min(n, s + 4096))
+        for (name,) in self._rows("SELECT name FROM meta"):
+            self.get_meta(name)
+        return n
+
     def info(self) -> dict[str, Any]:
         """Path, journal mode and counts, for the command line."""
         return {"path": self.path, "journal_mode": self._one("PRAGMA journal_mode"),
                 "n_samples": self.n_samples, "n_features": self.n_features,
-                "meta": [r[0] for r in self._db.execute("SELECT name FROM meta ORDER BY name")]}
+                "meta": [r[0] for r in self._rows("SELECT name FROM meta ORDER BY name")]}

@@ -267,7 +267,7 @@ def skill_from_dict(
         # NAME:reverse names the reverse of an invertible skill: a user name must not clash
         raise SkillError(f"skill {name!r}: a skill name may not contain ':'; rename it")
     known = {"name", "initial", "final", "maneuver", "invertible", "events", "motions"}
-    unknown = sorted(set(data) - known)
+    unknown = sorted({str(k) for k in data} - known)
     if unknown:
         raise SkillError(f"skill {name!r}: unknown key(s) {unknown}; a skill has {sorted(known)}")
     missing = [k for k in ("initial", "final", "events", "motions") if k not in data]
