@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import math
+import warnings
 from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
@@ -746,7 +747,11 @@ def write_motive_csv(
             ok = ~np.isnan(q[:, 0])
             e = np.full((n, 3), np.nan)
             if ok.any():
-                seq = Rotation.from_quat(q[ok]).as_euler(rotation_type, degrees=True)
+                with warnings.catch_warnings():
+                    # at gimbal lock scipy warns that the third angle is set to zero; the
+                    # angles still give the same rotation, which is all a reader needs
+                    warnings.simplefilter("ignore", UserWarning)
+                    seq = Rotation.from_quat(q[ok]).as_euler(rotation_type, degrees=True)
                 e[ok] = seq[:, [rotation_type.index(a) for a in "XYZ"]]
             q = e
         body_values.append(np.concatenate([q, _from_ours(np.asarray(body.positions), up)],
