@@ -174,8 +174,9 @@ json_option = click.option("--json", "as_json", is_flag=True, help="Print one JS
 
 @click.group("cluster")
 def cluster_group() -> None:
-    """Cluster demonstrated trajectories on a Hilbert-curve index, in a store: a SQLite file,
-    or a postgresql:// URL."""
+    """Cluster demonstrated trajectories on a Hilbert-curve index, in a store.
+
+    A store is a SQLite file path, or a postgresql:// URL (a PostgreSQL database)."""
 
 
 @cluster_group.command("fit")
