@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -68,7 +69,7 @@ def test_demo_plan_is_exact_and_never_demonstrated(
 
 
 def test_plan_reference_files(tmp_path: Path) -> None:
-    from nonprehensile.demonstrations.formats import read_c3d
+    from nonprehensile.demonstrations.formats import read_c3d, read_motive_csv
     from nonprehensile.inference import expand
     from nonprehensile.pipeline import motions_from_dataset
     from nonprehensile.planning import plan
@@ -85,6 +86,16 @@ def test_plan_reference_files(tmp_path: Path) -> None:
     assert ref is not None
     assert traj.to_units("m").positions.shape == ref.positions.shape
     assert abs(traj.to_units("m").positions - ref.positions).max() < 1e-6
+    # every file reads back, at the readers' defaults, to its reference motion: exact to the
+    # format's precision (C3D float32, CSV six decimals), never a frame turned on its side
+    refs = [ref for step in result.steps for *_, ref in step.motions if ref is not None]
+    for suffix, reader, tol in ((".c3d", read_c3d, 2e-7), (".csv", read_motive_csv, 5e-7)):
+        back = [reader(f).to_units("m") for f in files if f.suffix == suffix]
+        assert len(back) == len(refs)
+        for got, want in zip(back, refs, strict=True):
+            assert got.marker_names == want.marker_names and got.rate == want.rate
+            scale = max(1.0, float(np.abs(want.positions).max()))
+            assert np.abs(got.positions - want.positions).max() <= tol * scale
     # the offset moved the demonstrated motion by half a metre along x
     assert ref.positions[..., 0].mean() > 0.3
 

@@ -196,9 +196,10 @@ def motions_from_dataset(
 def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
     """Write each step's reference trajectories as C3D and CSV files (world frame, metres).
 
-    Files are named ``stepNN-ARC.c3d`` / ``.csv`` with ``ARC`` the motion's two events; the
-    CSV is Motive's layout with our axes (``z`` up), so any tool that reads Motive exports
-    reads it.
+    Files are named ``stepNN-ARC.c3d`` / ``.csv`` with ``ARC`` the motion's two events. Each
+    is written in its format's usual convention, the one our readers assume by default, so it
+    reads back to the same positions: C3D ``z`` up, and the CSV Motive's layout with Motive's
+    ``y`` up, so that Motive and any tool that reads Motive exports read it as Motive would.
 
     Returns
     -------
@@ -218,7 +219,7 @@ def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
             traj = MarkerTrajectory.from_arrays(ref.positions, ref.marker_names, ref.rate, "m")
             stem = out / f"step{i:02d}-{source}-{target}"
             write_c3d(traj, stem.with_suffix(".c3d"))
-            write_motive_csv(traj, stem.with_suffix(".csv"), up="z",
+            write_motive_csv(traj, stem.with_suffix(".csv"),
                              take_name=f"step {i} {step.transition.skill.name} {source}->{target}")
             written += [stem.with_suffix(".c3d"), stem.with_suffix(".csv")]
     return written
