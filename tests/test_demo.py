@@ -79,7 +79,7 @@ def test_plan_reference_files(tmp_path: Path) -> None:
     result = plan(ds.poly, exp, State("a", 0), State("d", 0), motions=motions,
                   position=(0.5, 0.0))
     files = write_plan_motions(result, tmp_path)
-    assert len(files) == 2 * 4
+    assert len(files) == 2 * 4 + 1  # and plan.json, with the object poses
     traj = read_c3d(next(f for f in files if f.suffix == ".c3d"))
     ref = result.steps[0].motions[0][3]
     assert ref is not None
