@@ -109,7 +109,7 @@ def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:
     (step,) = doc["steps"]
     assert step["skill"] == "twist" and step["demonstrated"]
     assert all(m["reference"]["n_frames"] > 0 for m in step["motions"])
-    assert sorted(p.suffix for p in out.iterdir()) == [".c3d", ".c3d", ".csv", ".csv"]
+    assert sorted(p.suffix for p in out.iterdir()) == [".c3d", ".c3d", ".csv", ".csv", ".json"]
     res = CliRunner().invoke(main, ["plan", skills, "--from", "a:0", "--to", "a:90", "--step",
                                     "90", "--out", str(out)])
     assert res.exit_code == 2 and "--dataset" in res.stderr
