@@ -80,7 +80,7 @@ def test_plan_reference_files(tmp_path: Path) -> None:
     result = plan(ds.poly, exp, State("a", 0), State("d", 0), motions=motions,
                   position=(0.5, 0.0))
     files = write_plan_motions(result, tmp_path)
-    assert len(files) == 2 * 4
+    assert len(files) == 2 * 4 + 1  # and plan.json, with the object poses
     traj = read_c3d(next(f for f in files if f.suffix == ".c3d"))
     ref = result.steps[0].motions[0][3]
     assert ref is not None
@@ -120,7 +120,7 @@ def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:
     (step,) = doc["steps"]
     assert step["skill"] == "twist" and step["demonstrated"]
     assert all(m["reference"]["n_frames"] > 0 for m in step["motions"])
-    assert sorted(p.suffix for p in out.iterdir()) == [".c3d", ".c3d", ".csv", ".csv"]
+    assert sorted(p.suffix for p in out.iterdir()) == [".c3d", ".c3d", ".csv", ".csv", ".json"]
     res = CliRunner().invoke(main, ["plan", skills, "--from", "a:0", "--to", "a:90", "--step",
                                     "90", "--out", str(out)])
     assert res.exit_code == 2 and "--dataset" in res.stderr
