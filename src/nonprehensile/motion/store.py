@@ -370,7 +370,10 @@ class SQLiteStore:
 
     def _quick_check(self) -> None:
         result = self._rows("PRAGMA quick_check")
-        problems = [str(r[0]) for r in result if r[0] != "ok"]
+        # one problem per line; SQLite heads them "*** in database main ***"
+        problems = [line.strip() for r in result if r[0] != "ok"
+                    for line in str(r[0]).splitlines()
+                    if line.strip() and not line.startswith("***")]
         if problems:
             more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
             raise StoreFileError(
