@@ -361,7 +361,7 @@ def test_synth_command_writes_a_dataset(tmp_path: Path) -> None:
 
 def test_synth_command_bad_input_exits_2(tmp_path: Path) -> None:
     res = CliRunner().invoke(dataset_group, ["synth", str(tmp_path / "s"), "--n-per-skill", "0"])
-    assert res.exit_code == 2 and "n_per_skill" in res.stderr
+    assert res.exit_code == 2 and "--n-per-skill" in res.stderr
 
 
 def test_figure_command(pristine: Path, tmp_path: Path) -> None:

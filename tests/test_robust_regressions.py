@@ -252,3 +252,102 @@ def test_readonly_store_reads_and_refuses_writes(tmp_path: Path) -> None:
             db.put_meta("x", b"1")
     with pytest.raises(InputError, match="no such store"):
         SQLiteStore(tmp_path / "absent.db", readonly=True)
+
+
+# ------------------------------------------------------------------------------- C3D files
+SEED_C3D = Path(__file__).parent / "data" / "seed.c3d"  # a copy, so the offsets below hold
+
+
+def _mutant(tmp_path: Path, name: str) -> Path:
+    """The two damaged files of issue 13, made from the seed: two flipped bits that make ezc3d
+    crash (SIGSEGV), and bytes deleted / bits flipped that make it loop."""
+    b = bytearray(SEED_C3D.read_bytes())
+    if name == "segfault_flip":
+        b[1033] ^= 1 << 7
+        b[2808] ^= 1 << 1
+    elif name == "segfault_delete":
+        del b[1063 : 1063 + 23]
+    elif name == "hang_flip":
+        b[977] ^= 1 << 5
+        b[767] ^= 1 << 6
+    p = tmp_path / f"{name}.c3d"
+    p.write_bytes(bytes(b))
+    return p
+
+
+def _raw_ezc3d(path: Path, timeout: float) -> int | str:
+    """What ezc3d alone does with ``path``, in a throwaway process: exit code or 'hang'."""
+    import subprocess
+    import sys
+
+    try:
+        r = subprocess.run([sys.executable, "-c", "import ezc3d, sys; ezc3d.c3d(sys.argv[1])",
+                            str(path)], capture_output=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return "hang"
+    return r.returncode
+
+
+@pytest.mark.parametrize("name", ["segfault_flip", "segfault_delete"])
+def test_c3d_that_crashes_ezc3d_cannot_take_the_caller_down(tmp_path: Path, name: str) -> None:
+    from nonprehensile.demonstrations.c3d_safe import C3DWorker
+    from nonprehensile.demonstrations.formats import read_c3d
+    from nonprehensile.errors import DemonstrationError
+
+    path = _mutant(tmp_path, name)
+    assert _raw_ezc3d(path, 30) == -11  # the library alone dies of SIGSEGV
+    # the isolated worker alone (no structural check first) reports the crash and recovers
+    worker = C3DWorker()
+    try:
+        with pytest.raises(DemonstrationError, match=r"crashed on this file \(signal SIGSEGV"):
+            worker.parse(path)
+        assert worker.parse(SEED_C3D)["data"]["points"].shape[1] == 4
+    finally:
+        worker.close()
+    with pytest.raises(DemonstrationError, match=name):
+        read_c3d(path)
+
+
+def test_c3d_that_hangs_ezc3d_is_stopped(tmp_path: Path) -> None:
+    from nonprehensile.demonstrations.c3d_safe import C3DWorker, check_c3d_structure
+    from nonprehensile.errors import DemonstrationError
+
+    path = _mutant(tmp_path, "hang_flip")
+    assert _raw_ezc3d(path, 5) == "hang"
+    worker = C3DWorker(timeout=1.0)
+    try:
+        with pytest.raises(DemonstrationError, match="did not finish"):
+            worker.parse(path)
+        assert worker.parse(SEED_C3D)["data"]["points"].shape[1] == 4
+    finally:
+        worker.close()
+    # the structural check rejects it before ezc3d sees it
+    with pytest.raises(DemonstrationError, match="outside the parameter section"):
+        check_c3d_structure(path)
+
+
+def test_damaged_c3d_in_a_dataset_is_one_problem(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    assert run("dataset", "synth", out, "--n-per-skill", "1").exit_code == 0
+    victim = sorted(out.glob("*.c3d"))[0]
+    b = bytearray(victim.read_bytes())
+    del b[1063 : 1063 + 23]
+    victim.write_bytes(bytes(b))
+    r = run("dataset", "show", out)
+    assert r.exit_code == 2 and "Traceback" not in r.output
+    assert victim.name in r.output and "C3D" in r.output
+
+
+def test_huge_coordinate_in_csv_is_refused_at_read(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    assert run("dataset", "synth", out, "--n-per-skill", "1", "--format", "csv").exit_code == 0
+    victim = sorted(out.glob("*.csv"))[0]
+    lines = victim.read_text().splitlines()
+    cells = lines[10].split(",")
+    cells[4] = "1e308"
+    lines[10] = ",".join(cells)
+    victim.write_text("\n".join(lines) + "\n")
+    r = run("dataset", "show", out)
+    assert r.exit_code == 2 and "beyond" in r.output
+    r = run("cluster", "fit", tmp_path / "s.db", "--dataset", out)
+    assert r.exit_code == 2 and "beyond" in r.output and "Traceback" not in r.output

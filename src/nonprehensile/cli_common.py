@@ -65,7 +65,7 @@ class Bounded(_ParamBase):
     def __init__(self, kind: type[int] | type[float], low: float, high: float) -> None:
         self.kind, self.low, self.high = kind, low, high
         self.limits = f"{int(low)}..{int(high)}" if kind is int else f"{low:g}..{high:g}"
-        self.name = f"{kind.__name__} in {self.limits}"
+        self.name = "integer" if kind is int else "float"
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None
                 ) -> Any:

@@ -34,6 +34,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from nonprehensile.bounds import check_path
+from nonprehensile.demonstrations.c3d_safe import parse_c3d
 from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
 from nonprehensile.errors import DemonstrationError
 from nonprehensile.geometry.build import face_name
@@ -163,15 +165,13 @@ def read_c3d(path: str | Path, *, up: UpAxis = "z") -> MarkerTrajectory:
         Missing ezc3d, missing or unreadable file, no points, missing or bad rate, unknown
         units, missing, blank or repeated labels; the message names the file.
     """
-    path = Path(path)
-    ezc3d = _import_ezc3d(path)
+    path = check_path(path)
+    _import_ezc3d(path)
     if not path.is_file():
         raise DemonstrationError(f"{path}: no such C3D file")
     up = _check_up(up)
-    try:
-        c3d = ezc3d.c3d(str(path))
-    except Exception as exc:  # ezc3d raises bare RuntimeError/IOError on corrupt files
-        raise DemonstrationError(f"{path}: ezc3d cannot read it as a C3D file: {exc}") from None
+    # checked, then parsed in a worker process: a damaged file can crash or hang ezc3d
+    c3d = parse_c3d(path)
 
     points = np.asarray(c3d["data"]["points"], dtype=np.float64)
     if points.ndim != 3 or points.shape[1] == 0 or points.shape[2] == 0:

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation, Slerp
 
+from nonprehensile.bounds import MAX_COORDINATE
 from nonprehensile.errors import DemonstrationError
 
 __all__ = ["UNITS", "LengthUnits", "MarkerTrajectory", "PoseTrajectory", "kabsch_poses"]
@@ -374,6 +375,14 @@ class MarkerTrajectory:
             raise DemonstrationError(
                 f"marker trajectory: positions must be finite (NaN marks an occluded marker), "
                 f"got an infinite value at frame {i}, marker {k}"
+            )
+        big = np.abs(np.nan_to_num(pos)) > MAX_COORDINATE
+        if big.any():
+            i, k, c = (int(v) for v in np.argwhere(big)[0])
+            raise DemonstrationError(
+                f"marker trajectory: frame {i}, marker {k}: coordinate {pos[i, k, c]:g} is "
+                f"beyond {MAX_COORDINATE:g} (in any unit, far off a capture volume); the file "
+                "is damaged or its units are wrong"
             )
         # a marker is either seen (three numbers) or occluded (three NaNs); a partly-NaN
         # position is not a measurement, so make the whole point NaN
