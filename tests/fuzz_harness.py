@@ -42,7 +42,8 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-REALDATA = ROOT.parent / "shared" / "realdata"
+# <repo>/../shared/realdata (GUIDE.md); NONPREHENSILE_SHARED points elsewhere (a worktree)
+REALDATA = Path(os.environ.get("NONPREHENSILE_SHARED") or ROOT.parent / "shared") / "realdata"
 PACKAGE_DATA = ROOT / "src" / "nonprehensile" / "data"
 
 #: A run longer than this is a failure (seconds).
@@ -82,6 +83,9 @@ class Case:
     files: dict[str, bytes] = field(default_factory=dict)
     dirs: dict[str, Path] = field(default_factory=dict)
     note: str = ""
+    #: if exit 0, the JSON output must equal this (less "store"): a damaged copy of a store
+    #: either fails or reads as the original, never as something else
+    same_as: dict[str, Any] | None = None
 
 
 @dataclass
@@ -211,7 +215,10 @@ class Corpus:
         r = CliRunner().invoke(main, ["cluster", "fit", str(self.store), "--arrays",
                                       str(root / "x.npy"), "--n-clusters", "3", "--json"])
         assert r.exit_code == 0, r.output
-        self.store_json = json.loads(r.output)
+        r = CliRunner().invoke(main, ["cluster", "show", str(self.store), "--json"])
+        assert r.exit_code == 0, r.output
+        self.store_show = json.loads(r.output)
+        self.store_show.pop("store")
 
 
 # --------------------------------------------------------------------------------- families
@@ -247,9 +254,21 @@ def _fam_states(c: Corpus, rng: random.Random, i: int) -> Case:
                               "--to", "f:0", "--step", "90"], note=f"--from {start!r}")
 
 
+def _one_demo(c: Corpus, fmt: str, victim: Path) -> dict[str, bytes]:
+    """A dataset folder of the one demonstration recorded in ``victim`` (its files)."""
+    seed_dir = c.datasets[fmt]
+    ann = json.loads((seed_dir / "annotations.json").read_text())
+    ann["demonstrations"] = [d for d in ann["demonstrations"] if d["file"] == victim.name]
+    # the skills file keeps the demonstrated skill only: reading it is most of a load's time
+    skills = json.loads((seed_dir / "skills.json").read_text())
+    used = {d["skill"] for d in ann["demonstrations"]}
+    skills["skills"] = [s for s in skills["skills"] if s["name"] in used]
+    return {"d/annotations.json": json.dumps(ann).encode(),
+            "d/skills.json": json.dumps(skills).encode()}
+
+
 def _dataset_case(c: Corpus, rng: random.Random, i: int, family: str, fmt: str,
                   real: list[Path]) -> Case:
-    seed_dir = c.datasets[fmt]
     files = c.c3d if fmt == "c3d" else c.csv
     victim = rng.choice(files)
     source = victim
@@ -258,8 +277,9 @@ def _dataset_case(c: Corpus, rng: random.Random, i: int, family: str, fmt: str,
     data, how = mutate_bytes(source.read_bytes(), rng)
     if rng.random() < 0.1:
         data, how = source.read_bytes(), "unchanged real file"
-    return Case(family, i, ["dataset", "show", "{d}"], dirs={"d": seed_dir},
-                files={f"d/{victim.name}": data}, note=f"{source.name}: {how}")
+    return Case(family, i, ["dataset", "show", "{d}", *rng.choice([[], ["--json"]])],
+                files={**_one_demo(c, fmt, victim), f"d/{victim.name}": data},
+                note=f"{source.name}: {how}")
 
 
 def _fam_c3d(c: Corpus, rng: random.Random, i: int) -> Case:
@@ -272,12 +292,21 @@ def _fam_csv(c: Corpus, rng: random.Random, i: int) -> Case:
 
 def _fam_dataset(c: Corpus, rng: random.Random, i: int) -> Case:
     fmt = rng.choice(["c3d", "csv"])
-    text = (c.datasets[fmt] / "annotations.json").read_text()
-    mutated, how = mutate_text(text, rng)
+    files = c.c3d if fmt == "c3d" else c.csv
+    picked = rng.sample(files, 2)
+    base = _one_demo(c, fmt, picked[0])
+    ann = json.loads(base["d/annotations.json"])
+    other = _one_demo(c, fmt, picked[1])
+    ann["demonstrations"] += json.loads(other["d/annotations.json"])["demonstrations"]
+    skills = json.loads(base["d/skills.json"])
+    skills["skills"] += json.loads(other["d/skills.json"])["skills"]
+    base["d/skills.json"] = json.dumps(skills).encode()
+    mutated, how = mutate_text(json.dumps(ann, indent=1), rng)
     cmd = rng.choice([["dataset", "show", "{d}"], ["dataset", "show", "{d}", "--arcs"],
                       ["cluster", "fit", "{tmp}/s.db", "--dataset", "{d}"]])
-    return Case("dataset", i, cmd, dirs={"d": c.datasets[fmt]},
-                files={"d/annotations.json": mutated.encode("utf-8", "surrogateescape")},
+    return Case("dataset", i, cmd,
+                files={**base, "d/annotations.json": mutated.encode("utf-8", "surrogateescape"),
+                       **{f"d/{p.name}": p.read_bytes() for p in picked}},
                 note=how)
 
 
@@ -325,10 +354,11 @@ def _fam_arrays(c: Corpus, rng: random.Random, i: int) -> Case:
 
 def _fam_store(c: Corpus, rng: random.Random, i: int) -> Case:
     data, how = mutate_bytes(c.store.read_bytes(), rng)
-    cmd = rng.choice([["cluster", "show", "{tmp}/st.db", "--json"],
-                      ["cluster", "add", "{tmp}/st.db", "--arrays", str(c.arrays[0]),
-                       "--json"]])
-    return Case("store", i, cmd, files={"st.db": data}, note=how)
+    if rng.random() < 0.6:
+        return Case("store", i, ["cluster", "show", "{tmp}/st.db", "--json"],
+                    files={"st.db": data}, note=how, same_as=c.store_show)
+    return Case("store", i, ["cluster", "add", "{tmp}/st.db", "--arrays", str(c.arrays[0]),
+                             "--json"], files={"st.db": data}, note=how)
 
 
 def _fam_names(c: Corpus, rng: random.Random, i: int) -> Case:
@@ -387,7 +417,8 @@ def _materialise(case: Case, work: Path) -> list[str]:
         p.parent.mkdir(parents=True, exist_ok=True)
         p.write_bytes(data)
     first = next(iter(case.files), None)
-    subs = {"{tmp}": str(work), "{f}": str(work / first) if first else ""}
+    subs = {"{tmp}": str(work), "{f}": str(work / first) if first else "",
+            "{d}": str(work / "d")}
     for name in case.dirs:
         subs["{" + name + "}"] = str(work / name)
 
@@ -418,6 +449,14 @@ def _judge(case: Case, code: int | None, output: str, exc: BaseException | None,
         return "exit 0 on invalid input"
     if code == 2 and "error" not in output.lower():
         return "exit 2 without an error line"
+    if code == 0 and case.same_as is not None:
+        try:
+            doc = json.loads(output[output.index("{"):])
+        except ValueError:
+            return "exit 0 without its JSON document"
+        doc.pop("store", None)
+        if doc != case.same_as:
+            return "silent corruption: a damaged store read as different data"
     return None
 
 
@@ -563,7 +602,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--budget", type=int, default=10_000, help="number of generated inputs")
     p.add_argument("--jobs", type=int, default=2, help="parallel processes")
     p.add_argument("--seed", type=int, default=13)
-    p.add_argument("--subprocess-every", type=int, default=40,
+    p.add_argument("--subprocess-every", type=int, default=100,
                    help="also run every N-th input as a subprocess (0: never)")
     p.add_argument("--family", choices=sorted(FAMILIES), default=None)
     p.add_argument("--case", type=int, default=None, help="replay one case of --family")

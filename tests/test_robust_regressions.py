@@ -7,6 +7,7 @@ allocation), and stored data must never be lost or silently corrupted.
 from __future__ import annotations
 
 import json
+import os
 import sqlite3
 from pathlib import Path
 
@@ -351,3 +352,33 @@ def test_huge_coordinate_in_csv_is_refused_at_read(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "beyond" in r.output
     r = run("cluster", "fit", tmp_path / "s.db", "--dataset", out)
     assert r.exit_code == 2 and "beyond" in r.output and "Traceback" not in r.output
+
+
+# <repo>/../shared/realdata (GUIDE.md); NONPREHENSILE_SHARED points elsewhere (a worktree)
+REAL_C3D = Path(os.environ.get("NONPREHENSILE_SHARED")
+                or Path(__file__).resolve().parents[1].parent / "shared") / "realdata" / "c3d"
+
+
+@pytest.mark.skipif(not REAL_C3D.is_dir(), reason="../shared/realdata is not beside the repo")
+def test_real_c3d_two_flipped_bits_and_23_bytes_deleted(tmp_path: Path) -> None:
+    """Issue 13's two files, from real recordings: two flipped bits of an Optotrak file make
+    ezc3d segfault; 23 bytes deleted from a force-plate file make it loop."""
+    from nonprehensile.demonstrations.formats import read_c3d
+    from nonprehensile.errors import DemonstrationError
+
+    b = bytearray((REAL_C3D / "Optotrak.c3d").read_bytes())
+    b[550] ^= 1 << 7
+    b[317] ^= 1 << 1
+    flipped = tmp_path / "optotrak_flipped.c3d"
+    flipped.write_bytes(bytes(b))
+    b = bytearray((REAL_C3D / "FP_Type3.c3d").read_bytes())
+    del b[855 : 855 + 23]
+    cut = tmp_path / "fp_type3_cut.c3d"
+    cut.write_bytes(bytes(b))
+    assert _raw_ezc3d(flipped, 30) == -11
+    assert _raw_ezc3d(cut, 3) == "hang"
+    for path in (flipped, cut):
+        with pytest.raises(DemonstrationError, match=path.name):
+            read_c3d(path)
+    # and the reader still works after them
+    assert read_c3d(REAL_C3D / "Vicon.c3d").n_frames > 0

@@ -6,6 +6,7 @@ Every reading error names the file and the culprit (key, face, line) and is an
 
 from __future__ import annotations
 
+import contextlib
 import json
 from collections.abc import Mapping
 from importlib import resources
@@ -105,8 +106,13 @@ def save_document(data: Any, path: str | Path) -> None:
     """Write ``data`` as JSON, or YAML when the suffix is ``.yaml``/``.yml``.
 
     The file is written to a temporary name and renamed, so a crash never leaves half a file.
+
+    Raises
+    ------
+    InputError
+        The file cannot be written (a full disk, a read-only folder); the message names it.
     """
-    path = Path(path)
+    path = check_path(path)
     if path.suffix.lower() in (".yaml", ".yml"):
         text = yaml.safe_dump(data, sort_keys=False)
     else:
@@ -115,8 +121,11 @@ def save_document(data: Any, path: str | Path) -> None:
     try:
         tmp.write_text(text, encoding="utf-8")
         tmp.replace(path)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write it: {exc.strerror or exc}") from None
     finally:
-        tmp.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
 
 
 def model_from_dict(

@@ -26,6 +26,7 @@ import contextlib
 import math
 import random
 import sqlite3
+import struct
 import time
 import urllib.parse
 import zlib
@@ -205,7 +206,8 @@ CREATE TABLE IF NOT EXISTS samples (
     key INTEGER NOT NULL,
     label INTEGER NOT NULL,
     vector BLOB NOT NULL,
-    crc INTEGER
+    crc INTEGER,
+    kcrc INTEGER
 );
 CREATE INDEX IF NOT EXISTS samples_key ON samples (key);
 CREATE INDEX IF NOT EXISTS samples_label_key ON samples (label, key);
@@ -220,6 +222,12 @@ DEFAULT_LOCK_WAIT = 3600.0
 def _crc(blob: bytes) -> int:
     """The checksum stored with each vector and blob (CRC-32, as zlib computes it)."""
     return zlib.crc32(blob)
+
+
+def _kcrc(key: int, label: int) -> int:
+    """The checksum of a sample's key and cluster id (they change at a recalibration, the
+    vector never does, so each has its own)."""
+    return zlib.crc32(struct.pack("<qq", key, label))
 
 
 class StoreFileError(StoreError, InputError):
@@ -282,10 +290,11 @@ class SQLiteStore:
     -----
     Ids are SQLite rowids minus one; rows are never deleted (except by :meth:`clear`), so
     ids run ``0 .. n_samples - 1`` in the order of the commits that added them, also with
-    several writing processes. Each vector and each named blob is stored with its CRC-32,
-    checked whenever it is read: a damaged page that SQLite does not notice is still
-    reported, never returned as data. Every SQLite error becomes a :class:`StoreFileError`
-    (damaged file, full disk, read-only file) or a :class:`StoreError` (lock) naming the file.
+    several writing processes. Each vector, each (key, cluster id) pair and each named blob
+    is stored with its CRC-32, checked whenever it is read: a damaged page that SQLite does
+    not notice is still reported, never returned as data. Every SQLite error becomes a
+    :class:`StoreFileError` (damaged file, full disk, read-only file) or a
+    :class:`StoreError` (lock) naming the file.
     """
 
     def __init__(self, path: str | Path = ":memory:", *, timeout: float = 30.0,
@@ -316,7 +325,8 @@ class SQLiteStore:
                              "cluster fit`")
         try:
             self._db = self._connect(synchronous, cache_mib)
-        except sqlite3.Error as exc:
+        except (sqlite3.Error, UnicodeDecodeError) as exc:
+            # (SQLite's message about a damaged schema may itself be invalid UTF-8)
             # the user named a file that is not a store (or a folder it cannot write): bad input
             raise StoreFileError(
                 f"{self.path}: cannot open as a sample store ({exc}); give a SQLite database "
@@ -341,18 +351,23 @@ class SQLiteStore:
             )
 
     def _connect(self, synchronous: str, cache_mib: int) -> sqlite3.Connection:
+        db = self._open(synchronous, cache_mib)
+        # text a damaged file holds must not raise UnicodeDecodeError deep in a query
+        db.text_factory = lambda b: b.decode("utf-8", "replace")
+        return db
+
+    def _open(self, synchronous: str, cache_mib: int) -> sqlite3.Connection:
         if self.readonly:
             uri = "file:" + urllib.parse.quote(str(Path(self.path).resolve()))
             try:
                 db = sqlite3.connect(uri + "?mode=ro", uri=True, timeout=self._timeout,
                                      isolation_level=None)
-                db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
+                db.execute("SELECT COUNT(*) FROM sqlite_master WHERE 0").fetchone()
             except sqlite3.OperationalError:
                 # a WAL store on a read-only file system: SQLite cannot make its shared-memory
                 # file there; nobody can write the file either, so read it as immutable
                 db = sqlite3.connect(uri + "?mode=ro&immutable=1", uri=True,
                                      timeout=self._timeout, isolation_level=None)
-                db.execute("SELECT COUNT(*) FROM sqlite_master").fetchone()
             db.execute(f"PRAGMA cache_size=-{cache_mib * 1024}")
             return db
         # isolation_level=None: we issue BEGIN / COMMIT ourselves (see transaction)
@@ -387,12 +402,14 @@ class SQLiteStore:
             for stmt in _SCHEMA.split(";"):
                 if stmt.strip():
                     self._exec(stmt)
-            for table in ("samples", "meta"):
+            for table, col in (("samples", "crc"), ("samples", "kcrc"), ("meta", "crc")):
                 cols = [r[1] for r in self._rows(f"PRAGMA table_info({table})")]
-                if "crc" not in cols:
-                    self._exec(f"ALTER TABLE {table} ADD COLUMN crc INTEGER")
+                if col not in cols:
+                    self._exec(f"ALTER TABLE {table} ADD COLUMN {col} INTEGER")
             self._db.create_function("np_crc", 1, lambda b: _crc(bytes(b)), deterministic=True)
+            self._db.create_function("np_kcrc", 2, _kcrc, deterministic=True)
             self._exec("UPDATE samples SET crc = np_crc(vector) WHERE crc IS NULL")
+            self._exec("UPDATE samples SET kcrc = np_kcrc(key, label) WHERE kcrc IS NULL")
             self._exec("UPDATE meta SET crc = np_crc(value) WHERE crc IS NULL")
 
     # ------------------------------------------------------------------ SQLite, with errors
@@ -402,6 +419,9 @@ class SQLiteStore:
             yield
         except sqlite3.Error as exc:
             raise _explain(self.path, exc) from None
+        except UnicodeDecodeError as exc:  # a damaged schema, or SQLite's message about it
+            raise StoreFileError(f"{self.path}: the store file is damaged ({exc}); restore it "
+                                 "from a copy or fit it again") from None
 
     def _exec(self, sql: str, args: Any = ()) -> None:
         with self._errors():
@@ -510,10 +530,11 @@ class SQLiteStore:
         rows = []
         for k, c, row in zip(keys, lab.tolist(), v, strict=True):
             blob = row.tobytes()
-            rows.append((int(k), int(c), blob, _crc(blob)))
+            rows.append((int(k), int(c), blob, _crc(blob), _kcrc(int(k), int(c))))
         with self.transaction(), self._errors():
             self._db.executemany(
-                "INSERT INTO samples (key, label, vector, crc) VALUES (?, ?, ?, ?)", rows)
+                "INSERT INTO samples (key, label, vector, crc, kcrc) VALUES (?, ?, ?, ?, ?)",
+                rows)
         self._d = v.shape[1]
 
     def vectors(self, start: int, stop: int) -> FloatArray:
@@ -535,31 +556,47 @@ class SQLiteStore:
         return np.frombuffer(b"".join(r[1] for r in rows), dtype=np.float64).reshape(-1, d)
 
     def update(self, start: int, keys: list[int], labels: IntArray) -> None:
-        rows = [(int(k), int(c), start + i + 1)
+        rows = [(int(k), int(c), _kcrc(int(k), int(c)), start + i + 1)
                 for i, (k, c) in enumerate(zip(keys, labels.tolist(), strict=True))]
         with self.transaction(), self._errors():
-            self._db.executemany("UPDATE samples SET key = ?, label = ? WHERE id = ?", rows)
+            self._db.executemany(
+                "UPDATE samples SET key = ?, label = ?, kcrc = ? WHERE id = ?", rows)
+
+    def _checked(self, sql: str, args: tuple[Any, ...] = ()) -> list[Any]:
+        """Rows ``(id, key, label, kcrc)``, each checked against its checksum."""
+        rows = self._rows(sql, args)
+        for i, k, c, kc in rows:
+            if kc is not None and _kcrc(k, c) != kc:
+                raise StoreFileError(
+                    f"{self.path}: sample {i - 1}: its stored key and cluster id do not match "
+                    "their checksum; the store is damaged: restore it from a copy or fit it "
+                    "again"
+                )
+        return rows
 
     def keys(self) -> list[int]:
-        return [r[0] for r in self._rows("SELECT key FROM samples ORDER BY id")]
+        return [r[1] for r in self._checked(
+            "SELECT id, key, label, kcrc FROM samples ORDER BY id")]
 
     def labels(self) -> IntArray:
-        rows = self._rows("SELECT label FROM samples ORDER BY id")
-        return np.array([r[0] for r in rows], dtype=np.int64)
+        rows = self._checked("SELECT id, key, label, kcrc FROM samples ORDER BY id")
+        return np.array([r[2] for r in rows], dtype=np.int64)
 
     def _ids_keys(self, sql: str, args: tuple[Any, ...]) -> tuple[IntArray, list[int]]:
-        rows = self._rows(sql, args)
+        rows = self._checked(sql, args)
         return (np.array([r[0] - 1 for r in rows], dtype=np.int64), [r[1] for r in rows])
 
     def cluster(self, label: int) -> tuple[IntArray, list[int]]:
         # a range scan of the (label, key) index, already in key order
         return self._ids_keys(
-            "SELECT id, key FROM samples WHERE label = ? ORDER BY key, id", (int(label),)
+            "SELECT id, key, label, kcrc FROM samples WHERE label = ? ORDER BY key, id",
+            (int(label),),
         )
 
     def key_range(self, low: int, high: int) -> tuple[IntArray, list[int]]:
         return self._ids_keys(
-            "SELECT id, key FROM samples WHERE key BETWEEN ? AND ? ORDER BY key, id",
+            "SELECT id, key, label, kcrc FROM samples WHERE key BETWEEN ? AND ? "
+            "ORDER BY key, id",
             (int(low), int(high)),
         )
 
@@ -607,6 +644,7 @@ class SQLiteStore:
         n = self.n_samples
         for s in range(0, n, 4096):
             self.vectors(s, min(n, s + 4096))
+        self.labels()
         for (name,) in self._rows("SELECT name FROM meta"):
             self.get_meta(name)
         return n
