@@ -84,9 +84,14 @@ def _marker(fingers: Mapping[str, str], k: int, names: tuple[str, ...] | list[st
 
 def replay_demonstration(
     sim: Simulator, dataset: Dataset, demo: Demonstration, *,
-    angle_tol: float = DEFAULT_ANGLE_TOL_DEG,
+    angle_tol: float = DEFAULT_ANGLE_TOL_DEG, smooth: int = 9,
 ) -> Outcome:
-    """Replay one demonstration open loop and compare with its annotations."""
+    """Replay one demonstration open loop and compare with its annotations.
+
+    The recorded tip markers (gaps filled) are smoothed by a centred moving average of
+    ``smooth`` frames, as a tracking controller filters measurement noise, before they drive
+    the fingertips.
+    """
     traj = demo.trajectory.to_units("m")
     pos = fill_gaps(traj.positions, max(dataset.gap_limit, 1) * 4)
     pos = np.asarray(pos)
@@ -97,6 +102,8 @@ def replay_demonstration(
                 ok = np.isfinite(col)
                 if ok.any():
                     pos[:, j, a] = np.interp(np.arange(len(col)), np.flatnonzero(ok), col[ok])
+    if smooth > 1:
+        pos = _smooth(pos, smooth)
     targets = {k: pos[:, _marker(dataset.fingers, k, traj.marker_names)]
                for k in fingers_of(demo.skill)}
     start = pose_of_state(dataset.poly, demo.initial, (0.0, 0.0), sim.scale)
@@ -107,6 +114,17 @@ def replay_demonstration(
     label = {"file": demo.file, "skill": demo.skill.name, "mentor": demo.mentor,
              "from": demo.initial.to_dict(), "to": demo.final.to_dict()}
     return Outcome(label, result, cmp)
+
+
+def _smooth(pos: FloatArray, n: int) -> FloatArray:
+    """Centred moving average over ``n`` frames along axis 0 (ends padded by repetition)."""
+    k = np.ones(n) / n
+    pad = np.concatenate([np.repeat(pos[:1], n // 2, axis=0), pos,
+                          np.repeat(pos[-1:], n - 1 - n // 2, axis=0)])
+    flat = pad.reshape(len(pad), -1)
+    out = np.column_stack([np.convolve(flat[:, j], k, mode="valid")
+                           for j in range(flat.shape[1])])
+    return out.reshape(pos.shape)
 
 
 def step_targets(
