@@ -18,7 +18,7 @@ from nonprehensile.cli_cluster import cluster_group
 from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out, stage_bars
 from nonprehensile.cli_dataset import dataset_group
 from nonprehensile.errors import InputError
-from nonprehensile.geometry.build import from_mesh
+from nonprehensile.geometry.build import MESH_RTOL, from_mesh
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
 from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
 from nonprehensile.inference import METHODS, Expansion, cross_check, expand
@@ -42,16 +42,16 @@ from nonprehensile.states import (
 )
 
 
-def _model(path: str, rtol: float) -> Polyhedron:
+def _model(path: str, rtol: float | None) -> Polyhedron:
     return load_model(path, rtol=rtol)
 
 
 rtol_option = click.option(
     "--rtol",
     type=float,
-    default=DEFAULT_RTOL,
-    show_default=True,
-    help="Length tolerance relative to the object's diameter (raise it for measured models).",
+    default=None,
+    help="Length tolerance relative to the object's diameter (raise it for measured models; "
+    f"default: the model file's own rtol, else {DEFAULT_RTOL:g}).",
 )
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 angle_tol_option = click.option(
@@ -118,7 +118,7 @@ def adjacency_table(poly: Polyhedron) -> Table:
 @rtol_option
 @json_option
 @handle_errors
-def object_show(model: str, rtol: float, as_json: bool) -> None:
+def object_show(model: str, rtol: float | None, as_json: bool) -> None:
     """Show MODEL (a model file, or a bundled name such as `cube`): faces, A, Delta."""
     poly = _model(model, rtol)
     summary = object_summary(poly)
@@ -154,7 +154,7 @@ def object_show(model: str, rtol: float, as_json: bool) -> None:
               help="Image file to write (PNG, SVG or PDF, by suffix).")
 @rtol_option
 @handle_errors
-def object_figure_cmd(model: str, output: str, rtol: float) -> None:
+def object_figure_cmd(model: str, output: str, rtol: float | None) -> None:
     """Draw MODEL labeled like the paper's Fig. 3: faces, edge numbers, A and Delta."""
     from nonprehensile.viz import object_figure, save_figure
 
@@ -167,19 +167,32 @@ def object_figure_cmd(model: str, output: str, rtol: float) -> None:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (.json, or .yaml/.yml).")
 @click.option("--name", default=None, help="Object name (default: the mesh file's stem).")
-@click.option("--rtol", type=float, default=1e-6, show_default=True,
-              help="Tolerance, relative to the diameter, for merging coplanar triangles.")
-@click.option("--allow-open", is_flag=True,
-              help="Accept a mesh that is not closed (use the hull of its vertices).")
+@click.option("--rtol", type=float, default=MESH_RTOL, show_default=True,
+              help="Tolerance, relative to the object's size, for merging nearly coplanar "
+              "facets; raise it to facet a curved object more coarsely. The model stores it.")
+@click.option("--merge-angle", type=float, default=0.0, show_default=True,
+              help="Also merge neighbouring facets whose normals differ by at most this many "
+              "degrees.")
+@click.option("--max-faces", type=click.IntRange(min=4), default=None,
+              help="Facet a curved object (a ball, a can) into at most this many faces.")
+@click.option("--strict", is_flag=True,
+              help="Refuse an open, non-manifold or multi-piece mesh instead of using the "
+              "convex hull of its points.")
+@click.option("--allow-open", is_flag=True, hidden=True,
+              help="Accepted for compatibility: open meshes are used unless --strict.")
 @click.option("--units", default="m", show_default=True, help="Length units of the mesh.")
 @json_option
 @handle_errors
 def object_from_mesh(
-    mesh: str, output: str, name: str | None, rtol: float, allow_open: bool, units: str,
-    as_json: bool,
+    mesh: str, output: str, name: str | None, rtol: float, merge_angle: float,
+    max_faces: int | None, strict: bool, allow_open: bool, units: str, as_json: bool,
 ) -> None:
     """Make an object model from MESH (STL, OBJ, PLY, OFF, GLB, ...): its convex hull."""
-    poly = from_mesh(mesh, name=name, rtol=rtol, allow_open=allow_open, units=units)
+    notes: list[str] = []
+    poly = from_mesh(mesh, name=name, rtol=rtol, angle=merge_angle, max_faces=max_faces,
+                     strict=strict, units=units, notes=notes)
+    for note in notes:
+        err.print(f"note: {note}", markup=False, highlight=False)
     write_model(poly, output)
     if as_json:
         emit_json({"output": str(Path(output)), **object_summary(poly)})
@@ -222,7 +235,7 @@ states_option = click.option("--states", "states_file", type=click.Path(dir_okay
 @json_option
 @handle_errors
 def states_cmd(
-    model: str, step: float | None, states_file: str | None, rtol: float, atol: float | None,
+    model: str, step: float | None, states_file: str | None, rtol: float | None, atol: float | None,
     angle_tol: float, as_json: bool,
 ) -> None:
     """The stable states of MODEL and their geometric-equivalence classes."""
@@ -280,7 +293,7 @@ def skill_graphs_summary(poly: Polyhedron, skills: list[Skill]) -> list[dict[str
 @json_option
 @handle_errors
 def skills_show(
-    skills_file: str, figure: str | None, rtol: float, angle_tol: float, as_json: bool
+    skills_file: str, figure: str | None, rtol: float | None, angle_tol: float, as_json: bool
 ) -> None:
     """Show the skills of SKILLS_FILE and the skill graph of each maneuver."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
@@ -341,7 +354,7 @@ def _expansion_table(exp: Expansion) -> Table:
 @handle_errors
 def infer_cmd(
     skills_file: str, step: float | None, states_file: str | None, method: str, compare: bool,
-    figure: str | None, rtol: float, atol: float | None, angle_tol: float, as_json: bool,
+    figure: str | None, rtol: float | None, atol: float | None, angle_tol: float, as_json: bool,
 ) -> None:
     """Infer undemonstrated transitions of SKILLS_FILE over a state set (paper Section V)."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
@@ -455,7 +468,7 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
 def plan_cmd(
     skills_file: str, start: State, goal: State, step: float | None, states_file: str | None,
     position: tuple[float, float], costs: dict[str, float] | None, dataset: str | None,
-    out_dir: str | None, rtol: float, atol: float | None, angle_tol: float, as_json: bool,
+    out_dir: str | None, rtol: float | None, atol: float | None, angle_tol: float, as_json: bool,
 ) -> None:
     """Plan transitions, contact events and finger motions from --from to --to."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
