@@ -34,6 +34,7 @@ from nonprehensile.demonstrations.formats import (
     write_motive_csv,
 )
 from nonprehensile.demonstrations.record import MarkerTrajectory
+from nonprehensile.demonstrations.tracking import ObjectSetup, parse_object_setup
 from nonprehensile.errors import DemonstrationError, InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.io import load_document, read_skills, save_document, skills_to_dict
@@ -81,7 +82,8 @@ _READERS: dict[str, Callable[[Path], MarkerTrajectory]] = {
     ".csv": lambda p: read_motive_csv(p),
 }
 _FINGER_RE = re.compile(r"R\d+")
-_TOP_KEYS = {"format", "skills", "scale", "gap_limit", "fingers", "markers", "demonstrations"}
+_TOP_KEYS = {"format", "skills", "scale", "gap_limit", "fingers", "markers", "object",
+             "demonstrations"}
 _DEMO_KEYS = {"file", "skill", "mentor", "initial", "final", "events"}
 
 
@@ -201,6 +203,9 @@ class Dataset:
         Finger element (``"R1"``, ``"R2"``, ...) to the name of the marker at its tip.
     root : Path or None
         The folder it was loaded from.
+    object_tracking : dict or None
+        The annotations' ``object`` block: how the object's pose is found in the recordings
+        (:mod:`nonprehensile.demonstrations.tracking`); None when it is not tracked.
     """
 
     poly: Polyhedron
@@ -210,6 +215,13 @@ class Dataset:
     gap_limit: int = DEFAULT_GAP_LIMIT
     fingers: Mapping[str, str] = field(default_factory=lambda: dict(DEFAULT_FINGERS))
     root: Path | None = None
+    object_tracking: Mapping[str, Any] | None = None
+
+    @property
+    def object_setup(self) -> ObjectSetup | None:
+        """The object set-up, parsed; None when the object is not tracked."""
+        return None if self.object_tracking is None else parse_object_setup(
+            self.object_tracking)
 
     def skill(self, name: str) -> Skill:
         """The skill called ``name``.
@@ -291,7 +303,8 @@ class _Collector:
 
 def _top_level(
     data: Any, ann: Path, root: Path, out: _Collector
-) -> tuple[Polyhedron | None, list[Skill], float, int, dict[str, str], tuple[str, ...]]:
+) -> tuple[Polyhedron | None, list[Skill], float, int, dict[str, str], tuple[str, ...],
+           ObjectSetup | None]:
     """Read the dataset-wide keys; what cannot be read is reported and replaced by a default."""
     name = ann.name
     poly: Polyhedron | None = None
@@ -338,8 +351,15 @@ def _top_level(
     if not isinstance(markers_raw, list) or not all(isinstance(m, str) for m in markers_raw):
         out.add(name, None, f"'markers' must be a list of marker names, got {markers_raw!r}")
         markers_raw = []
-    markers = tuple(dict.fromkeys([*markers_raw, *fingers.values()]))
-    return poly, skills, scale, gap, fingers, markers
+    setup: ObjectSetup | None = None
+    if "object" in data:
+        try:
+            setup = parse_object_setup(data["object"])
+        except InputError as exc:
+            out.add(name, None, str(exc))
+    markers = tuple(dict.fromkeys([*markers_raw, *fingers.values(),
+                                   *(setup.marker_names if setup else ())]))
+    return poly, skills, scale, gap, fingers, markers, setup
 
 
 def _states(
@@ -490,7 +510,7 @@ def check_dataset(
         out.add(ann.name, None, "the annotations must be an object with a 'demonstrations' list "
                                 "(see docs/dataset.md)")
         return None, out.problems
-    poly, skills, scale, gap, fingers, markers = _top_level(data, ann, root, out)
+    poly, skills, scale, gap, fingers, markers, setup = _top_level(data, ann, root, out)
     by_name = {s.name: s for s in skills}
     items: list[Any] = data["demonstrations"]
     demos: list[Demonstration] = []
@@ -540,6 +560,10 @@ def check_dataset(
             if unmapped:
                 out.add(*where, f"skill {skill.name!r} uses finger(s) {unmapped} but 'fingers' "
                                 f"names no tip marker for them; add them to 'fingers'")
+        if setup is not None and setup.rigid_body is not None and setup.rigid_body not in [
+                b.name for b in traj.rigid_bodies]:
+            out.add(*where, f"rigid body {setup.rigid_body!r} (the 'object' set-up) is not in "
+                            f"the recording, which has {[b.name for b in traj.rigid_bodies]}")
         if not _check_trajectory(traj, events, need, gap, where, out):
             continue
         if skill is None or states is None or events is None or not isinstance(mentor, str):
@@ -550,7 +574,8 @@ def check_dataset(
         progress(len(items), len(items))
     if out.problems or poly is None:
         return None, out.problems
-    return Dataset(poly, tuple(skills), tuple(demos), scale, gap, fingers, root), out.problems
+    return Dataset(poly, tuple(skills), tuple(demos), scale, gap, fingers, root,
+                   None if setup is None else setup.to_dict()), out.problems
 
 
 def _read(path: Path, out: _Collector, where: tuple[str, int]) -> MarkerTrajectory | None:
@@ -669,6 +694,8 @@ def save_dataset(
         "markers": list(markers),
         "demonstrations": entries,
     }
+    if dataset.object_tracking is not None:
+        doc["object"] = dict(dataset.object_tracking)
     path = root / ANNOTATION_FILES[0]
     save_document(doc, path)
     return path
