@@ -45,10 +45,12 @@ A chain that fits no skill gets a proposed skills-file entry.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -75,9 +77,12 @@ from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State, angle_diff, state_of_pose
 
 __all__ = [
+    "AnnotatedRecording",
+    "AnnotationReport",
     "DetectionParams",
     "FrameLabels",
     "RecordingAnnotation",
+    "annotate_dataset",
     "annotate_recording",
     "contact_states",
     "frame_labels",
@@ -344,7 +349,7 @@ def _refine(y: FloatArray, k: int, forward: bool, lo: int, hi: int, rate: float,
     if not forward:
         t = _refine(y[::-1], n - 1 - k, True, n - 1 - hi, n - 1 - lo, rate, span, back_s)
         return float(n - 1 - t)
-    back = int(round(back_s * rate))
+    back = round(back_s * rate)
     a = max(lo, k - back, 0)
     still = y[a:k + 1]
     if np.isnan(still).all():
@@ -354,8 +359,8 @@ def _refine(y: FloatArray, k: int, forward: bool, lo: int, hi: int, rate: float,
     over = np.flatnonzero(np.abs(y[k:b + 1] - base) > span)
     b = k + int(over[0]) if len(over) else b
     b = max(b, min(k + 3, hi, n - 1))
-    t = _onset(y, a, b)
-    return float(k) if t is None else t
+    t0 = _onset(y, a, b)
+    return float(k) if t0 is None else t0
 
 
 # ------------------------------------------------------------------------------ results
@@ -453,8 +458,8 @@ def contact_states(
     rot = pose.rotations
     valid = pose.valid
     verts = np.einsum("nij,vj->nvi", rot, poly.vertices * scale) + pose.positions[:, None]
-    lowest = np.nanmin(verts[..., 2], axis=1) if valid.any() else np.zeros(n)
-    table = float(np.nanmedian(lowest[valid])) if valid.any() else 0.0
+    # the table: where the lowest vertex is, over the tracked frames
+    table = float(np.median(verts[valid, :, 2].min(axis=1))) if valid.any() else 0.0
     heights = verts[..., 2] - table
     touching = _hysteresis(heights, params.ground_on, params.ground_off)
     ground = ground_elements(poly, touching)
@@ -470,16 +475,16 @@ def contact_states(
         if ok.any():
             dd, ee = nearest_elements(poly, local[ok], params.element_tol / scale)
             d[ok] = dd * scale - params.pad_radius
-            for i, e in zip(np.flatnonzero(ok), ee, strict=True):
-                el[int(i)] = e
+            for i_ok, e_ok in zip(np.flatnonzero(ok).tolist(), ee, strict=True):
+                el[i_ok] = e_ok
         raw[finger] = list(el)
         dist[finger] = d
         on[finger] = _hysteresis(d, params.contact_on, params.contact_off)
         # one element per contact: a pad near an edge of the face it presses is on the face
-        for s, e in _true_runs(on[finger]):
-            chosen = _vote(poly, el[s:e])
+        for r0, r1 in _true_runs(on[finger]):
+            chosen = _vote(poly, el[r0:r1])
             if chosen is not None:
-                el[s:e] = [chosen] * (e - s)
+                el[r0:r1] = [chosen] * (r1 - r0)
         elems[finger] = el
     states: list[frozenset[ContactPair]] = []
     for i in range(n):
@@ -676,7 +681,7 @@ def annotate_recording(
     for i in range(1, len(states)):
         if not pose_m.valid[i]:
             states[i] = states[i - 1]
-    runs = _merge_flickers(_runs_of(states), max(1, int(round(p.min_duration * rate))), rate,
+    runs = _merge_flickers(_runs_of(states), max(1, round(p.min_duration * rate)), rate,
                            doubts)
     n = traj.n_frames
 
@@ -726,7 +731,7 @@ def annotate_recording(
                               f"element is that one in only {share:.0%} of the frames "
                               f"({dict(seen.most_common(3))})")
 
-    edge = max(2, int(round(0.1 * rate)))
+    edge = max(2, round(0.1 * rate))
     initial = _resting_state(poly, pose_m, slice(0, edge), p.state_tol)
     final = _resting_state(poly, pose_m, slice(n - edge, n), p.state_tol)
     if initial is None:
@@ -773,7 +778,7 @@ def annotate_recording(
     return RecordingAnnotation(
         chain_out, times, initial, final, None if skill is None else skill.name,
         tuple(s.name for s in candidates), proposal, tuple(doubts),
-        tuple(int(round(f)) for f in frames_f),
+        tuple(round(f) for f in frames_f),
     )
 
 
@@ -813,10 +818,8 @@ def _proposal(
         ini = State(initial.face, round(initial.theta) % 360)
         fin = State(final.face, round(final.theta) % 360)
         entry["initial"], entry["final"] = ini.to_dict(), fin.to_dict()
-        try:
+        with contextlib.suppress(ManeuverError, GeometryError):  # no single maneuver
             entry["maneuver"] = classify(poly, ini, fin).kind
-        except (ManeuverError, GeometryError):
-            pass
     entry["events"] = [{"id": f"e{j}", "contacts": format_event(e)}
                        for j, e in enumerate(chain)]
     entry["motions"] = [{"from": f"e{j}", "to": f"e{j + 1}", "label": ""}
@@ -877,3 +880,244 @@ def frame_labels(
     arc = np.where((ev >= 0) & (ev < len(times) - 1), ev, -1)
     return FrameLabels(skill, ev.astype(np.int64), arc.astype(np.int64),
                        tuple(e.id for e in events))
+
+
+# ------------------------------------------------------------------------------ datasets
+
+
+@dataclass(frozen=True)
+class AnnotatedRecording:
+    """One recording of a folder and what was found in it.
+
+    Attributes
+    ----------
+    file : str
+        The trajectory file, relative to the folder being annotated.
+    mentor : str
+        Who demonstrated it.
+    result : RecordingAnnotation
+    """
+
+    file: str
+    mentor: str
+    result: RecordingAnnotation
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form."""
+        return {"file": self.file, "mentor": self.mentor, **self.result.to_dict()}
+
+
+@dataclass(frozen=True)
+class AnnotationReport:
+    """The outcome of annotating a folder of recordings.
+
+    Attributes
+    ----------
+    annotations : dict
+        The complete annotations (the dataset format), for every recording that fits a skill,
+        with paths relative to the folder of the file they are to be written to.
+    recordings : tuple of AnnotatedRecording
+        Every recording, in the input's order.
+    proposals : tuple of dict
+        Skills-file entries proposed for the chains that fit no skill (one per distinct chain
+        and pair of states), each with ``"recordings"``: the files showing it.
+    """
+
+    annotations: dict[str, Any]
+    recordings: tuple[AnnotatedRecording, ...]
+    proposals: tuple[dict[str, Any], ...]
+
+    @property
+    def unmatched(self) -> tuple[AnnotatedRecording, ...]:
+        """Recordings whose chain fits no skill (left out of :attr:`annotations`)."""
+        return tuple(r for r in self.recordings if r.result.skill is None)
+
+    @property
+    def doubts(self) -> list[str]:
+        """Every doubtful call, ``file: what``."""
+        return [f"{r.file}: {d}" for r in self.recordings for d in r.result.doubts]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form (``dataset annotate --json``)."""
+        return {
+            "n_recordings": len(self.recordings),
+            "n_annotated": len(self.recordings) - len(self.unmatched),
+            "n_unmatched": len(self.unmatched),
+            "n_doubts": len(self.doubts),
+            "recordings": [r.to_dict() for r in self.recordings],
+            "proposed_skills": list(self.proposals),
+            "annotations": self.annotations,
+        }
+
+
+def annotate_dataset(
+    path: str | Path,
+    *,
+    relative_to: str | Path | None = None,
+    params: DetectionParams | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> AnnotationReport:
+    """Annotate a folder whose annotations list only the recordings and the set-up.
+
+    The folder's annotations file has the dataset format's top-level keys (``skills``,
+    ``scale``, ``gap_limit``, ``fingers``, ``markers``) and the ``object`` set-up (required:
+    :mod:`nonprehensile.demonstrations.tracking`); each demonstration needs only ``file``
+    and ``mentor``. A demonstration may also name its ``skill``: it is then preferred
+    among skills with the same events, and a chain that does not fit it is a doubt. Other
+    keys (``events``, ``initial``, ``final``) are ignored and replaced.
+
+    Parameters
+    ----------
+    path : str or Path
+        The folder.
+    relative_to : str or Path, optional
+        The folder the complete annotations will be written to; it must be the folder or
+        hold it. Paths in :attr:`AnnotationReport.annotations` are relative to it. Default:
+        the folder itself.
+    params : DetectionParams, optional
+        Thresholds; ``gap_limit`` defaults to the annotations'.
+    progress : callable (done, total) -> None, optional
+
+    Raises
+    ------
+    DemonstrationError
+        Listing every problem of the input (missing set-up, unreadable or missing files,
+        unknown markers), one per line, by file.
+    """
+    from nonprehensile.demonstrations.dataset import (
+        DATASET_FORMAT,
+        _annotations_file,
+        _Collector,
+        _read,
+        _top_level,
+    )
+    from nonprehensile.io import load_document
+
+    root = Path(path)
+    out = _Collector()
+    ann = _annotations_file(root) if root.is_dir() else None
+    if ann is None:
+        raise DemonstrationError(
+            f"{root}: no annotations file listing the recordings (expected one of "
+            "annotations.json / .yaml / .yml in the folder)"
+        )
+    data = load_document(ann)
+    if not isinstance(data, Mapping) or not isinstance(data.get("demonstrations"), list):
+        raise DemonstrationError(f"{ann}: the annotations must be an object with a "
+                                 "'demonstrations' list of {\"file\", \"mentor\"}")
+    poly, skills, scale, gap, fingers, markers, setup = _top_level(data, ann, root, out)
+    if "object" not in data:
+        out.add(ann.name, None, "no 'object' set-up: say how the object is tracked, "
+                                '{"rigid_body": "<name>"} or {"markers": {"<name>": [x, y, '
+                                "z], ...}} (see docs/dataset.md)")
+    dest = Path(relative_to) if relative_to is not None else root
+    try:
+        rel = root.resolve().relative_to(dest.resolve())
+    except ValueError:
+        raise DemonstrationError(
+            f"{dest}: the annotations must be written in the folder {root} or a folder that "
+            "holds it, so that the recordings they name lie inside the dataset"
+        ) from None
+    p = params or DetectionParams(gap_limit=gap)
+    items: list[Any] = data["demonstrations"]
+    todo: list[tuple[int, str, str, str | None, MarkerTrajectory]] = []
+    for i, item in enumerate(items):
+        if not isinstance(item, Mapping):
+            out.add(ann.name, i, f"a recording must be an object with 'file' and 'mentor', "
+                                 f"got {item!r:.60}")
+            continue
+        file, mentor = item.get("file"), item.get("mentor")
+        where = (file if isinstance(file, str) and file else ann.name, i)
+        if not isinstance(file, str) or not file:
+            out.add(ann.name, i, f"'file' must name the trajectory file, got {file!r}")
+            continue
+        if not isinstance(mentor, str) or not mentor.strip():
+            out.add(*where, f"'mentor' must be a non-empty name, got {mentor!r}")
+            continue
+        hint = item.get("skill")
+        if hint is not None and hint not in [s.name for s in skills]:
+            out.add(*where, f"unknown skill {hint!r}; the skills file has "
+                            f"{[s.name for s in skills]}")
+        traj = _read(root / file, out, where)
+        if traj is None:
+            continue
+        missing = [m for m in (*fingers.values(), *markers) if m not in traj.marker_names]
+        if missing:
+            out.add(*where, f"marker(s) {missing} are not in the recording, which has "
+                            f"{list(traj.marker_names)}")
+            continue
+        if setup is not None and setup.rigid_body is not None and setup.rigid_body not in [
+                b.name for b in traj.rigid_bodies]:
+            out.add(*where, f"rigid body {setup.rigid_body!r} is not in the recording, which "
+                            f"has {[b.name for b in traj.rigid_bodies] or 'none'}")
+            continue
+        todo.append((i, file, mentor.strip(), hint if isinstance(hint, str) else None, traj))
+    if out.problems or poly is None or setup is None:
+        lines = "\n".join(f"  - {q}" for q in out.problems)
+        raise DemonstrationError(
+            f"{root}: {len(out.problems)} problem(s), nothing was annotated:\n{lines}"
+        )
+    object_markers = set(setup.marker_names)
+    hand = [m for m in markers if m not in object_markers and m not in fingers.values()]
+    done: list[AnnotatedRecording] = []
+    for n_done, (_, file, mentor, hint, traj) in enumerate(todo):
+        if progress is not None:
+            progress(n_done, len(todo))
+        try:
+            pose = setup.pose(traj, scale)
+            res = annotate_recording(poly, skills, traj, pose, fingers, scale, p,
+                                     hand_markers=hand)
+        except DemonstrationError as exc:
+            res = RecordingAnnotation((), (), None, None, None, doubts=(
+                f"cannot annotate it: {exc}",))
+        if hint is not None:
+            res = _apply_hint(res, hint, skills)
+        done.append(AnnotatedRecording(file, mentor, res))
+    if progress is not None:
+        progress(len(todo), len(todo))
+
+    entries = []
+    for r in done:
+        if r.result.skill is None:
+            continue
+        res = r.result
+        entries.append({
+            "file": str(rel / r.file) if str(rel) != "." else r.file,
+            "skill": res.skill,
+            "mentor": r.mentor,
+            "initial": None if res.initial is None else res.initial.to_dict(),
+            "final": None if res.final is None else res.final.to_dict(),
+            "events": [{"id": e.id, "time": round(e.time, 6)} for e in res.events],
+        })
+    doc: dict[str, Any] = {k: data[k] for k in data if k != "demonstrations"}
+    doc["format"] = DATASET_FORMAT
+    doc["skills"] = str(rel / str(data["skills"])) if str(rel) != "." else data["skills"]
+    doc["demonstrations"] = entries
+    proposals: dict[str, dict[str, Any]] = {}
+    for r in done:
+        prop = r.result.proposal
+        if prop is None:
+            continue
+        key = repr({k: v for k, v in prop.items() if k != "name"})
+        if key not in proposals:
+            proposals[key] = {**prop, "name": f"proposed-{len(proposals) + 1}",
+                              "recordings": []}
+        proposals[key]["recordings"].append(r.file)
+    return AnnotationReport(doc, tuple(done), tuple(proposals.values()))
+
+
+def _apply_hint(
+    res: RecordingAnnotation, hint: str, skills: Sequence[Skill]
+) -> RecordingAnnotation:
+    """Prefer the skill the recording names among those that fit; a misfit is a doubt."""
+    if hint in res.candidates:
+        sk = next(s for s in skills if s.name == hint)
+        doubts = tuple(d for d in res.doubts if "differ in their finger motion only" not in d)
+        return RecordingAnnotation(
+            tuple(ContactEvent(e.id, e.pairs) for e in sk.events), res.times, sk.initial,
+            sk.final, hint, res.candidates, None, doubts, res.frames)
+    return RecordingAnnotation(
+        res.chain, res.times, res.initial, res.final, res.skill, res.candidates,
+        res.proposal, (*res.doubts, f"the recording names skill {hint!r}, but its events or "
+                                    f"states do not fit it (found {res.skill or 'no skill'})"),
+        res.frames)
