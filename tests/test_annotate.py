@@ -22,7 +22,7 @@ from nonprehensile.demonstrations.annotate import (
 from nonprehensile.demonstrations.dataset import EventTime, load_dataset
 from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
 from nonprehensile.demonstrations.synth import DEFAULT_MENTORS, synthesize, synthesize_dataset
-from nonprehensile.demonstrations.tracking import ObjectSetup, parse_object_setup
+from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup, parse_object_setup
 from nonprehensile.errors import DemonstrationError
 from nonprehensile.io import load_document, load_model, save_document
 from nonprehensile.skills.contacts import Edge, Face, Vertex
@@ -162,6 +162,10 @@ def test_object_setup_is_checked() -> None:
         parse_object_setup({"markers": {"a": [0, 0, 0], "b": [1, 1, 1], "c": [2, 2, 2]}})
     with pytest.raises(DemonstrationError, match="expected"):
         parse_object_setup({"rigid_body": "Box", "markers": {}})
+    with pytest.raises(DemonstrationError, match="three or more"):
+        object_setup(None, {"a": [0, 0, 0], "b": [1, 0, 0]})
+    assert object_setup("Box", {"a": [0, 0, 0]}) == ObjectSetup(rigid_body="Box")
+    assert object_setup(None, {}) is None
     with pytest.raises(DemonstrationError, match="contact_off > contact_on"):
         DetectionParams(contact_on=0.01, contact_off=0.005)
 
@@ -206,13 +210,13 @@ def test_annotate_bad_input_exits_2(tmp_path: Path) -> None:
     synthesize(takes, seed=5, n_per_skill=1, mentors=1, track_object=True)
     _recordings_only(takes)
     doc = load_document(takes / "annotations.json")
-    del doc["object"]
+    del doc["object_markers"]
     doc["demonstrations"].append({"file": "missing.c3d", "mentor": "zoe"})
     save_document(doc, takes / "annotations.json")
     runner = CliRunner()
     res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o", str(tmp_path / "x.json")])
     assert res.exit_code == 2
-    assert "no 'object' set-up" in res.output and "missing.c3d" in res.output
+    assert "no object tracking" in res.output and "missing.c3d" in res.output
     res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o",
                                str(tmp_path / "elsewhere" / "sub" / "a.json")])
     assert res.exit_code == 2

@@ -126,6 +126,8 @@ def show_cmd(directory: str, arcs: bool, as_json: bool) -> None:
         _show_problems(problems, as_json, str(root))
         return
     summary = dataset_summary(ds)
+    for note in ds.notes:
+        err.print(f"note: {note}", markup=False)
     summary["load_seconds"] = round(time.perf_counter() - start, 3)
     arc_rows = _arc_rows(ds) if arcs else None
     if arc_rows is not None:

@@ -250,12 +250,14 @@ def plan_cmd(
     if out_dir is not None and dataset is None:
         raise InputError("--out writes reference trajectories: give --dataset too")
     motions = None
+    scale = 1.0
     if dataset is not None:
         with stage_bars(as_json) as bars:
-            _, motions = motions_from_dataset(dataset, skills=skills, poly=poly,
-                                              progress=bars)
+            ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly,
+                                               progress=bars)
+        scale = ds.scale
     result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
-                  angle_tol=angle_tol)
+                  angle_tol=angle_tol, scale=scale)
     doc = result.to_dict()
     if out_dir is not None:
         written = write_plan_motions(result, out_dir)

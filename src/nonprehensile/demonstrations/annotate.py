@@ -58,6 +58,7 @@ from numpy.typing import NDArray
 
 from nonprehensile.demonstrations.dataset import EventTime
 from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
+from nonprehensile.demonstrations.tracking import object_setup
 from nonprehensile.errors import DemonstrationError, GeometryError, ManeuverError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.maneuvers import classify
@@ -960,7 +961,8 @@ def annotate_dataset(
     """Annotate a folder whose annotations list only the recordings and the set-up.
 
     The folder's annotations file has the dataset format's top-level keys (``skills``,
-    ``scale``, ``gap_limit``, ``fingers``, ``markers``) and the ``object`` set-up (required:
+    ``scale``, ``gap_limit``, ``fingers``, ``markers``, ``axes``, ``units``) and says how the
+    object is tracked (``rigid_body`` or ``object_markers``, required:
     :mod:`nonprehensile.demonstrations.tracking`); each demonstration needs only ``file``
     and ``mentor``. A demonstration may also name its ``skill``: it is then preferred
     among skills with the same events, and a chain that does not fit it is a doubt. Other
@@ -1005,11 +1007,18 @@ def annotate_dataset(
     if not isinstance(data, Mapping) or not isinstance(data.get("demonstrations"), list):
         raise DemonstrationError(f"{ann}: the annotations must be an object with a "
                                  "'demonstrations' list of {\"file\", \"mentor\"}")
-    poly, skills, scale, gap, fingers, markers, setup = _top_level(data, ann, root, out)
-    if "object" not in data:
-        out.add(ann.name, None, "no 'object' set-up: say how the object is tracked, "
-                                '{"rigid_body": "<name>"} or {"markers": {"<name>": [x, y, '
-                                "z], ...}} (see docs/dataset.md)")
+    settings = _top_level(data, ann, root, out)
+    poly, skills, scale, gap = settings.poly, settings.skills, settings.scale, settings.gap
+    fingers, markers = settings.fingers, settings.markers
+    setup = None
+    try:
+        setup = object_setup(settings.rigid_body, settings.object_markers)
+    except DemonstrationError as exc:
+        out.add(ann.name, None, str(exc))
+    if setup is None and not out.problems:
+        out.add(ann.name, None, "no object tracking: say how the object is tracked, "
+                                '"rigid_body": "<name>" or "object_markers": {"<name>": [x, y, '
+                                "z], ...} (see docs/dataset.md)")
     dest = Path(relative_to) if relative_to is not None else root
     try:
         rel = root.resolve().relative_to(dest.resolve())
@@ -1038,10 +1047,10 @@ def annotate_dataset(
         if hint is not None and hint not in [s.name for s in skills]:
             out.add(*where, f"unknown skill {hint!r}; the skills file has "
                             f"{[s.name for s in skills]}")
-        traj = _read(root / file, out, where)
+        traj = _read(root / file, out, where, settings)
         if traj is None:
             continue
-        missing = [m for m in (*fingers.values(), *markers) if m not in traj.marker_names]
+        missing = [m for m in markers if m not in traj.marker_names]
         if missing:
             out.add(*where, f"marker(s) {missing} are not in the recording, which has "
                             f"{list(traj.marker_names)}")

@@ -833,7 +833,7 @@ def synthesize_dataset(
         See :func:`synthesize_demonstration`.
     track_object : bool
         Also track the object: markers stuck on it (:func:`default_object_markers`) and its
-        rigid body, and the dataset's ``object`` set-up naming the marker layout (so that
+        rigid body, and the dataset's ``object_markers`` naming the marker layout (so that
         ``dataset annotate`` can find the contact events without the annotated times).
     progress : callable (done, total) -> None, optional
         Called after each demonstration.
@@ -882,10 +882,10 @@ def synthesize_dataset(
                                        events, traj))
             if progress is not None:
                 progress(len(demos), total)
-    tracking = None if layout is None else {
-        "markers": {k: [round(float(c), 9) for c in v] for k, v in layout.items()}}
+    object_markers = {} if layout is None else {
+        k: (float(v[0]), float(v[1]), float(v[2])) for k, v in layout.items()}
     return Dataset(poly, tuple(skills), tuple(demos), float(scale), gap_limit,
-                   dict(DEFAULT_FINGERS), object_tracking=tracking)
+                   dict(DEFAULT_FINGERS), object_markers=object_markers)
 
 
 def synthesize(
@@ -907,9 +907,9 @@ def synthesize(
     """Generate a dataset and write it to ``out_dir`` (``nonprehensile dataset synth``).
 
     See :func:`synthesize_dataset` for the arguments; ``trajectory_format`` is ``"c3d"``
-    (needs the ``mocap`` extra) or ``"csv"`` (Motive CSV). With ``track_object``, a CSV
-    dataset's ``object`` set-up names the rigid body (written in each file), a C3D one the
-    object markers' layout (C3D has no rigid bodies).
+    (needs the ``mocap`` extra) or ``"csv"`` (Motive CSV). With ``track_object``, the
+    annotations give the ``object_markers``, and a CSV dataset also names its
+    ``rigid_body`` (written in each file; C3D has no rigid bodies).
 
     Returns
     -------
@@ -921,10 +921,8 @@ def synthesize(
         rate=rate, scale=scale, noise_mm=noise_mm, dropouts=dropouts, gap_limit=gap_limit,
         track_object=track_object, progress=progress,
     )
-    tracking = ds.object_tracking
-    if tracking is not None and trajectory_format == "csv":
-        tracking = {"rigid_body": ds.poly.name}
+    rigid_body = ds.poly.name if track_object and trajectory_format == "csv" else None
     ds = Dataset(ds.poly, ds.skills, ds.demonstrations, ds.scale, ds.gap_limit, ds.fingers,
-                 Path(out_dir), object_tracking=tracking)
+                 Path(out_dir), ds.object_markers, rigid_body=rigid_body)
     save_dataset(ds, out_dir, trajectory_format=trajectory_format, markers=DEFAULT_MARKERS)
     return ds
