@@ -39,8 +39,7 @@ __all__ = ["COMMANDS", "LazyGroup", "main"]
 #: Command name -> ("module:attribute" of the click command, its one-line help).
 COMMANDS: dict[str, tuple[str, str]] = {
     "cluster": ("nonprehensile.cli_cluster:cluster_group",
-                "Cluster demonstrated trajectories on a Hilbert-curve index, in a SQLite "
-                "store."),
+                "Cluster demonstrated trajectories on a Hilbert-curve index, in a store."),
     "dataset": ("nonprehensile.cli_dataset:dataset_group",
                 "Demonstration datasets: generate a synthetic one, or show one."),
     "demo": ("nonprehensile.cli_plan:demo",
