@@ -51,6 +51,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
                "Object models: show one, or make one from a mesh."),
     "plan": ("nonprehensile.cli_plan:plan_cmd",
              "Plan transitions, contact events and finger motions from --from to --to."),
+    "simulate": ("nonprehensile.cli_sim:simulate_group",
+                 "Execute demonstrations, inferred transitions and plans in the MuJoCo "
+                 "simulation."),
     "skills": ("nonprehensile.cli_plan:skills_group",
                "Demonstrated skills: contact events, motions and skill graphs."),
     "states": ("nonprehensile.cli_object:states_cmd",

@@ -26,7 +26,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import networkx as nx
@@ -52,6 +52,7 @@ __all__ = [
     "ReferenceMotion",
     "find_offset",
     "plan",
+    "step_for",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -456,23 +457,12 @@ def plan(
             trans = scale * trans
             com = np.zeros(3)
         t = expansion.adapted(u, v, skill)
-        m = step_maneuver(poly, t, angle_tol=angle_tol)
-        rot_end, trans_end = move_pose(poly, m, rot, trans, scale)
-        start_pose = _world_pose(poly, agent, rot, trans, scale)
-        end_pose = _world_pose(poly, agent, rot_end, trans_end, scale)
-        # the reference motion was recorded with the demonstrated initial state's centre of
-        # mass above the origin; a reversed skill runs it from the demonstrated final state,
-        # which is where this step ends
-        # (a rotation about the vertical leaves the centre of mass exactly where it was)
-        com_end = com if m.kind == "rotating" else _com_agent(poly, rot_end, trans_end, scale)
-        shift = com_end if _demonstrated_name(t.source.name) != t.source.name else com
-        steps.append(PlanStep(
-            t, agent.state_to_world(u), agent.state_to_world(v),
-            _step_motions(t, agent, motions, shift), cost, start_pose, end_pose,
-            agent, relocated, relocation_cost if relocated and k > 0 else 0.0,
-        ))
-        rot, trans, com = rot_end, trans_end, com_end
-        here = end_pose.position
+        step, rot, trans, com = _make_step(poly, t, agent, rot, trans, com, scale, motions,
+                                           cost, angle_tol)
+        steps.append(replace(step, agent=agent, relocated=relocated,
+                             relocation_cost=relocation_cost if relocated and k > 0 else 0.0))
+        assert step.end_pose is not None
+        here = step.end_pose.position
     return Plan(start, goal, steps[0].agent or offset, tuple(steps))
 
 
@@ -558,6 +548,50 @@ def _search(
         node, move = parent[node]
         path.append(move)
     return path[::-1]
+
+
+def _make_step(
+    poly: Polyhedron, t: InferredTransition, offset: Offset, rot: FloatArray,
+    trans: FloatArray, com: FloatArray, scale: float, motions: MotionLibrary | None,
+    cost: float, angle_tol: float,
+) -> tuple[PlanStep, FloatArray, FloatArray, FloatArray]:
+    """One step from the object's pose (agent's frame), and the pose it ends in."""
+    m = step_maneuver(poly, t, angle_tol=angle_tol)
+    rot_end, trans_end = move_pose(poly, m, rot, trans, scale)
+    start_pose = _world_pose(poly, offset, rot, trans, scale)
+    end_pose = _world_pose(poly, offset, rot_end, trans_end, scale)
+    # the reference motion was recorded with the demonstrated initial state's centre of
+    # mass above the origin; a reversed skill runs it from the demonstrated final state,
+    # which is where this step ends
+    # (a rotation about the vertical leaves the centre of mass exactly where it was)
+    com_end = com if m.kind == "rotating" else _com_agent(poly, rot_end, trans_end, scale)
+    shift = com_end if _demonstrated_name(t.source.name) != t.source.name else com
+    step = PlanStep(
+        t, offset.state_to_world(t.start), offset.state_to_world(t.end),
+        _step_motions(t, offset, motions, shift), cost, start_pose, end_pose,
+    )
+    return step, rot_end, trans_end, com_end
+
+
+def step_for(
+    poly: Polyhedron,
+    transition: InferredTransition,
+    *,
+    position: tuple[float, float] = (0.0, 0.0),
+    motions: MotionLibrary | None = None,
+    scale: float = 1.0,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> PlanStep:
+    """One transition as a plan step, with the object's centre of mass at ``position``.
+
+    The step's reference motions are placed on the object there (see :func:`plan`); this is
+    how a single demonstrated or inferred transition is executed (e.g. simulated).
+    """
+    rot, trans = state_pose(poly, transition.start)
+    com = np.array([float(position[0]), float(position[1]), 0.0])
+    trans = scale * trans + com
+    return _make_step(poly, transition, Offset(), rot, trans, com, scale, motions, 1.0,
+                      angle_tol)[0]
 
 
 def step_maneuver(
