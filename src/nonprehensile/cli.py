@@ -54,6 +54,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "serve": ("nonprehensile.cli_serve:serve_group",
               "Run the demonstration service: mentors upload demonstrations into a PostgreSQL "
               "store."),
+    "simulate": ("nonprehensile.cli_sim:simulate_group",
+                 "Execute demonstrations, inferred transitions and plans in the MuJoCo "
+                 "simulation."),
     "skills": ("nonprehensile.cli_plan:skills_group",
                "Demonstrated skills: contact events, motions and skill graphs."),
     "states": ("nonprehensile.cli_object:states_cmd",

@@ -51,6 +51,7 @@ __all__ = [
     "ReferenceMotion",
     "find_offset",
     "plan",
+    "step_for",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -442,22 +443,54 @@ def plan(
     for u, v in itertools.pairwise(path):
         cost, skill = _arc_cost(graph.get_edge_data(u, v), costs, default_cost)
         t = expansion.adapted(u, v, skill)
-        m = step_maneuver(poly, t, angle_tol=angle_tol)
-        rot_end, trans_end = move_pose(poly, m, rot, trans, scale)
-        start_pose = _world_pose(poly, offset, rot, trans, scale)
-        end_pose = _world_pose(poly, offset, rot_end, trans_end, scale)
-        # the reference motion was recorded with the demonstrated initial state's centre of
-        # mass above the origin; a reversed skill runs it from the demonstrated final state,
-        # which is where this step ends
-        # (a rotation about the vertical leaves the centre of mass exactly where it was)
-        com_end = com if m.kind == "rotating" else _com_agent(poly, rot_end, trans_end, scale)
-        shift = com_end if _demonstrated_name(t.source.name) != t.source.name else com
-        steps.append(PlanStep(
-            t, offset.state_to_world(u), offset.state_to_world(v),
-            _step_motions(t, offset, motions, shift), cost, start_pose, end_pose,
-        ))
-        rot, trans, com = rot_end, trans_end, com_end
+        step, rot, trans, com = _make_step(poly, t, offset, rot, trans, com, scale, motions,
+                                           cost, angle_tol)
+        steps.append(step)
     return Plan(start, goal, offset, tuple(steps))
+
+
+def _make_step(
+    poly: Polyhedron, t: InferredTransition, offset: Offset, rot: FloatArray,
+    trans: FloatArray, com: FloatArray, scale: float, motions: MotionLibrary | None,
+    cost: float, angle_tol: float,
+) -> tuple[PlanStep, FloatArray, FloatArray, FloatArray]:
+    """One step from the object's pose (agent's frame), and the pose it ends in."""
+    m = step_maneuver(poly, t, angle_tol=angle_tol)
+    rot_end, trans_end = move_pose(poly, m, rot, trans, scale)
+    start_pose = _world_pose(poly, offset, rot, trans, scale)
+    end_pose = _world_pose(poly, offset, rot_end, trans_end, scale)
+    # the reference motion was recorded with the demonstrated initial state's centre of
+    # mass above the origin; a reversed skill runs it from the demonstrated final state,
+    # which is where this step ends
+    # (a rotation about the vertical leaves the centre of mass exactly where it was)
+    com_end = com if m.kind == "rotating" else _com_agent(poly, rot_end, trans_end, scale)
+    shift = com_end if _demonstrated_name(t.source.name) != t.source.name else com
+    step = PlanStep(
+        t, offset.state_to_world(t.start), offset.state_to_world(t.end),
+        _step_motions(t, offset, motions, shift), cost, start_pose, end_pose,
+    )
+    return step, rot_end, trans_end, com_end
+
+
+def step_for(
+    poly: Polyhedron,
+    transition: InferredTransition,
+    *,
+    position: tuple[float, float] = (0.0, 0.0),
+    motions: MotionLibrary | None = None,
+    scale: float = 1.0,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> PlanStep:
+    """One transition as a plan step, with the object's centre of mass at ``position``.
+
+    The step's reference motions are placed on the object there (see :func:`plan`); this is
+    how a single demonstrated or inferred transition is executed (e.g. simulated).
+    """
+    rot, trans = state_pose(poly, transition.start)
+    com = np.array([float(position[0]), float(position[1]), 0.0])
+    trans = scale * trans + com
+    return _make_step(poly, transition, Offset(), rot, trans, com, scale, motions, 1.0,
+                      angle_tol)[0]
 
 
 def step_maneuver(
