@@ -64,7 +64,9 @@ def main() -> None:
     rng = np.random.default_rng(0)
     layout = np.array(list(default_object_markers(ds.poly, ds.skills, ds.scale).values()))
     lay_m = layout * ds.scale
-    params = DetectionParams(pad_radius=sim.params.finger_radius)
+    # the marker is the sphere centre, the pad radius exactly known: tighter contact thresholds
+    params = DetectionParams(pad_radius=sim.params.finger_radius, contact_on=0.0015,
+                             contact_off=0.003)
     min_frames = round(params.min_duration * RATE)
     n = chain_ok = final_ok = 0
     finger_err: list[float] = []
