@@ -74,7 +74,7 @@ def skill_graphs_summary(poly: Polyhedron, skills: list[Skill]) -> list[dict[str
 @json_option
 @handle_errors
 def skills_show(
-    skills_file: str, figure: str | None, rtol: float, angle_tol: float, as_json: bool
+    skills_file: str, figure: str | None, rtol: float | None, angle_tol: float, as_json: bool
 ) -> None:
     """Show the skills of SKILLS_FILE and the skill graph of each maneuver."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
@@ -135,7 +135,7 @@ def _expansion_table(exp: Expansion) -> Table:
 @handle_errors
 def infer_cmd(
     skills_file: str, step: float | None, states_file: str | None, method: str, compare: bool,
-    figure: str | None, rtol: float, atol: float | None, angle_tol: float, as_json: bool,
+    figure: str | None, rtol: float | None, atol: float | None, angle_tol: float, as_json: bool,
 ) -> None:
     """Infer undemonstrated transitions of SKILLS_FILE over a state set (paper Section V)."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
@@ -241,7 +241,7 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
 def plan_cmd(
     skills_file: str, start: State, goal: State, step: float | None, states_file: str | None,
     position: tuple[float, float], costs: dict[str, float] | None, dataset: str | None,
-    out_dir: str | None, rtol: float, atol: float | None, angle_tol: float, as_json: bool,
+    out_dir: str | None, rtol: float | None, atol: float | None, angle_tol: float, as_json: bool,
 ) -> None:
     """Plan transitions, contact events and finger motions from --from to --to."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
