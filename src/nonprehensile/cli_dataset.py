@@ -70,6 +70,8 @@ def dataset_group() -> None:
               help="Longest dropout a loader accepts, frames (dropouts are at most half).")
 @click.option("--format", "trajectory_format", type=click.Choice(["c3d", "csv"]),
               default="c3d", show_default=True, help="Trajectory files: C3D or Motive CSV.")
+@click.option("--track-object", is_flag=True,
+              help="Also track the object: markers on it (and its rigid body in CSV).")
 @click.option("--force", is_flag=True,
               help="Replace the dataset already in OUT_DIR (its annotations and recordings).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
@@ -77,7 +79,7 @@ def dataset_group() -> None:
 def synth_cmd(
     out_dir: str, seed: int, skills_file: str | None, n_per_skill: int, mentors: int,
     rate: float, scale: float, noise_mm: float, dropouts: float, gap_limit: int,
-    trajectory_format: str, force: bool, as_json: bool,
+    trajectory_format: str, track_object: bool, force: bool, as_json: bool,
 ) -> None:
     """Generate a seeded synthetic dataset in OUT_DIR (see docs/dataset.md)."""
     start = time.perf_counter()
@@ -85,8 +87,8 @@ def synth_cmd(
         ds = synthesize(
             out_dir, seed=seed, skills_file=skills_file, n_per_skill=n_per_skill,
             mentors=mentors, rate=rate, scale=scale, noise_mm=noise_mm, dropouts=dropouts,
-            gap_limit=gap_limit, trajectory_format=trajectory_format, progress=update,
-            overwrite=force,
+            gap_limit=gap_limit, trajectory_format=trajectory_format,
+            track_object=track_object, progress=update, overwrite=force,
         )
     elapsed = time.perf_counter() - start
     if as_json:
@@ -212,3 +214,8 @@ def figure_cmd(
 
     save_figure(fig, output)
     err.print(f"wrote {output}")
+
+
+from nonprehensile.cli_annotate import annotate_cmd  # noqa: E402  (it imports this module's deps)
+
+dataset_group.add_command(annotate_cmd)

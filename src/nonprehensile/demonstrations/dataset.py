@@ -40,7 +40,8 @@ from nonprehensile.demonstrations.formats import (
     write_c3d,
     write_motive_csv,
 )
-from nonprehensile.demonstrations.record import MarkerTrajectory
+from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
+from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup
 from nonprehensile.errors import DemonstrationError, InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.io import load_document, read_skills, save_document, skills_to_dict
@@ -99,7 +100,7 @@ _READERS: dict[str, Callable[[Path], MarkerTrajectory]] = {
 }
 _FINGER_RE = re.compile(r"R\d+")
 _TOP_KEYS = {"format", "skills", "scale", "gap_limit", "fingers", "markers", "object_markers",
-             "axes", "units", "tolerance_mm", "demonstrations"}
+             "rigid_body", "axes", "units", "tolerance_mm", "demonstrations"}
 _DEMO_KEYS = {"file", "skill", "mentor", "initial", "final", "events"}
 
 
@@ -224,6 +225,9 @@ class Dataset:
         (times ``scale``: metres). Empty when the object is not tracked.
     notes : tuple of str
         What the loader noticed without refusing the dataset (markers it ignored).
+    rigid_body : str or None
+        The rigid body (of every recording) that tracks the object, its frame the model's
+        frame scaled; None when the object is not tracked as a rigid body.
     """
 
     poly: Polyhedron
@@ -235,6 +239,12 @@ class Dataset:
     root: Path | None = None
     object_markers: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    rigid_body: str | None = None
+
+    @property
+    def object_setup(self) -> ObjectSetup | None:
+        """How the object's pose is found in the recordings; None when it is not tracked."""
+        return object_setup(self.rigid_body, self.object_markers)
 
     def skill(self, name: str) -> Skill:
         """The skill called ``name``.
@@ -328,6 +338,7 @@ class _Settings:
     axes: tuple[str, str, str] | None  # None: by file suffix (DEFAULT_AXES)
     units: str | None  # None: as the files declare
     tolerance_m: float
+    rigid_body: str | None = None  # the rigid body that tracks the object
 
 
 def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
@@ -395,8 +406,13 @@ def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
         out.add(name, None, f"'tolerance_mm' must be a finite number of millimetres >= 0, got "
                             f"{data.get('tolerance_mm')!r}")
         tol = DEFAULT_TOLERANCE_MM
+    rigid_body = data.get("rigid_body")
+    if rigid_body is not None and (not isinstance(rigid_body, str) or not rigid_body.strip()):
+        out.add(name, None, f"'rigid_body' must name the rigid body that tracks the object (its "
+                            f"frame the model's frame), got {rigid_body!r}")
+        rigid_body = None
     return _Settings(poly, skills, scale, gap, fingers, markers, object_markers, axes, units,
-                     tol / 1000.0)
+                     tol / 1000.0, rigid_body)
 
 
 def _object_markers(
@@ -694,6 +710,10 @@ def check_dataset(
             out.add(*where, f"marker(s) {missing} are not in the recording, which has "
                             f"{list(traj.marker_names)}; rename them or fix 'markers'/'fingers'/"
                             "'object_markers'")
+        if settings.rigid_body is not None and settings.rigid_body not in [
+                b.name for b in traj.rigid_bodies]:
+            out.add(*where, f"rigid body {settings.rigid_body!r} ('rigid_body') is not in the "
+                            f"recording, which has {[b.name for b in traj.rigid_bodies] or 'none'}")
         ignored.update(dict.fromkeys(m for m in traj.marker_names if m not in settings.markers))
         traj = _select(traj, settings.markers)
         if skill is not None:
@@ -724,7 +744,7 @@ def check_dataset(
         notes = (f"ignored {len(names)} marker(s) that the annotations do not name in 'fingers', "
                  f"'markers' or 'object_markers': {shown}",)
     return Dataset(poly, tuple(skills), tuple(demos), settings.scale, settings.gap, fingers,
-                   root, settings.object_markers, notes), out.problems
+                   root, settings.object_markers, notes, settings.rigid_body), out.problems
 
 
 def _axes_name(axes: tuple[str, str, str] | None, suffix: str) -> str:
@@ -760,8 +780,14 @@ def _read(
     units, factor = _UNITS[settings.units] if settings.units else (traj.units, 1.0)
     if np.array_equal(rot, np.eye(3)) and factor == 1.0 and units == traj.units:
         return traj
+    # a rigid body turns with the world: R -> M R M^T, whose quaternion has its vector part
+    # turned by M (M is a proper rotation)
+    bodies = tuple(PoseTrajectory(
+        b.name, b.positions @ rot.T * factor,
+        np.concatenate([b.quaternions[:, :3] @ rot.T, b.quaternions[:, 3:]], axis=1),
+        b.rate, units) for b in traj.rigid_bodies)
     return MarkerTrajectory(traj.positions @ rot.T * factor, traj.marker_names, traj.rate,
-                            units)
+                            units, bodies)
 
 
 def _select(traj: MarkerTrajectory, names: Sequence[str]) -> MarkerTrajectory:
@@ -770,7 +796,7 @@ def _select(traj: MarkerTrajectory, names: Sequence[str]) -> MarkerTrajectory:
     if len(keep) == traj.n_markers:
         return traj
     return MarkerTrajectory(traj.positions[:, keep], tuple(traj.marker_names[k] for k in keep),
-                            traj.rate, traj.units)
+                            traj.rate, traj.units, traj.rigid_bodies)
 
 
 def load_dataset(path: str | Path, *, progress: Progress | None = None) -> Dataset:
@@ -873,6 +899,7 @@ def save_dataset(
         "markers": list(markers),
         **({"object_markers": {k: list(v) for k, v in dataset.object_markers.items()}}
            if dataset.object_markers else {}),
+        **({"rigid_body": dataset.rigid_body} if dataset.rigid_body else {}),
         "demonstrations": entries,
     }
     path = root / ANNOTATION_FILES[0]
