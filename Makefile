@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench fuzz clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,5 +28,9 @@ bench: $(STAMP)
 	$(BIN)/python -m pip install --quiet --no-deps sktime==1.2.0 aeon==1.6.0
 	$(BIN)/python -m benchmarks
 
+fuzz: $(STAMP)
+	# >= 10,000 generated and mutated inputs through the CLI on 2 processes (docs/robustness.md)
+	$(BIN)/python tests/fuzz_harness.py --budget 10000 --jobs 2 --report fuzz-report.json
+
 clean:
-	rm -rf $(VENV) build *.egg-info src/*.egg-info .pytest_cache .mypy_cache .ruff_cache report
+	rm -rf $(VENV) build *.egg-info src/*.egg-info .pytest_cache .mypy_cache .ruff_cache report fuzz-report.json
