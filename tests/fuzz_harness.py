@@ -586,7 +586,13 @@ def _child(args: argparse.Namespace, part: int, out: Path) -> None:
     cases = plan_cases(args.budget, args.family and [args.family])[part :: args.jobs]
     last = [time.perf_counter()]
 
+    seen = [0]
+
     def progress(done: int, total: int, report: Report) -> None:
+        for f in report.failures[seen[0]:]:
+            print(f"[part {part}] FAIL {f['family']} #{f['case']}: {f['failure']} "
+                  f"({f['note']!r})", file=sys.stderr, flush=True)
+        seen[0] = len(report.failures)
         if time.perf_counter() - last[0] > 30 or done == total:
             last[0] = time.perf_counter()
             print(f"[part {part}] {done}/{total} inputs, {len(report.failures)} failures",

@@ -98,6 +98,9 @@ def check_document(data: Any, source: str) -> Any:
     stack: list[tuple[Any, int, bool]] = [(data, 1, False)]
     while stack:
         node, depth, done = stack.pop()
+        if isinstance(node, str):
+            _check_text(node, source)
+            continue
         if not isinstance(node, (list, tuple, Mapping)):
             continue
         if not done and id(node) in sizes:
@@ -128,6 +131,18 @@ def check_document(data: Any, source: str) -> Any:
         stack.append((node, depth, True))
         stack.extend((c, depth + 1, False) for c in children)
     return data
+
+
+def _check_text(text: str, source: str) -> None:
+    """A string of a document must be valid Unicode: JSON's ``"\\ud800"`` escape makes a lone
+    surrogate, which no file, terminal or other program can take."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise InputError(
+            f"{source}: the text {text[:40]!r} holds a lone surrogate (character "
+            f"{exc.start + 1}), which is not valid Unicode; fix the escape"
+        ) from None
 
 
 def key_list(keys: Iterable[Any]) -> list[str]:

@@ -77,7 +77,7 @@ class Bounded(_ParamBase):
             except ValueError:
                 what = "a whole number" if self.kind is int else "a number"
                 self.fail(f"{value!r} is not {what}", param, ctx)
-        if not (math.isfinite(v) and self.low <= v <= self.high):
+        if not ((self.kind is int or math.isfinite(v)) and self.low <= v <= self.high):
             self.fail(f"{value!r} is outside the limits {self.limits}", param, ctx)
         return v + 0 if self.kind is int else float(v) + 0.0  # -0.0 -> 0.0
 
@@ -112,6 +112,12 @@ def _check_text_arguments(kwargs: dict[str, Any]) -> None:
                 )
 
 
+def _printable(exc: BaseException) -> str:
+    """A message any terminal can take: a lone surrogate quoted from the input is escaped
+    (written raw, it would fail in the console and leave it unusable)."""
+    return str(exc).encode("utf-8", "backslashreplace").decode("utf-8")
+
+
 def handle_errors(fn: F) -> F:
     """Check text arguments, then turn library errors into one-line messages and the spec's
     exit codes."""
@@ -123,10 +129,10 @@ def handle_errors(fn: F) -> F:
             return fn(*args, **kwargs)
         except InputError as exc:
             # the message may hold brackets (lists of faces): never read it as markup
-            err.print(Text.assemble(("error: ", "bold red"), str(exc)))
+            err.print(Text.assemble(("error: ", "bold red"), _printable(exc)))
             sys.exit(2)
         except NonprehensileError as exc:
-            err.print(Text.assemble(("error: ", "bold red"), str(exc)))
+            err.print(Text.assemble(("error: ", "bold red"), _printable(exc)))
             sys.exit(1)
         except OSError as exc:
             # a file the user named cannot be read or written: bad input, not a crash

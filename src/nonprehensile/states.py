@@ -331,6 +331,8 @@ def states_by_step(
     step = float(step)
     if not math.isfinite(step) or step <= 0 or step > 360:
         raise StateError(f"the angle step must be in (0, 360] degrees, got {step!r}")
+    if 360.0 / step > 1e9:  # 360 / 1e-320 is infinite: no whole number of steps
+        raise StateError(f"the angle step {step!r} degrees is too small to step around 360")
     n = round(360.0 / step)
     if abs(n * step - 360.0) > 1e-9 * 360:
         raise StateError(

@@ -613,6 +613,8 @@ def _fast_loops(
             return None
         out = {f: tuple(int(i) for i in t) for f, t in out.items()}
         flat = [int(i) for i in flat]
+    if not flat or min(flat) < 0 or max(flat) >= n_vertices:
+        return None  # (before numpy: an index beyond int64 would overflow there)
     idx = np.fromiter(flat, dtype=np.int64, count=len(flat))
     if not len(idx) or idx.min() < 0 or idx.max() >= n_vertices:
         return None

@@ -529,9 +529,10 @@ class _Parser:
             return Ground()
         if (m := _FINGER_RE.fullmatch(tok.text)) is not None:
             digits = m.group(1)
-            if digits.startswith("0"):
+            if digits.startswith("0") or len(digits) > 6:
                 raise self.fail(
-                    "a finger R1, R2, ... (numbered from 1, no leading zeros)",
+                    "a finger R1, R2, ... (numbered from 1, no leading zeros, at most 6 "
+                    "digits)",
                     "fingers are numbered from 1, e.g. R1",
                     tok,
                 )
