@@ -11,6 +11,7 @@ coordinates. Mesh files are read with trimesh, imported only when needed (the ``
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -422,13 +423,27 @@ def from_mesh(
         ) from None
     if not path.is_file():
         raise MeshError(f"{path}: no such mesh file")
+    log = logging.getLogger("trimesh")
+    level = log.level
+    # trimesh logs the tracebacks of the loaders it falls back from (binary STL, then ASCII):
+    # what it could not read is reported here, on one line
+    log.setLevel(logging.CRITICAL)
     try:
         mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt or unknown files
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise MeshError(f"{path}: trimesh cannot read it as a mesh: {first}") from None
+    finally:
+        log.setLevel(level)
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0:
         raise MeshError(f"{path}: the file holds no triangle mesh")
+    tris = np.asarray(mesh.faces)
+    if tris.size and (tris.min() < 0 or tris.max() >= len(mesh.vertices)):
+        # trimesh does not check the indices when it does not process the mesh
+        raise MeshError(
+            f"{path}: a triangle names vertex {int(tris.max())} of {len(mesh.vertices)}; the "
+            "file is damaged"
+        )
     pts = np.asarray(mesh.vertices, dtype=float)
     bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
     if bad.size:

@@ -531,9 +531,8 @@ class _Parser:
             digits = m.group(1)
             if digits.startswith("0") or len(digits) > 6:
                 raise self.fail(
-                    "a finger R1, R2, ... (numbered from 1, no leading zeros, at most 6 "
-                    "digits)",
-                    "fingers are numbered from 1, e.g. R1",
+                    "a finger R1, R2, ... (numbered from 1, no leading zeros)",
+                    "fingers are numbered from 1 (at most 6 digits), e.g. R1",
                     tok,
                 )
             return Finger(int(digits))
