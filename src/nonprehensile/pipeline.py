@@ -369,6 +369,7 @@ REPORT_SECTIONS: list[str] = [
     "nonprehensile.pipeline:inference_section",
     "nonprehensile.pipeline:motion_section",
     "nonprehensile.pipeline:plan_section",
+    "nonprehensile.pipeline:physics_section",
 ]
 
 
@@ -396,6 +397,22 @@ def _write_report(
         "motions, and a plan between two states that were never demonstrated.",
         sections, meta=meta,
     )
+
+
+def physics_section(ctx: ReportContext) -> Section:
+    """The plan executed in MuJoCo (issue 9); a note instead where that cannot be done."""
+    from nonprehensile.errors import NonprehensileError
+    from nonprehensile.viz.physics import physics_section as draw
+
+    ds, result, summary = ctx.ds, ctx.result, ctx.summary
+    try:
+        section, records = draw(ds.poly, result, scale=ds.scale, fingers=ds.fingers)
+    except NonprehensileError as exc:
+        summary["physics"] = {"error": str(exc)}
+        return Section("Physics: the plan executed in MuJoCo", [f"Not simulated: {exc}"])
+    summary["physics"] = {"steps": records,
+                          "all_as_predicted": all(r["success"] for r in records)}
+    return section
 
 
 def plural(n: int, word: str, many: str | None = None) -> str:

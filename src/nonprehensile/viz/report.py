@@ -82,9 +82,8 @@ def readable(fig: Figure, dpi: float, *, min_px: float = MIN_TEXT_PX,
     A figure wider than the page is shown scaled down, so its text must be larger in points;
     returns the smallest font size (points) the figure now has.
     """
-    from matplotlib.text import Text
-
     import matplotlib as mpl
+    from matplotlib.text import Text
 
     shown = min(1.0, page_px / (fig.get_figwidth() * dpi))
     min_pt = min_px * 72.0 / dpi / shown
