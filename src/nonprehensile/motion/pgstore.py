@@ -68,6 +68,8 @@ _DDL = (
         value bytea NOT NULL,
         PRIMARY KEY (store, name)
     )""",
+    # the clusterer's state is megabytes of floats: pglz would spend seconds on each save
+    "ALTER TABLE np_meta ALTER COLUMN value SET STORAGE EXTERNAL",
 )
 
 
