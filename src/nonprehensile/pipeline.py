@@ -18,7 +18,7 @@ import os
 import pickle
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -60,6 +60,19 @@ StageProgress = Callable[[str, int, int], None]
 DEFAULT_START = State("b", 200.0)
 DEFAULT_GOAL = State("e", 110.0)
 DEFAULT_POSITION = (0.30, 0.10)
+
+
+@contextlib.contextmanager
+def _one_blas_thread() -> Iterator[None]:
+    """BLAS on one thread for the job's small matrices: on a shared 2-core machine a second
+    BLAS thread waits for a busy core, and a call takes 10x longer (issue 16)."""
+    try:
+        from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 def _version() -> str:
@@ -399,7 +412,8 @@ def run_demo(
     lap("inference")
     graphs, segments = segment_dataset(ds)
     lap("segmentation")
-    motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
+    with _one_blas_thread():
+        motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
     lap("clustering")
     result: Plan = plan(poly, exp, start, goal, position=position, motions=motions,
                         scale=ds.scale)
