@@ -451,6 +451,13 @@ def from_mesh(
             f"{path}: vertex {int(bad[0])} is not finite ({pts[bad[0]].tolist()}); fix or "
             "remove it in the mesh"
         )
+    big = np.flatnonzero(np.abs(pts).max(axis=1) > MAX_COORDINATE)
+    if big.size:
+        # (trimesh's vertex welding overflows on such numbers; no real part is this large)
+        raise MeshError(
+            f"{path}: vertex {int(big[0])} {pts[big[0]].tolist()} is beyond "
+            f"{MAX_COORDINATE:g} in magnitude; the file is damaged or its units are wrong"
+        )
     if len(pts) < 4:
         raise MeshError(f"{path}: a solid needs at least 4 points, the mesh has {len(pts)}")
     if len(mesh.faces) and _clean(mesh, trimesh):
