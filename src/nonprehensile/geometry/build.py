@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
+from nonprehensile.bounds import MAX_COORDINATE as MAX_RECORDED_COORDINATE
 from nonprehensile.checks import check_tolerance
 from nonprehensile.errors import InputError, MeshError, ModelError
 from nonprehensile.geometry.polyhedron import (
@@ -451,12 +452,13 @@ def from_mesh(
             f"{path}: vertex {int(bad[0])} is not finite ({pts[bad[0]].tolist()}); fix or "
             "remove it in the mesh"
         )
-    big = np.flatnonzero(np.abs(pts).max(axis=1) > MAX_COORDINATE)
+    big = np.flatnonzero(np.abs(pts).max(axis=1) > MAX_RECORDED_COORDINATE)
     if big.size:
-        # (trimesh's vertex welding overflows on such numbers; no real part is this large)
+        # (trimesh's vertex welding overflows int64 on such numbers; no real part is so large)
         raise MeshError(
             f"{path}: vertex {int(big[0])} {pts[big[0]].tolist()} is beyond "
-            f"{MAX_COORDINATE:g} in magnitude; the file is damaged or its units are wrong"
+            f"{MAX_RECORDED_COORDINATE:g} in magnitude; the file is damaged or its units are "
+            "wrong"
         )
     if len(pts) < 4:
         raise MeshError(f"{path}: a solid needs at least 4 points, the mesh has {len(pts)}")
