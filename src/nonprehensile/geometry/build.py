@@ -462,7 +462,13 @@ def from_mesh(
         )
     if len(pts) < 4:
         raise MeshError(f"{path}: a solid needs at least 4 points, the mesh has {len(pts)}")
-    if len(mesh.faces) and _clean(mesh, trimesh):
+    try:
+        filled = bool(len(mesh.faces)) and _clean(mesh, trimesh)
+    except (OverflowError, ValueError, IndexError) as exc:
+        # trimesh's welding hashes coordinates and indices as int64: a damaged file overflows
+        raise MeshError(f"{path}: trimesh cannot process the mesh ({exc}); the file is "
+                        "damaged") from None
+    if filled:
         notes.append(f"{path.name}: filled small holes in the mesh to close it")
     pts = np.asarray(mesh.vertices, dtype=float) if len(mesh.vertices) >= 4 else pts
     closed = len(mesh.faces) > 0 and bool(mesh.is_watertight)
