@@ -48,6 +48,7 @@ __all__ = [
     "grid_dtype",
     "key_bits",
     "key_to_int",
+    "lookup_table",
     "quantize",
     "sort_keys",
 ]
@@ -469,6 +470,23 @@ def _tables(
     enc.flags.writeable = False
     dec.flags.writeable = False
     return enc, dec  # type: ignore[return-value]
+
+
+def lookup_table(n_dims: int, order: int) -> NDArray[np.uint64]:
+    """The read-only encode table of a small grid (``n_dims * order <= LUT_MAX_BITS``).
+
+    ``table[c]`` is the key of the cell whose row-major number (coordinate 0 most
+    significant, ``order`` bits each) is ``c``: callers that quantize their own points (the
+    clusterer's single-sample registration) skip :func:`encode`'s input checks with it.
+    """
+    n_dims = _check_n_dims(n_dims)
+    order = _check_order(order)
+    if n_dims * order > LUT_MAX_BITS:
+        raise InputError(
+            f"lookup tables hold grids of at most 2**{LUT_MAX_BITS} cells, got "
+            f"n_dims * order = {n_dims * order} bits"
+        )
+    return _tables(n_dims, order)[0]
 
 
 def _row_major_cells(c: NDArray[np.uint64], n_dims: int, order: int) -> NDArray[np.uint64]:
