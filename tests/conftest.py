@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -92,3 +93,25 @@ def occupies_same_space(p: Polyhedron, a: State, b: State, atol: float = 1e-7) -
     wb = world_points(p, b) + shift
     d = np.linalg.norm(wa[:, None] - wb[None], axis=-1)
     return bool(d.min(axis=1).max() <= atol and d.min(axis=0).max() <= atol)
+
+
+# ------------------------------------------------------------------ PostgreSQL (tests/pgserver)
+@pytest.fixture(scope="session")
+def pg_server() -> Iterator[str]:
+    """URL of a PostgreSQL server (see tests/pgserver.py); skips, saying why, without one."""
+    from pgserver import server
+
+    gen = server()
+    url = next(gen)
+    if url is None or url.startswith("skip:"):
+        pytest.skip(url.removeprefix("skip: ") if url else "no PostgreSQL server")
+    yield url
+    gen.close()
+
+
+@pytest.fixture
+def pg_url(pg_server: str) -> Iterator[str]:
+    """A fresh, empty database on the test server, dropped after the test."""
+    from pgserver import fresh_database
+
+    yield from fresh_database(pg_server)

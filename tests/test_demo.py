@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -68,7 +69,7 @@ def test_demo_plan_is_exact_and_never_demonstrated(
 
 
 def test_plan_reference_files(tmp_path: Path) -> None:
-    from nonprehensile.demonstrations.formats import read_c3d
+    from nonprehensile.demonstrations.formats import read_c3d, read_motive_csv
     from nonprehensile.inference import expand
     from nonprehensile.pipeline import motions_from_dataset
     from nonprehensile.planning import plan
@@ -79,12 +80,22 @@ def test_plan_reference_files(tmp_path: Path) -> None:
     result = plan(ds.poly, exp, State("a", 0), State("d", 0), motions=motions,
                   position=(0.5, 0.0))
     files = write_plan_motions(result, tmp_path)
-    assert len(files) == 2 * 4
+    assert len(files) == 2 * 4 + 1  # and plan.json, with the object poses
     traj = read_c3d(next(f for f in files if f.suffix == ".c3d"))
     ref = result.steps[0].motions[0][3]
     assert ref is not None
     assert traj.to_units("m").positions.shape == ref.positions.shape
     assert abs(traj.to_units("m").positions - ref.positions).max() < 1e-6
+    # every file reads back, at the readers' defaults, to its reference motion: exact to the
+    # format's precision (C3D float32, CSV six decimals), never a frame turned on its side
+    refs = [ref for step in result.steps for *_, ref in step.motions if ref is not None]
+    for suffix, reader, tol in ((".c3d", read_c3d, 2e-7), (".csv", read_motive_csv, 5e-7)):
+        back = [reader(f).to_units("m") for f in files if f.suffix == suffix]
+        assert len(back) == len(refs)
+        for got, want in zip(back, refs, strict=True):
+            assert got.marker_names == want.marker_names and got.rate == want.rate
+            scale = max(1.0, float(np.abs(want.positions).max()))
+            assert np.abs(got.positions - want.positions).max() <= tol * scale
     # the offset moved the demonstrated motion by half a metre along x
     assert ref.positions[..., 0].mean() > 0.3
 
@@ -109,7 +120,7 @@ def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:
     (step,) = doc["steps"]
     assert step["skill"] == "twist" and step["demonstrated"]
     assert all(m["reference"]["n_frames"] > 0 for m in step["motions"])
-    assert sorted(p.suffix for p in out.iterdir()) == [".c3d", ".c3d", ".csv", ".csv"]
+    assert sorted(p.suffix for p in out.iterdir()) == [".c3d", ".c3d", ".csv", ".csv", ".json"]
     res = CliRunner().invoke(main, ["plan", skills, "--from", "a:0", "--to", "a:90", "--step",
                                     "90", "--out", str(out)])
     assert res.exit_code == 2 and "--dataset" in res.stderr

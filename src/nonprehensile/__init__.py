@@ -16,7 +16,13 @@ for Nonprehensile Manipulation):
 
 Plotting (:mod:`nonprehensile.viz`), the main job (:mod:`nonprehensile.pipeline`) and the
 command line (:mod:`nonprehensile.cli`) sit at the edges and are not imported here.
+
+The names below are imported on first use (PEP 562), so that ``import nonprehensile`` (and
+``nonprehensile --help``) costs no numpy, scipy or networkx import.
 """
+
+import importlib
+from typing import TYPE_CHECKING, Any
 
 from nonprehensile.errors import (
     GeometryError,
@@ -27,35 +33,37 @@ from nonprehensile.errors import (
     NonprehensileError,
     StateError,
 )
-from nonprehensile.geometry import (
-    Polyhedron,
-    Symmetry,
-    box,
-    convex_hull,
-    cube,
-    equivalence_classes,
-    equivalent,
-    from_mesh,
-    octahedron,
-    prism,
-    rotation_group,
-    tetrahedron,
-)
-from nonprehensile.inference import Expansion, cross_check, expand
-from nonprehensile.io import load_model, read_model, read_skills, read_states, write_model
-from nonprehensile.maneuvers import Maneuver, classify, roll, rotate, tumble
-from nonprehensile.planning import NoPlanError, Plan, plan
-from nonprehensile.skills import ContactEvent, ContactPair, parse_event
-from nonprehensile.skills.skill import Skill, skill_graph
-from nonprehensile.states import (
-    State,
-    is_stable,
-    stable_faces,
-    state_of_pose,
-    state_pose,
-    states_by_step,
-)
-from nonprehensile.transitions import Transition, TransitionGraph
+
+if TYPE_CHECKING:
+    from nonprehensile.geometry import (
+        Polyhedron,
+        Symmetry,
+        box,
+        convex_hull,
+        cube,
+        equivalence_classes,
+        equivalent,
+        from_mesh,
+        octahedron,
+        prism,
+        rotation_group,
+        tetrahedron,
+    )
+    from nonprehensile.inference import Expansion, cross_check, expand
+    from nonprehensile.io import load_model, read_model, read_skills, read_states, write_model
+    from nonprehensile.maneuvers import Maneuver, classify, roll, rotate, tumble
+    from nonprehensile.planning import NoPlanError, Plan, plan
+    from nonprehensile.skills import ContactEvent, ContactPair, parse_event
+    from nonprehensile.skills.skill import Skill, skill_graph
+    from nonprehensile.states import (
+        State,
+        is_stable,
+        stable_faces,
+        state_of_pose,
+        state_pose,
+        states_by_step,
+    )
+    from nonprehensile.transitions import Transition, TransitionGraph
 
 __version__ = "0.1.0"
 
@@ -110,3 +118,61 @@ __all__ = [
     "tumble",
     "write_model",
 ]
+
+#: Public name -> module it is imported from on first use.
+_LAZY = {
+    "Polyhedron": "nonprehensile.geometry",
+    "Symmetry": "nonprehensile.geometry",
+    "box": "nonprehensile.geometry",
+    "convex_hull": "nonprehensile.geometry",
+    "cube": "nonprehensile.geometry",
+    "equivalence_classes": "nonprehensile.geometry",
+    "equivalent": "nonprehensile.geometry",
+    "from_mesh": "nonprehensile.geometry",
+    "octahedron": "nonprehensile.geometry",
+    "prism": "nonprehensile.geometry",
+    "rotation_group": "nonprehensile.geometry",
+    "tetrahedron": "nonprehensile.geometry",
+    "Expansion": "nonprehensile.inference",
+    "cross_check": "nonprehensile.inference",
+    "expand": "nonprehensile.inference",
+    "load_model": "nonprehensile.io",
+    "read_model": "nonprehensile.io",
+    "read_skills": "nonprehensile.io",
+    "read_states": "nonprehensile.io",
+    "write_model": "nonprehensile.io",
+    "Maneuver": "nonprehensile.maneuvers",
+    "classify": "nonprehensile.maneuvers",
+    "roll": "nonprehensile.maneuvers",
+    "rotate": "nonprehensile.maneuvers",
+    "tumble": "nonprehensile.maneuvers",
+    "NoPlanError": "nonprehensile.planning",
+    "Plan": "nonprehensile.planning",
+    "plan": "nonprehensile.planning",
+    "ContactEvent": "nonprehensile.skills",
+    "ContactPair": "nonprehensile.skills",
+    "parse_event": "nonprehensile.skills",
+    "Skill": "nonprehensile.skills.skill",
+    "skill_graph": "nonprehensile.skills.skill",
+    "State": "nonprehensile.states",
+    "is_stable": "nonprehensile.states",
+    "stable_faces": "nonprehensile.states",
+    "state_of_pose": "nonprehensile.states",
+    "state_pose": "nonprehensile.states",
+    "states_by_step": "nonprehensile.states",
+    "Transition": "nonprehensile.transitions",
+    "TransitionGraph": "nonprehensile.transitions",
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'nonprehensile' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})

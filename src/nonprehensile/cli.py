@@ -3,522 +3,108 @@
 Every command that prints a result takes ``--json`` and then prints exactly one JSON document
 on stdout; messages go to stderr. Exit codes: 0 success, 2 bad input (the message names the
 file and the culprit), 1 anything else (``shared/spec/files-and-cli.md``).
+
+This module imports only :mod:`click`: ``nonprehensile --version`` and ``--help`` must not pay
+for numpy, scipy, networkx, scikit-learn or matplotlib. Each command lives in its own
+``cli_<topic>.py`` module, imported only when that command runs (or its own ``--help`` is
+asked for).
+
+How to register a command
+-------------------------
+Write it in your own module, say ``src/nonprehensile/cli_sim.py``, as a plain click command
+or group (``@click.command("simulate")`` / ``@click.group("sim")``; import heavy libraries at
+the top of that module or inside the command, as you like). Then add ONE line to
+:data:`COMMANDS` below::
+
+    "simulate": ("nonprehensile.cli_sim:simulate_cmd", "Run a plan in the physics simulator."),
+
+The key is the command's name on the command line (it must equal the click command's name),
+the first string is ``"module:attribute"``, the second the one-line help that
+``nonprehensile --help`` lists without importing the module: the first sentence of the
+command's docstring (``tests/test_cli_lazy.py`` checks that both agree). A subcommand of an
+existing group (``dataset annotate``) is added in that group's module as usual
+(``@dataset_group.command("annotate")``), or registered from another module with
+``dataset_group.add_command(...)`` at the end of the group's module.
 """
 
 from __future__ import annotations
 
-import time
-from pathlib import Path
+import importlib
 from typing import Any
 
 import click
-from rich.table import Table
 
-from nonprehensile.cli_cluster import cluster_group
-from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out, stage_bars
-from nonprehensile.cli_dataset import dataset_group
-from nonprehensile.errors import InputError
-from nonprehensile.geometry.build import from_mesh
-from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
-from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
-from nonprehensile.inference import METHODS, Expansion, cross_check, expand
-from nonprehensile.io import load_model, read_skills, read_states, write_model
-from nonprehensile.pipeline import (
-    DEFAULT_GOAL,
-    DEFAULT_START,
-    motions_from_dataset,
-    run_demo,
-    write_plan_motions,
-)
-from nonprehensile.planning import plan
-from nonprehensile.skills.contacts import format_event
-from nonprehensile.skills.skill import Skill, group_by_maneuver, skill_graph, skill_to_dict
-from nonprehensile.states import (
-    DEFAULT_ANGLE_TOL,
-    State,
-    check_states,
-    is_stable,
-    states_by_step,
-)
+__all__ = ["COMMANDS", "LazyGroup", "main"]
+
+#: Command name -> ("module:attribute" of the click command, its one-line help).
+COMMANDS: dict[str, tuple[str, str]] = {
+    "cluster": ("nonprehensile.cli_cluster:cluster_group",
+                "Cluster demonstrated trajectories on a Hilbert-curve index, in a store."),
+    "dataset": ("nonprehensile.cli_dataset:dataset_group",
+                "Demonstration datasets: generate a synthetic one, or show one."),
+    "demo": ("nonprehensile.cli_plan:demo",
+             "The main job: the whole pipeline on a dataset, ending in an HTML report."),
+    "infer": ("nonprehensile.cli_plan:infer_cmd",
+              "Infer undemonstrated transitions of SKILLS_FILE over a state set (paper "
+              "Section V)."),
+    "object": ("nonprehensile.cli_object:object_group",
+               "Object models: show one, or make one from a mesh."),
+    "plan": ("nonprehensile.cli_plan:plan_cmd",
+             "Plan transitions, contact events and finger motions from --from to --to."),
+    "simulate": ("nonprehensile.cli_sim:simulate_group",
+                 "Execute demonstrations, inferred transitions and plans in the MuJoCo "
+                 "simulation."),
+    "skills": ("nonprehensile.cli_plan:skills_group",
+               "Demonstrated skills: contact events, motions and skill graphs."),
+    "states": ("nonprehensile.cli_object:states_cmd",
+               "The stable states of MODEL and their geometric-equivalence classes."),
+}
 
 
-def _model(path: str, rtol: float) -> Polyhedron:
-    return load_model(path, rtol=rtol)
+def load_command(name: str) -> click.Command:
+    """Import the command registered as ``name`` in :data:`COMMANDS`."""
+    target = COMMANDS[name][0]
+    module, _, attr = target.partition(":")
+    cmd = getattr(importlib.import_module(module), attr)
+    if not isinstance(cmd, click.Command):  # pragma: no cover - a registration mistake
+        raise TypeError(f"{target} is not a click command")
+    return cmd
 
 
-rtol_option = click.option(
-    "--rtol",
-    type=float,
-    default=DEFAULT_RTOL,
-    show_default=True,
-    help="Length tolerance relative to the object's diameter (raise it for measured models).",
-)
-json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
-angle_tol_option = click.option(
-    "--angle-tol", type=float, default=DEFAULT_ANGLE_TOL, show_default=True,
-    help="Angle tolerance in degrees for matching states (raise it for measured models).",
-)
-atol_option = click.option(
-    "--atol", type=float, default=None,
-    help="Length tolerance of the symmetry group (default: the model's own, rtol x diameter).",
-)
+class LazyGroup(click.Group):
+    """A click group whose commands are imported the first time they are used.
+
+    ``--help`` lists the commands with the one-line help of :data:`COMMANDS` and imports
+    nothing; ``nonprehensile NAME ...`` imports NAME's module only.
+    """
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*COMMANDS, *super().list_commands(ctx)})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in self.commands or cmd_name not in COMMANDS:
+            return super().get_command(ctx, cmd_name)
+        cmd = load_command(cmd_name)
+        self.add_command(cmd, cmd_name)
+        return cmd
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = []
+        for name in self.list_commands(ctx):
+            if name in COMMANDS:
+                rows.append((name, COMMANDS[name][1]))
+            elif not self.commands[name].hidden:
+                rows.append((name, self.commands[name].get_short_help_str(formatter.width)))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
 
 
-
-
-@click.group()
+@click.group(cls=LazyGroup)
 @click.version_option(package_name="nonprehensile")
-def main() -> None:
+def main(**_: Any) -> None:
     """Learn nonprehensile manipulation of polyhedral objects from demonstration."""
 
-
-# ---------------------------------------------------------------------------- object
-@main.group("object")
-def object_group() -> None:
-    """Object models: show one, or make one from a mesh."""
-
-
-def object_summary(poly: Polyhedron) -> dict[str, Any]:
-    """The spec's ``object show --json`` document."""
-    faces = {}
-    for f, loop in poly.faces.items():
-        faces[f] = {
-            "loop": list(loop),
-            "delta": list(poly.delta[f]),
-            "normal": [round(float(c), 12) + 0.0 for c in poly.normals[f]],
-            "stable": is_stable(poly, f),
-            "virtual": f in poly.virtual_faces,
-        }
-    return {
-        "name": poly.name,
-        "units": poly.units,
-        "n_vertices": len(poly.vertices),
-        "center_of_mass": [float(c) for c in poly.com],
-        "hull_volume": poly.volume,
-        "faces": faces,
-        "adjacency": poly.adjacency,
-        "symmetry_order": len(rotation_group(poly)),
-    }
-
-
-def adjacency_table(poly: Polyhedron) -> Table:
-    """The adjacency matrix of edge numbers as the paper prints it (Fig. 3(b))."""
-    labels, a = poly.adjacency_matrix()
-    t = Table(title="Adjacency matrix A (A\\[row]\\[col] = edge number on the row face)")
-    t.add_column("A", style="bold")
-    for f in labels:
-        t.add_column(f, justify="center")
-    for i, f in enumerate(labels):
-        t.add_row(f, *[str(k) if k else "-" for k in a[i]])
-    return t
-
-
-@object_group.command("show")
-@click.argument("model")
-@rtol_option
-@json_option
-@handle_errors
-def object_show(model: str, rtol: float, as_json: bool) -> None:
-    """Show MODEL (a model file, or a bundled name such as `cube`): faces, A, Delta."""
-    poly = _model(model, rtol)
-    summary = object_summary(poly)
-    if as_json:
-        emit_json(summary)
-        return
-    out.print(
-        f"[bold]{poly.name}[/]: {len(poly.faces)} faces, {len(poly.vertices)} vertices, "
-        f"hull volume {fmt_num(poly.volume)} {poly.units}^3, centre of mass "
-        f"({', '.join(fmt_num(c) for c in poly.com)}), rotation symmetry order "
-        f"{summary['symmetry_order']}"
-    )
-    faces = Table(title="Faces")
-    for col in ("face", "loop (clockwise from outside)", "Delta (deg)", "outward normal",
-                "stable"):
-        faces.add_column(col)
-    for f, info in summary["faces"].items():
-        name = f + (" (virtual)" if info["virtual"] else "")
-        faces.add_row(
-            name,
-            " ".join(map(str, info["loop"])),
-            ", ".join(fmt_num(d) for d in info["delta"]),
-            "(" + ", ".join(fmt_num(c) for c in info["normal"]) + ")",
-            "yes" if info["stable"] else "no",
-        )
-    out.print(faces)
-    out.print(adjacency_table(poly))
-
-
-@object_group.command("figure")
-@click.argument("model")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Image file to write (PNG, SVG or PDF, by suffix).")
-@rtol_option
-@handle_errors
-def object_figure_cmd(model: str, output: str, rtol: float) -> None:
-    """Draw MODEL labeled like the paper's Fig. 3: faces, edge numbers, A and Delta."""
-    from nonprehensile.viz import object_figure, save_figure
-
-    save_figure(object_figure(_model(model, rtol)), output, dpi=100)
-    err.print(f"wrote {output}")
-
-
-@object_group.command("from-mesh")
-@click.argument("mesh", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Model file to write (.json, or .yaml/.yml).")
-@click.option("--name", default=None, help="Object name (default: the mesh file's stem).")
-@click.option("--rtol", type=float, default=1e-6, show_default=True,
-              help="Tolerance, relative to the diameter, for merging coplanar triangles.")
-@click.option("--allow-open", is_flag=True,
-              help="Accept a mesh that is not closed (use the hull of its vertices).")
-@click.option("--units", default="m", show_default=True, help="Length units of the mesh.")
-@json_option
-@handle_errors
-def object_from_mesh(
-    mesh: str, output: str, name: str | None, rtol: float, allow_open: bool, units: str,
-    as_json: bool,
-) -> None:
-    """Make an object model from MESH (STL, OBJ, PLY, OFF, GLB, ...): its convex hull."""
-    poly = from_mesh(mesh, name=name, rtol=rtol, allow_open=allow_open, units=units)
-    write_model(poly, output)
-    if as_json:
-        emit_json({"output": str(Path(output)), **object_summary(poly)})
-        return
-    virtual = sorted(poly.virtual_faces)
-    out.print(
-        f"wrote {output}: {poly.name}, {len(poly.faces)} faces "
-        f"({len(virtual)} virtual{': ' + ', '.join(virtual) if virtual else ''}), "
-        f"{len(poly.vertices)} vertices"
-    )
-
-
-# ---------------------------------------------------------------------------- states
-def state_set(
-    poly: Polyhedron, step: float | None, states_file: str | None,
-    angle_tol: float = DEFAULT_ANGLE_TOL,
-) -> list[State]:
-    """The state set chosen on the command line (``--step`` or ``--states``)."""
-    if (step is None) == (states_file is None):
-        raise InputError("give exactly one of --step DEG or --states FILE")
-    if step is not None:
-        return states_by_step(poly, step)
-    assert states_file is not None
-    return check_states(poly, read_states(states_file), angle_tol=angle_tol)
-
-
-step_option = click.option("--step", type=float, default=None,
-                           help="Orientation step in degrees (e.g. 90).")
-states_option = click.option("--states", "states_file", type=click.Path(dir_okay=False),
-                             default=None, help="JSON list of {face, theta} states.")
-
-
-@main.command("states")
-@click.argument("model")
-@step_option
-@states_option
-@rtol_option
-@atol_option
-@angle_tol_option
-@json_option
-@handle_errors
-def states_cmd(
-    model: str, step: float | None, states_file: str | None, rtol: float, atol: float | None,
-    angle_tol: float, as_json: bool,
-) -> None:
-    """The stable states of MODEL and their geometric-equivalence classes."""
-    poly = _model(model, rtol)
-    states = state_set(poly, step, states_file, angle_tol)
-    classes = equivalence_classes(poly, states, atol=atol, angle_tol=angle_tol)
-    n_classes = max(classes) + 1 if classes else 0
-    if as_json:
-        emit_json({
-            "states": [{**s.to_dict(), "class": c} for s, c in zip(states, classes, strict=True)],
-            "n_classes": n_classes,
-        })
-        return
-    t = Table(title=f"{len(states)} states of {poly.name}, {n_classes} equivalence classes")
-    t.add_column("state")
-    t.add_column("face")
-    t.add_column("theta (deg)", justify="right")
-    t.add_column("class", justify="right")
-    for s, c in zip(states, classes, strict=True):
-        t.add_row(str(s), s.face, fmt_num(s.theta), str(c))
-    out.print(t)
-
-
-# ---------------------------------------------------------------------------- skills
-@main.group("skills")
-def skills_group() -> None:
-    """Demonstrated skills: contact events, motions and skill graphs."""
-
-
-def skill_graphs_summary(poly: Polyhedron, skills: list[Skill]) -> list[dict[str, Any]]:
-    """Each maneuver's skill graph (paper Fig. 5(b)) as nodes and arcs."""
-    out = []
-    for grp in group_by_maneuver(poly, skills):
-        g = skill_graph(poly, grp)
-        names = {key: f"n{i}" for i, key in enumerate(g.nodes)}
-        out.append({
-            "skills": [s.name for s in grp],
-            "maneuver": grp[0].maneuver,
-            "from": grp[0].initial.to_dict(),
-            "to": grp[0].final.to_dict(),
-            "nodes": [{"node": names[k], "ids": sorted(d["ids"]),
-                       "contacts": format_event(d["event"])} for k, d in g.nodes(data=True)],
-            "arcs": [{"from": names[a], "to": names[b], "skill": d["skill"],
-                      "label": d["motion"].label} for a, b, d in g.edges(data=True)],
-        })
-    return out
-
-
-@skills_group.command("show")
-@click.argument("skills_file", type=click.Path(dir_okay=False))
-@click.option("--figure", type=click.Path(dir_okay=False), default=None,
-              help="Also draw the skill graph of each maneuver to this image.")
-@rtol_option
-@angle_tol_option
-@json_option
-@handle_errors
-def skills_show(
-    skills_file: str, figure: str | None, rtol: float, angle_tol: float, as_json: bool
-) -> None:
-    """Show the skills of SKILLS_FILE and the skill graph of each maneuver."""
-    poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
-    graphs = skill_graphs_summary(poly, skills)
-    if figure:
-        from nonprehensile.viz import save_figure, skill_graphs_figure
-
-        groups = group_by_maneuver(poly, skills)
-        save_figure(skill_graphs_figure([skill_graph(poly, g) for g in groups]), figure, dpi=80)
-        err.print(f"wrote {figure}")
-    if as_json:
-        emit_json({"object": poly.name, "skills": [skill_to_dict(s) for s in skills],
-                   "graphs": graphs})
-        return
-    for s in skills:
-        t = Table(title=f"{s.name}: {s.initial} -> {s.final} ({s.maneuver}"
-                        f"{', invertible' if s.invertible else ''})")
-        t.add_column("event")
-        t.add_column("contacts")
-        t.add_column("motion to next")
-        for i, e in enumerate(s.events):
-            motion = s.motions[i].label or "-" if i < len(s.motions) else ""
-            t.add_row(e.id, format_event(e, "paper"), motion)
-        out.print(t)
-    for gsum in graphs:
-        out.print(
-            f"skill graph of {State.from_dict(gsum['from'])} -> {State.from_dict(gsum['to'])} "
-            f"({gsum['maneuver']}): skills {', '.join(gsum['skills'])}; "
-            f"{len(gsum['nodes'])} contact events, {len(gsum['arcs'])} motion arcs"
-        )
-
-
-def _expansion_table(exp: Expansion) -> Table:
-    t = Table(title=f"{len(exp.transitions)} transitions ({exp.method} inference)")
-    for col in ("from", "to", "skill", "maneuver", "shown", "faces mapped"):
-        t.add_column(col)
-    for tr in exp.transitions:
-        changed = ", ".join(f"{k}->{v}" for k, v in sorted(tr.mapping.items()) if k != v)
-        t.add_row(str(tr.start), str(tr.end), tr.skill.name, tr.skill.maneuver,
-                  "demonstrated" if tr.demonstrated else "inferred", changed or "-")
-    return t
-
-
-@main.command("infer")
-@click.argument("skills_file", type=click.Path(dir_okay=False))
-@step_option
-@states_option
-@click.option("--method", type=click.Choice(METHODS), default="exact", show_default=True,
-              help="exact: through the symmetry group; paper: the paper's edge-index method.")
-@click.option("--compare", is_flag=True,
-              help="Also run the other method and report where the two disagree.")
-@click.option("--figure", type=click.Path(dir_okay=False), default=None,
-              help="Also draw the expanded graph and its transition matrix to this image.")
-@rtol_option
-@atol_option
-@angle_tol_option
-@json_option
-@handle_errors
-def infer_cmd(
-    skills_file: str, step: float | None, states_file: str | None, method: str, compare: bool,
-    figure: str | None, rtol: float, atol: float | None, angle_tol: float, as_json: bool,
-) -> None:
-    """Infer undemonstrated transitions of SKILLS_FILE over a state set (paper Section V)."""
-    poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
-    states = state_set(poly, step, states_file, angle_tol)
-    exp = expand(poly, skills, states, method=method, atol=atol,  # type: ignore[arg-type]
-                 angle_tol=angle_tol)
-    applied = {t.source.name for t in exp.transitions}
-    for s in skills:
-        if s.name not in applied:
-            err.print(f"note: skill {s.name!r} (from {s.initial}) applies to no state of the "
-                      "set: no state is equivalent to its initial state")
-    doc = exp.to_dict(poly.name)
-    if figure:
-        from nonprehensile.viz import save_figure, state_graph_figure
-
-        save_figure(state_graph_figure(exp), figure, dpi=80)
-        err.print(f"wrote {figure}")
-    if compare:
-        doc["disagreements"] = [d.to_dict() for d in cross_check(
-            poly, skills, states, atol=atol, angle_tol=angle_tol)]
-    if as_json:
-        emit_json(doc)
-        return
-    out.print(_expansion_table(exp))
-    n_demo = sum(t.demonstrated for t in exp.transitions)
-    out.print(
-        f"expanded graph: {len(exp.graph.states)} states, {len(exp.transitions)} transitions "
-        f"({n_demo} demonstrated, {len(exp.transitions) - n_demo} inferred)"
-    )
-    if compare:
-        dis = doc["disagreements"]
-        if not dis:
-            out.print("the paper's method and the exact one agree on every transition")
-        for d in dis:
-            out.print(f"disagree [{d['kind']}] {d['skill']} from {State.from_dict(d['from'])}: "
-                      f"exact {d['exact'] or '(none)'}, paper {d['paper'] or '(none)'}")
-
-
-# ---------------------------------------------------------------------------- plan
-def _parse_state(ctx: click.Context, param: click.Parameter, value: str) -> State:
-    try:
-        return State.parse(value)
-    except InputError as exc:
-        raise click.BadParameter(str(exc)) from None
-
-
-def _parse_costs(ctx: click.Context, param: click.Parameter, value: tuple[str, ...]) -> dict[
-        str, float] | None:
-    if not value:
-        return None
-    out = {}
-    for item in value:
-        name, sep, num = item.partition("=")
-        try:
-            out[name] = float(num)
-        except ValueError:
-            raise click.BadParameter(
-                f"expected SKILL=COST (e.g. push-roll=2.5), got {item!r}") from None
-        if not sep or not name:
-            raise click.BadParameter(f"expected SKILL=COST (e.g. push-roll=2.5), got {item!r}")
-    return out
-
-
-def print_plan(plan_doc: dict[str, Any]) -> None:
-    """A plan as a person reads it: offset, then each step's events and motions."""
-    off = plan_doc["offset"]
-    out.print(
-        f"plan {State.from_dict(plan_doc['start'])} -> {State.from_dict(plan_doc['goal'])}: "
-        f"{len(plan_doc['steps'])} step(s), cost {fmt_num(plan_doc['cost'])}; relocate the "
-        f"agent by {fmt_num(off['rotate_deg'])} degrees and ({fmt_num(off['translate'][0])}, "
-        f"{fmt_num(off['translate'][1])})"
-    )
-    for i, step in enumerate(plan_doc["steps"], start=1):
-        t = Table(title=f"step {i}: {State.from_dict(step['from'])} -> "
-                        f"{State.from_dict(step['to'])} by {step['skill']} ({step['maneuver']}, "
-                        f"{'demonstrated' if step['demonstrated'] else 'inferred'})")
-        t.add_column("event")
-        t.add_column("contacts")
-        t.add_column("then")
-        t.add_column("reference motion")
-        for j, ev in enumerate(step["events"]):
-            m = step["motions"][j] if j < len(step["motions"]) else None
-            ref = m["reference"] if m else None
-            ref_text = (f"cluster {ref['cluster']} medoid of {ref['n_demonstrations']}, "
-                        f"{ref['n_frames']} frames" if ref else ("-" if m else ""))
-            t.add_row(ev["id"], " ∧ ".join(ev["contacts"]), m["label"] if m else "", ref_text)
-        out.print(t)
-
-
-@main.command("plan")
-@click.argument("skills_file", type=click.Path(dir_okay=False))
-@click.option("--from", "start", required=True, callback=_parse_state,
-              help="Start state FACE:THETA as the object lies (any orientation).")
-@click.option("--to", "goal", required=True, callback=_parse_state,
-              help="Goal state FACE:THETA in the same (world) frame.")
-@step_option
-@states_option
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
-              help="Where the object is on the table (x y), for the agent's offset.")
-@click.option("--cost", "costs", multiple=True, callback=_parse_costs,
-              help="Cost of a skill, SKILL=COST (repeatable); default 1 per transition.")
-@click.option("--dataset", default=None,
-              help="Demonstrations (a dataset folder, or `cube`) to attach reference motions.")
-@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
-              help="Write each step's reference trajectories here (C3D and CSV).")
-@rtol_option
-@atol_option
-@angle_tol_option
-@json_option
-@handle_errors
-def plan_cmd(
-    skills_file: str, start: State, goal: State, step: float | None, states_file: str | None,
-    position: tuple[float, float], costs: dict[str, float] | None, dataset: str | None,
-    out_dir: str | None, rtol: float, atol: float | None, angle_tol: float, as_json: bool,
-) -> None:
-    """Plan transitions, contact events and finger motions from --from to --to."""
-    poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
-    states = state_set(poly, step, states_file, angle_tol)
-    exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
-    if out_dir is not None and dataset is None:
-        raise InputError("--out writes reference trajectories: give --dataset too")
-    motions = None
-    if dataset is not None:
-        with stage_bars(as_json) as bars:
-            _, motions = motions_from_dataset(dataset, skills=skills, poly=poly,
-                                              progress=bars)
-    result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
-                  angle_tol=angle_tol)
-    doc = result.to_dict()
-    if out_dir is not None:
-        written = write_plan_motions(result, out_dir)
-        doc["files"] = [str(p) for p in written]
-        err.print(f"wrote {len(written)} files to {out_dir}")
-    if as_json:
-        emit_json(doc)
-        return
-    print_plan(doc)
-
-
-# ---------------------------------------------------------------------------- demo
-@main.command("demo")
-@click.option("--out", "out_dir", default="report", show_default=True,
-              type=click.Path(file_okay=False), help="Folder of the report and summary.")
-@click.option("--dataset", default="cube", show_default=True,
-              help="Dataset folder, or the bundled `cube`.")
-@click.option("--from", "start", default=str(DEFAULT_START), show_default=True,
-              callback=_parse_state, help="Start state of the task.")
-@click.option("--to", "goal", default=str(DEFAULT_GOAL), show_default=True,
-              callback=_parse_state, help="Goal state of the task.")
-@click.option("--seed", default=0, show_default=True, help="Seed of the clustering.")
-@json_option
-@handle_errors
-def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
-         as_json: bool) -> None:
-    """The main job: the whole pipeline on a dataset, ending in an HTML report."""
-    t0 = time.perf_counter()
-    with stage_bars(as_json) as bars:
-        result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
-                          progress=bars)
-    elapsed = time.perf_counter() - t0
-    summary = result.summary
-    if as_json:
-        emit_json({**summary, "report": str(result.report), "summary": str(result.summary_path),
-                   "wall_seconds": round(elapsed, 2)})
-        return
-    inf = summary["inference"]
-    out.print(f"object {summary['object']['name']}: {summary['states']['count']} states, "
-              f"{inf['transitions']} transitions ({inf['demonstrated']} demonstrated); "
-              f"{summary['dataset']['demonstrations']} demonstrations, "
-              f"{summary['dataset']['segments']} segments clustered")
-    print_plan(summary["plan"])
-    out.print(f"report: {result.report.resolve()}")
-    out.print(f"summary: {result.summary_path.resolve()}  ({elapsed:.1f} s)")
-
-
-main.add_command(dataset_group)
-main.add_command(cluster_group)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

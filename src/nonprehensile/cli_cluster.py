@@ -20,7 +20,8 @@ from rich.table import Table
 from nonprehensile.cli_common import emit_json, handle_errors, out, progress_bar
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
-from nonprehensile.motion.store import SQLiteStore
+from nonprehensile.motion.store import SampleStore
+from nonprehensile.motion.stores import display_name, is_postgres_url, open_store, store_exists
 
 __all__ = ["cluster_group"]
 
@@ -99,7 +100,13 @@ def _register(c: HilbertClusterer, x: NDArray[np.float64], quiet: bool) -> None:
             tick(min(s + CHUNK, x.shape[0]), x.shape[0])
 
 
-def _load(db: SQLiteStore, path: str) -> HilbertClusterer:
+def _close(db: SampleStore) -> None:
+    close = getattr(db, "close", None)
+    if close is not None:
+        close()
+
+
+def _load(db: SampleStore, path: str) -> HilbertClusterer:
     state = db.get_meta(STATE)
     if state is None:
         raise InputError(
@@ -120,7 +127,7 @@ def summary(c: HilbertClusterer, path: str) -> dict[str, Any]:
         clusters.append({"id": cid, "size": int(keys.size), "key_min": int(keys.min()),
                          "key_max": int(keys.max())})
     return {
-        "store": path,
+        "store": display_name(path),
         "method": c.method,
         "n_samples": c.n_samples_seen_,
         "n_features": c.n_features_in_,
@@ -159,7 +166,8 @@ def _with_classes(doc: dict[str, Any], c: HilbertClusterer, classes: list[str] |
     return doc
 
 
-store_argument = click.argument("store", type=click.Path(dir_okay=False))
+# a file path (SQLite) or a postgresql:// URL (PostgreSQL): see nonprehensile.motion.stores
+store_argument = click.argument("store")
 dataset_option = click.option("--dataset", default=None,
                               help="Demonstration dataset folder, or a bundled name (cube).")
 arrays_option = click.option("--arrays", default=None, type=click.Path(dir_okay=False),
@@ -169,7 +177,9 @@ json_option = click.option("--json", "as_json", is_flag=True, help="Print one JS
 
 @click.group("cluster")
 def cluster_group() -> None:
-    """Cluster demonstrated trajectories on a Hilbert-curve index, in a SQLite store."""
+    """Cluster demonstrated trajectories on a Hilbert-curve index, in a store.
+
+    A store is a SQLite file path, or a postgresql:// URL (a PostgreSQL database)."""
 
 
 @cluster_group.command("fit")
@@ -192,7 +202,7 @@ def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str
                 as_json: bool) -> None:
     """Create STORE (replacing its content) and cluster the given samples into it."""
     x, classes = _samples(dataset, arrays, as_json)
-    db = SQLiteStore(store)
+    db = open_store(store)
     try:
         with db.transaction():
             db.clear()
@@ -205,7 +215,7 @@ def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str
             db.put_meta(STATE, c.save_state())
         doc = _with_classes(summary(c, store), c, classes, 0)
     finally:
-        db.close()
+        _close(db)
     if as_json:
         emit_json(doc)
         return
@@ -222,10 +232,10 @@ def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str
 @handle_errors
 def cluster_add(store: str, dataset: str | None, arrays: str | None, as_json: bool) -> None:
     """Register new demonstrations in STORE without reclustering the stored ones."""
-    if not Path(store).exists():
+    if not store_exists(store):
         raise InputError(f"{store}: no such store; create it with `nonprehensile cluster fit`")
     x, classes = _samples(dataset, arrays, as_json)
-    db = SQLiteStore(store)
+    db = open_store(store)
     try:
         # the write lock for the whole read-modify-write: concurrent adds take turns
         with db.transaction():
@@ -235,7 +245,7 @@ def cluster_add(store: str, dataset: str | None, arrays: str | None, as_json: bo
             db.put_meta(STATE, c.save_state())
         doc = _with_classes(summary(c, store), c, classes, start)
     finally:
-        db.close()
+        _close(db)
     if as_json:
         emit_json(doc)
         return
@@ -253,9 +263,9 @@ def cluster_add(store: str, dataset: str | None, arrays: str | None, as_json: bo
 @handle_errors
 def cluster_show(store: str, histogram: str | None, as_json: bool) -> None:
     """Show the clusters of STORE: sizes and key ranges."""
-    if not Path(store).exists():
+    if not store_exists(store):
         raise InputError(f"{store}: no such store; create it with `nonprehensile cluster fit`")
-    db = SQLiteStore(store)
+    db = open_store(store)
     try:
         c = _load(db, store)
         doc = summary(c, store)
@@ -263,10 +273,11 @@ def cluster_show(store: str, histogram: str | None, as_json: bool) -> None:
             from nonprehensile.viz import save_figure
             from nonprehensile.viz.clusters import cluster_histogram_figure
 
-            save_figure(cluster_histogram_figure(c, title=Path(store).name), histogram)
+            title = "PostgreSQL store" if is_postgres_url(store) else Path(store).name
+            save_figure(cluster_histogram_figure(c, title=title), histogram)
             doc["histogram"] = histogram
     finally:
-        db.close()
+        _close(db)
     if as_json:
         emit_json(doc)
         return

@@ -54,12 +54,14 @@ def dataset_group() -> None:
               help="Longest dropout a loader accepts, frames (dropouts are at most half).")
 @click.option("--format", "trajectory_format", type=click.Choice(["c3d", "csv"]),
               default="c3d", show_default=True, help="Trajectory files: C3D or Motive CSV.")
+@click.option("--track-object", is_flag=True,
+              help="Also track the object: markers on it (and its rigid body in CSV).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 @handle_errors
 def synth_cmd(
     out_dir: str, seed: int, skills_file: str | None, n_per_skill: int, mentors: int,
     rate: float, scale: float, noise_mm: float, dropouts: float, gap_limit: int,
-    trajectory_format: str, as_json: bool,
+    trajectory_format: str, track_object: bool, as_json: bool,
 ) -> None:
     """Generate a seeded synthetic dataset in OUT_DIR (see docs/dataset.md)."""
     start = time.perf_counter()
@@ -67,7 +69,8 @@ def synth_cmd(
         ds = synthesize(
             out_dir, seed=seed, skills_file=skills_file, n_per_skill=n_per_skill,
             mentors=mentors, rate=rate, scale=scale, noise_mm=noise_mm, dropouts=dropouts,
-            gap_limit=gap_limit, trajectory_format=trajectory_format, progress=update,
+            gap_limit=gap_limit, trajectory_format=trajectory_format,
+            track_object=track_object, progress=update,
         )
     elapsed = time.perf_counter() - start
     if as_json:
@@ -123,6 +126,8 @@ def show_cmd(directory: str, arcs: bool, as_json: bool) -> None:
         _show_problems(problems, as_json, str(root))
         return
     summary = dataset_summary(ds)
+    for note in ds.notes:
+        err.print(f"note: {note}", markup=False)
     summary["load_seconds"] = round(time.perf_counter() - start, 3)
     arc_rows = _arc_rows(ds) if arcs else None
     if arc_rows is not None:
@@ -191,3 +196,8 @@ def figure_cmd(
 
     save_figure(fig, output)
     err.print(f"wrote {output}")
+
+
+from nonprehensile.cli_annotate import annotate_cmd  # noqa: E402  (it imports this module's deps)
+
+dataset_group.add_command(annotate_cmd)

@@ -32,6 +32,8 @@ __all__ = [
     "ManeuverType",
     "classify",
     "ground_clearance",
+    "move_pose",
+    "pivot_point",
     "roll",
     "roll_directions",
     "rotate",
@@ -338,3 +340,64 @@ def classify(
         f"faces {start.face!r} and {end.face!r} share no edge or vertex"
     )
     raise ManeuverError(f"no single maneuver takes {start} to {end}: {why}")
+
+
+def pivot_point(poly: Polyhedron, maneuver: Maneuver) -> FloatArray:
+    """A point of the maneuver's rotation axis, in the pose of its start state.
+
+    The start state's pose is :func:`~nonprehensile.states.state_pose` (centre of mass above
+    the origin). Rolling: a vertex of the pivot edge; tumbling: the pivot vertex; rotating:
+    the centre of mass (the object turns about the vertical through it).
+
+    Returns
+    -------
+    array, shape (3,)
+        Model units.
+    """
+    if maneuver.kind == "rolling":
+        x = poly.vertices[poly.edges[frozenset(maneuver.pivot)][0]]
+    elif maneuver.kind == "tumbling":
+        x = poly.vertices[poly.shared_vertices(list(maneuver.pivot))[0]]
+    else:
+        x = poly.com
+    r0, t0 = state_pose(poly, maneuver.start)
+    return np.asarray(r0 @ x + t0)
+
+
+def move_pose(
+    poly: Polyhedron,
+    maneuver: Maneuver,
+    rotation: FloatArray,
+    translation: FloatArray,
+    scale: float = 1.0,
+) -> tuple[FloatArray, FloatArray]:
+    """Carry a pose of the maneuver's start state through the exact maneuver.
+
+    The object is at ``scale * rotation @ x + translation`` (``x`` in model units): the start
+    state's orientation, anywhere on the table. The maneuver turns it by ``angle`` about
+    ``axis`` through its pivot, which moves with the object's position.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    maneuver : Maneuver
+    rotation : array, shape (3, 3)
+        Object-to-world rotation of the start pose (that of ``maneuver.start``).
+    translation : array, shape (3,)
+        World translation of the start pose (world units).
+    scale : float
+        World units per model unit.
+
+    Returns
+    -------
+    (rotation, translation)
+        The end pose, exact (the final state's orientation, its bottom face on the ground).
+    """
+    t0 = state_pose(poly, maneuver.start)[1]
+    # the start pose differs from state_pose's by a horizontal shift only (same orientation)
+    shift = np.asarray(translation, dtype=float) - scale * t0
+    pivot = scale * pivot_point(poly, maneuver) + shift
+    q = _rotation(np.asarray(maneuver.axis), math.radians(maneuver.angle))
+    rot = q @ np.asarray(rotation, dtype=float)
+    t = q @ (np.asarray(translation, dtype=float) - pivot) + pivot
+    return np.asarray(rot), np.asarray(t)

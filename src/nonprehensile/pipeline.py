@@ -193,11 +193,13 @@ def motions_from_dataset(
 
 
 def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
-    """Write each step's reference trajectories as C3D and CSV files (world frame, metres).
+    """Write each step's reference trajectories as C3D and CSV files (world frame, metres),
+    and ``plan.json`` (the plan with the object's pose before and after each step).
 
-    Files are named ``stepNN-ARC.c3d`` / ``.csv`` with ``ARC`` the motion's two events; the
-    CSV is Motive's layout with our axes (``z`` up), so any tool that reads Motive exports
-    reads it.
+    Files are named ``stepNN-ARC.c3d`` / ``.csv`` with ``ARC`` the motion's two events. Each
+    is written in its format's usual convention, the one our readers assume by default, so it
+    reads back to the same positions: C3D ``z`` up, and the CSV Motive's layout with Motive's
+    ``y`` up, so that Motive and any tool that reads Motive exports read it as Motive would.
 
     Returns
     -------
@@ -217,9 +219,14 @@ def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
             traj = MarkerTrajectory.from_arrays(ref.positions, ref.marker_names, ref.rate, "m")
             stem = out / f"step{i:02d}-{source}-{target}"
             write_c3d(traj, stem.with_suffix(".c3d"))
-            write_motive_csv(traj, stem.with_suffix(".csv"), up="z",
+            write_motive_csv(traj, stem.with_suffix(".csv"),
                              take_name=f"step {i} {step.transition.skill.name} {source}->{target}")
             written += [stem.with_suffix(".c3d"), stem.with_suffix(".csv")]
+    # the plan itself, with the object's tracked pose before and after every step, so that a
+    # controller knows where each step's reference motion expects the object
+    doc = out / "plan.json"
+    doc.write_text(json.dumps(result.to_dict(), indent=1) + "\n", encoding="utf-8")
+    written.append(doc)
     return written
 
 
@@ -278,7 +285,8 @@ def run_demo(
     lap("segmentation")
     motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
     lap("clustering")
-    result: Plan = plan(poly, exp, start, goal, position=position, motions=motions)
+    result: Plan = plan(poly, exp, start, goal, position=position, motions=motions,
+                        scale=ds.scale)
     lap("planning")
 
     summary: dict[str, Any] = {

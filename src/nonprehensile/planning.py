@@ -12,6 +12,11 @@ Given an initial state and a goal state of the object:
 4. for each motion arc, the reference finger trajectory (from a :class:`MotionLibrary`),
    expressed in the world frame after the offset.
 
+The plan tracks the object's full pose (orientation and position on the table) through every
+step with the exact maneuvers (:func:`nonprehensile.maneuvers.move_pose`): rolling and tumbling
+move the object across the table, so each step's reference motion is placed where the object
+is at the start of that step, not where it was at the start of the plan.
+
 The plan is a value; :meth:`Plan.steps` can be run one at a time (the seam a simulator or a
 robot controller uses).
 """
@@ -27,22 +32,26 @@ from typing import Any, Protocol
 import networkx as nx
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import Expansion, InferredTransition
+from nonprehensile.maneuvers import Maneuver, classify, move_pose, tumble
 from nonprehensile.skills.skill import events_to_dicts
-from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex, angle_diff
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex, angle_diff, state_pose
 
 __all__ = [
     "MotionLibrary",
     "NoPlanError",
+    "ObjectPose",
     "Offset",
     "Plan",
     "PlanStep",
     "ReferenceMotion",
     "find_offset",
     "plan",
+    "step_for",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -93,6 +102,51 @@ class Offset:
 
 
 @dataclass(frozen=True)
+class ObjectPose:
+    """Where the object is: a point ``x`` of the model (model units) is at
+    ``scale * rotation @ x + translation`` in the world.
+
+    Attributes
+    ----------
+    rotation : array, shape (3, 3)
+        Object-to-world rotation.
+    translation : array, shape (3,)
+        World translation (world units: metres with a dataset).
+    com : array, shape (3,)
+        The centre of mass in the world.
+    scale : float
+        World units per model unit.
+    """
+
+    rotation: FloatArray
+    translation: FloatArray
+    com: FloatArray
+    scale: float = 1.0
+
+    @property
+    def position(self) -> tuple[float, float]:
+        """The centre of mass on the table (world ``x``, ``y``)."""
+        return float(self.com[0]), float(self.com[1])
+
+    def to_world(self, points: FloatArray) -> FloatArray:
+        """Model points (shape (..., 3), model units) in the world."""
+        return np.asarray(self.scale * (np.asarray(points) @ self.rotation.T) + self.translation)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form: centre of mass, translation, and the rotation as a unit quaternion
+        ``[w, x, y, z]`` (MuJoCo's order) and as a matrix."""
+        x, y, z, w = Rotation.from_matrix(self.rotation).as_quat()
+        return {
+            "position": [round(v, 9) for v in self.position],
+            "com": [round(float(v), 9) for v in self.com],
+            "translation": [round(float(v), 9) for v in self.translation],
+            "quaternion_wxyz": [round(float(v), 12) for v in (w, x, y, z)],
+            "rotation": np.round(self.rotation, 12).tolist(),
+            "scale": self.scale,
+        }
+
+
+@dataclass(frozen=True)
 class ReferenceMotion:
     """A reference finger trajectory for one motion arc.
 
@@ -139,13 +193,20 @@ class MotionLibrary(Protocol):
 
 @dataclass(frozen=True)
 class PlanStep:
-    """One transition of a plan, with its adapted skill and reference motions."""
+    """One transition of a plan, with its adapted skill and reference motions.
+
+    ``start_pose`` and ``end_pose`` are the object's world poses before and after the step,
+    tracked through the plan's exact maneuvers; the step's reference motions are placed on
+    the object where ``start_pose`` puts it.
+    """
 
     transition: InferredTransition
     start_world: State
     end_world: State
     motions: tuple[tuple[str, str, str, ReferenceMotion | None], ...]
     cost: float
+    start_pose: ObjectPose | None = None
+    end_pose: ObjectPose | None = None
 
     def to_dict(self, *, with_positions: bool = False) -> dict[str, Any]:
         """The spec's JSON form of a step."""
@@ -171,6 +232,10 @@ class PlanStep:
             "events": events_to_dicts(t.skill.events),
             "motions": motions,
             "cost": self.cost,
+            "pose": {
+                "from": self.start_pose.to_dict() if self.start_pose is not None else None,
+                "to": self.end_pose.to_dict() if self.end_pose is not None else None,
+            },
         }
 
 
@@ -298,6 +363,7 @@ def plan(
     default_cost: float = 1.0,
     motions: MotionLibrary | None = None,
     angle_tol: float = DEFAULT_ANGLE_TOL,
+    scale: float = 1.0,
 ) -> Plan:
     """Plan the transitions, contact events and finger motions from ``start`` to ``goal``.
 
@@ -318,6 +384,10 @@ def plan(
     motions : MotionLibrary, optional
         Source of reference finger motions; without it, motions carry no reference.
     angle_tol : float
+    scale : float
+        World units per model unit (a dataset's ``scale``: metres per model unit), so that
+        the object's tracked positions are in the units of ``position`` and of the
+        reference motions.
 
     Returns
     -------
@@ -328,6 +398,10 @@ def plan(
     NoPlanError
         If the goal cannot be reached; it lists the reachable states.
     """
+    scale = float(scale)
+    if not (math.isfinite(scale) and scale > 0):
+        raise InputError(f"the scale (world units per model unit) must be a finite positive "
+                         f"number, got {scale!r}")
     graph = expansion.graph.graph
     model_states = expansion.graph.states
     costs = _check_costs(costs, default_cost,
@@ -362,18 +436,104 @@ def plan(
             reachable,
         ) from None
     steps = []
+    # the object's pose in the agent's frame (the model's orientations), tracked step by step
+    rot, trans = state_pose(poly, first)
+    trans = scale * trans
+    com = np.zeros(3)  # the centre of mass on the table, agent's frame (z = 0)
     for u, v in itertools.pairwise(path):
         cost, skill = _arc_cost(graph.get_edge_data(u, v), costs, default_cost)
         t = expansion.adapted(u, v, skill)
-        steps.append(PlanStep(
-            t, offset.state_to_world(u), offset.state_to_world(v),
-            _step_motions(t, offset, motions), cost,
-        ))
+        step, rot, trans, com = _make_step(poly, t, offset, rot, trans, com, scale, motions,
+                                           cost, angle_tol)
+        steps.append(step)
     return Plan(start, goal, offset, tuple(steps))
 
 
+def _make_step(
+    poly: Polyhedron, t: InferredTransition, offset: Offset, rot: FloatArray,
+    trans: FloatArray, com: FloatArray, scale: float, motions: MotionLibrary | None,
+    cost: float, angle_tol: float,
+) -> tuple[PlanStep, FloatArray, FloatArray, FloatArray]:
+    """One step from the object's pose (agent's frame), and the pose it ends in."""
+    m = step_maneuver(poly, t, angle_tol=angle_tol)
+    rot_end, trans_end = move_pose(poly, m, rot, trans, scale)
+    start_pose = _world_pose(poly, offset, rot, trans, scale)
+    end_pose = _world_pose(poly, offset, rot_end, trans_end, scale)
+    # the reference motion was recorded with the demonstrated initial state's centre of
+    # mass above the origin; a reversed skill runs it from the demonstrated final state,
+    # which is where this step ends
+    # (a rotation about the vertical leaves the centre of mass exactly where it was)
+    com_end = com if m.kind == "rotating" else _com_agent(poly, rot_end, trans_end, scale)
+    shift = com_end if _demonstrated_name(t.source.name) != t.source.name else com
+    step = PlanStep(
+        t, offset.state_to_world(t.start), offset.state_to_world(t.end),
+        _step_motions(t, offset, motions, shift), cost, start_pose, end_pose,
+    )
+    return step, rot_end, trans_end, com_end
+
+
+def step_for(
+    poly: Polyhedron,
+    transition: InferredTransition,
+    *,
+    position: tuple[float, float] = (0.0, 0.0),
+    motions: MotionLibrary | None = None,
+    scale: float = 1.0,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> PlanStep:
+    """One transition as a plan step, with the object's centre of mass at ``position``.
+
+    The step's reference motions are placed on the object there (see :func:`plan`); this is
+    how a single demonstrated or inferred transition is executed (e.g. simulated).
+    """
+    rot, trans = state_pose(poly, transition.start)
+    com = np.array([float(position[0]), float(position[1]), 0.0])
+    trans = scale * trans + com
+    return _make_step(poly, transition, Offset(), rot, trans, com, scale, motions, 1.0,
+                      angle_tol)[0]
+
+
+def step_maneuver(
+    poly: Polyhedron, t: InferredTransition, *, angle_tol: float = DEFAULT_ANGLE_TOL
+) -> Maneuver:
+    """The exact maneuver of a transition (model frame).
+
+    For tumbling, where more than one vertex could serve as the pivot, the pivot is the
+    vertex equivalent to the demonstrated one (through the transition's face mapping).
+    """
+    m = classify(poly, t.start, t.end, angle_tol=angle_tol)
+    if m.kind != "tumbling":
+        return m
+    try:
+        demo = classify(poly, t.source.initial, t.source.final, angle_tol=angle_tol)
+        faces = [t.mapping[f] for f in demo.pivot]
+        (vertex,) = poly.shared_vertices(faces)
+        return tumble(poly, t.start, vertex, t.end.face, theta=t.end.theta,
+                      angle_tol=angle_tol)
+    except (KeyError, ValueError, InputError):
+        return m
+
+
+def _com_agent(poly: Polyhedron, rot: FloatArray, trans: FloatArray, scale: float
+               ) -> FloatArray:
+    """Horizontal centre of mass (agent's frame, world units), as a 3-vector with z = 0."""
+    c = scale * (rot @ poly.com) + trans
+    return np.array([c[0], c[1], 0.0])
+
+
+def _world_pose(poly: Polyhedron, offset: Offset, rot: FloatArray, trans: FloatArray,
+                scale: float) -> ObjectPose:
+    a = math.radians(offset.rotate_deg)
+    rz = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0],
+                   [0.0, 0.0, 1.0]])
+    r = rz @ rot
+    tw = offset.to_world(trans[None, :])[0]
+    return ObjectPose(r, tw, scale * (r @ poly.com) + tw, scale)
+
+
 def _step_motions(
-    t: InferredTransition, offset: Offset, library: MotionLibrary | None
+    t: InferredTransition, offset: Offset, library: MotionLibrary | None,
+    shift: FloatArray,
 ) -> tuple[tuple[str, str, str, ReferenceMotion | None], ...]:
     out = []
     demo_name = _demonstrated_name(t.source.name)
@@ -388,10 +548,11 @@ def _step_motions(
             if got is not None:
                 pos = got.positions[::-1] if reverse else got.positions
                 # an equivalent start state occupies the same space as the demonstrated one
-                # (both poses put the centre of mass above the origin), so the finger motion
-                # is the same in the agent's frame; the offset carries it to the world
+                # up to a horizontal shift (both poses put the centre of mass above the
+                # origin), so the finger motion is the same in the agent's frame once shifted
+                # to where the object is; the offset carries it to the world
                 ref = ReferenceMotion(
-                    offset.to_world(pos), got.marker_names, got.rate, got.cluster,
+                    offset.to_world(pos + shift), got.marker_names, got.rate, got.cluster,
                     got.n_demonstrations,
                 )
         out.append((step.motion.source, step.motion.target, step.motion.label, ref))

@@ -11,20 +11,30 @@ from nonprehensile.demonstrations.formats import (
     C3D_MAX_FRAMES,
     MOTIVE_LENGTH_UNITS,
     MOTIVE_MARKER_TYPES,
+    MOTIVE_ROTATION_TYPES,
     read_c3d,
     read_motive_csv,
     write_c3d,
     write_motive_csv,
 )
-from nonprehensile.demonstrations.record import UNITS, LengthUnits, MarkerTrajectory
+from nonprehensile.demonstrations.record import (
+    UNITS,
+    LengthUnits,
+    MarkerTrajectory,
+    PoseTrajectory,
+    kabsch_poses,
+)
 
 __all__ = [
     "C3D_MAX_FRAMES",
     "MOTIVE_LENGTH_UNITS",
     "MOTIVE_MARKER_TYPES",
+    "MOTIVE_ROTATION_TYPES",
     "UNITS",
     "LengthUnits",
     "MarkerTrajectory",
+    "PoseTrajectory",
+    "kabsch_poses",
     "read_c3d",
     "read_motive_csv",
     "write_c3d",

@@ -22,24 +22,32 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
+from nonprehensile.demonstrations.axes import (
+    AXES_PRESETS,
+    DEFAULT_AXES,
+    axes_matrix,
+    axes_to_dict,
+    parse_axes,
+)
 from nonprehensile.demonstrations.formats import (
     read_c3d,
     read_motive_csv,
     write_c3d,
     write_motive_csv,
 )
-from nonprehensile.demonstrations.record import MarkerTrajectory
+from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
+from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup
 from nonprehensile.errors import DemonstrationError, InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.io import load_document, read_skills, save_document, skills_to_dict
 from nonprehensile.skills.contacts import Finger
 from nonprehensile.skills.skill import Skill
-from nonprehensile.states import State
+from nonprehensile.states import State, state_pose
 
 __all__ = [
     "ANNOTATION_FILES",
@@ -48,6 +56,7 @@ __all__ = [
     "DEFAULT_FINGERS",
     "DEFAULT_GAP_LIMIT",
     "DEFAULT_MARKERS",
+    "DEFAULT_TOLERANCE_MM",
     "Dataset",
     "Demonstration",
     "EventTime",
@@ -75,13 +84,23 @@ DEFAULT_FINGERS: Mapping[str, str] = {"R1": "index_tip", "R2": "thumb_tip"}
 #: Longest run of missing frames per marker that a loader accepts (0.1 s at 120 Hz); longer
 #: dropouts cannot be filled faithfully by interpolation.
 DEFAULT_GAP_LIMIT = 12
+#: How far (mm) a fingertip marker may dip below the table, or an object marker stray from
+#: where the model puts it, before the recording is reported: a marker's own radius and a
+#: careful calibration's error.
+DEFAULT_TOLERANCE_MM = 10.0
+#: Units the annotations' ``units`` may name: our units and the factor that converts to them.
+_UNITS: dict[str, tuple[Literal["m", "mm"], float]] = {
+    "m": ("m", 1.0), "mm": ("mm", 1.0), "cm": ("mm", 10.0)}
 
+# the readers return the file's own axes (up="z" transforms nothing); the annotations' axes
+# are applied after, so that any convention, preset or explicit, is one matrix
 _READERS: dict[str, Callable[[Path], MarkerTrajectory]] = {
-    ".c3d": lambda p: read_c3d(p),
-    ".csv": lambda p: read_motive_csv(p),
+    ".c3d": lambda p: read_c3d(p, up="z"),
+    ".csv": lambda p: read_motive_csv(p, up="z"),
 }
 _FINGER_RE = re.compile(r"R\d+")
-_TOP_KEYS = {"format", "skills", "scale", "gap_limit", "fingers", "markers", "demonstrations"}
+_TOP_KEYS = {"format", "skills", "scale", "gap_limit", "fingers", "markers", "object_markers",
+             "rigid_body", "axes", "units", "tolerance_mm", "demonstrations"}
 _DEMO_KEYS = {"file", "skill", "mentor", "initial", "final", "events"}
 
 
@@ -201,6 +220,14 @@ class Dataset:
         Finger element (``"R1"``, ``"R2"``, ...) to the name of the marker at its tip.
     root : Path or None
         The folder it was loaded from.
+    object_markers : dict of str to (float, float, float)
+        Markers fixed on the object: name -> position in the model's frame, model units
+        (times ``scale``: metres). Empty when the object is not tracked.
+    notes : tuple of str
+        What the loader noticed without refusing the dataset (markers it ignored).
+    rigid_body : str or None
+        The rigid body (of every recording) that tracks the object, its frame the model's
+        frame scaled; None when the object is not tracked as a rigid body.
     """
 
     poly: Polyhedron
@@ -210,6 +237,14 @@ class Dataset:
     gap_limit: int = DEFAULT_GAP_LIMIT
     fingers: Mapping[str, str] = field(default_factory=lambda: dict(DEFAULT_FINGERS))
     root: Path | None = None
+    object_markers: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    rigid_body: str | None = None
+
+    @property
+    def object_setup(self) -> ObjectSetup | None:
+        """How the object's pose is found in the recordings; None when it is not tracked."""
+        return object_setup(self.rigid_body, self.object_markers)
 
     def skill(self, name: str) -> Skill:
         """The skill called ``name``.
@@ -289,9 +324,24 @@ class _Collector:
         self.problems.append(Problem(file, index, message))
 
 
-def _top_level(
-    data: Any, ann: Path, root: Path, out: _Collector
-) -> tuple[Polyhedron | None, list[Skill], float, int, dict[str, str], tuple[str, ...]]:
+@dataclass(frozen=True)
+class _Settings:
+    """The dataset-wide keys of the annotations, read (defaults where a key was bad)."""
+
+    poly: Polyhedron | None
+    skills: list[Skill]
+    scale: float
+    gap: int
+    fingers: dict[str, str]
+    markers: tuple[str, ...]  # every marker that matters: required ones, tips, object markers
+    object_markers: dict[str, tuple[float, float, float]]
+    axes: tuple[str, str, str] | None  # None: by file suffix (DEFAULT_AXES)
+    units: str | None  # None: as the files declare
+    tolerance_m: float
+    rigid_body: str | None = None  # the rigid body that tracks the object
+
+
+def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
     """Read the dataset-wide keys; what cannot be read is reported and replaced by a default."""
     name = ann.name
     poly: Polyhedron | None = None
@@ -338,8 +388,51 @@ def _top_level(
     if not isinstance(markers_raw, list) or not all(isinstance(m, str) for m in markers_raw):
         out.add(name, None, f"'markers' must be a list of marker names, got {markers_raw!r}")
         markers_raw = []
-    markers = tuple(dict.fromkeys([*markers_raw, *fingers.values()]))
-    return poly, skills, scale, gap, fingers, markers
+    object_markers = _object_markers(data.get("object_markers", {}), name, out)
+    markers = tuple(dict.fromkeys([*markers_raw, *fingers.values(), *object_markers]))
+    axes = None
+    if "axes" in data:
+        try:
+            axes = parse_axes(data["axes"])
+        except InputError as exc:
+            out.add(name, None, str(exc))
+    units = data.get("units")
+    if units is not None and units not in _UNITS:
+        out.add(name, None, f"'units' must be one of {sorted(_UNITS)} (the length unit of the "
+                            f"numbers in the recordings), got {units!r}")
+        units = None
+    tol = _number(data.get("tolerance_mm", DEFAULT_TOLERANCE_MM))
+    if tol is None or not math.isfinite(tol) or tol < 0:
+        out.add(name, None, f"'tolerance_mm' must be a finite number of millimetres >= 0, got "
+                            f"{data.get('tolerance_mm')!r}")
+        tol = DEFAULT_TOLERANCE_MM
+    rigid_body = data.get("rigid_body")
+    if rigid_body is not None and (not isinstance(rigid_body, str) or not rigid_body.strip()):
+        out.add(name, None, f"'rigid_body' must name the rigid body that tracks the object (its "
+                            f"frame the model's frame), got {rigid_body!r}")
+        rigid_body = None
+    return _Settings(poly, skills, scale, gap, fingers, markers, object_markers, axes, units,
+                     tol / 1000.0, rigid_body)
+
+
+def _object_markers(
+    raw: Any, name: str, out: _Collector
+) -> dict[str, tuple[float, float, float]]:
+    """``object_markers``: marker name -> position in the model's frame (model units)."""
+    if not isinstance(raw, Mapping):
+        out.add(name, None, "'object_markers' must map marker names to their positions on the "
+                            f'object in model units, e.g. {{"cube_1": [0.5, 0.2, 1.0]}}, got '
+                            f"{raw!r:.80}")
+        return {}
+    got: dict[str, tuple[float, float, float]] = {}
+    for k, v in raw.items():
+        xyz = [_number(c) for c in v] if isinstance(v, list) else []
+        if len(xyz) != 3 or any(c is None or not math.isfinite(c) for c in xyz):
+            out.add(name, None, f"'object_markers': {k!r} must be three finite numbers (its "
+                                f"position in the model's frame, model units), got {v!r}")
+            continue
+        got[str(k)] = (float(xyz[0] or 0.0), float(xyz[1] or 0.0), float(xyz[2] or 0.0))
+    return got
 
 
 def _states(
@@ -412,35 +505,30 @@ def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
                     strict=True))
 
 
+def _window(traj: MarkerTrajectory, events: list[EventTime] | None) -> tuple[int, int]:
+    """Frames ``[i0, i1)`` from the first to the last event (the part segmentation uses), or
+    the whole recording when the events cannot be read."""
+    n = traj.n_frames
+    if not events:
+        return 0, n
+    i0 = min(max(math.floor(min(e.time for e in events) * traj.rate + 1e-6), 0), n - 1)
+    i1 = min(max(math.ceil(max(e.time for e in events) * traj.rate - 1e-6), i0), n - 1)
+    return i0, i1 + 1
+
+
 def _check_trajectory(
     traj: MarkerTrajectory,
     events: list[EventTime] | None,
-    markers: Sequence[str],
-    gap: int,
+    settings: _Settings,
+    initial: State | None,
+    axes_name: str,
     where: tuple[str, int],
     out: _Collector,
 ) -> bool:
+    """Check the markers that matter, between the first and the last event: gaps, fingertips
+    above the table, object markers where the model puts them."""
     ok = True
-    missing = [m for m in markers if m not in traj.marker_names]
-    if missing:
-        out.add(*where, f"marker(s) {missing} are not in the recording, which has "
-                        f"{list(traj.marker_names)}; rename them or fix 'markers'/'fingers'")
-        ok = False
-    occluded = traj.occluded
-    for k, name in enumerate(traj.marker_names):
-        if occluded[:, k].all():
-            out.add(*where, f"marker {name!r} is missing (NaN) in every frame; drop it from "
-                            "the recording or check its labelling")
-            ok = False
-            continue
-        long = [(s, e) for s, e in _runs(occluded[:, k]) if e - s > gap]
-        if long:
-            s, e = long[0]
-            more = f" (and {len(long) - 1} more gaps that long)" if len(long) > 1 else ""
-            out.add(*where, f"marker {name!r} is missing (NaN) in frames {s}..{e - 1} "
-                            f"({e - s} frames, {(e - s) / traj.rate:.3g} s), more than the gap "
-                            f"limit of {gap} frames{more}; crop the take or raise 'gap_limit'")
-            ok = False
+    gap = settings.gap
     if events:
         end = traj.duration
         late = [e for e in events if e.time < 0 or e.time > end + 1e-9]
@@ -450,7 +538,90 @@ def _check_trajectory(
                             f"0..{end:g} s ({traj.n_frames} frames at {traj.rate:g} Hz)"
                             + (f" (and {len(late) - 1} more)" if len(late) > 1 else ""))
             ok = False
+    i0, i1 = _window(traj, events if ok else None)
+    occluded = traj.occluded[i0:i1]
+    span = "" if (i0, i1) == (0, traj.n_frames) else (
+        f" between the first and the last event (frames {i0}..{i1 - 1})")
+    for k, name in enumerate(traj.marker_names):
+        if occluded[:, k].all():
+            out.add(*where, f"marker {name!r} is missing (NaN) in every frame{span}; check its "
+                            "labelling, or leave it out of 'markers'")
+            ok = False
+            continue
+        long = [(s + i0, e + i0) for s, e in _runs(occluded[:, k]) if e - s > gap]
+        if long:
+            s, e = long[0]
+            more = f" (and {len(long) - 1} more gaps that long)" if len(long) > 1 else ""
+            out.add(*where, f"marker {name!r} is missing (NaN) in frames {s}..{e - 1} "
+                            f"({e - s} frames, {(e - s) / traj.rate:.3g} s), more than the gap "
+                            f"limit of {gap} frames{more}; crop the take or raise 'gap_limit'")
+            ok = False
+    if not ok:
+        return False
+    to_m = 0.001 if traj.units == "mm" else 1.0
+    pos = traj.positions[i0:i1] * to_m
+    tol = settings.tolerance_m
+    for finger, tip in sorted(settings.fingers.items()):
+        if tip not in traj.marker_names:
+            continue
+        z = pos[:, traj.marker_names.index(tip), 2]
+        if np.nanmin(z) < -tol:
+            j = int(np.nanargmin(z))
+            out.add(*where, f"fingertip marker {tip!r} ({finger}) goes {-z[j] * 1000:.0f} mm "
+                            f"below the table (z = {z[j]:.4g} m at {(i0 + j) / traj.rate:.3g} s, "
+                            f"frame {i0 + j}; tolerance {tol * 1000:g} mm); the table is z = 0 "
+                            f"with z up, and the file was read as {axes_name!r}: set 'axes' "
+                            f"(presets {', '.join(sorted(AXES_PRESETS))}) or recalibrate")
+            ok = False
+    if settings.object_markers and settings.poly is not None and initial is not None:
+        ok = _check_object_markers(traj, events, settings, initial, where, out) and ok
     return ok
+
+
+def _check_object_markers(
+    traj: MarkerTrajectory,
+    events: list[EventTime] | None,
+    settings: _Settings,
+    initial: State,
+    where: tuple[str, int],
+    out: _Collector,
+) -> bool:
+    """At the first event the object rests in its initial state: its markers must be where
+    the model (scaled, in ``state_pose``) puts them, and as far apart as the model says."""
+    assert settings.poly is not None
+    names = list(settings.object_markers)
+    t0 = events[0].time if events else 0.0
+    frame = min(max(round(t0 * traj.rate), 0), traj.n_frames - 1)
+    to_m = 0.001 if traj.units == "mm" else 1.0
+    got = np.array([traj.positions[frame, traj.marker_names.index(m)] for m in names]) * to_m
+    layout = np.array([settings.object_markers[m] for m in names]) * settings.scale
+    seen = ~np.isnan(got).any(axis=1)
+    tol = settings.tolerance_m
+    # distances between markers do not depend on the calibration: a wrong layout or scale
+    for a, b in itertools.combinations(np.flatnonzero(seen).tolist(), 2):
+        d_rec = float(np.linalg.norm(got[a] - got[b]))
+        d_mod = float(np.linalg.norm(layout[a] - layout[b]))
+        if abs(d_rec - d_mod) > tol:
+            out.add(*where, f"object markers {names[a]!r} and {names[b]!r} are "
+                            f"{d_rec * 1000:.1f} mm apart at {t0:g} s but {d_mod * 1000:.1f} mm "
+                            f"on the model (scale {settings.scale:g}; tolerance {tol * 1000:g} "
+                            "mm): the object markers disagree with the model; check "
+                            "'object_markers' and 'scale'")
+            return False
+    rot, trans = state_pose(settings.poly, initial)
+    want = (layout @ rot.T) + trans * settings.scale
+    dev = np.linalg.norm(got - want, axis=1)
+    dev[~seen] = 0.0
+    k = int(np.argmax(dev))
+    if dev[k] > tol:
+        out.add(*where, f"object marker {names[k]!r} is {dev[k] * 1000:.1f} mm from where the "
+                        f"model puts it in the initial state {initial} at {t0:g} s (recorded "
+                        f"{np.round(got[k], 4).tolist()} m, expected "
+                        f"{np.round(want[k], 4).tolist()} m; tolerance {tol * 1000:g} mm): the "
+                        "object markers disagree with the model; check the calibration (centre "
+                        "of mass above the origin, edge 1 along theta) and 'axes'")
+        return False
+    return True
 
 
 def check_dataset(
@@ -490,8 +661,10 @@ def check_dataset(
         out.add(ann.name, None, "the annotations must be an object with a 'demonstrations' list "
                                 "(see docs/dataset.md)")
         return None, out.problems
-    poly, skills, scale, gap, fingers, markers = _top_level(data, ann, root, out)
+    settings = _top_level(data, ann, root, out)
+    poly, skills, fingers = settings.poly, settings.skills, settings.fingers
     by_name = {s.name: s for s in skills}
+    ignored: dict[str, None] = {}
     items: list[Any] = data["demonstrations"]
     demos: list[Demonstration] = []
     seen: dict[str, int] = {}
@@ -529,10 +702,20 @@ def check_dataset(
                             "it by its path relative to the folder")
         else:
             seen[file] = i
-            traj = _read(root / file, out, where)
+            traj = _read(root / file, out, where, settings)
         if traj is None:
             continue
-        need = list(markers)
+        missing = [m for m in settings.markers if m not in traj.marker_names]
+        if missing:
+            out.add(*where, f"marker(s) {missing} are not in the recording, which has "
+                            f"{list(traj.marker_names)}; rename them or fix 'markers'/'fingers'/"
+                            "'object_markers'")
+        if settings.rigid_body is not None and settings.rigid_body not in [
+                b.name for b in traj.rigid_bodies]:
+            out.add(*where, f"rigid body {settings.rigid_body!r} ('rigid_body') is not in the "
+                            f"recording, which has {[b.name for b in traj.rigid_bodies] or 'none'}")
+        ignored.update(dict.fromkeys(m for m in traj.marker_names if m not in settings.markers))
+        traj = _select(traj, settings.markers)
         if skill is not None:
             used = sorted({f"R{p.x.index}" for e in skill.events for p in e.pairs
                            if isinstance(p.x, Finger)})
@@ -540,7 +723,10 @@ def check_dataset(
             if unmapped:
                 out.add(*where, f"skill {skill.name!r} uses finger(s) {unmapped} but 'fingers' "
                                 f"names no tip marker for them; add them to 'fingers'")
-        if not _check_trajectory(traj, events, need, gap, where, out):
+        axes_name = _axes_name(settings.axes, Path(str(file)).suffix.lower())
+        initial = states[0] if states is not None else None
+        if not _check_trajectory(traj, events, settings, initial, axes_name, where, out) or (
+                missing):
             continue
         if skill is None or states is None or events is None or not isinstance(mentor, str):
             continue
@@ -550,11 +736,33 @@ def check_dataset(
         progress(len(items), len(items))
     if out.problems or poly is None:
         return None, out.problems
-    return Dataset(poly, tuple(skills), tuple(demos), scale, gap, fingers, root), out.problems
+    notes: tuple[str, ...] = ()
+    if ignored:
+        names = list(ignored)
+        shown = ", ".join(names[:12]) + (f", ... ({len(names) - 12} more)" if len(names) > 12
+                                         else "")
+        notes = (f"ignored {len(names)} marker(s) that the annotations do not name in 'fingers', "
+                 f"'markers' or 'object_markers': {shown}",)
+    return Dataset(poly, tuple(skills), tuple(demos), settings.scale, settings.gap, fingers,
+                   root, settings.object_markers, notes, settings.rigid_body), out.problems
 
 
-def _read(path: Path, out: _Collector, where: tuple[str, int]) -> MarkerTrajectory | None:
-    reader = _READERS.get(path.suffix.lower())
+def _axes_name(axes: tuple[str, str, str] | None, suffix: str) -> str:
+    """How a file was read: a preset's name, or the explicit mapping."""
+    if axes is None:
+        return DEFAULT_AXES.get(suffix, "zup")
+    for name, spec in AXES_PRESETS.items():
+        if spec == axes:
+            return name
+    return str(axes_to_dict(axes))
+
+
+def _read(
+    path: Path, out: _Collector, where: tuple[str, int], settings: _Settings
+) -> MarkerTrajectory | None:
+    """Read a recording into our axes (z up) and units, as the annotations say."""
+    suffix = path.suffix.lower()
+    reader = _READERS.get(suffix)
     if reader is None:
         out.add(*where, f"unknown trajectory format {path.suffix!r}; use .c3d or a Motive .csv")
         return None
@@ -562,11 +770,33 @@ def _read(path: Path, out: _Collector, where: tuple[str, int]) -> MarkerTrajecto
         out.add(*where, "no such trajectory file in the dataset folder")
         return None
     try:
-        return reader(path)
+        traj = reader(path)
     except InputError as exc:
         # the reader's message starts with the full path; the problem already names the file
         out.add(*where, str(exc).removeprefix(f"{path}: "))
         return None
+    axes = settings.axes or AXES_PRESETS[DEFAULT_AXES.get(suffix, "zup")]
+    rot = axes_matrix(axes)
+    units, factor = _UNITS[settings.units] if settings.units else (traj.units, 1.0)
+    if np.array_equal(rot, np.eye(3)) and factor == 1.0 and units == traj.units:
+        return traj
+    # a rigid body turns with the world: R -> M R M^T, whose quaternion has its vector part
+    # turned by M (M is a proper rotation)
+    bodies = tuple(PoseTrajectory(
+        b.name, b.positions @ rot.T * factor,
+        np.concatenate([b.quaternions[:, :3] @ rot.T, b.quaternions[:, 3:]], axis=1),
+        b.rate, units) for b in traj.rigid_bodies)
+    return MarkerTrajectory(traj.positions @ rot.T * factor, traj.marker_names, traj.rate,
+                            units, bodies)
+
+
+def _select(traj: MarkerTrajectory, names: Sequence[str]) -> MarkerTrajectory:
+    """The markers that matter, in the recording's order; the others are dropped."""
+    keep = [k for k, n in enumerate(traj.marker_names) if n in set(names)]
+    if len(keep) == traj.n_markers:
+        return traj
+    return MarkerTrajectory(traj.positions[:, keep], tuple(traj.marker_names[k] for k in keep),
+                            traj.rate, traj.units, traj.rigid_bodies)
 
 
 def load_dataset(path: str | Path, *, progress: Progress | None = None) -> Dataset:
@@ -667,6 +897,9 @@ def save_dataset(
         "gap_limit": dataset.gap_limit,
         "fingers": dict(dataset.fingers),
         "markers": list(markers),
+        **({"object_markers": {k: list(v) for k, v in dataset.object_markers.items()}}
+           if dataset.object_markers else {}),
+        **({"rigid_body": dataset.rigid_body} if dataset.rigid_body else {}),
         "demonstrations": entries,
     }
     path = root / ANNOTATION_FILES[0]
@@ -724,6 +957,8 @@ def dataset_summary(dataset: Dataset) -> dict[str, Any]:
         "fingers": dict(dataset.fingers),
         "gap_limit": dataset.gap_limit,
         "occluded_fraction": round(n_occluded / n_samples, 5) if n_samples else 0.0,
+        "object_markers": {k: list(v) for k, v in dataset.object_markers.items()},
+        "notes": list(dataset.notes),
         "skills": skills,
         "mentors": mentors_doc,
         "problems": [],

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import math
+import warnings
 from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
@@ -31,8 +32,9 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
 
-from nonprehensile.demonstrations.record import MarkerTrajectory
+from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
 from nonprehensile.errors import DemonstrationError
 from nonprehensile.geometry.build import face_name
 
@@ -40,6 +42,7 @@ __all__ = [
     "C3D_MAX_FRAMES",
     "MOTIVE_LENGTH_UNITS",
     "MOTIVE_MARKER_TYPES",
+    "MOTIVE_ROTATION_TYPES",
     "read_c3d",
     "read_motive_csv",
     "write_c3d",
@@ -59,6 +62,10 @@ _MOTIVE_UNIT_NAME = {"m": "Meters", "mm": "Millimeters"}
 
 #: Motive column types that hold marker positions (X, Y, Z under "Position").
 MOTIVE_MARKER_TYPES = ("Marker", "Rigid Body Marker", "Bone Marker")
+
+#: Motive's "Rotation Type" values: quaternions, or Euler angles in degrees about the body's
+#: own (moving) axes in the order named (Motive's "relative" Euler angles, right-handed).
+MOTIVE_ROTATION_TYPES = ("Quaternion", "XYZ", "XZY", "YXZ", "YZX", "ZXY", "ZYX")
 
 #: Most frames a C3D file can count: its header and POINT:FRAMES are 16-bit, and ezc3d (1.7)
 #: reads no further even when more were written (ezc3d issue #372).
@@ -441,6 +448,7 @@ def read_motive_csv(
                 f"labelled {axis!r}; expected one X, one Y and one Z"
             )
         axes[axis] = j
+    bodies = _rigid_body_columns(path, type_row, name_row, prop_row, axis_row, axis_r, width)
     if not columns:
         present = sorted({_cell(type_row, j) for j in range(2, width)} - {""})
         raise DemonstrationError(
@@ -493,8 +501,21 @@ def read_motive_csv(
             f"{path}: row 1: {rate_key} is {meta[rate_key]!r}; expected a positive number of Hz"
         )
 
+    rotation_type = meta.get("Rotation Type", "Quaternion")
+    if any(len(rot) == 3 for rot, _ in bodies.values()) and rotation_type not in \
+            MOTIVE_ROTATION_TYPES[1:]:
+        raise DemonstrationError(
+            f"{path}: row 1: Rotation Type is {rotation_type!r} but rigid bodies have three "
+            f"rotation columns (Euler angles); expected one of {list(MOTIVE_ROTATION_TYPES[1:])}"
+        )
+
     # --- data rows ---
     flat = [j for c in cols for j in c]
+    what = [f"marker {names[k // 3]!r}, {'XYZ'[k % 3]}" for k in range(len(flat))]
+    for bname, (rot, posc) in bodies.items():
+        flat += rot + posc
+        what += [f"rigid body {bname!r}, rotation {'XYZW'[i]}" for i in range(len(rot))]
+        what += [f"rigid body {bname!r}, position {'XYZ'[i]}" for i in range(3)]
     last = max(flat)
     frames: list[int] = []
     times: list[float] = []
@@ -531,10 +552,9 @@ def read_motive_csv(
             except ValueError:
                 v = math.inf  # reported below, with the marker's name
             if math.isinf(v):
-                k = flat.index(j)
                 raise DemonstrationError(
-                    f"{path}: row {r + 1}, {_col(j)} (marker {names[k // 3]!r}, "
-                    f"{'XYZ'[k % 3]}): expected a number or a blank cell, got {row[j]!r}"
+                    f"{path}: row {r + 1}, {_col(j)} ({what[flat.index(j)]}): expected a "
+                    f"number or a blank cell, got {row[j]!r}"
                 )
             out.append(v)
         values.append(out)
@@ -561,8 +581,88 @@ def read_motive_csv(
             "the rate in row 1 is wrong or rows are missing"
         )
 
-    file_xyz = np.asarray(values, dtype=np.float64).reshape(len(values), len(names), 3)
-    return MarkerTrajectory.from_arrays(_to_ours(file_xyz * scale, up), names, rate, units)
+    table = np.asarray(values, dtype=np.float64)
+    n_mark = 3 * len(names)
+    file_xyz = table[:, :n_mark].reshape(len(values), len(names), 3)
+    poses: list[PoseTrajectory] = []
+    at = n_mark
+    for bname, (rot, _) in bodies.items():
+        k = len(rot)
+        q_file = _file_quaternions(table[:, at:at + k], rotation_type, path, bname)
+        p_file = table[:, at + k:at + k + 3] * scale
+        at += k + 3
+        poses.append(PoseTrajectory(bname, _to_ours(p_file, up), _quat_to_ours(q_file, up),
+                                    rate, "m" if units == "m" else "mm"))
+    return MarkerTrajectory.from_arrays(_to_ours(file_xyz * scale, up), names, rate, units,
+                                        poses)
+
+
+def _rigid_body_columns(
+    path: Path, type_row: Sequence[str], name_row: Sequence[str], prop_row: Sequence[str],
+    axis_row: Sequence[str], axis_r: int, width: int,
+) -> dict[str, tuple[list[int], list[int]]]:
+    """Rigid body name -> (rotation columns X, Y, Z[, W], position columns X, Y, Z)."""
+    found: dict[str, dict[str, dict[str, int]]] = {}
+    for j in range(2, width):
+        if _cell(type_row, j) != "Rigid Body":
+            continue
+        prop = _cell(prop_row, j)
+        if prop not in ("Rotation", "Position"):
+            continue  # Mean Marker Error, Marker Quality, ...
+        name, axis = _cell(name_row, j), _cell(axis_row, j)
+        if not name:
+            raise DemonstrationError(
+                f"{path}: {_col(j)}: a Rigid Body column without a name"
+            )
+        axes = found.setdefault(name, {}).setdefault(prop, {})
+        if axis not in ("X", "Y", "Z", "W") or axis in axes or (prop == "Position"
+                                                               and axis == "W"):
+            raise DemonstrationError(
+                f"{path}: row {axis_r + 1}, {_col(j)}: rigid body {name!r} has a {prop} "
+                f"column labelled {axis!r}; expected X, Y, Z (and W for a quaternion)"
+            )
+        axes[axis] = j
+    out: dict[str, tuple[list[int], list[int]]] = {}
+    for name, props in found.items():
+        rot, pos = props.get("Rotation", {}), props.get("Position", {})
+        if set(pos) != {"X", "Y", "Z"} or set(rot) not in ({"X", "Y", "Z"}, {"X", "Y", "Z", "W"}):
+            raise DemonstrationError(
+                f"{path}: rigid body {name!r} needs Rotation X, Y, Z (and W) and Position X, Y, "
+                f"Z columns, got Rotation {sorted(rot)} and Position {sorted(pos)} (row "
+                f"{axis_r + 1}); export rigid bodies whole"
+            )
+        out[name] = ([rot[a] for a in "XYZW" if a in rot], [pos[a] for a in "XYZ"])
+    return out
+
+
+def _file_quaternions(
+    cells: FloatArray, rotation_type: str, path: Path, name: str
+) -> FloatArray:
+    """Rotation cells of one rigid body (quaternion or Euler degrees) -> quaternions (x,y,z,w)."""
+    ok = ~np.isnan(cells).any(axis=1)
+    out = np.full((len(cells), 4), np.nan)
+    if cells.shape[1] == 4:
+        out[ok] = cells[ok]
+        zero = ok & (np.linalg.norm(np.nan_to_num(cells), axis=1) < 1e-9)
+        if zero.any():
+            raise DemonstrationError(
+                f"{path}: rigid body {name!r}: data row {int(np.argmax(zero)) + 1} has a "
+                "quaternion of zero length"
+            )
+    elif ok.any():
+        # columns hold the angles about X, Y, Z; the type names the order of the rotations
+        angles = cells[ok][:, ["XYZ".index(a) for a in rotation_type]]
+        out[ok] = Rotation.from_euler(rotation_type, angles, degrees=True).as_quat()
+    return out
+
+
+def _quat_to_ours(q: FloatArray, up: UpAxis) -> FloatArray:
+    """A body rotation in file axes -> ours: ``C R C^T``, i.e. the vector part turned by C."""
+    return np.concatenate([_to_ours(q[:, :3], up), q[:, 3:]], axis=1)
+
+
+def _quat_from_ours(q: FloatArray, up: UpAxis) -> FloatArray:
+    return np.concatenate([_from_ours(q[:, :3], up), q[:, 3:]], axis=1)
 
 
 def write_motive_csv(
@@ -573,12 +673,16 @@ def write_motive_csv(
     start_time: datetime | None = None,
     up: UpAxis = "y",
     decimals: int = 6,
+    rotation_type: str = "Quaternion",
 ) -> None:
     """Write a marker trajectory in Motive's CSV export layout (format version 1.23).
 
-    Every marker is a ``Marker`` column triple ``X, Y, Z`` under ``Position``; occluded
-    frames are blank cells; frames are numbered from 0 and timed ``frame / rate``.
-    :func:`read_motive_csv` reads the file back to ``traj`` within ``0.5 * 10**-decimals``.
+    Each rigid body of ``traj.rigid_bodies`` comes first, as Motive writes them: ``Rigid
+    Body`` columns ``Rotation X, Y, Z, W`` (or ``X, Y, Z`` Euler degrees) and ``Position X,
+    Y, Z``, blank where untracked. Every marker is a ``Marker`` column triple ``X, Y, Z``
+    under ``Position``; occluded frames are blank cells; frames are numbered from 0 and timed
+    ``frame / rate``. :func:`read_motive_csv` reads the file back to ``traj`` within
+    ``0.5 * 10**-decimals`` (quaternions as written; Euler angles give the same rotations).
 
     Parameters
     ----------
@@ -593,15 +697,22 @@ def write_motive_csv(
     up : {"y", "z"}
         Which of the file's axes is to point up (see :func:`read_motive_csv`).
     decimals : int
-        Decimals of positions (Motive writes 6).
+        Decimals of positions and rotations (Motive writes 6).
+    rotation_type : str
+        One of :data:`MOTIVE_ROTATION_TYPES`: ``"Quaternion"`` (Motive's default) or an
+        Euler order such as ``"XYZ"``.
 
     Raises
     ------
     DemonstrationError
-        The file cannot be written, or ``decimals`` is negative.
+        The file cannot be written, ``decimals`` is negative or the rotation type unknown.
     """
     path = Path(path)
     up = _check_up(up)
+    if rotation_type not in MOTIVE_ROTATION_TYPES:
+        raise DemonstrationError(
+            f"rotation_type must be one of {list(MOTIVE_ROTATION_TYPES)}, got {rotation_type!r}"
+        )
     if isinstance(decimals, bool) or not isinstance(decimals, int) or decimals < 0:
         raise DemonstrationError(f"decimals must be a whole number >= 0, got {decimals!r}")
     rate = _format_number(traj.rate)
@@ -620,21 +731,45 @@ def write_motive_csv(
         "Capture Start Frame", "0",
         "Total Frames in Take", str(n),
         "Total Exported Frames", str(n),
-        "Rotation Type", "Quaternion",
+        "Rotation Type", rotation_type,
         "Length Units", _MOTIVE_UNIT_NAME[traj.units],
         "Coordinate Space", "Global",
     ]  # fmt: skip
-    triple = [(k, name) for k, name in enumerate(traj.marker_names) for _ in range(3)]
+    rot_axes = "XYZW" if rotation_type == "Quaternion" else "XYZ"
+    cols: list[tuple[str, str, str, str, str]] = []  # type, name, id, property, axis
+    body_values: list[FloatArray] = []
+    for b, body in enumerate(traj.rigid_bodies):
+        bid = f"RB{b + 1}"
+        cols += [("Rigid Body", body.name, bid, "Rotation", a) for a in rot_axes]
+        cols += [("Rigid Body", body.name, bid, "Position", a) for a in "XYZ"]
+        q = _quat_from_ours(np.asarray(body.quaternions), up)
+        if rotation_type != "Quaternion":
+            ok = ~np.isnan(q[:, 0])
+            e = np.full((n, 3), np.nan)
+            if ok.any():
+                with warnings.catch_warnings():
+                    # at gimbal lock scipy warns that the third angle is set to zero; the
+                    # angles still give the same rotation, which is all a reader needs
+                    warnings.simplefilter("ignore", UserWarning)
+                    seq = Rotation.from_quat(q[ok]).as_euler(rotation_type, degrees=True)
+                e[ok] = seq[:, [rotation_type.index(a) for a in "XYZ"]]
+            q = e
+        body_values.append(np.concatenate([q, _from_ours(np.asarray(body.positions), up)],
+                                          axis=1))
+    for k, name in enumerate(traj.marker_names):
+        cols += [("Marker", name, str(k + 1), "Position", a) for a in "XYZ"]
     header = [
         meta,
         [],
-        ["", "Type", *("Marker" for _ in triple)],
-        ["", "Name", *(name for _, name in triple)],
-        ["", "ID", *(str(k + 1) for k, _ in triple)],
-        ["", "", *("Position" for _ in triple)],
-        ["Frame", "Time (Seconds)", *("XYZ"[i % 3] for i in range(len(triple)))],
+        ["", "Type", *(c[0] for c in cols)],
+        ["", "Name", *(c[1] for c in cols)],
+        ["", "ID", *(c[2] for c in cols)],
+        ["", "", *(c[3] for c in cols)],
+        ["Frame", "Time (Seconds)", *(c[4] for c in cols)],
     ]
-    pos = _from_ours(np.asarray(traj.positions), up).reshape(n, -1)
+    pos = np.concatenate(
+        [*body_values, _from_ours(np.asarray(traj.positions), up).reshape(n, -1)], axis=1
+    )
     times = traj.times
     fmt = f"{{:.{decimals}f}}"
     try:

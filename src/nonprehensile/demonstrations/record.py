@@ -11,16 +11,17 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Literal, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation, Slerp
 
 from nonprehensile.errors import DemonstrationError
 
-__all__ = ["UNITS", "LengthUnits", "MarkerTrajectory"]
+__all__ = ["UNITS", "LengthUnits", "MarkerTrajectory", "PoseTrajectory", "kabsch_poses"]
 
 FloatArray = NDArray[np.float64]
 
@@ -38,6 +39,282 @@ def _check_units(units: object, what: str) -> LengthUnits:
             f"got {units!r}; convert the data or state its units"
         )
     return cast(LengthUnits, units)
+
+
+def _runs(mask: NDArray[np.bool_]) -> list[tuple[int, int]]:
+    """(start, end exclusive) of each run of True in a 1-D mask."""
+    d = np.diff(np.concatenate(([0], mask.astype(np.int8), [0])))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
+                    strict=True))
+
+
+@dataclass(frozen=True, eq=False)
+class PoseTrajectory:
+    """The tracked pose of a rigid body (the manipulated object) sampled at a constant rate.
+
+    Frame ``i`` (time ``i / rate``) maps a point ``x`` of the body's own frame to the world
+    point ``R_i @ x + p_i``, with ``R_i`` the rotation of the unit quaternion ``q_i``. The
+    world frame is this library's (``z`` up), as for :class:`MarkerTrajectory`.
+
+    Parameters
+    ----------
+    name : str
+        The rigid body's name (Motive's asset name, e.g. ``"Box"``).
+    positions : array, shape (n_frames, 3)
+        ``p_i``, the body origin in the world, in ``units``; NaN where the body is not tracked.
+    quaternions : array, shape (n_frames, 4)
+        ``q_i`` scalar-last ``(x, y, z, w)`` (Motive's and scipy's order), normalised on
+        construction; NaN where the body is not tracked.
+    rate : float
+        Sampling rate in Hz.
+    units : {"m", "mm"}
+        Length units of ``positions``.
+
+    Raises
+    ------
+    DemonstrationError
+        A malformed field; a frame with some but not all numbers NaN becomes wholly invalid,
+        a quaternion of zero length is an error.
+    """
+
+    name: str
+    positions: FloatArray
+    quaternions: FloatArray
+    rate: float
+    units: LengthUnits = "m"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name.strip():
+            raise DemonstrationError(f"pose trajectory: name must be a non-empty string, got "
+                                     f"{self.name!r}")
+        try:
+            pos = np.array(self.positions, dtype=np.float64, copy=True)
+            quat = np.array(self.quaternions, dtype=np.float64, copy=True)
+        except (TypeError, ValueError) as exc:
+            raise DemonstrationError(
+                f"pose trajectory {self.name!r}: positions and quaternions must be arrays of "
+                f"numbers ({exc})"
+            ) from None
+        if pos.ndim != 2 or pos.shape[1] != 3 or pos.shape[0] < 1:
+            raise DemonstrationError(
+                f"pose trajectory {self.name!r}: positions must have shape (n_frames, 3), got "
+                f"{pos.shape}"
+            )
+        if quat.shape != (pos.shape[0], 4):
+            raise DemonstrationError(
+                f"pose trajectory {self.name!r}: quaternions must have shape ({pos.shape[0]}, 4) "
+                f"(x, y, z, w per frame), got {quat.shape}"
+            )
+        if np.isinf(pos).any() or np.isinf(quat).any():
+            raise DemonstrationError(
+                f"pose trajectory {self.name!r}: positions and quaternions must be finite "
+                "(NaN marks an untracked frame)"
+            )
+        bad = np.isnan(pos).any(axis=1) | np.isnan(quat).any(axis=1)
+        pos[bad] = np.nan
+        quat[bad] = np.nan
+        norm = np.linalg.norm(quat, axis=1)
+        if (norm[~bad] < 1e-9).any():
+            i = int(np.flatnonzero(~bad & (norm < 1e-9))[0])
+            raise DemonstrationError(
+                f"pose trajectory {self.name!r}: frame {i} has a quaternion of zero length; "
+                "mark an untracked frame with NaN (blank cells)"
+            )
+        quat[~bad] /= norm[~bad, None]
+        pos.setflags(write=False)
+        quat.setflags(write=False)
+        object.__setattr__(self, "positions", pos)
+        object.__setattr__(self, "quaternions", quat)
+        rate = self.rate
+        if isinstance(rate, bool) or not isinstance(rate, (int, float, np.integer, np.floating)) \
+                or not (math.isfinite(float(rate)) and float(rate) > 0):
+            raise DemonstrationError(
+                f"pose trajectory {self.name!r}: rate must be a finite positive number of Hz, "
+                f"got {rate!r}"
+            )
+        object.__setattr__(self, "rate", float(rate))
+        object.__setattr__(self, "units", _check_units(self.units, f"pose {self.name!r}"))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, PoseTrajectory):
+            return NotImplemented
+        return (
+            self.name == other.name and self.rate == other.rate and self.units == other.units
+            and self.positions.shape == other.positions.shape
+            and bool(np.array_equal(self.positions, other.positions, equal_nan=True))
+            and bool(np.array_equal(self.quaternions, other.quaternions, equal_nan=True))
+        )
+
+    def __hash__(self) -> int:
+        return hash((self.name, self.rate, self.units, self.positions.shape))
+
+    @property
+    def n_frames(self) -> int:
+        """Number of frames."""
+        return int(self.positions.shape[0])
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        """Where the body is tracked, array of bool, shape (n_frames,)."""
+        return ~np.isnan(self.positions[:, 0])
+
+    @property
+    def times(self) -> FloatArray:
+        """Sample times ``i / rate``, seconds, shape (n_frames,)."""
+        return np.arange(self.n_frames, dtype=np.float64) / self.rate
+
+    @property
+    def rotations(self) -> FloatArray:
+        """Rotation matrices ``R_i``, shape (n_frames, 3, 3); NaN where not tracked."""
+        out = np.full((self.n_frames, 3, 3), np.nan)
+        ok = self.valid
+        if ok.any():
+            out[ok] = Rotation.from_quat(self.quaternions[ok]).as_matrix()
+        return out
+
+    def to_units(self, units: str) -> PoseTrajectory:
+        """The same poses with positions in ``units`` (``"m"`` or ``"mm"``)."""
+        target = _check_units(units, "to_units")
+        if target == self.units:
+            return self
+        k = UNITS[self.units] / UNITS[target]
+        return PoseTrajectory(self.name, self.positions * k, self.quaternions, self.rate, target)
+
+    def transform(self, points: ArrayLike) -> FloatArray:
+        """World positions of body-frame points in every frame.
+
+        Parameters
+        ----------
+        points : array, shape (m, 3)
+            Points in the body frame, in ``units``.
+
+        Returns
+        -------
+        array, shape (n_frames, m, 3)
+            ``R_i @ x + p_i``; NaN in frames where the body is not tracked.
+        """
+        x = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return np.asarray(np.einsum("nij,mj->nmi", self.rotations, x)
+                          + self.positions[:, None, :])
+
+    def with_body_frame(self, rotation: ArrayLike, translation: ArrayLike) -> PoseTrajectory:
+        """The pose of another frame fixed to the body.
+
+        Parameters
+        ----------
+        rotation : array, shape (3, 3)
+            Orientation of the new frame in the body frame (new-to-body rotation).
+        translation : array, shape (3,)
+            Origin of the new frame in the body frame, in ``units``.
+
+        Returns
+        -------
+        PoseTrajectory
+            Poses mapping the new frame to the world: ``R_i @ rotation``,
+            ``R_i @ translation + p_i``.
+        """
+        rb = Rotation.from_matrix(np.asarray(rotation, dtype=np.float64))
+        tb = np.asarray(translation, dtype=np.float64).reshape(3)
+        quat = np.full_like(self.quaternions, np.nan)
+        pos = np.full_like(self.positions, np.nan)
+        ok = self.valid
+        if ok.any():
+            r = Rotation.from_quat(self.quaternions[ok])
+            quat[ok] = (r * rb).as_quat()
+            pos[ok] = r.apply(tb) + self.positions[ok]
+        return PoseTrajectory(self.name, pos, quat, self.rate, self.units)
+
+    def gaps(self) -> list[tuple[int, int]]:
+        """Runs of untracked frames, as (first, end exclusive) frame pairs."""
+        return _runs(~self.valid)
+
+    def filled(self, max_gap: int) -> PoseTrajectory:
+        """Short gaps filled: positions linearly, rotations by slerp.
+
+        A run of at most ``max_gap`` untracked frames between two tracked ones is filled;
+        longer runs, and runs at the start or the end (with a tracked frame on one side
+        only), stay invalid, for the caller to report.
+
+        Parameters
+        ----------
+        max_gap : int
+            Longest run of untracked frames to fill (>= 0).
+        """
+        if isinstance(max_gap, bool) or not isinstance(max_gap, int) or max_gap < 0:
+            raise DemonstrationError(f"max_gap must be a whole number >= 0, got {max_gap!r}")
+        pos = np.array(self.positions)
+        quat = np.array(self.quaternions)
+        for s, e in self.gaps():
+            if s == 0 or e == self.n_frames or e - s > max_gap:
+                continue
+            a, b = s - 1, e
+            frac = (np.arange(s, e) - a) / (b - a)
+            pos[s:e] = pos[a] + np.outer(frac, pos[b] - pos[a])
+            slerp = Slerp([0.0, 1.0], Rotation.from_quat(quat[[a, b]]))
+            quat[s:e] = slerp(frac).as_quat()
+        return PoseTrajectory(self.name, pos, quat, self.rate, self.units)
+
+
+def kabsch_poses(
+    world: ArrayLike, layout: ArrayLike, *, min_markers: int = 3
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Best-fit rigid poses of a marker layout, frame by frame (Kabsch / Umeyama without scale).
+
+    For each frame, finds the rotation ``R`` and translation ``p`` minimising
+    ``sum_k |R @ l_k + p - w_k|^2`` over the markers ``k`` seen in that frame.
+
+    Parameters
+    ----------
+    world : array, shape (n_frames, m, 3)
+        Measured marker positions in the world; NaN where a marker is occluded.
+    layout : array, shape (m, 3)
+        The same markers in the body's frame, same units.
+    min_markers : int
+        Fewest markers (not all on one line) a frame needs; fewer leave it invalid.
+
+    Returns
+    -------
+    positions : array, shape (n_frames, 3)
+    quaternions : array, shape (n_frames, 4)
+        Scalar-last; NaN rows where the frame has too few markers.
+    rms : array, shape (n_frames,)
+        Root mean square residual of the fit (NaN where invalid): a marker that was swapped
+        or knocked shows up here.
+    """
+    w = np.asarray(world, dtype=np.float64)
+    lay = np.asarray(layout, dtype=np.float64)
+    if w.ndim != 3 or w.shape[2] != 3 or lay.shape != (w.shape[1], 3):
+        raise DemonstrationError(
+            f"kabsch_poses: world must have shape (n_frames, m, 3) and layout (m, 3), got "
+            f"{w.shape} and {lay.shape}"
+        )
+    seen = np.asarray(~np.isnan(w).any(axis=2), dtype=bool)  # (n, m)
+    wt: FloatArray = seen.astype(np.float64)
+    count: FloatArray = wt.sum(axis=1)
+    safe = np.maximum(count, 1.0)[:, None]
+    w0 = np.where(seen[..., None], w, 0.0)
+    cw = (w0 * wt[..., None]).sum(axis=1) / safe
+    cl = (wt @ lay) / safe
+    dl = (lay[None] - cl[:, None]) * wt[..., None]
+    dw = (w0 - cw[:, None]) * wt[..., None]
+    h = np.einsum("nki,nkj->nij", dl, dw)  # covariance, layout x world
+    u, sv, vt = np.linalg.svd(h)
+    d = np.sign(np.linalg.det(np.einsum("nij,njk->nik", u, vt)))
+    d[d == 0] = 1.0
+    corr = np.ones((len(d), 3))
+    corr[:, 2] = d
+    rot = np.einsum("nji,nj,nkj->nik", vt, corr, u)  # V diag(1,1,d) U^T
+    pos = cw - np.einsum("nij,nj->ni", rot, cl)
+    # a layout on one line (or too few markers) leaves the rotation about it undetermined
+    ok = (count >= max(3, min_markers)) & (sv[:, 1] > 1e-9 * np.maximum(sv[:, 0], 1e-300))
+    res = np.einsum("nij,kj->nki", rot, lay) + pos[:, None] - w0
+    rms = np.sqrt((np.square(res).sum(axis=2) * wt).sum(axis=1) / safe[:, 0])
+    quat = np.full((len(d), 4), np.nan)
+    if ok.any():
+        quat[ok] = Rotation.from_matrix(rot[ok]).as_quat()
+    pos[~ok] = np.nan
+    rms[~ok] = np.nan
+    return pos, quat, rms
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,6 +335,9 @@ class MarkerTrajectory:
         Sampling rate in Hz, finite and positive.
     units : {"m", "mm"}
         Length units of ``positions``.
+    rigid_bodies : tuple of PoseTrajectory
+        Rigid bodies tracked in the same recording (Motive exports them beside the markers),
+        with the same number of frames, rate and units; unique names. Default none.
 
     Raises
     ------
@@ -70,6 +350,7 @@ class MarkerTrajectory:
     marker_names: tuple[str, ...]
     rate: float
     units: LengthUnits = "m"
+    rigid_bodies: tuple[PoseTrajectory, ...] = ()
 
     def __post_init__(self) -> None:
         try:
@@ -134,6 +415,27 @@ class MarkerTrajectory:
             )
         object.__setattr__(self, "rate", float(rate))
         object.__setattr__(self, "units", _check_units(self.units, "marker trajectory"))
+        bodies = self.rigid_bodies
+        if isinstance(bodies, PoseTrajectory) or not isinstance(bodies, Sequence) or not all(
+                isinstance(b, PoseTrajectory) for b in bodies):
+            raise DemonstrationError(
+                f"marker trajectory: rigid_bodies must be a sequence of PoseTrajectory, got "
+                f"{bodies!r:.80}"
+            )
+        for b in bodies:
+            if (b.n_frames, b.rate) != (pos.shape[0], self.rate):
+                raise DemonstrationError(
+                    f"marker trajectory: rigid body {b.name!r} has {b.n_frames} frames at "
+                    f"{b.rate:g} Hz, the markers {pos.shape[0]} at {self.rate:g} Hz; they must "
+                    "come from the same recording"
+                )
+        dup_b = [n for n, c in Counter(b.name for b in bodies).items() if c > 1]
+        if dup_b:
+            raise DemonstrationError(
+                f"marker trajectory: two rigid bodies are called {dup_b[0]!r}; rename one"
+            )
+        object.__setattr__(self, "rigid_bodies",
+                           tuple(b.to_units(self.units) for b in bodies))
 
     # arrays make the generated __eq__ ambiguous, so equality is written out; NaN (occlusion)
     # equals NaN because two records of the same occlusion are the same record
@@ -146,10 +448,27 @@ class MarkerTrajectory:
             and self.units == other.units
             and self.positions.shape == other.positions.shape
             and bool(np.array_equal(self.positions, other.positions, equal_nan=True))
+            and self.rigid_bodies == other.rigid_bodies
         )
 
     def __hash__(self) -> int:
         return hash((self.marker_names, self.rate, self.units, self.positions.shape))
+
+    def rigid_body(self, name: str) -> PoseTrajectory:
+        """The rigid body called ``name``.
+
+        Raises
+        ------
+        DemonstrationError
+            If there is none; the message lists the rigid bodies there are.
+        """
+        for b in self.rigid_bodies:
+            if b.name == name:
+                return b
+        raise DemonstrationError(
+            f"no rigid body named {name!r}; the recording has "
+            f"{[b.name for b in self.rigid_bodies] or 'none'}"
+        )
 
     @property
     def n_frames(self) -> int:
@@ -190,7 +509,8 @@ class MarkerTrajectory:
         if target == self.units:
             return self
         scale = UNITS[self.units] / UNITS[target]
-        return MarkerTrajectory(self.positions * scale, self.marker_names, self.rate, target)
+        return MarkerTrajectory(self.positions * scale, self.marker_names, self.rate, target,
+                                tuple(b.to_units(target) for b in self.rigid_bodies))
 
     def marker(self, name: str) -> FloatArray:
         """Positions of one marker, read-only array, shape (n_frames, 3).
@@ -215,6 +535,7 @@ class MarkerTrajectory:
         marker_names: Sequence[str],
         rate: float,
         units: str = "m",
+        rigid_bodies: Sequence[PoseTrajectory] = (),
     ) -> MarkerTrajectory:
         """Build from any array-like and sequence of names (the constructor's typed twin)."""
         return cls(
@@ -222,4 +543,42 @@ class MarkerTrajectory:
             tuple(marker_names),
             rate,
             _check_units(units, "marker trajectory"),
+            tuple(rigid_bodies),
         )
+
+    def pose_from_markers(
+        self, name: str, layout: Mapping[str, ArrayLike], *, min_markers: int = 3
+    ) -> PoseTrajectory:
+        """The pose of a rigid body fitted to its markers frame by frame (Kabsch).
+
+        Parameters
+        ----------
+        name : str
+            The name to give the body.
+        layout : mapping of str to array, shape (3,)
+            Marker name -> its position in the body's frame, in this trajectory's units.
+            Three or more markers, not all on one line.
+        min_markers : int
+            Fewest markers a frame needs (at least 3); frames with fewer are invalid.
+
+        Raises
+        ------
+        DemonstrationError
+            A marker of the layout is not recorded, or fewer than three are given.
+        """
+        names = list(layout)
+        if len(names) < 3:
+            raise DemonstrationError(
+                f"rigid body {name!r}: its pose needs at least 3 markers in the layout, got "
+                f"{names}"
+            )
+        missing = [m for m in names if m not in self.marker_names]
+        if missing:
+            raise DemonstrationError(
+                f"rigid body {name!r}: marker(s) {missing} of its layout are not in the "
+                f"recording, which has {list(self.marker_names)}"
+            )
+        idx = [self.marker_names.index(m) for m in names]
+        lay = np.array([np.asarray(layout[m], dtype=np.float64).reshape(3) for m in names])
+        pos, quat, _ = kabsch_poses(self.positions[:, idx], lay, min_markers=min_markers)
+        return PoseTrajectory(name, pos, quat, self.rate, self.units)

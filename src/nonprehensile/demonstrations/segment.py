@@ -178,8 +178,8 @@ def segment_demonstration(
         Skill graphs holding the demonstration's skill.
     max_gap : int, optional
         If given, dropouts of up to ``max_gap`` frames are filled
-        (:func:`~nonprehensile.motion.trajectory.fill_gaps`) over the whole recording before
-        cutting, so that a gap at a cut is interpolated from both sides.
+        (:func:`~nonprehensile.motion.trajectory.fill_gaps`) from the first to the last event
+        before cutting, so that a gap at a cut is interpolated from both sides.
 
     Returns
     -------
@@ -195,8 +195,14 @@ def segment_demonstration(
     traj = demo.trajectory
     pos = traj.positions
     if max_gap is not None:
+        # only the frames from the first to the last event are cut into segments (and checked
+        # by the loader): a marker that enters the view late does not matter before that
+        w0, _ = _frames(demo.events[0].time, demo.events[0].time, traj.rate, traj.n_frames)
+        _, w1 = _frames(demo.events[-1].time, demo.events[-1].time, traj.rate, traj.n_frames)
+        w0, w1 = min(w0, w1), max(w0, w1)
         try:
-            pos = fill_gaps(pos, max_gap)
+            pos = np.array(pos)
+            pos[w0:w1 + 1] = fill_gaps(pos[w0:w1 + 1], max_gap)
         except InputError as exc:
             raise InputError(f"{demo.file}: {exc}") from None
     out = []

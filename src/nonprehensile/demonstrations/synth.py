@@ -41,7 +41,7 @@ on a face they put their fingers; see :data:`DEFAULT_MENTORS`.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -59,7 +59,7 @@ from nonprehensile.demonstrations.dataset import (
     EventTime,
     save_dataset,
 )
-from nonprehensile.demonstrations.record import MarkerTrajectory
+from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory, kabsch_poses
 from nonprehensile.errors import InputError, ManeuverError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.io import read_skills
@@ -82,6 +82,7 @@ __all__ = [
     "DEFAULT_SEED",
     "MentorStyle",
     "ObjectMotion",
+    "default_object_markers",
     "event_progress",
     "object_motion",
     "synthesize",
@@ -526,6 +527,48 @@ def _free_dir(n_w: FloatArray) -> FloatArray:
     return np.asarray(w / np.linalg.norm(w))
 
 
+#: Radius of a retro-reflective marker (its centre stands this far off the surface it is
+#: stuck on), mm.
+OBJECT_MARKER_RADIUS_MM = 4.0
+
+
+def default_object_markers(
+    poly: Polyhedron, skills: Sequence[Skill], scale: float = 0.05, n: int = 4
+) -> dict[str, FloatArray]:
+    """Where the generator sticks markers on the object: a layout in the model frame.
+
+    One marker on each of ``n`` faces that no skill rests the object on and no finger
+    touches (falling back to touched faces when too few are left), off-centre so that no
+    symmetry of the object maps the layout onto itself, and standing
+    :data:`OBJECT_MARKER_RADIUS_MM` off the face.
+
+    Returns
+    -------
+    dict of str to array, shape (3,)
+        Marker name (``"<object>:1"``, ...) -> position in model units.
+    """
+    busy: set[str] = set()
+    for sk in skills:
+        busy |= {sk.initial.face, sk.final.face}
+        for e in sk.events:
+            for p in e.pairs:
+                if isinstance(p.y, Face):
+                    busy.add(p.y.id)
+    free = [f for f in poly.faces if f not in busy]
+    faces = (free + [f for f in poly.faces if f in busy and f not in
+                     {sk.initial.face for sk in skills} | {sk.final.face for sk in skills}])
+    faces = (faces + [f for f in poly.faces if f not in faces])[:n]
+    out: dict[str, FloatArray] = {}
+    lift = OBJECT_MARKER_RADIUS_MM / (scale * 1000.0)
+    for k, f in enumerate(faces):
+        c = np.asarray(poly.face_centroids[f])
+        v = poly.vertices[poly.faces[f][k % len(poly.faces[f])]]
+        # a share of the way to a different corner on each face breaks the symmetry
+        x = c + (0.2 + 0.1 * k) * (v - c) + lift * np.asarray(poly.normals[f])
+        out[f"{poly.name}:{k + 1}"] = np.asarray(x)
+    return out
+
+
 def synthesize_demonstration(
     poly: Polyhedron,
     skill: Skill,
@@ -537,6 +580,7 @@ def synthesize_demonstration(
     noise_mm: float = 0.5,
     dropouts: float = 0.5,
     gap_limit: int = DEFAULT_GAP_LIMIT,
+    object_markers: Mapping[str, FloatArray] | None = None,
 ) -> tuple[MarkerTrajectory, tuple[EventTime, ...]]:
     """One demonstration of ``skill`` by ``mentor``: marker trajectories and event times.
 
@@ -560,12 +604,19 @@ def synthesize_demonstration(
         Mean number of dropouts per marker per demonstration.
     gap_limit : int
         Dropouts last 2 to ``max(2, gap_limit // 2)`` frames, so that they can be filled.
+    object_markers : mapping of str to array, shape (3,), optional
+        Markers stuck on the object (a layout in model units, e.g.
+        :func:`default_object_markers`): when given, the trajectory also holds them (same
+        noise and dropouts, drawn after the fingers', so that the finger markers are those
+        made without them) and one rigid body named after the object, its pose solved from
+        the noisy markers by Kabsch as Motive solves a rigid body (untracked where fewer than
+        three are seen). The rigid body's frame is the model frame, in mm.
 
     Returns
     -------
     trajectory : MarkerTrajectory
-        Markers :data:`~nonprehensile.demonstrations.dataset.DEFAULT_MARKERS`, in mm, shape
-        (n_frames, 4, 3).
+        Markers :data:`~nonprehensile.demonstrations.dataset.DEFAULT_MARKERS` (then the
+        object markers), in mm, shape (n_frames, 4 [+ m], 3).
     events : tuple of EventTime
         The skill's events with their times (on frame times), seconds.
 
@@ -627,7 +678,23 @@ def synthesize_demonstration(
             length = int(gen.integers(2, longest + 1))
             start = int(gen.integers(0, max(1, n_frames - length)))
             pos[start:start + length, m] = np.nan
-    traj = MarkerTrajectory(pos, DEFAULT_MARKERS, rate, "mm")
+    names: tuple[str, ...] = DEFAULT_MARKERS
+    bodies: tuple[PoseTrajectory, ...] = ()
+    if object_markers:
+        lay_mm = np.array([np.asarray(v, dtype=np.float64) for v in object_markers.values()])
+        lay_mm = lay_mm * (scale * 1000.0)
+        obj = np.einsum("nij,mj->nmi", r, lay_mm) + t[:, None] * (scale * 1000.0)
+        obj += gen.normal(0.0, noise_mm, obj.shape)
+        for m in range(obj.shape[1]):
+            for _ in range(gen.poisson(dropouts)):
+                length = int(gen.integers(2, longest + 1))
+                start = int(gen.integers(0, max(1, n_frames - length)))
+                obj[start:start + length, m] = np.nan
+        pos = np.concatenate([pos, obj], axis=1)
+        names = (*DEFAULT_MARKERS, *object_markers)
+        bp, bq, _ = kabsch_poses(obj, lay_mm)
+        bodies = (PoseTrajectory(poly.name, bp, bq, rate, "mm"),)
+    traj = MarkerTrajectory(pos, names, rate, "mm", bodies)
     events = tuple(EventTime(e.id, float(tt))
                    for e, tt in zip(skill.events, t_ev, strict=True))
     return traj, events
@@ -744,6 +811,7 @@ def synthesize_dataset(
     noise_mm: float = 0.5,
     dropouts: float = 0.5,
     gap_limit: int = DEFAULT_GAP_LIMIT,
+    track_object: bool = False,
     progress: Progress | None = None,
 ) -> Dataset:
     """A synthetic dataset in memory: ``n_per_skill`` demonstrations of every skill.
@@ -763,6 +831,10 @@ def synthesize_dataset(
         The mentors, or how many (the first of :data:`DEFAULT_MENTORS`, then drawn styles).
     rate, scale, noise_mm, dropouts, gap_limit
         See :func:`synthesize_demonstration`.
+    track_object : bool
+        Also track the object: markers stuck on it (:func:`default_object_markers`) and its
+        rigid body, and the dataset's ``object_markers`` naming the marker layout (so that
+        ``dataset annotate`` can find the contact events without the annotated times).
     progress : callable (done, total) -> None, optional
         Called after each demonstration.
 
@@ -795,6 +867,7 @@ def synthesize_dataset(
     path = Path(skills_file) if skills_file is not None else _bundled_skills()
     poly, skills = read_skills(path)
     styles = _mentor_list(mentors, rng)
+    layout = default_object_markers(poly, skills, scale) if track_object else None
     total = n_per_skill * len(skills)
     demos: list[Demonstration] = []
     for skill in skills:
@@ -802,15 +875,17 @@ def synthesize_dataset(
             mentor = styles[j % len(styles)]
             traj, events = synthesize_demonstration(
                 poly, skill, mentor, rng, rate=rate, scale=scale, noise_mm=noise_mm,
-                dropouts=dropouts, gap_limit=gap_limit,
+                dropouts=dropouts, gap_limit=gap_limit, object_markers=layout,
             )
             name = f"{skill.name}_{mentor.name}_{j // len(styles):02d}.c3d"
             demos.append(Demonstration(name, skill, mentor.name, skill.initial, skill.final,
                                        events, traj))
             if progress is not None:
                 progress(len(demos), total)
+    object_markers = {} if layout is None else {
+        k: (float(v[0]), float(v[1]), float(v[2])) for k, v in layout.items()}
     return Dataset(poly, tuple(skills), tuple(demos), float(scale), gap_limit,
-                   dict(DEFAULT_FINGERS))
+                   dict(DEFAULT_FINGERS), object_markers=object_markers)
 
 
 def synthesize(
@@ -826,12 +901,15 @@ def synthesize(
     dropouts: float = 0.5,
     gap_limit: int = DEFAULT_GAP_LIMIT,
     trajectory_format: str = "c3d",
+    track_object: bool = False,
     progress: Progress | None = None,
 ) -> Dataset:
     """Generate a dataset and write it to ``out_dir`` (``nonprehensile dataset synth``).
 
     See :func:`synthesize_dataset` for the arguments; ``trajectory_format`` is ``"c3d"``
-    (needs the ``mocap`` extra) or ``"csv"`` (Motive CSV).
+    (needs the ``mocap`` extra) or ``"csv"`` (Motive CSV). With ``track_object``, the
+    annotations give the ``object_markers``, and a CSV dataset also names its
+    ``rigid_body`` (written in each file; C3D has no rigid bodies).
 
     Returns
     -------
@@ -841,8 +919,10 @@ def synthesize(
     ds = synthesize_dataset(
         seed=seed, skills_file=skills_file, n_per_skill=n_per_skill, mentors=mentors,
         rate=rate, scale=scale, noise_mm=noise_mm, dropouts=dropouts, gap_limit=gap_limit,
-        progress=progress,
+        track_object=track_object, progress=progress,
     )
+    rigid_body = ds.poly.name if track_object and trajectory_format == "csv" else None
+    ds = Dataset(ds.poly, ds.skills, ds.demonstrations, ds.scale, ds.gap_limit, ds.fingers,
+                 Path(out_dir), ds.object_markers, rigid_body=rigid_body)
     save_dataset(ds, out_dir, trajectory_format=trajectory_format, markers=DEFAULT_MARKERS)
-    return Dataset(ds.poly, ds.skills, ds.demonstrations, ds.scale, ds.gap_limit, ds.fingers,
-                   Path(out_dir))
+    return ds

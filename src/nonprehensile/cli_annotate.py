@@ -1,0 +1,103 @@
+"""``nonprehensile dataset annotate``: contact events found from the tracked object and fingers.
+
+Registered on the ``dataset`` group by :mod:`nonprehensile.cli_dataset`. Messages and the
+review list go to stderr; ``--json`` prints one JSON document on stdout.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import click
+from rich.table import Table
+
+from nonprehensile.cli_common import emit_json, err, handle_errors, out, progress_bar
+from nonprehensile.demonstrations.annotate import DetectionParams, annotate_dataset
+from nonprehensile.demonstrations.dataset import ANNOTATION_FILES, _annotations_file
+from nonprehensile.errors import InputError
+from nonprehensile.io import load_document, save_document
+
+__all__ = ["annotate_cmd"]
+
+
+@click.command("annotate")
+@click.argument("directory", type=click.Path(file_okay=False))
+@click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
+              help="Where to write the complete annotations (in DIRECTORY or a folder holding "
+                   "it; name it annotations.json for `dataset show`).")
+@click.option("--pad-radius", type=float, default=0.0, show_default=True,
+              help="Distance from a tip marker to the finger's contact surface, mm.")
+@click.option("--contact", "contact_mm", type=(float, float), default=(4.0, 7.0),
+              show_default=True, help="Finger contact thresholds ON OFF, mm (hysteresis).")
+@click.option("--ground", "ground_mm", type=(float, float), default=(1.5, 3.0),
+              show_default=True, help="Vertex-on-table thresholds ON OFF, mm (hysteresis).")
+@click.option("--min-duration", type=float, default=0.05, show_default=True,
+              help="Shortest contact state kept, s; shorter ones are flickers.")
+@click.option("--state-tol", type=float, default=5.0, show_default=True,
+              help="Tolerance of resting poses against the skills' states, degrees.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
+@handle_errors
+def annotate_cmd(
+    directory: str, output: str, pad_radius: float, contact_mm: tuple[float, float],
+    ground_mm: tuple[float, float], min_duration: float, state_tol: float, as_json: bool,
+) -> None:
+    """Find the contact events, states and skill of every recording in DIRECTORY.
+
+    DIRECTORY's annotations list the recordings (file, mentor) and the set-up: fingers,
+    markers and how the object is tracked ("object": a rigid body or object markers). The
+    complete annotations (skill, initial, final, events with times) go to OUTPUT, ready for
+    `dataset show` and `demo --dataset`; recordings whose events fit no skill are left out
+    and a new skill is proposed for them. Every doubtful call is listed.
+    """
+    root = Path(directory)
+    dest = Path(output)
+    source = _annotations_file(root) if root.is_dir() else None
+    gap = 12
+    if source is not None:
+        data = load_document(source)
+        if isinstance(data, dict) and isinstance(data.get("gap_limit"), int):
+            gap = data["gap_limit"]
+    try:
+        params = DetectionParams(
+            pad_radius=pad_radius / 1000, contact_on=contact_mm[0] / 1000,
+            contact_off=contact_mm[1] / 1000, ground_on=ground_mm[0] / 1000,
+            ground_off=ground_mm[1] / 1000, min_duration=min_duration, state_tol=state_tol,
+            gap_limit=gap if gap >= 0 else 12,
+        )
+    except InputError as exc:
+        raise InputError(f"bad option: {exc}") from None
+    with progress_bar("annotating", as_json) as update:
+        report = annotate_dataset(root, relative_to=dest.parent, params=params,
+                                  progress=update)
+    if source is not None and dest.resolve() == source.resolve():
+        # the input lists recordings the output may leave out: keep it beside
+        keep = source.with_name(f"{source.stem}.recordings{source.suffix}")
+        shutil.copyfile(source, keep)
+        err.print(f"kept the recordings list as {keep}")
+    if dest.name not in ANNOTATION_FILES:
+        err.print(f"note: `dataset show` looks for {ANNOTATION_FILES[0]}; {dest.name} is "
+                  "read only under that name")
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    save_document(report.annotations, dest)
+    if as_json:
+        emit_json({"output": str(dest), **report.to_dict()})
+        return
+    t = Table(title=f"{root}: {len(report.recordings)} recordings")
+    for col in ("file", "mentor", "skill", "states", "events (s)", "doubts"):
+        t.add_column(col)
+    for r in report.recordings:
+        res = r.result
+        states = f"{res.initial} -> {res.final}" if res.initial and res.final else "?"
+        t.add_row(r.file, r.mentor, res.skill or "[red]none[/]", states,
+                  " ".join(f"{e.id}@{e.time:.3f}" for e in res.events),
+                  str(len(res.doubts)))
+    out.print(t)
+    for line in report.doubts:
+        err.print(f"doubt: {line}", markup=False)
+    for prop in report.proposals:
+        err.print(f"proposed skill for {', '.join(prop['recordings'])}:", markup=False)
+        err.print_json(data={k: v for k, v in prop.items() if k != "recordings"})
+    n_ok = len(report.recordings) - len(report.unmatched)
+    err.print(f"wrote {dest}: {n_ok} of {len(report.recordings)} recordings annotated, "
+              f"{len(report.unmatched)} fit no skill, {len(report.doubts)} doubtful calls")

@@ -1,0 +1,184 @@
+"""``nonprehensile object`` and ``nonprehensile states``: object models and their states.
+
+Registered in :data:`nonprehensile.cli.COMMANDS`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.table import Table
+
+from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out
+from nonprehensile.cli_options import (
+    angle_tol_option,
+    atol_option,
+    json_option,
+    load_cli_model,
+    rtol_option,
+    state_set,
+    states_option,
+    step_option,
+)
+from nonprehensile.geometry.build import from_mesh
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
+from nonprehensile.io import write_model
+from nonprehensile.states import is_stable
+
+__all__ = ["adjacency_table", "object_group", "object_summary", "states_cmd"]
+
+
+@click.group("object")
+def object_group() -> None:
+    """Object models: show one, or make one from a mesh."""
+
+
+def object_summary(poly: Polyhedron) -> dict[str, Any]:
+    """The spec's ``object show --json`` document."""
+    faces = {}
+    for f, loop in poly.faces.items():
+        faces[f] = {
+            "loop": list(loop),
+            "delta": list(poly.delta[f]),
+            "normal": [round(float(c), 12) + 0.0 for c in poly.normals[f]],
+            "stable": is_stable(poly, f),
+            "virtual": f in poly.virtual_faces,
+        }
+    return {
+        "name": poly.name,
+        "units": poly.units,
+        "n_vertices": len(poly.vertices),
+        "center_of_mass": [float(c) for c in poly.com],
+        "hull_volume": poly.volume,
+        "faces": faces,
+        "adjacency": poly.adjacency,
+        "symmetry_order": len(rotation_group(poly)),
+    }
+
+
+def adjacency_table(poly: Polyhedron) -> Table:
+    """The adjacency matrix of edge numbers as the paper prints it (Fig. 3(b))."""
+    labels, a = poly.adjacency_matrix()
+    t = Table(title="Adjacency matrix A (A\\[row]\\[col] = edge number on the row face)")
+    t.add_column("A", style="bold")
+    for f in labels:
+        t.add_column(f, justify="center")
+    for i, f in enumerate(labels):
+        t.add_row(f, *[str(k) if k else "-" for k in a[i]])
+    return t
+
+
+@object_group.command("show")
+@click.argument("model")
+@rtol_option
+@json_option
+@handle_errors
+def object_show(model: str, rtol: float, as_json: bool) -> None:
+    """Show MODEL (a model file, or a bundled name such as `cube`): faces, A, Delta."""
+    poly = load_cli_model(model, rtol)
+    summary = object_summary(poly)
+    if as_json:
+        emit_json(summary)
+        return
+    out.print(
+        f"[bold]{poly.name}[/]: {len(poly.faces)} faces, {len(poly.vertices)} vertices, "
+        f"hull volume {fmt_num(poly.volume)} {poly.units}^3, centre of mass "
+        f"({', '.join(fmt_num(c) for c in poly.com)}), rotation symmetry order "
+        f"{summary['symmetry_order']}"
+    )
+    faces = Table(title="Faces")
+    for col in ("face", "loop (clockwise from outside)", "Delta (deg)", "outward normal",
+                "stable"):
+        faces.add_column(col)
+    for f, info in summary["faces"].items():
+        name = f + (" (virtual)" if info["virtual"] else "")
+        faces.add_row(
+            name,
+            " ".join(map(str, info["loop"])),
+            ", ".join(fmt_num(d) for d in info["delta"]),
+            "(" + ", ".join(fmt_num(c) for c in info["normal"]) + ")",
+            "yes" if info["stable"] else "no",
+        )
+    out.print(faces)
+    out.print(adjacency_table(poly))
+
+
+@object_group.command("figure")
+@click.argument("model")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Image file to write (PNG, SVG or PDF, by suffix).")
+@rtol_option
+@handle_errors
+def object_figure_cmd(model: str, output: str, rtol: float) -> None:
+    """Draw MODEL labeled like the paper's Fig. 3: faces, edge numbers, A and Delta."""
+    from nonprehensile.viz import object_figure, save_figure
+
+    save_figure(object_figure(load_cli_model(model, rtol)), output, dpi=100)
+    err.print(f"wrote {output}")
+
+
+@object_group.command("from-mesh")
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Model file to write (.json, or .yaml/.yml).")
+@click.option("--name", default=None, help="Object name (default: the mesh file's stem).")
+@click.option("--rtol", type=float, default=1e-6, show_default=True,
+              help="Tolerance, relative to the diameter, for merging coplanar triangles.")
+@click.option("--allow-open", is_flag=True,
+              help="Accept a mesh that is not closed (use the hull of its vertices).")
+@click.option("--units", default="m", show_default=True, help="Length units of the mesh.")
+@json_option
+@handle_errors
+def object_from_mesh(
+    mesh: str, output: str, name: str | None, rtol: float, allow_open: bool, units: str,
+    as_json: bool,
+) -> None:
+    """Make an object model from MESH (STL, OBJ, PLY, OFF, GLB, ...): its convex hull."""
+    poly = from_mesh(mesh, name=name, rtol=rtol, allow_open=allow_open, units=units)
+    write_model(poly, output)
+    if as_json:
+        emit_json({"output": str(Path(output)), **object_summary(poly)})
+        return
+    virtual = sorted(poly.virtual_faces)
+    out.print(
+        f"wrote {output}: {poly.name}, {len(poly.faces)} faces "
+        f"({len(virtual)} virtual{': ' + ', '.join(virtual) if virtual else ''}), "
+        f"{len(poly.vertices)} vertices"
+    )
+
+
+@click.command("states")
+@click.argument("model")
+@step_option
+@states_option
+@rtol_option
+@atol_option
+@angle_tol_option
+@json_option
+@handle_errors
+def states_cmd(
+    model: str, step: float | None, states_file: str | None, rtol: float, atol: float | None,
+    angle_tol: float, as_json: bool,
+) -> None:
+    """The stable states of MODEL and their geometric-equivalence classes."""
+    poly = load_cli_model(model, rtol)
+    states = state_set(poly, step, states_file, angle_tol)
+    classes = equivalence_classes(poly, states, atol=atol, angle_tol=angle_tol)
+    n_classes = max(classes) + 1 if classes else 0
+    if as_json:
+        emit_json({
+            "states": [{**s.to_dict(), "class": c} for s, c in zip(states, classes, strict=True)],
+            "n_classes": n_classes,
+        })
+        return
+    t = Table(title=f"{len(states)} states of {poly.name}, {n_classes} equivalence classes")
+    t.add_column("state")
+    t.add_column("face")
+    t.add_column("theta (deg)", justify="right")
+    t.add_column("class", justify="right")
+    for s, c in zip(states, classes, strict=True):
+        t.add_row(str(s), s.face, fmt_num(s.theta), str(c))
+    out.print(t)

@@ -1,0 +1,258 @@
+"""``nonprehensile simulate``: execute demonstrations, transitions and plans in MuJoCo.
+
+Registered in :data:`nonprehensile.cli.COMMANDS`. Exit 0 when everything ends as predicted,
+1 when some transition ends elsewhere (listed), 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import click
+from rich.table import Table
+
+from nonprehensile.cli_common import emit_json, err, handle_errors, out, progress_bar, stage_bars
+from nonprehensile.cli_options import (
+    angle_tol_option,
+    json_option,
+    parse_state,
+    state_set,
+    states_option,
+    step_option,
+)
+from nonprehensile.errors import InputError
+from nonprehensile.states import State
+
+__all__ = ["simulate_group"]
+
+F = Callable[..., Any]
+
+
+def _sim() -> Any:
+    try:
+        import nonprehensile.sim as sim
+    except ImportError as exc:  # the extra is missing
+        raise InputError(f"simulation needs MuJoCo: pip install 'nonprehensile[sim]' ({exc})"
+                         ) from None
+    return sim
+
+
+def _physics_options(fn: F) -> F:
+    for opt in reversed([
+        click.option("--friction", type=float, default=None,
+                     help="Object-table friction coefficient (default 0.6)."),
+        click.option("--finger-friction", type=float, default=None,
+                     help="Object-fingertip friction coefficient (default 0.8)."),
+        click.option("--mass", type=float, default=None, help="Object mass, kg (default 0.1)."),
+        click.option("--finger-radius", type=float, default=None,
+                     help="Fingertip sphere radius, m (default 0.006)."),
+        click.option("--stiffness", type=float, default=None,
+                     help="Finger position gain, N/m per axis (default 600)."),
+        click.option("--tol-deg", type=float, default=5.0, show_default=True,
+                     help="A final theta within this many degrees is the predicted state."),
+    ]):
+        fn = opt(fn)
+    return fn
+
+
+def _params(kw: dict[str, Any]) -> Any:
+    sim = _sim()
+    names = {"friction": "friction_table", "finger_friction": "friction_finger",
+             "mass": "mass", "finger_radius": "finger_radius", "stiffness": "stiffness"}
+    given = {names[k]: kw.pop(k) for k in list(names) if kw.get(k) is not None}
+    for k in names:
+        kw.pop(k, None)
+    return sim.SimParams(**given)
+
+
+def _finish(records: list[dict[str, Any]], as_json: bool, what: str,
+            extra: dict[str, Any] | None = None) -> None:
+    failed = [r for r in records if not r["success"]]
+    if as_json:
+        emit_json({"records": records, "n": len(records), "n_success": len(records) - len(failed),
+                   **(extra or {})})
+    else:
+        for r in failed:
+            sim = r.get("simulated")
+            pos = r.get("position_error_m")
+            err.print(f"ended elsewhere: {_name(r)}: predicted "
+                      f"{State.from_dict(r['predicted'])}, simulated "
+                      f"{State.from_dict(sim) if sim else 'no resting state'}"
+                      + (f", {1000 * pos:.1f} mm from the predicted position"
+                         if pos is not None else ""))
+        out.print(f"{len(records) - len(failed)}/{len(records)} {what} ended as predicted")
+    if failed:
+        sys.exit(1)
+
+
+def _name(r: dict[str, Any]) -> str:
+    if "file" in r:
+        return str(r["file"])
+    if "step" in r:
+        return f"step {r['step']} {r['skill']}"
+    return f"{r['skill']} {State.from_dict(r['from'])} -> {State.from_dict(r['to'])}"
+
+
+def _rate_table(title: str, records: list[dict[str, Any]], keys: Sequence[str]) -> Table:
+    t = Table(title=title)
+    for k in keys:
+        t.add_column(k)
+    t.add_column("ended as predicted")
+    t.add_column("events in order")
+    t.add_column("ms wall / transition")
+    groups: dict[tuple[str, ...], list[dict[str, Any]]] = defaultdict(list)
+    for r in records:
+        groups[tuple(str(r[k]) for k in keys)].append(r)
+    for key, rs in sorted(groups.items()):
+        ok = sum(r["success"] for r in rs)
+        chain = sum(r["chain_ok"] for r in rs)
+        wall = 1000 * sum(r["simulation"]["wall_seconds"] for r in rs) / len(rs)
+        t.add_row(*key, f"{ok}/{len(rs)}", f"{chain}/{len(rs)}", f"{wall:.0f}")
+    return t
+
+
+@click.group("simulate")
+def simulate_group() -> None:
+    """Execute demonstrations, inferred transitions and plans in the MuJoCo simulation."""
+
+
+@simulate_group.command("dataset")
+@click.argument("dataset", default="cube")
+@click.option("--skill", "skill_names", multiple=True, help="Only these skills (repeatable).")
+@_physics_options
+@json_option
+@handle_errors
+def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
+                     tol_deg: float, **kw: Any) -> None:
+    """Replay a dataset's demonstrations open loop: per skill and mentor, how many end in
+    their annotated state."""
+    params = _params(kw)
+    sim = _sim()
+    from nonprehensile.demonstrations.dataset import load_dataset
+    from nonprehensile.sim.execute import fingers_of, replay_demonstration
+
+    with stage_bars(as_json) as bars:
+        ds = load_dataset(dataset, progress=lambda d, n: bars("loading", d, n))
+        demos = [d for d in ds.demonstrations if not skill_names or d.skill.name in skill_names]
+        if not demos:
+            raise InputError(f"{dataset}: no demonstration of {list(skill_names)}; its skills "
+                             f"are {[s.name for s in ds.skills]}")
+        n = max(max(fingers_of(s), default=1) for s in ds.skills)
+        simulator = sim.Simulator(ds.poly, scale=ds.scale, n_fingers=n, params=params)
+        records = []
+        for i, demo in enumerate(demos):
+            records.append(replay_demonstration(simulator, ds, demo,
+                                                angle_tol=tol_deg).to_dict())
+            bars("simulating", i + 1, len(demos))
+    if not as_json:
+        out.print(_rate_table(f"{dataset}: demonstrations replayed", records,
+                              ["skill", "mentor"]))
+    _finish(records, as_json, "demonstrations", {"params": params.to_dict()})
+
+
+@simulate_group.command("infer")
+@click.argument("skills_file", type=click.Path(dir_okay=False))
+@click.option("--dataset", default="cube", show_default=True,
+              help="Demonstrations (a folder, or `cube`) giving the reference motions.")
+@step_option
+@states_option
+@angle_tol_option
+@_physics_options
+@json_option
+@handle_errors
+def simulate_infer(skills_file: str, dataset: str, step: float | None,
+                   states_file: str | None, angle_tol: float, as_json: bool, tol_deg: float,
+                   **kw: Any) -> None:
+    """Every demonstrated and inferred transition: predicted vs simulated final state."""
+    params = _params(kw)
+    sim = _sim()
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.planning import step_for
+    from nonprehensile.sim.execute import fingers_of, simulate_step
+
+    poly, skills = read_skills(skills_file, angle_tol=angle_tol)
+    states = state_set(poly, step, states_file, angle_tol)
+    exp = expand(poly, skills, states, angle_tol=angle_tol)
+    with stage_bars(as_json) as bars:
+        ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
+        n = max(max(fingers_of(t.skill), default=1) for t in exp.transitions)
+        simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
+        records = []
+        for i, t in enumerate(exp.transitions):
+            st = step_for(poly, t, motions=motions, scale=ds.scale, angle_tol=angle_tol)
+            records.append(simulate_step(simulator, st, fingers=ds.fingers, angle_tol=tol_deg,
+                                         check_position=False).to_dict())
+            bars("simulating", i + 1, len(exp.transitions))
+    if not as_json:
+        out.print(_rate_table(f"{poly.name}: transitions simulated", records,
+                              ["source", "demonstrated"]))
+    _finish(records, as_json, "transitions", {"params": params.to_dict()})
+
+
+@simulate_group.command("plan")
+@click.argument("skills_file", type=click.Path(dir_okay=False))
+@click.option("--from", "start", required=True, callback=parse_state,
+              help="Start state FACE:THETA as the object lies.")
+@click.option("--to", "goal", required=True, callback=parse_state, help="Goal state.")
+@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+              help="Where the object is on the table (x y), metres.")
+@click.option("--dataset", default="cube", show_default=True,
+              help="Demonstrations (a folder, or `cube`) giving the reference motions.")
+@click.option("--position-tol", type=float, default=0.010, show_default=True,
+              help="A final position within this many metres of the plan's prediction.")
+@step_option
+@states_option
+@angle_tol_option
+@_physics_options
+@json_option
+@handle_errors
+def simulate_plan_cmd(skills_file: str, start: State, goal: State,
+                      position: tuple[float, float], dataset: str, position_tol: float,
+                      step: float | None, states_file: str | None, angle_tol: float,
+                      as_json: bool, tol_deg: float, **kw: Any) -> None:
+    """Plan as `plan` does, then execute the plan step by step in one simulation, open
+    loop."""
+    params = _params(kw)
+    sim = _sim()
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.planning import plan
+    from nonprehensile.sim.execute import fingers_of, simulate_plan
+
+    poly, skills = read_skills(skills_file, angle_tol=angle_tol)
+    states = state_set(poly, step, states_file, angle_tol)
+    exp = expand(poly, skills, states, angle_tol=angle_tol)
+    with stage_bars(as_json) as bars:
+        ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
+    result = plan(poly, exp, start, goal, position=position, motions=motions,
+                  angle_tol=angle_tol, scale=ds.scale)
+    with progress_bar("simulating", as_json) as bar:
+        n = max((max(fingers_of(s.transition.skill), default=1)
+                 for s in result.steps), default=1)
+        simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
+        outcomes = simulate_plan(poly, result, scale=ds.scale, fingers=ds.fingers,
+                                 sim=simulator, progress=bar, angle_tol=tol_deg,
+                                 position_tol=position_tol)
+    records = [o.to_dict() for o in outcomes]
+    if not as_json:
+        t = Table(title=f"plan {start} -> {goal} simulated")
+        for c in ("step", "skill", "predicted", "simulated", "theta error", "position error",
+                  "events in order", "ok"):
+            t.add_column(c)
+        for r in records:
+            simd = r["simulated"]
+            t.add_row(str(r["step"]), r["skill"], str(State.from_dict(r["predicted"])),
+                      str(State.from_dict(simd)) if simd else "-",
+                      "-" if r["theta_error_deg"] is None else f"{r['theta_error_deg']:.1f} deg",
+                      "-" if r["position_error_m"] is None
+                      else f"{1000 * r['position_error_m']:.1f} mm",
+                      "yes" if r["chain_ok"] else "missing " + ",".join(r["missing_events"]),
+                      "yes" if r["success"] else "NO")
+        out.print(t)
+    _finish(records, as_json, "steps", {"params": params.to_dict(), "plan": result.to_dict()})

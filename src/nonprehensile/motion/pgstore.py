@@ -1,0 +1,345 @@
+"""Samples, keys and cluster ids in PostgreSQL: the server twin of :class:`SQLiteStore`.
+
+A :class:`PostgresStore` implements :class:`~nonprehensile.motion.store.SampleStore` on a
+PostgreSQL database (psycopg 3), so that many processes and machines feed one archive. One
+database holds any number of named stores (the service keeps one per arc of a skill graph),
+in three tables created on first use:
+
+``np_schema``
+    the schema version (:data:`SCHEMA_VERSION`); a newer one is refused, not misread.
+``np_samples (store, id, key, label, vector)``
+    one row a sample: ``id`` runs ``0 .. n_samples - 1`` per store, ``vector`` is the sample's
+    float64 values (little-endian bytes). Indexes ``(store, key, id)`` for key range scans and
+    ``(store, label, key, id)`` for reading one cluster in key order.
+``np_meta (store, name, value)``
+    named blobs (the clusterer's state).
+
+Bulk loads use ``COPY ... FROM STDIN (FORMAT BINARY)``; re-keying after a recalibration
+updates keys and labels in batches of :data:`UPDATE_BATCH` rows (``UPDATE ... FROM unnest``)
+inside the caller's transaction. A transaction takes the store's advisory lock (as SQLite's
+``BEGIN IMMEDIATE`` takes the write lock): a read-modify-write of the clusterer's state is
+never interleaved with another writer's, and readers are never blocked (MVCC).
+
+Keys are signed 64-bit integers (``bigint``), as in SQLite.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+import psycopg
+from psycopg import errors as pg_errors, pq
+
+from nonprehensile.errors import InputError, StoreError
+from nonprehensile.motion.store import FloatArray, IntArray, _check_batch
+from nonprehensile.motion.stores import display_name, is_postgres_url
+
+__all__ = ["SCHEMA_VERSION", "UPDATE_BATCH", "PostgresStore", "is_postgres_url"]
+
+#: Version of the tables' layout; a database written by a newer layout is refused.
+SCHEMA_VERSION = 1
+#: Rows per UPDATE statement when keys and labels are rewritten (a recalibration).
+UPDATE_BATCH = 10_000
+#: Advisory lock that serialises creating the tables (any constant, ours).
+_DDL_LOCK = 0x6E6F6E70  # "nonp"
+
+_DDL = (
+    "CREATE TABLE IF NOT EXISTS np_schema (version integer NOT NULL)",
+    """CREATE TABLE IF NOT EXISTS np_samples (
+        store text NOT NULL,
+        id bigint NOT NULL,
+        key bigint NOT NULL,
+        label bigint NOT NULL,
+        vector bytea NOT NULL,
+        PRIMARY KEY (store, id)
+    )""",
+    "CREATE INDEX IF NOT EXISTS np_samples_key ON np_samples (store, key, id)",
+    "CREATE INDEX IF NOT EXISTS np_samples_label_key ON np_samples (store, label, key, id)",
+    """CREATE TABLE IF NOT EXISTS np_meta (
+        store text NOT NULL,
+        name text NOT NULL,
+        value bytea NOT NULL,
+        PRIMARY KEY (store, name)
+    )""",
+)
+
+
+def _lock_id(name: str) -> int:
+    """A signed 64-bit advisory lock id for a store name (stable across processes)."""
+    return int.from_bytes(hashlib.blake2b(name.encode(), digest_size=8).digest(), "little",
+                          signed=True)
+
+
+def connect(url: str, *, timeout: float = 30.0) -> psycopg.Connection[Any]:
+    """An autocommit connection to ``url``, or :class:`StoreError` saying why not."""
+    try:
+        return psycopg.connect(url, autocommit=True, connect_timeout=max(1, int(timeout)))
+    except psycopg.ProgrammingError as exc:
+        # the URL itself is malformed: the user's input
+        raise InputError(f"{display_name(url)}: not a valid PostgreSQL URL ({exc})") from None
+    except psycopg.OperationalError as exc:
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise StoreError(
+            f"{display_name(url)}: cannot connect to PostgreSQL ({msg}); check that the server "
+            "runs and the URL's host, port, user and database"
+        ) from None
+
+
+def ensure_schema(conn: psycopg.Connection[Any]) -> None:
+    """Create the tables on first use; refuse a database of a newer layout."""
+    with conn.transaction():
+        conn.execute("SELECT pg_advisory_xact_lock(%s)", (_DDL_LOCK,))
+        for stmt in _DDL:
+            conn.execute(stmt)
+        row = conn.execute("SELECT max(version) FROM np_schema").fetchone()
+        version = None if row is None else row[0]
+        if version is None:
+            conn.execute("INSERT INTO np_schema (version) VALUES (%s)", (SCHEMA_VERSION,))
+        elif version > SCHEMA_VERSION:
+            raise InputError(
+                f"the database holds nonprehensile stores of schema version {version}; this "
+                f"version reads {SCHEMA_VERSION}: upgrade nonprehensile"
+            )
+
+
+class PostgresStore:
+    """Samples, keys and cluster ids in a PostgreSQL database.
+
+    Parameters
+    ----------
+    url : str or psycopg.Connection
+        A ``postgresql://`` URL (libpq's URI form, e.g.
+        ``postgresql://user@localhost:5432/db`` or ``postgresql://user@/db?host=/run/sock``),
+        or an open connection in autocommit mode (from a pool: it is not closed by
+        :meth:`close`).
+    name : str
+        Which store of the database (one database holds many).
+    timeout : float
+        Seconds to wait for the connection, and for another writer's lock, before giving up
+        with :class:`~nonprehensile.errors.StoreError`.
+
+    Notes
+    -----
+    A transaction that joins one the caller opened on the same connection (``with
+    conn.transaction(): ...``) commits with it: several stores and the caller's own rows
+    change together or not at all.
+    """
+
+    def __init__(self, url: str | psycopg.Connection[Any], name: str = "default", *,
+                 timeout: float = 30.0) -> None:
+        if not isinstance(name, str) or not name or len(name) > 200:
+            raise InputError(f"store name must be a non-empty string of at most 200 "
+                             f"characters, got {name!r}")
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or timeout <= 0:
+            raise InputError(f"timeout must be a positive number of seconds, got {timeout!r}")
+        self.name = name
+        self._own = isinstance(url, str)
+        if isinstance(url, str):
+            if not is_postgres_url(url):
+                raise InputError(f"{url}: a PostgreSQL store needs a postgresql:// URL")
+            self.url = display_name(url)
+            self._conn = connect(url, timeout=timeout)
+        else:
+            self.url = "<connection>"
+            self._conn = url
+        self._lock = _lock_id(name)
+        self._depth = 0
+        self._d: int | None = None
+        try:
+            self._conn.execute(f"SET lock_timeout = {int(timeout * 1000)}")
+            ensure_schema(self._conn)
+            count, top = self._conn.execute(
+                "SELECT count(*), max(id) FROM np_samples WHERE store = %s", (name,)
+            ).fetchone() or (0, None)
+        except psycopg.Error as exc:
+            self.close()
+            raise StoreError(f"{self.url}: cannot open store {name!r} ({exc})") from None
+        if count != (-1 if top is None else top) + 1:
+            self.close()
+            raise InputError(
+                f"{self.url}: store {name!r} holds {count} samples but its ids run to {top}: "
+                "rows were deleted outside nonprehensile; fit the store again"
+            )
+
+    # ------------------------------------------------------------------ connection
+
+    @property
+    def connection(self) -> psycopg.Connection[Any]:
+        """The connection (to join a transaction with the caller's own rows)."""
+        return self._conn
+
+    def close(self) -> None:
+        """Close the connection if the store opened it (committed data stays)."""
+        if self._own:
+            self._conn.close()
+
+    def __enter__(self) -> PostgresStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _lock_now(self) -> None:
+        try:
+            self._conn.execute("SELECT pg_advisory_xact_lock(%s)", (self._lock,))
+        except pg_errors.LockNotAvailable:
+            raise StoreError(
+                f"{self.url}: could not take store {self.name!r}'s write lock in time; another "
+                "writer holds it for too long: retry, or raise timeout"
+            ) from None
+
+    @contextlib.contextmanager
+    def transaction(self) -> Iterator[None]:
+        """Commit everything inside together; nested uses join the outer transaction.
+
+        The store's advisory lock is taken first, so that a read-modify-write is never
+        interleaved with another writer's.
+        """
+        if self._depth:
+            self._depth += 1
+            try:
+                yield
+            finally:
+                self._depth -= 1
+            return
+        joined = self._conn.info.transaction_status != pq.TransactionStatus.IDLE
+        with contextlib.ExitStack() as stack:
+            if not joined:
+                stack.enter_context(self._conn.transaction())
+            self._lock_now()
+            self._depth = 1
+            try:
+                yield
+            finally:
+                self._depth = 0
+
+    # ------------------------------------------------------------------ reads
+
+    def _one(self, sql: str, args: tuple[Any, ...]) -> Any:
+        row = self._conn.execute(sql, args).fetchone()
+        return None if row is None else row[0]
+
+    @property
+    def n_samples(self) -> int:
+        top = self._one("SELECT max(id) FROM np_samples WHERE store = %s", (self.name,))
+        return 0 if top is None else int(top) + 1
+
+    @property
+    def n_features(self) -> int | None:
+        if self._d is None:
+            blob = self._one("SELECT vector FROM np_samples WHERE store = %s AND id = 0",
+                             (self.name,))
+            if blob is not None:
+                self._d = len(blob) // 8
+        return self._d
+
+    def vectors(self, start: int, stop: int) -> FloatArray:
+        d = self.n_features
+        rows = self._conn.execute(
+            "SELECT vector FROM np_samples WHERE store = %s AND id >= %s AND id < %s "
+            "ORDER BY id", (self.name, int(start), int(stop))
+        ).fetchall()
+        if not rows or d is None:
+            return np.zeros((0, d or 0))
+        return np.frombuffer(b"".join(bytes(r[0]) for r in rows), dtype="<f8").reshape(-1, d)
+
+    def keys(self) -> list[int]:
+        rows = self._conn.execute(
+            "SELECT key FROM np_samples WHERE store = %s ORDER BY id", (self.name,)
+        ).fetchall()
+        return [int(r[0]) for r in rows]
+
+    def labels(self) -> IntArray:
+        rows = self._conn.execute(
+            "SELECT label FROM np_samples WHERE store = %s ORDER BY id", (self.name,)
+        ).fetchall()
+        return np.array([r[0] for r in rows], dtype=np.int64)
+
+    def _ids_keys(self, sql: str, args: tuple[Any, ...]) -> tuple[IntArray, list[int]]:
+        rows = self._conn.execute(sql, args).fetchall()
+        return np.array([r[0] for r in rows], dtype=np.int64), [int(r[1]) for r in rows]
+
+    def cluster(self, label: int) -> tuple[IntArray, list[int]]:
+        # a range scan of the (store, label, key, id) index, already in key order
+        return self._ids_keys(
+            "SELECT id, key FROM np_samples WHERE store = %s AND label = %s ORDER BY key, id",
+            (self.name, int(label)),
+        )
+
+    def key_range(self, low: int, high: int) -> tuple[IntArray, list[int]]:
+        return self._ids_keys(
+            "SELECT id, key FROM np_samples WHERE store = %s AND key BETWEEN %s AND %s "
+            "ORDER BY key, id", (self.name, int(low), int(high)),
+        )
+
+    def get_meta(self, name: str) -> bytes | None:
+        value = self._one("SELECT value FROM np_meta WHERE store = %s AND name = %s",
+                          (self.name, name))
+        return None if value is None else bytes(value)
+
+    # ------------------------------------------------------------------ writes
+
+    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray) -> None:
+        v, lab = _check_batch(vectors, keys, labels, self.n_features)
+        le = np.ascontiguousarray(v, dtype="<f8")
+        with self.transaction():
+            n0 = self.n_samples
+            with self._conn.cursor() as cur, cur.copy(
+                "COPY np_samples (store, id, key, label, vector) FROM STDIN (FORMAT BINARY)"
+            ) as cp:
+                cp.set_types(["text", "int8", "int8", "int8", "bytea"])
+                for i, (k, c) in enumerate(zip(keys, lab.tolist(), strict=True)):
+                    cp.write_row((self.name, n0 + i, int(k), int(c), le[i].tobytes()))
+        self._d = v.shape[1]
+
+    def update(self, start: int, keys: list[int], labels: IntArray) -> None:
+        lab = [int(c) for c in np.asarray(labels).tolist()]
+        if len(lab) != len(keys):
+            raise InputError(f"store: {len(keys)} keys need as many labels, got {len(lab)}")
+        with self.transaction():
+            for s in range(0, len(keys), UPDATE_BATCH):
+                ks = [int(k) for k in keys[s : s + UPDATE_BATCH]]
+                ids = list(range(start + s, start + s + len(ks)))
+                self._conn.execute(
+                    "UPDATE np_samples AS t SET key = u.key, label = u.label "
+                    "FROM unnest(%s::bigint[], %s::bigint[], %s::bigint[]) AS u(id, key, label) "
+                    "WHERE t.store = %s AND t.id = u.id",
+                    (ids, ks, lab[s : s + UPDATE_BATCH], self.name),
+                )
+
+    def put_meta(self, name: str, value: bytes) -> None:
+        with self.transaction():
+            self._conn.execute(
+                "INSERT INTO np_meta (store, name, value) VALUES (%s, %s, %s) "
+                "ON CONFLICT (store, name) DO UPDATE SET value = EXCLUDED.value",
+                (self.name, name, bytes(value)),
+            )
+
+    def clear(self) -> None:
+        with self.transaction():
+            self._conn.execute("DELETE FROM np_samples WHERE store = %s", (self.name,))
+            self._conn.execute("DELETE FROM np_meta WHERE store = %s", (self.name,))
+        self._d = None
+
+    # ------------------------------------------------------------------ inspection
+
+    def info(self) -> dict[str, Any]:
+        """URL (without password), store name and counts, for the command line."""
+        names = self._conn.execute(
+            "SELECT name FROM np_meta WHERE store = %s ORDER BY name", (self.name,)
+        ).fetchall()
+        return {"path": self.url, "store": self.name, "n_samples": self.n_samples,
+                "n_features": self.n_features, "schema_version": SCHEMA_VERSION,
+                "meta": [r[0] for r in names]}
+
+    def stores(self) -> list[str]:
+        """Names of every store in the database that holds samples or blobs."""
+        rows = self._conn.execute(
+            "SELECT DISTINCT store FROM np_meta UNION SELECT DISTINCT store FROM np_samples "
+            "ORDER BY 1"
+        ).fetchall()
+        return [r[0] for r in rows]

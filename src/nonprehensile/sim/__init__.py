@@ -1,0 +1,18 @@
+"""Physics: execute skills and plans in MuJoCo (the only package that imports ``mujoco``).
+
+Needs the ``sim`` extra (``pip install 'nonprehensile[sim]'``). See ``docs/physics.md``.
+"""
+
+from nonprehensile.sim.run import SimEvent, SimResult, Simulator, default_scale, pose_of_state
+from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams, scene_xml
+
+__all__ = [
+    "DEFAULT_PARAMS",
+    "SimEvent",
+    "SimParams",
+    "SimResult",
+    "Simulator",
+    "default_scale",
+    "pose_of_state",
+    "scene_xml",
+]

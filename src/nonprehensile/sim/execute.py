@@ -1,0 +1,191 @@
+"""Execute demonstrations, transitions and plans in the simulation.
+
+* :func:`replay_demonstration`: a recorded demonstration, open loop: the fingertips follow
+  the recorded tip markers of the fingers the skill names (gaps filled), the object starts in
+  the annotated initial state with its centre of mass above the origin (the recordings'
+  frame); the result is compared with the annotated final state and event times.
+* :func:`simulate_step`: one plan step (or one transition made a step with
+  :func:`~nonprehensile.planning.step_for`): the fingertips follow the step's reference
+  motions, placed where the plan says the object is.
+* :func:`simulate_plan`: every step of a plan in one continuous simulation, open loop: the
+  object carries on from where physics left it, each step's reference motion is placed where
+  the plan predicted the object would be.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS, Dataset, Demonstration
+from nonprehensile.errors import InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.motion.trajectory import fill_gaps
+from nonprehensile.planning import Plan, PlanStep
+from nonprehensile.sim.compare import (
+    DEFAULT_ANGLE_TOL_DEG,
+    DEFAULT_POSITION_TOL,
+    Comparison,
+    compare,
+)
+from nonprehensile.sim.run import SimResult, Simulator, pose_of_state
+from nonprehensile.skills.contacts import Finger
+from nonprehensile.skills.skill import Skill
+
+__all__ = [
+    "Outcome",
+    "fingers_of",
+    "replay_demonstration",
+    "simulate_plan",
+    "simulate_step",
+    "step_targets",
+]
+
+FloatArray = NDArray[np.float64]
+Progress = Callable[[int, int], None]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """One simulated transition: what ran, what physics did, and the comparison."""
+
+    label: dict[str, Any]
+    result: SimResult
+    comparison: Comparison
+
+    @property
+    def success(self) -> bool:
+        """Ended as predicted."""
+        return self.comparison.success
+
+    def to_dict(self) -> dict[str, Any]:
+        """One JSON record: ``success`` beside the details."""
+        return {"success": self.success, **self.label, **self.comparison.to_dict(),
+                "simulation": self.result.to_dict()}
+
+
+def fingers_of(skill: Skill) -> list[int]:
+    """The finger numbers a skill names."""
+    return sorted({el.index for e in skill.events for p in e.pairs
+                   for el in (p.x, p.y) if isinstance(el, Finger)})
+
+
+def _marker(fingers: Mapping[str, str], k: int, names: tuple[str, ...] | list[str]) -> int:
+    name = fingers.get(f"R{k}")
+    if name is None or name not in names:
+        raise InputError(f"finger R{k} has no tip marker among {list(names)} (the dataset's "
+                         f"fingers map {dict(fingers)})")
+    return list(names).index(name)
+
+
+def replay_demonstration(
+    sim: Simulator, dataset: Dataset, demo: Demonstration, *,
+    angle_tol: float = DEFAULT_ANGLE_TOL_DEG,
+) -> Outcome:
+    """Replay one demonstration open loop and compare with its annotations."""
+    traj = demo.trajectory.to_units("m")
+    pos = fill_gaps(traj.positions, max(dataset.gap_limit, 1) * 4)
+    pos = np.asarray(pos)
+    if not np.isfinite(pos).all():  # gaps longer than fill_gaps bridges: hold the last value
+        for j in range(pos.shape[1]):
+            for a in range(3):
+                col = pos[:, j, a]
+                ok = np.isfinite(col)
+                if ok.any():
+                    pos[:, j, a] = np.interp(np.arange(len(col)), np.flatnonzero(ok), col[ok])
+    targets = {k: pos[:, _marker(dataset.fingers, k, traj.marker_names)]
+               for k in fingers_of(demo.skill)}
+    start = pose_of_state(dataset.poly, demo.initial, (0.0, 0.0), sim.scale)
+    result = sim.run(start, targets, traj.rate)
+    t0 = 0.0
+    cmp = compare(dataset.poly, demo.skill, result, predicted=demo.final,
+                  event_times=[e.time - t0 for e in demo.events], angle_tol=angle_tol)
+    label = {"file": demo.file, "skill": demo.skill.name, "mentor": demo.mentor,
+             "from": demo.initial.to_dict(), "to": demo.final.to_dict()}
+    return Outcome(label, result, cmp)
+
+
+def step_targets(
+    step: PlanStep, fingers: Mapping[str, str] = DEFAULT_FINGERS,
+) -> tuple[dict[int, FloatArray], float, list[float]]:
+    """The fingertip targets of a step: its reference motions one after the other.
+
+    Returns
+    -------
+    targets : dict of int to array, shape (n_frames, 3)
+    rate : float
+    event_times : list of float
+        Expected time of each skill event (the arcs' boundaries).
+
+    Raises
+    ------
+    InputError
+        If an arc has no reference motion, or the arcs' rates differ.
+    """
+    skill = step.transition.skill
+    wanted = fingers_of(skill)
+    chunks: dict[int, list[FloatArray]] = {k: [] for k in wanted}
+    rate = None
+    times = [0.0]
+    total = 0
+    for source, target, _, ref in step.motions:
+        if ref is None:
+            raise InputError(f"skill {skill.name!r} has no reference motion for its arc "
+                             f"{source} -> {target}: give demonstrations of it (--dataset)")
+        if rate is not None and abs(ref.rate - rate) > 1e-9:
+            raise InputError(f"the reference motions of {skill.name!r} differ in rate "
+                             f"({rate:g} and {ref.rate:g} Hz)")
+        rate = ref.rate
+        skip = 0 if total == 0 else 1  # arcs share their boundary frame
+        for k in wanted:
+            p = ref.positions[:, _marker(fingers, k, ref.marker_names)]
+            chunks[k].append(p[skip:])
+        total += len(ref.positions) - skip
+        times.append((total - 1) / ref.rate)
+    assert rate is not None
+    return {k: np.concatenate(v) for k, v in chunks.items()}, rate, times
+
+
+def simulate_step(
+    sim: Simulator, step: PlanStep, *, fingers: Mapping[str, str] = DEFAULT_FINGERS,
+    continue_from_current: bool = False, check_position: bool = True,
+    angle_tol: float = DEFAULT_ANGLE_TOL_DEG, position_tol: float = DEFAULT_POSITION_TOL,
+    label: Mapping[str, Any] | None = None,
+) -> Outcome:
+    """Simulate one step: the object starts at the step's planned pose (or, with
+    ``continue_from_current``, wherever the previous simulation left it)."""
+    targets, rate, times = step_targets(step, fingers)
+    if step.start_pose is None or step.end_pose is None:
+        raise InputError("the step carries no object pose: make it with plan() or step_for()")
+    result = sim.run(None if continue_from_current else step.start_pose, targets, rate)
+    t = step.transition
+    cmp = compare(sim.poly, t.skill, result, predicted=step.end_world,
+                  predicted_pose=step.end_pose if check_position else None,
+                  event_times=times, angle_tol=angle_tol, position_tol=position_tol)
+    info = {"skill": t.skill.name, "source": t.source.name, "demonstrated": t.demonstrated,
+            "from": step.start_world.to_dict(), "to": step.end_world.to_dict(),
+            "predicted_position": [round(v, 6) for v in step.end_pose.position],
+            **(label or {})}
+    return Outcome(info, result, cmp)
+
+
+def simulate_plan(
+    poly: Polyhedron, plan: Plan, *, scale: float, fingers: Mapping[str, str] = DEFAULT_FINGERS,
+    sim: Simulator | None = None, progress: Progress | None = None, **kw: Any,
+) -> list[Outcome]:
+    """Execute a plan's steps one after the other in one simulation, open loop."""
+    if not plan.steps:
+        return []
+    n = max(max(fingers_of(s.transition.skill), default=1) for s in plan.steps)
+    sim = sim or Simulator(poly, scale=scale, n_fingers=max(n, 1))
+    out = []
+    for i, step in enumerate(plan.steps):
+        out.append(simulate_step(sim, step, fingers=fingers, continue_from_current=i > 0,
+                                 label={"step": i + 1}, **kw))
+        if progress is not None:
+            progress(i + 1, len(plan.steps))
+    return out

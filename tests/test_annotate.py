@@ -1,0 +1,224 @@
+"""Automatic contact-event annotation: geometry, detection against exact truth, CLI end to end."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from hypothesis import given, settings, strategies as st
+
+from nonprehensile.cli import main
+from nonprehensile.demonstrations.annotate import (
+    DetectionParams,
+    annotate_dataset,
+    annotate_recording,
+    frame_labels,
+    ground_elements,
+    nearest_elements,
+)
+from nonprehensile.demonstrations.dataset import EventTime, load_dataset
+from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
+from nonprehensile.demonstrations.synth import DEFAULT_MENTORS, synthesize, synthesize_dataset
+from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup, parse_object_setup
+from nonprehensile.errors import DemonstrationError
+from nonprehensile.io import load_document, load_model, save_document
+from nonprehensile.skills.contacts import Edge, Face, Vertex
+from nonprehensile.states import State, state_pose
+
+CUBE = load_model("cube")
+
+
+def _box_truth(p: np.ndarray) -> tuple[float, int]:
+    """Distance to the unit cube [0, 1]^3 (minus the depth inside) and how many coordinates
+    lie outside their slab: the closed form, independent of the code under test."""
+    out = np.maximum(np.maximum(-p, p - 1.0), 0.0)
+    n_out = int((out > 0).sum())
+    if n_out:
+        return float(np.linalg.norm(out)), n_out
+    return -float(np.min(np.minimum(p, 1.0 - p))), 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.floats(-0.8, 1.8, allow_nan=False), min_size=3, max_size=3))
+def test_nearest_element_matches_the_closed_form_of_a_box(xyz: list[float]) -> None:
+    p = np.array(xyz)
+    d_true, n_out = _box_truth(p)
+    d, el = nearest_elements(CUBE, p[None], tol=1e-9)
+    assert d[0] == pytest.approx(d_true, abs=1e-9)
+    # outside across one slab: a face; two: an edge; three: a vertex; inside: the nearest face
+    margins = np.sort(np.concatenate([np.abs(p), np.abs(1 - p)]))
+    if margins[0] < 1e-6 or (n_out == 0 and margins[1] - margins[0] < 1e-6):
+        return  # on a boundary between cases: either answer is right
+    assert isinstance(el[0], {0: Face, 1: Face, 2: Edge, 3: Vertex}[n_out])
+
+
+def test_ground_element_from_the_pose() -> None:
+    """Resting on a face, balanced on an edge, on a vertex: what touches the table."""
+    from scipy.spatial.transform import Rotation
+
+    r, t = state_pose(CUBE, State("a", 0))
+    v = CUBE.vertices @ r.T + t
+    on = v[:, 2] < 1e-9
+    assert ground_elements(CUBE, on[None]) == [Face("a")]
+    # turn 45 degrees about an edge of the bottom face: only that edge touches
+    i, j = CUBE.edges[frozenset({"a", "d"})]
+    axis = v[j] - v[i]
+    tilt = Rotation.from_rotvec(axis / np.linalg.norm(axis) * np.pi / 4)
+    w = tilt.apply(v - v[i]) + v[i]
+    low = w[:, 2] - w[:, 2].min() < 1e-9
+    assert ground_elements(CUBE, low[None]) in ([Edge(frozenset({"a", "d"}))],)
+    one = np.zeros((1, 8), bool)
+    one[0, 3] = True
+    assert ground_elements(CUBE, one) == [Vertex(frozenset(CUBE.vertex_faces[3]))]
+    assert ground_elements(CUBE, np.zeros((1, 8), bool)) == [None]
+
+
+# ------------------------------------------------------------------ detection vs exact truth
+
+
+@pytest.fixture(scope="module")
+def tracked() -> object:
+    # two mentors (fast and slow), two demonstrations of each of the six skills
+    return synthesize_dataset(seed=11, n_per_skill=2, mentors=DEFAULT_MENTORS[:2],
+                              track_object=True)
+
+
+@pytest.mark.parametrize("source", ["markers", "rigid_body"])
+def test_events_states_and_chains_are_found_without_event_times(tracked, source: str) -> None:
+    ds = tracked
+    setup = ds.object_setup if source == "markers" else ObjectSetup(rigid_body=ds.poly.name)
+    errors = []
+    for d in ds.demonstrations:
+        pose = setup.pose(d.trajectory, ds.scale)
+        a = annotate_recording(ds.poly, ds.skills, d.trajectory, pose, ds.fingers, ds.scale,
+                               hand_markers=("index_knuckle", "thumb_knuckle"))
+        assert d.skill.name in a.candidates, (d.file, a.doubts)
+        assert [e.pairs for e in a.chain] == [e.pairs for e in d.skill.events]
+        assert a.initial == d.initial and a.final == d.final
+        pairs = list(zip(d.events, a.times, strict=True))[1:]
+        errors += [(t - e.time) * d.trajectory.rate for e, t in pairs]
+        if len(a.candidates) > 1:  # same events, different motions: said, never hidden
+            assert any("differ in their finger motion only" in x for x in a.doubts)
+    # contact changes (every event but the first, which no contact marks) within 2 frames
+    assert np.median(np.abs(errors)) < 2.0
+
+
+def test_flickers_and_unknown_chains_are_reported(tracked) -> None:
+    ds = tracked
+    d = ds.of_skill("push-roll")[0]
+    pose = ds.object_setup.pose(d.trajectory, ds.scale)
+    # no skill fits when the skills file lacks push-roll: a new skill is proposed
+    others = [s for s in ds.skills if s.name != "push-roll"]
+    a = annotate_recording(ds.poly, others, d.trajectory, pose, ds.fingers, ds.scale)
+    assert a.skill is None and a.proposal is not None
+    assert a.proposal["maneuver"] == "rolling"
+    assert a.proposal["initial"] == {"face": "a", "theta": 0}
+    assert [e["contacts"] for e in a.proposal["events"]] == [
+        ["(G,a)"], ["(R1,f)", "(G,a)"], ["(R1,f)", "(G,E(a,d))"], ["(R1,f)", "(G,d)"],
+        ["(G,d)"]]
+    assert any("fits no skill" in x for x in a.doubts)
+    # a fingertip that dips into contact for two frames is a flicker, dropped and listed
+    pos = np.array(d.trajectory.positions)
+    k = d.trajectory.marker_names.index("thumb_tip")
+    f_face = pose.to_units("mm").transform(np.array([[1.02, 0.5, 0.5]]) * 50.0)[:, 0]
+    pos[5:7, k] = f_face[5:7]
+    traj = MarkerTrajectory(pos, d.trajectory.marker_names, d.trajectory.rate, "mm")
+    a = annotate_recording(ds.poly, ds.skills, traj, pose, ds.fingers, ds.scale)
+    assert a.skill == "push-roll"
+    assert any("flicker" in x and "(R2," in x for x in a.doubts)
+
+
+def test_lost_object_is_reported_not_guessed(tracked) -> None:
+    ds = tracked
+    d = ds.of_skill("twist")[0]
+    pose = ds.object_setup.pose(d.trajectory, ds.scale)
+    q = np.array(pose.quaternions)
+    p = np.array(pose.positions)
+    q[30:60] = np.nan
+    p[30:60] = np.nan
+    lost = PoseTrajectory(pose.name, p, q, pose.rate, pose.units)
+    a = annotate_recording(ds.poly, ds.skills, d.trajectory, lost, ds.fingers, ds.scale)
+    assert any("not tracked in frames 30..59" in x for x in a.doubts)
+    with pytest.raises(DemonstrationError, match="not tracked in any frame"):
+        none = PoseTrajectory(pose.name, p * np.nan, q * np.nan, pose.rate, pose.units)
+        annotate_recording(ds.poly, ds.skills, d.trajectory, none, ds.fingers, ds.scale)
+
+
+def test_frame_labels() -> None:
+    ev = [EventTime("rest", 0.1), EventTime("grip", 0.5), EventTime("done", 1.0)]
+    lab = frame_labels(ev, 13, 10.0, "twist")
+    assert lab.event.tolist() == [-1, 0, 0, 0, 0, 1, 1, 1, 1, 1, 2, 2, 2]
+    assert lab.arc.tolist() == [-1, 0, 0, 0, 0, 1, 1, 1, 1, 1, -1, -1, -1]
+    rec = lab.to_records()
+    assert rec[5] == {"frame": 5, "skill": "twist", "event": "grip", "arc": "grip->done"}
+
+
+def test_object_setup_is_checked() -> None:
+    assert parse_object_setup({"rigid_body": "Box"}).rigid_body == "Box"
+    with pytest.raises(DemonstrationError, match="one line"):
+        parse_object_setup({"markers": {"a": [0, 0, 0], "b": [1, 1, 1], "c": [2, 2, 2]}})
+    with pytest.raises(DemonstrationError, match="expected"):
+        parse_object_setup({"rigid_body": "Box", "markers": {}})
+    with pytest.raises(DemonstrationError, match="three or more"):
+        object_setup(None, {"a": [0, 0, 0], "b": [1, 0, 0]})
+    assert object_setup("Box", {"a": [0, 0, 0]}) == ObjectSetup(rigid_body="Box")
+    assert object_setup(None, {}) is None
+    with pytest.raises(DemonstrationError, match="contact_off > contact_on"):
+        DetectionParams(contact_on=0.01, contact_off=0.005)
+
+
+# ------------------------------------------------------------------------ command line
+
+
+def _recordings_only(folder: Path) -> None:
+    doc = load_document(folder / "annotations.json")
+    doc["demonstrations"] = [{"file": d["file"], "mentor": d["mentor"]}
+                             for d in doc["demonstrations"]]
+    save_document(doc, folder / "annotations.json")
+
+
+def test_annotate_then_demo_end_to_end(tmp_path: Path) -> None:
+    takes = tmp_path / "takes"
+    synthesize(takes, seed=5, n_per_skill=1, mentors=1, trajectory_format="csv",
+               track_object=True)
+    truth = load_dataset(takes)
+    _recordings_only(takes)
+    runner = CliRunner()
+    res = runner.invoke(main, ["dataset", "show", str(takes)])
+    assert res.exit_code == 2  # no events yet: not a dataset
+    res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o",
+                               str(takes / "annotations.json"), "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["n_annotated"] == 6 and doc["n_unmatched"] == 0
+    assert (takes / "annotations.recordings.json").is_file()  # the input is kept
+    got = load_dataset(takes)
+    for a, b in zip(got.demonstrations, truth.demonstrations, strict=True):
+        assert a.file == b.file and a.initial == b.initial and a.final == b.final
+        assert [e.id for e in a.events] == [e.id for e in b.events]
+    res = runner.invoke(main, ["demo", "--dataset", str(takes), "--out",
+                               str(tmp_path / "report"), "--json"])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "report" / "index.html").is_file()
+
+
+def test_annotate_bad_input_exits_2(tmp_path: Path) -> None:
+    takes = tmp_path / "takes"
+    synthesize(takes, seed=5, n_per_skill=1, mentors=1, track_object=True)
+    _recordings_only(takes)
+    doc = load_document(takes / "annotations.json")
+    del doc["object_markers"]
+    doc["demonstrations"].append({"file": "missing.c3d", "mentor": "zoe"})
+    save_document(doc, takes / "annotations.json")
+    runner = CliRunner()
+    res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o", str(tmp_path / "x.json")])
+    assert res.exit_code == 2
+    assert "no object tracking" in res.output and "missing.c3d" in res.output
+    res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o",
+                               str(tmp_path / "elsewhere" / "sub" / "a.json")])
+    assert res.exit_code == 2
+    with pytest.raises(DemonstrationError, match="holds it"):
+        annotate_dataset(takes, relative_to=tmp_path / "other")

@@ -1,0 +1,80 @@
+"""The command line imports a command's module only when that command runs."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import click
+import pytest
+from click.testing import CliRunner
+
+import nonprehensile
+from nonprehensile.cli import COMMANDS, load_command, main
+
+HEAVY = ("numpy", "scipy", "networkx", "sklearn", "matplotlib", "yaml", "rich",
+         "nonprehensile.geometry", "nonprehensile.planning", "nonprehensile.pipeline")
+
+_PROBE = """
+import json, sys
+from nonprehensile.cli import main
+try:
+    main({args!r}, standalone_mode=False)
+finally:
+    sys.stdout.flush()
+    print("\\nMODULES=" + json.dumps(sorted(sys.modules)))
+"""
+
+
+def _modules_after(args: list[str]) -> tuple[str, set[str]]:
+    proc = subprocess.run([sys.executable, "-c", _PROBE.format(args=args)],
+                          capture_output=True, text=True, timeout=60, check=True)
+    text, _, mods = proc.stdout.rpartition("\nMODULES=")
+    return text, set(json.loads(mods))
+
+
+@pytest.mark.parametrize("args", [["--help"], ["--version"]])
+def test_help_and_version_import_no_heavy_module(args: list[str]) -> None:
+    text, mods = _modules_after(args)
+    loaded = sorted(m for m in mods if m.split(".")[0] in HEAVY or m in HEAVY
+                    or any(m.startswith(h + ".") for h in HEAVY))
+    assert loaded == [], f"{args} imported {loaded[:10]}"
+    if args == ["--help"]:
+        for name in COMMANDS:
+            assert f"  {name} " in text
+
+
+def test_one_command_imports_only_its_module() -> None:
+    _, mods = _modules_after(["object", "--help"])
+    assert "nonprehensile.cli_object" in mods
+    assert "nonprehensile.cli_plan" not in mods and "sklearn" not in mods
+    assert "matplotlib" not in mods
+
+
+@pytest.mark.parametrize("name", sorted(COMMANDS))
+def test_registered_commands_match_their_registration(name: str) -> None:
+    cmd = load_command(name)
+    assert isinstance(cmd, click.Command)
+    assert cmd.name == name
+    # the help that --help lists without importing is the command's own first sentence
+    assert COMMANDS[name][1] == cmd.get_short_help_str(limit=1000)
+
+
+def test_lazy_group_runs_commands_and_rejects_unknown_ones() -> None:
+    runner = CliRunner()
+    res = runner.invoke(main, ["states", "cube", "--step", "90", "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.output)["n_classes"] >= 1
+    res = runner.invoke(main, ["no-such-command"])
+    assert res.exit_code == 2 and "No such command" in res.output
+
+
+def test_package_names_resolve_on_first_use() -> None:
+    assert nonprehensile.State.parse("a:90").theta == 90.0
+    assert callable(nonprehensile.plan)
+    assert "Polyhedron" in dir(nonprehensile)
+    with pytest.raises(AttributeError):
+        _ = nonprehensile.no_such_name
+    for name in nonprehensile.__all__:
+        assert getattr(nonprehensile, name) is not None
