@@ -35,7 +35,7 @@ import psycopg
 from psycopg import errors as pg_errors, pq
 
 from nonprehensile.errors import InputError, StoreError
-from nonprehensile.motion.store import FloatArray, IntArray, _check_batch
+from nonprehensile.motion.store import FloatArray, IntArray, _check_batch, _check_micro
 from nonprehensile.motion.stores import display_name, is_postgres_url
 
 __all__ = ["SCHEMA_VERSION", "UPDATE_BATCH", "PostgresStore", "is_postgres_url"]
@@ -55,8 +55,11 @@ _DDL = (
         key bigint NOT NULL,
         label bigint NOT NULL,
         vector bytea NOT NULL,
+        micro bigint NOT NULL DEFAULT -1,
         PRIMARY KEY (store, id)
     )""",
+    # tables made before the micro-cluster record (method "micro") get its column
+    "ALTER TABLE np_samples ADD COLUMN IF NOT EXISTS micro bigint NOT NULL DEFAULT -1",
     "CREATE INDEX IF NOT EXISTS np_samples_key ON np_samples (store, key, id)",
     "CREATE INDEX IF NOT EXISTS np_samples_label_key ON np_samples (store, label, key, id)",
     """CREATE TABLE IF NOT EXISTS np_meta (
@@ -259,6 +262,12 @@ class PostgresStore:
         ).fetchall()
         return np.array([r[0] for r in rows], dtype=np.int64)
 
+    def micro_ids(self) -> IntArray:
+        rows = self._conn.execute(
+            "SELECT micro FROM np_samples WHERE store = %s ORDER BY id", (self.name,)
+        ).fetchall()
+        return np.array([r[0] for r in rows], dtype=np.int64)
+
     def _ids_keys(self, sql: str, args: tuple[Any, ...]) -> tuple[IntArray, list[int]]:
         rows = self._conn.execute(sql, args).fetchall()
         return np.array([r[0] for r in rows], dtype=np.int64), [int(r[1]) for r in rows]
@@ -283,23 +292,43 @@ class PostgresStore:
 
     # ------------------------------------------------------------------ writes
 
-    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray) -> None:
+    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
+            micro: IntArray | None = None) -> None:
         v, lab = _check_batch(vectors, keys, labels, self.n_features)
+        mic = _check_micro(micro, v.shape[0]).tolist()
         le = np.ascontiguousarray(v, dtype="<f8")
         with self.transaction():
             n0 = self.n_samples
             with self._conn.cursor() as cur, cur.copy(
-                "COPY np_samples (store, id, key, label, vector) FROM STDIN (FORMAT BINARY)"
+                "COPY np_samples (store, id, key, label, vector, micro) FROM STDIN "
+                "(FORMAT BINARY)"
             ) as cp:
-                cp.set_types(["text", "int8", "int8", "int8", "bytea"])
+                cp.set_types(["text", "int8", "int8", "int8", "bytea", "int8"])
                 for i, (k, c) in enumerate(zip(keys, lab.tolist(), strict=True)):
-                    cp.write_row((self.name, n0 + i, int(k), int(c), le[i].tobytes()))
+                    cp.write_row((self.name, n0 + i, int(k), int(c), le[i].tobytes(),
+                                  int(mic[i])))
         self._d = v.shape[1]
 
-    def update(self, start: int, keys: list[int], labels: IntArray) -> None:
+    def update(self, start: int, keys: list[int], labels: IntArray,
+               micro: IntArray | None = None) -> None:
         lab = [int(c) for c in np.asarray(labels).tolist()]
         if len(lab) != len(keys):
             raise InputError(f"store: {len(keys)} keys need as many labels, got {len(lab)}")
+        if micro is not None:
+            mic = _check_micro(micro, len(keys)).tolist()
+            with self.transaction():
+                for s in range(0, len(keys), UPDATE_BATCH):
+                    ks = [int(k) for k in keys[s : s + UPDATE_BATCH]]
+                    ids = list(range(start + s, start + s + len(ks)))
+                    self._conn.execute(
+                        "UPDATE np_samples AS t SET key = u.key, label = u.label, "
+                        "micro = u.micro FROM unnest(%s::bigint[], %s::bigint[], "
+                        "%s::bigint[], %s::bigint[]) AS u(id, key, label, micro) "
+                        "WHERE t.store = %s AND t.id = u.id",
+                        (ids, ks, lab[s : s + UPDATE_BATCH], mic[s : s + UPDATE_BATCH],
+                         self.name),
+                    )
+            return
         with self.transaction():
             for s in range(0, len(keys), UPDATE_BATCH):
                 ks = [int(k) for k in keys[s : s + UPDATE_BATCH]]
