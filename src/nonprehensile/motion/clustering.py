@@ -1,6 +1,12 @@
 """Incremental clustering of flattened trajectories on a Hilbert-curve index (paper Section VI).
 
-Two methods share one scikit-learn style class, :class:`HilbertClusterer`:
+Three methods share one scikit-learn style class, :class:`HilbertClusterer`:
+
+``method="micro"`` (the default, ours): the Hilbert keys index a bounded summary of
+micro-clusters, clustered by Gaussian mixtures chosen by BIC; see
+:mod:`nonprehensile.motion.summary` for the design. Stored records (key, label as
+registered, micro-cluster id) are written once; :attr:`HilbertClusterer.labels_` derives the
+current labels from the summary.
 
 ``method="paper"``: the paper's recipe, exactly. PCA with 2 components fitted on a first batch,
 components scaled to the batch's range and cut into ``2**5 = 32`` levels, the 5th-order Hilbert
@@ -9,7 +15,7 @@ the largest gaps. A new sample is registered without reclustering (its key falls
 every ``recalibration_period`` samples the principal components are refitted on a fixed-size
 random sample of the stored ones, every stored sample is re-keyed and the keys re-cut.
 
-``method="runs"`` (the default, ours). It keeps the paper's promise (one sortable key per
+``method="runs"`` (our earlier method). It keeps the paper's promise (one sortable key per
 sample, a per-sample cost that does not grow with the data) and fixes its quality:
 
 * More components (enough for 90 % of the variance, 2..6) and a higher order (``62 // k``
@@ -106,6 +112,14 @@ def _hash_index(seed: int, idx: NDArray[np.uint64]) -> NDArray[np.uint64]:
         z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
         return z ^ (z >> np.uint64(31))
+
+
+def _hash_int(seed: int, i: int) -> int:
+    """:func:`_hash_index` of one index, on Python ints (the same value)."""
+    z = (i * _GOLDEN + ((seed * _GOLDEN) & _MASK)) & _MASK
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK
+    return z ^ (z >> 31)
 
 
 def _pca(x: FloatArray, n_components: int | None, *, min_k: int = 2,
@@ -256,8 +270,9 @@ class HilbertClusterer:
     n_clusters : int or None
         Number of clusters; ``None`` chooses it (2..``max_auto_clusters``) by the silhouette
         score at every recalibration.
-    method : {"runs", "paper"}
-        ``"runs"`` (ours, see the module notes) or ``"paper"`` (the paper's recipe).
+    method : {"micro", "runs", "paper"}
+        ``"micro"`` (ours, the default), ``"runs"`` (our earlier method) or ``"paper"``
+        (the paper's recipe); see the module notes.
     n_components : int or None
         Principal components ``k``. Paper: 2. Runs: ``None`` picks the fewest explaining
         90 % of the variance, 2..6.
@@ -279,9 +294,11 @@ class HilbertClusterer:
     drift_fraction : float
         Runs only: novel samples, as a fraction of the count at the last recalibration, that
         bring the next one forward.
-    novelty : float
-        Runs only: a sample farther than ``novelty`` times the 99th percentile of the
+    novelty : float or None
+        Runs: a sample farther than ``novelty`` times the 99th percentile of the
         within-cluster distances (at the last recalibration) from every run is novel.
+        Micro: farther than ``novelty`` times the 90th percentile of the distances between
+        neighbouring micro-clusters (at the last macro step). ``None``: 1 (runs), 2 (micro).
     margin : float
         Runs only: fraction of the range added on each side of the scale bounds.
     max_runs : int
@@ -297,6 +314,18 @@ class HilbertClusterer:
         Largest number of clusters tried when ``n_clusters=None``.
     merge : {"ward", "kmeans", "auto"}
         Runs only: how runs are merged into clusters (see the module notes).
+    variance : float
+        Micro: fraction of the variance the principal components keep (0.95).
+    max_components : int
+        Micro: most principal components (24).
+    capacity : int
+        Micro: most micro-clusters in the summary (256); a full summary is compacted to half.
+    macro_growth : float
+        Micro: a macro step is due when the count reaches ``macro_growth`` times the count
+        at the last one (> 1).
+    residual_drift : float
+        Micro: the projection is recalibrated when the mean reconstruction residual of the
+        samples since the last calibration exceeds ``residual_drift`` times the reservoir's.
     store : SampleStore or None
         Where samples, keys and cluster ids are kept (default: a new :class:`MemoryStore`).
     random_state : int, numpy Generator or None
@@ -698,6 +727,13 @@ class HilbertClusterer:
         if fill:
             self._reservoir = np.vstack([self._reservoir, x[:fill]])
         if fill == x.shape[0]:
+            return
+        if x.shape[0] - fill == 1:
+            # one sample: the same hash on a Python int, without array temporaries
+            i = n0 + fill
+            one = _hash_int(self._seed, i) % (i + 1)
+            if one < size:
+                self._reservoir[one] = x[fill]
             return
         idx = np.arange(n0 + fill, n0 + x.shape[0], dtype=np.uint64)
         slot = _hash_index(self._seed, idx) % (idx + np.uint64(1))

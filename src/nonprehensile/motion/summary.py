@@ -62,8 +62,12 @@ IntArray = NDArray[np.int64]
 _PENDING = 16
 #: Dimensions of the index curves (the leading components): keys of <= 16 bits, table-served.
 _INDEX_DIMS = 4
+#: EM steps from each start before the most likely one is run to convergence.
+_SHORT_EM = 10
 #: Smallest number of novel micro-clusters that brings a macro step forward.
 _MIN_NOVEL = 3
+#: The largest double below 1: the upper bound falls in the last cell.
+_TOP = math.nextafter(1.0, 0.0)
 #: Samples whose mean residual is compared with the calibration's.
 _MIN_RESIDUAL = 5
 
@@ -95,15 +99,46 @@ def match_ids(old: IntArray, new: IntArray, weight: FloatArray,
 
 
 def _kmeans_starts(z: FloatArray, w: FloatArray, c: int, n: int, seed: int) -> list[IntArray]:
-    """Partitions by weighted k-means (k-means++ seeding, scikit-learn), one per seed."""
-    if n <= 0 or c < 2 or z.shape[0] <= c:
-        return []
-    from sklearn.cluster import KMeans
+    """Partitions by weighted k-means (k-means++ seeding, 20 Lloyd steps), one per seed.
 
+    Written out in numpy rather than through scikit-learn's KMeans, whose per-call overhead
+    (tens of milliseconds) would dominate a macro step on a few hundred points.
+    """
+    m = z.shape[0]
+    if n <= 0 or c < 2 or m <= c:
+        return []
+    rng = np.random.default_rng([seed, 11])
+    sq = np.einsum("ij,ij->i", z, z)
     out = []
-    for s in range(n):
-        km = KMeans(n_clusters=c, n_init=1, random_state=(seed * 7919 + s) % (2**31))
-        lab = np.asarray(km.fit(z, sample_weight=w).labels_, dtype=np.int64)
+    for _ in range(n):
+        # k-means++: each next centre drawn in proportion to weight x squared distance
+        centres = [int(rng.choice(m, p=w / w.sum()))]
+        d2 = np.maximum(sq - 2.0 * z @ z[centres[0]] + sq[centres[0]], 0.0)
+        trials = 2 + int(math.log(c))
+        for _ in range(c - 1):
+            # greedy k-means++ (as scikit-learn's): of a few candidates drawn, the one that
+            # lowers the weighted potential most
+            p = w * d2
+            tot = float(p.sum())
+            cands = (rng.choice(m, size=trials, p=p / tot) if tot > 0
+                     else rng.integers(m, size=trials))
+            d2c = np.minimum(d2[None, :], np.maximum(
+                sq[None, :] - 2.0 * z[cands] @ z.T + sq[cands][:, None], 0.0))
+            pick = int(np.argmin(d2c @ w))
+            centres.append(int(cands[pick]))
+            d2 = d2c[pick]
+        cent = z[centres].copy()
+        lab = np.zeros(m, dtype=np.int64)
+        for it in range(20):
+            dist = sq[:, None] - 2.0 * z @ cent.T + np.einsum("ij,ij->i", cent, cent)[None, :]
+            new = np.argmin(dist, axis=1).astype(np.int64)
+            if it and np.array_equal(new, lab):
+                break
+            lab = new
+            for j in range(c):
+                sel = lab == j
+                if sel.any():
+                    cent[j] = (w[sel, None] * z[sel]).sum(axis=0) / w[sel].sum()
         out.append(np.unique(lab, return_inverse=True)[1].astype(np.int64))
     return out
 
@@ -213,9 +248,10 @@ class MicroSummary:
         c, ki = self.n_curves, self.ki
         # rot: (n_curves * ki, k); coordinates on each curve's axes
         u = np.add.reduce(z[:, None, :] * self.rot[None, :, :], axis=2)
-        top = math.nextafter(1.0, 0.0)
-        cell = np.floor(np.clip((u - self.lo) / (self.hi - self.lo), 0.0, top)
-                        * float(1 << self.oi)).astype(np.int64)
+        # np.minimum / np.maximum rather than np.clip: the same values, without clip's
+        # per-call dtype checks (a tenth of a single registration)
+        frac = np.minimum(np.maximum((u - self.lo) / (self.hi - self.lo), 0.0), _TOP)
+        cell = np.floor(frac * float(1 << self.oi)).astype(np.int64)
         rm = (cell.reshape(m, c, ki) * self._weights).sum(axis=2)
         return np.asarray(self._table[rm], dtype=np.uint64)
 
@@ -300,6 +336,15 @@ class MicroSummary:
         if n_idx == 0:
             return np.zeros((m, 0), dtype=np.int64)
         w = min(self.window, n_idx)
+        if m == 1:
+            # one sample (a single registration): Python ints, no temporaries
+            top = max(n_idx - 2 * w, 0)
+            parts = []
+            for t in range(self.n_curves):
+                pos = int(self.idx_keys[t].searchsorted(ck[0, t]))
+                lo = min(max(pos - w, 0), top)
+                parts.append(self.idx_slots[t][lo : lo + 2 * w])
+            return np.concatenate(parts)[None, :]
         off = np.arange(2 * w)
         out = []
         for t in range(self.n_curves):
@@ -347,7 +392,10 @@ class MicroSummary:
                 best, bd2 = int(c[j]), float(d2[j])
             else:
                 best, bd2 = -1, math.inf
-            if best >= 0 and bd2 <= self.thr2:
+            # Birch's rule: absorb when the micro-cluster's radius (root mean squared distance
+            # of its samples to the centroid) stays within the threshold after the absorption
+            if best >= 0 and (self.wss[best] + bd2 * self.count[best] / (self.count[best] + 1.0)
+                              <= self.thr2 * (self.count[best] + 1.0)):
                 self._absorb(best, xi, z[i])
                 slot = best
             else:
@@ -410,7 +458,7 @@ class MicroSummary:
         f = (n - 1.0) / n
         # Welford: the within sums grow by (n - 1) / n times the squared deviation
         self.wss[s] += f * float(dx @ dx)
-        self.zs[s] += f * np.outer(dz, dz)
+        self.zs[s] += (f * dz)[:, None] * dz[None, :]
         self.cent[s] += dx / n
         self.zc[s] += dz / n
         self.count[s] = n
@@ -474,8 +522,10 @@ class MicroSummary:
         idx = np.array(sorted(merged), dtype=np.int64)
         idx = idx[self.slot_uid[idx] >= 0]
         if idx.size:
+            # the threshold grows at every compaction (Birch): to the median radius of what
+            # was merged, and by at least a tenth, so that compactions grow rarer
             rad2 = self.wss[idx] / self.count[idx]
-            self.thr2 = max(self.thr2, float(np.median(rad2)))
+            self.thr2 = max(1.21 * self.thr2, float(np.median(rad2)))
         self.n_compactions += 1
         self._rebuild_index()
 
@@ -503,14 +553,22 @@ class MicroSummary:
         else:
             options = list(range(1, min(self.max_auto_clusters, n_pts) + 1))
         merges = ward_merges(z, w)
+        _, previous = np.unique(self.slot_label[live], return_inverse=True)
         best: Mixture | None = None
         for c in options:
             starts = [ward_partition(merges, n_pts, c)]
+            if int(previous.max()) + 1 == c:
+                starts.append(previous.astype(np.int64))  # the last macro step's clusters
             starts += _kmeans_starts(z, w, c, self.n_starts, self.seed + self.n_macro_steps)
             for cov in COVARIANCE_TYPES:
-                # the best local optimum of EM among the starts, then the best model by BIC
-                fits = [fit_mixture(z, w, scatter, init, cov) for init in starts]
-                mix = max(fits, key=lambda f: f.log_likelihood)
+                # a few EM steps from every start, the most likely run on to convergence,
+                # then the best model by BIC
+                short = [fit_mixture(z, w, scatter, init, cov, max_iter=_SHORT_EM)
+                         for init in starts]
+                lead = max(short, key=lambda f: f.log_likelihood)
+                mix = fit_mixture(z, w, scatter, lead.labels, cov)
+                if mix.log_likelihood < lead.log_likelihood:
+                    mix = lead
                 if best is None or mix.bic < best.bic - 1e-9:
                     best = mix
         assert best is not None
