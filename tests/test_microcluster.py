@@ -85,7 +85,7 @@ def test_mixture_counts_the_scatter_of_a_summarised_point() -> None:
 def test_gram_pca_equals_the_svd() -> None:
     rng = np.random.default_rng(3)
     x = rng.normal(size=(30, 200)) @ np.diag(np.linspace(3, 0.1, 200))
-    mean, comp, explained = pca(x, variance=0.9, min_k=1, max_k=30)
+    _, comp, explained = pca(x, variance=0.9, min_k=1, max_k=30)
     ref = PCA(n_components=comp.shape[0], svd_solver="full").fit(x)
     np.testing.assert_allclose(np.abs(comp @ ref.components_.T), np.eye(comp.shape[0]),
                                atol=1e-8)
