@@ -348,9 +348,9 @@ class MicroSummary:
         off = np.arange(2 * w)
         out = []
         for t in range(self.n_curves):
-            pos = np.searchsorted(self.idx_keys[t], ck[:, t])
-            lo = np.clip(pos - w, 0, max(n_idx - 2 * w, 0))
-            out.append(self.idx_slots[t][np.minimum(lo[:, None] + off, n_idx - 1)])
+            at = np.searchsorted(self.idx_keys[t], ck[:, t])
+            first = np.minimum(np.maximum(at - w, 0), max(n_idx - 2 * w, 0))
+            out.append(self.idx_slots[t][np.minimum(first[:, None] + off, n_idx - 1)])
         return np.concatenate(out, axis=1)
 
     # ------------------------------------------------------------------ registration
