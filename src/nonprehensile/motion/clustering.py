@@ -750,7 +750,7 @@ class HilbertClusterer:
 
     def _keys(self, z: FloatArray) -> tuple[Keys, NDArray[np.bool_]]:
         grid, out = quantize(z, self.lower_, self.upper_, self.order_)
-        return np.asarray(encode(grid, self.order_), dtype=np.uint64), out
+        return np.asarray(encode(grid, self.order_, validate=False), dtype=np.uint64), out
 
     def _curve_key(self, z: FloatArray, t: int) -> Keys:
         if t == 0:
@@ -760,7 +760,7 @@ class HilbertClusterer:
         # most 24 bits is enough, and costs a fraction of the stored key's encoding
         order = max(2, min(self.order_, 24 // max(1, width.size)))
         grid, _ = quantize(z + self._shifts[t], self.lower_, self.upper_ + width / 2, order)
-        return np.asarray(encode(grid, order), dtype=np.uint64)
+        return np.asarray(encode(grid, order, validate=False), dtype=np.uint64)
 
     # ------------------------------------------------------------------ registration
 
