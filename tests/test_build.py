@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import given, strategies as st
@@ -138,8 +140,7 @@ def test_non_convex_mesh_marks_virtual_faces_and_keeps_its_centre_of_mass() -> N
 @pytest.mark.parametrize(
     ("fname", "match"),
     [
-        ("open_box.stl", "not closed"),
-        ("flat.obj", "not closed"),
+        ("flat.obj", "coplanar"),
         ("triangle.obj", "at least 4 points"),
         ("missing.stl", "no such mesh file"),
     ],
@@ -150,11 +151,26 @@ def test_bad_meshes(fname: str, match: str) -> None:
     assert fname in str(info.value)
 
 
-def test_open_mesh_accepted_on_request_and_coplanar_points_refused() -> None:
-    model = from_mesh(DATA / "open_box.stl", allow_open=True)
+def test_open_mesh_becomes_its_hull_with_a_note_and_strict_refuses_it(tmp_path: Path) -> None:
+    notes: list[str] = []
+    # a box missing one face: trimesh fills the quad hole, and says so
+    model = from_mesh(DATA / "open_box.stl", notes=notes)
+    assert len(model.faces) == 6 and notes and "filled" in notes[0]
+    # a box missing two adjacent faces: a hole of 6 edges stays open; the hull is taken
+    box = trimesh.creation.box()
+    keep = np.abs(box.face_normals @ [1, 0, 0]) < 0.5
+    keep &= box.face_normals @ [0, 0, 1] < 0.5
+    box.update_faces(keep)
+    path = tmp_path / "open2.stl"
+    box.export(path)
+    notes.clear()
+    model = from_mesh(path, notes=notes)
     assert len(model.faces) == 6
+    assert len(notes) == 1 and "not closed" in notes[0] and "convex hull" in notes[0]
+    with pytest.raises(MeshError, match=r"open2\.stl: it is not closed"):
+        from_mesh(path, strict=True)
     with pytest.raises(MeshError, match="coplanar"):
-        from_mesh(DATA / "flat.obj", allow_open=True)
+        from_mesh(DATA / "flat.obj")
 
 
 def test_convex_hull_bad_points() -> None:

@@ -111,8 +111,8 @@ def test_bad_models_exit_2_with_one_line(tmp_path: Path, text: str, match: str) 
 
 @pytest.mark.parametrize(
     ("mesh", "match"),
-    [("triangle.obj", "at least 4 points"), ("flat.obj", "not closed"),
-     ("open_box.stl", "not closed")],
+    [("triangle.obj", "at least 4 points"), ("flat.obj", "coplanar"),
+     ("missing.stl", "no such mesh file")],
 )
 def test_bad_meshes_exit_2(tmp_path: Path, mesh: str, match: str) -> None:
     pytest.importorskip("trimesh")

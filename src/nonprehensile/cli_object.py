@@ -22,7 +22,7 @@ from nonprehensile.cli_options import (
     states_option,
     step_option,
 )
-from nonprehensile.geometry.build import from_mesh
+from nonprehensile.geometry.build import MESH_RTOL, from_mesh
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
 from nonprehensile.io import write_model
@@ -76,7 +76,7 @@ def adjacency_table(poly: Polyhedron) -> Table:
 @rtol_option
 @json_option
 @handle_errors
-def object_show(model: str, rtol: float, as_json: bool) -> None:
+def object_show(model: str, rtol: float | None, as_json: bool) -> None:
     """Show MODEL (a model file, or a bundled name such as `cube`): faces, A, Delta."""
     poly = load_cli_model(model, rtol)
     summary = object_summary(poly)
@@ -112,7 +112,7 @@ def object_show(model: str, rtol: float, as_json: bool) -> None:
               help="Image file to write (PNG, SVG or PDF, by suffix).")
 @rtol_option
 @handle_errors
-def object_figure_cmd(model: str, output: str, rtol: float) -> None:
+def object_figure_cmd(model: str, output: str, rtol: float | None) -> None:
     """Draw MODEL labeled like the paper's Fig. 3: faces, edge numbers, A and Delta."""
     from nonprehensile.viz import object_figure, save_figure
 
@@ -125,19 +125,32 @@ def object_figure_cmd(model: str, output: str, rtol: float) -> None:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (.json, or .yaml/.yml).")
 @click.option("--name", default=None, help="Object name (default: the mesh file's stem).")
-@click.option("--rtol", type=float, default=1e-6, show_default=True,
-              help="Tolerance, relative to the diameter, for merging coplanar triangles.")
-@click.option("--allow-open", is_flag=True,
-              help="Accept a mesh that is not closed (use the hull of its vertices).")
+@click.option("--rtol", type=float, default=MESH_RTOL, show_default=True,
+              help="Tolerance, relative to the object's size, for merging nearly coplanar "
+              "facets; raise it to facet a curved object more coarsely. The model stores it.")
+@click.option("--merge-angle", type=float, default=0.0, show_default=True,
+              help="Also merge neighbouring facets whose normals differ by at most this many "
+              "degrees.")
+@click.option("--max-faces", type=click.IntRange(min=4), default=None,
+              help="Facet a curved object (a ball, a can) into at most this many faces.")
+@click.option("--strict", is_flag=True,
+              help="Refuse an open, non-manifold or multi-piece mesh instead of using the "
+              "convex hull of its points.")
+@click.option("--allow-open", is_flag=True, hidden=True,
+              help="Accepted for compatibility: open meshes are used unless --strict.")
 @click.option("--units", default="m", show_default=True, help="Length units of the mesh.")
 @json_option
 @handle_errors
 def object_from_mesh(
-    mesh: str, output: str, name: str | None, rtol: float, allow_open: bool, units: str,
-    as_json: bool,
+    mesh: str, output: str, name: str | None, rtol: float, merge_angle: float,
+    max_faces: int | None, strict: bool, allow_open: bool, units: str, as_json: bool,
 ) -> None:
     """Make an object model from MESH (STL, OBJ, PLY, OFF, GLB, ...): its convex hull."""
-    poly = from_mesh(mesh, name=name, rtol=rtol, allow_open=allow_open, units=units)
+    notes: list[str] = []
+    poly = from_mesh(mesh, name=name, rtol=rtol, angle=merge_angle, max_faces=max_faces,
+                     strict=strict, units=units, notes=notes)
+    for note in notes:
+        err.print(f"note: {note}", markup=False, highlight=False)
     write_model(poly, output)
     if as_json:
         emit_json({"output": str(Path(output)), **object_summary(poly)})
@@ -160,7 +173,7 @@ def object_from_mesh(
 @json_option
 @handle_errors
 def states_cmd(
-    model: str, step: float | None, states_file: str | None, rtol: float, atol: float | None,
+    model: str, step: float | None, states_file: str | None, rtol: float | None, atol: float | None,
     angle_tol: float, as_json: bool,
 ) -> None:
     """The stable states of MODEL and their geometric-equivalence classes."""

@@ -26,7 +26,7 @@ __all__ = [
 ]
 
 
-def load_cli_model(path: str, rtol: float) -> Polyhedron:
+def load_cli_model(path: str, rtol: float | None) -> Polyhedron:
     """The model a command names (a file, or a bundled name such as ``cube``)."""
     return load_model(path, rtol=rtol)
 
@@ -34,9 +34,9 @@ def load_cli_model(path: str, rtol: float) -> Polyhedron:
 rtol_option = click.option(
     "--rtol",
     type=float,
-    default=DEFAULT_RTOL,
-    show_default=True,
-    help="Length tolerance relative to the object's diameter (raise it for measured models).",
+    default=None,
+    help="Length tolerance relative to the object's diameter (raise it for measured models; "
+    f"default: the model file's own rtol, else {DEFAULT_RTOL:g}).",
 )
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 angle_tol_option = click.option(

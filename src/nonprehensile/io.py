@@ -37,7 +37,7 @@ __all__ = [
 #: Object models shipped inside the package, by name.
 BUNDLED_MODELS = ("cube",)
 
-_MODEL_KEYS = {"name", "vertices", "faces", "center_of_mass", "virtual_faces", "units"}
+_MODEL_KEYS = {"name", "vertices", "faces", "center_of_mass", "virtual_faces", "units", "rtol"}
 
 
 def load_document(path: str | Path) -> Any:
@@ -89,18 +89,21 @@ def save_document(data: Any, path: str | Path) -> None:
 
 
 def model_from_dict(
-    data: Any, *, source: str | None = None, rtol: float = DEFAULT_RTOL
+    data: Any, *, source: str | None = None, rtol: float | None = None
 ) -> Polyhedron:
     """Build a model from the spec's dictionary form.
 
     Parameters
     ----------
     data : dict
-        ``{"name", "vertices", "faces", ["center_of_mass"], ["virtual_faces"], ["units"]}``.
+        ``{"name", "vertices", "faces", ["center_of_mass"], ["virtual_faces"], ["units"],
+        ["rtol"]}``.
     source : str, optional
         Where it came from, for error messages.
-    rtol : float
-        Length tolerance relative to the diameter.
+    rtol : float, optional
+        Length tolerance relative to the diameter. Default: the model's own ``rtol`` (the
+        tolerance it was built at, which a model made from a mesh stores), else
+        :data:`DEFAULT_RTOL`.
 
     Raises
     ------
@@ -134,6 +137,14 @@ def model_from_dict(
     units = data.get("units", "m")
     if not isinstance(units, str):
         raise ModelError(f"'units' must be a string, got {units!r}", source=source)
+    if rtol is None:
+        rtol = data.get("rtol", DEFAULT_RTOL)
+        if isinstance(rtol, bool) or not isinstance(rtol, (int, float)):
+            raise ModelError(
+                f"'rtol' must be a positive number (the model's length tolerance relative to "
+                f"its diameter), got {rtol!r}",
+                source=source,
+            )
     try:
         return Polyhedron(
             data["vertices"],
@@ -159,17 +170,19 @@ def model_to_dict(poly: Polyhedron) -> dict[str, Any]:
         "center_of_mass": [float(c) for c in poly.com],
         "units": poly.units,
     }
+    if poly.rtol != DEFAULT_RTOL:
+        out["rtol"] = poly.rtol  # the tolerance the model is valid at travels with it
     if poly.virtual_faces:
         out["virtual_faces"] = sorted(poly.virtual_faces)
     return out
 
 
-def read_model(path: str | Path, *, rtol: float = DEFAULT_RTOL) -> Polyhedron:
-    """Read an object model file (JSON or YAML)."""
+def read_model(path: str | Path, *, rtol: float | None = None) -> Polyhedron:
+    """Read an object model file (JSON or YAML), at its own tolerance unless ``rtol``."""
     return model_from_dict(load_document(path), source=str(path), rtol=rtol)
 
 
-def load_model(spec: str | Path, *, rtol: float = DEFAULT_RTOL) -> Polyhedron:
+def load_model(spec: str | Path, *, rtol: float | None = None) -> Polyhedron:
     """A model from a file path, or a bundled model by name (``"cube"``) when no such file.
 
     Raises
@@ -217,7 +230,7 @@ def read_states(path: str | Path) -> list[State]:
 def read_skills(
     path: str | Path,
     *,
-    rtol: float = DEFAULT_RTOL,
+    rtol: float | None = None,
     angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> tuple[Polyhedron, list[Skill]]:
     """Read a skills file (``shared/spec/files-and-cli.md``) and its object model.

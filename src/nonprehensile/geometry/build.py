@@ -17,10 +17,17 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
-from nonprehensile.errors import MeshError, ModelError
-from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
+from nonprehensile.checks import check_tolerance
+from nonprehensile.errors import InputError, MeshError, ModelError
+from nonprehensile.geometry.polyhedron import (
+    DEFAULT_RTOL,
+    MAX_COORDINATE,
+    Polyhedron,
+    _Loops,
+    point_diameter,
+)
 
 __all__ = [
     "box",
@@ -34,6 +41,10 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+
+#: Default merging tolerance of :func:`from_mesh`, relative to the object's size: mesh files
+#: often store single-precision coordinates (7 digits).
+MESH_RTOL = 1e-6
 
 #: Mesh formats that :func:`from_mesh` is tested on; trimesh reads more.
 MESH_FORMATS = ("stl", "obj", "ply", "off", "glb")
@@ -112,64 +123,170 @@ def octahedron(edge: float = 1.0, *, name: str = "octahedron") -> Polyhedron:
     return convex_hull(p, name=name)
 
 
-def _hull_faces(points: FloatArray, atol: float) -> list[tuple[FloatArray, list[int]]]:
-    """Qhull's triangles merged into planar faces: (outward normal, vertex indices) each."""
+def _qhull(points: FloatArray, radius: float, angle: float) -> Any:
+    """Qhull's hull of ``points``, merging facets within ``radius`` or ``angle`` (degrees).
+
+    Qhull's pre-merging (options ``C-`` and ``A-``) merges facets whose centrums lie within
+    ``radius`` of a neighbour's plane, or whose normals are within ``angle``, and keeps the
+    result convex; it also drops vertices that end up inside a merged facet or on an edge.
+    """
+    opts = f"C-{radius:.17g}" if radius > 0 else "C-0"
+    if angle > 0:
+        opts += f" A-{math.cos(math.radians(angle)):.17g}"
     try:
-        hull = ConvexHull(points)
+        return ConvexHull(points, qhull_options=opts)
     except QhullError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else "Qhull failed"
         raise MeshError(
             f"cannot build a convex hull of {len(points)} points: they are degenerate (all "
             f"coplanar, collinear or coincident). Qhull said: {first}"
         ) from None
-    simplices = hull.simplices
-    eqs = hull.equations
-    n_tri = len(simplices)
-    face_of = np.full(n_tri, -1)
-    faces: list[tuple[FloatArray, list[int]]] = []
-    # Grow each face from a seed triangle over neighbours lying in the seed's plane; testing
-    # against the seed (not the neighbour) keeps a slowly curving surface from merging whole.
-    for seed in range(n_tri):
-        if face_of[seed] >= 0:
-            continue
-        fid = len(faces)
-        n, off = eqs[seed, :3], eqs[seed, 3]
-        stack, members = [seed], []
-        face_of[seed] = fid
-        while stack:
-            t = stack.pop()
-            members.append(t)
-            for nb in hull.neighbors[t]:
-                if face_of[nb] < 0 and np.all(np.abs(points[simplices[nb]] @ n + off) <= atol):
-                    face_of[nb] = fid
-                    stack.append(nb)
-        verts = sorted({int(i) for t in members for i in simplices[t]})
-        faces.append((n / np.linalg.norm(n), verts))
-    return faces
 
 
-def _order_loop(points: FloatArray, idx: list[int], n_out: FloatArray, atol: float) -> list[int]:
-    """Order a face's vertices clockwise seen from outside, dropping collinear ones."""
-    p = points[idx]
-    c = p.mean(axis=0)
-    n_in = -n_out
-    u = p[0] - c
-    u /= np.linalg.norm(u)
-    w = np.cross(n_in, u)
-    ang = np.arctan2((p - c) @ w, (p - c) @ u)  # counterclockwise about the inward normal
-    loop = [idx[i] for i in np.argsort(ang, kind="stable")]
-    changed = True
-    while changed and len(loop) > 3:
-        changed = False
-        for k in range(len(loop)):
-            a, b, d = points[loop[k - 1]], points[loop[k]], points[loop[(k + 1) % len(loop)]]
-            line = d - a
-            height = np.linalg.norm(np.cross(line, b - a)) / np.linalg.norm(line)
-            if height <= atol:
-                del loop[k]
-                changed = True
+def _hull_loops(points: FloatArray, hull: Any) -> tuple[list[list[int]], FloatArray]:
+    """The merged facets of a Qhull hull as loops clockwise from outside, and their normals.
+
+    ``scipy`` always triangulates Qhull's output; the triangles of one merged facet share
+    its hyperplane exactly, so they are grouped by their equation, and each group's
+    boundary is chained into a loop. A vertex left on exactly two facets lies on an edge
+    (it is not a corner of the solid) and is dropped from both loops.
+    """
+    simplices = np.asarray(hull.simplices, dtype=np.int64)
+    eqs = np.asarray(hull.equations, dtype=np.float64)
+    _, group = np.unique(eqs, axis=0, return_inverse=True)
+    group = np.asarray(group, dtype=np.int64).ravel()
+    n_groups = int(group.max()) + 1
+    normals = np.zeros((n_groups, 3))
+    normals[group] = eqs[:, :3]
+    normals /= np.linalg.norm(normals, axis=1)[:, None]
+    # orient every triangle counterclockwise seen from outside
+    p = points[simplices]
+    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    flip = np.einsum("ij,ij->i", cross, eqs[:, :3]) < 0
+    simplices[flip] = simplices[flip][:, [0, 2, 1]]
+    tails = simplices.ravel()
+    heads = simplices[:, [1, 2, 0]].ravel()
+    owners = np.repeat(group, 3)
+    n = np.int64(len(points))
+    key = tails * n + heads
+    order = np.argsort(key)
+    rev_pos = order[np.searchsorted(key[order], heads * n + tails)]
+    boundary = owners[rev_pos] != owners
+    tails, heads, owners = tails[boundary], heads[boundary], owners[boundary]
+    # corners of the solid: on three or more facets
+    pair = np.unique(owners * n + tails)
+    counts = np.bincount((pair % n).astype(np.int64), minlength=len(points))
+    # chain each facet's boundary (counterclockwise from outside) from its first edge
+    succ = dict(zip((owners * n + tails).tolist(), heads.tolist(), strict=True))
+    first_edge: dict[int, int] = {}
+    for g, t in zip(owners.tolist(), tails.tolist(), strict=True):
+        first_edge.setdefault(g, t)
+    loops: list[list[int]] = []
+    for g in range(n_groups):
+        start = first_edge[g]
+        loop = [start]
+        cur = succ[g * int(n) + start]
+        while cur != start:
+            loop.append(cur)
+            cur = succ[g * int(n) + cur]
+        kept = [i for i in loop if counts[i] >= 3]
+        loops.append(kept[::-1])  # clockwise seen from outside
+    return loops, normals
+
+
+def _assemble(
+    points: FloatArray, loops: list[list[int]], normals: FloatArray, atol: float
+) -> tuple[FloatArray, dict[str, tuple[int, ...]]]:
+    """Renumber vertices and name faces in the builders' deterministic order."""
+    used = np.unique(np.concatenate([np.asarray(t, dtype=np.int64) for t in loops]))
+    # vertices in lexicographic order of rounded coordinates, so names do not depend on the
+    # order the points came in
+    digits = max(0, int(-math.floor(math.log10(max(atol, 1e-15)))) - 1)
+    r = np.round(points[used], digits)
+    keyed = used[np.lexsort((r[:, 2], r[:, 1], r[:, 0]))]
+    new_index = np.full(len(points), -1, dtype=np.int64)
+    new_index[keyed] = np.arange(len(keyed))
+    az = np.round(np.arctan2(normals[:, 1], normals[:, 0]) % (2 * math.pi), 6) % round(
+        2 * math.pi, 6
+    )
+    height = np.round(normals[:, 2], 6)
+    order = np.lexsort((az, height))
+    faces: dict[str, tuple[int, ...]] = {}
+    for rank, i in enumerate(order.tolist()):
+        loop = new_index[np.asarray(loops[i], dtype=np.int64)].tolist()
+        start = loop.index(min(loop))
+        faces[face_name(rank)] = tuple(loop[start:] + loop[:start])
+    return points[keyed], faces
+
+
+def _planarity_rtol(vertices: FloatArray, faces: dict[str, tuple[int, ...]]) -> float:
+    """How far (relative to the diameter) the loops stray from their planes."""
+    lp = _Loops.of(faces.values())
+    newell = lp.newell(vertices)
+    n = newell / np.maximum(np.linalg.norm(newell, axis=1), 1e-300)[:, None]
+    p = vertices[lp.flat]
+    off = np.abs(np.einsum("ij,ij->i", p - lp.means(vertices)[lp.owner], n[lp.owner]))
+    return float(off.max()) / max(point_diameter(vertices), 1e-300)
+
+
+def _round_up(x: float) -> float:
+    """``x`` rounded up to two significant digits (a tolerance that reads well in a file)."""
+    if x <= 0:
+        return x
+    e = math.floor(math.log10(x)) - 1
+    return float(f"{math.ceil(x / 10.0**e - 1e-9)}e{e}")
+
+
+def _hull_model(
+    p: FloatArray,
+    *,
+    name: str,
+    rtol: float,
+    angle: float,
+    max_faces: int | None,
+    center_of_mass: ArrayLike | None,
+    units: str,
+) -> Polyhedron:
+    extent = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
+    size = extent / math.sqrt(3.0)  # at most the diameter: the merge radius errs small
+    radius = rtol * size
+    hull = _qhull(p, radius, angle)
+    if max_faces is not None:
+        # coarser and coarser merging until the hull has few enough faces
+        for _ in range(60):
+            loops, normals = _hull_loops(p, hull)
+            if len(loops) <= max_faces:
                 break
-    return loop
+            radius = max(radius * 2.0, 1e-12 * extent)
+            hull = _qhull(p, radius, angle)
+        else:
+            raise MeshError(f"cannot facet the hull into at most {max_faces} faces")
+    last: ModelError | None = None
+    for _ in range(8):
+        loops, normals = _hull_loops(p, hull)
+        vertices, faces = _assemble(p, loops, normals, radius)
+        # the model carries the tolerance it is valid at: at least the one asked for, and
+        # enough for the (slightly bent) faces Qhull merged
+        model_rtol = max(rtol, _round_up(radius / size),
+                         _round_up(1.25 * _planarity_rtol(vertices, faces)))
+        try:
+            return Polyhedron(
+                vertices,
+                faces,
+                name=name,
+                center_of_mass=None if center_of_mass is None else np.asarray(center_of_mass),
+                units=units,
+                rtol=model_rtol,
+            )
+        except ModelError as exc:
+            # nearly coplanar or nearly collinear leftovers: merge a little more
+            last = exc
+            radius = max(radius * 2.0, 1e-12 * extent)
+            hull = _qhull(p, radius, angle)
+    raise MeshError(
+        f"the hull of the points does not make a valid model at tolerance rtol={rtol:g} "
+        f"({last}); try a larger tolerance (--rtol) or fewer faces (--max-faces)"
+    )
 
 
 def convex_hull(
@@ -179,6 +296,8 @@ def convex_hull(
     rtol: float = DEFAULT_RTOL,
     center_of_mass: ArrayLike | None = None,
     units: str = "m",
+    angle: float = 0.0,
+    max_faces: int | None = None,
 ) -> Polyhedron:
     """The convex hull of a point set as an object model.
 
@@ -189,11 +308,17 @@ def convex_hull(
     name : str
         Object name.
     rtol : float
-        Tolerance, relative to the diameter, within which hull triangles are coplanar.
+        Tolerance relative to the object's size: hull facets within ``rtol`` times the size
+        of one plane are merged into one face. The model carries the tolerance it is valid at
+        (``Polyhedron.rtol``): ``rtol``, or more where merged faces bend further.
     center_of_mass : array-like, shape (3,), optional
         Default the centroid of the uniform hull.
     units : str
         Length units.
+    angle : float
+        Also merge neighbouring facets whose normals differ by at most ``angle`` degrees.
+    max_faces : int, optional
+        Facet a curved object coarsely enough to have at most this many faces.
 
     Returns
     -------
@@ -206,7 +331,7 @@ def convex_hull(
     """
     try:
         p = np.asarray(points, dtype=float)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise MeshError("points must be an (n, 3) array of numbers") from None
     if p.ndim != 2 or p.shape[1] != 3:
         raise MeshError(f"points must have shape (n, 3), got {p.shape}")
@@ -215,60 +340,48 @@ def convex_hull(
     if not np.all(np.isfinite(p)):
         bad = int(np.flatnonzero(~np.all(np.isfinite(p), axis=1))[0])
         raise MeshError(f"point {bad} is not finite: {p[bad].tolist()}")
-    extent = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
-    atol = rtol * extent
-    faces = _hull_faces(p, atol)
-    loops = [(n, _order_loop(p, idx, n, atol)) for n, idx in faces]
-
-    used = sorted({i for _, loop in loops for i in loop})
-    # vertices in lexicographic order of rounded coordinates, so names do not depend on the
-    # order the points came in
-    digits = max(0, int(-math.floor(math.log10(max(atol, 1e-15)))) - 1)
-    keyed = sorted(used, key=lambda i: tuple(np.round(p[i], digits)))
-    new_index = {old: new for new, old in enumerate(keyed)}
-    vertices = p[keyed]
-
-    def face_key(item: tuple[FloatArray, list[int]]) -> tuple[float, float]:
-        n = item[0]
-        az = math.atan2(n[1], n[0]) % (2 * math.pi)
-        return (round(float(n[2]), 6), round(az, 6) % round(2 * math.pi, 6))
-
-    order = sorted(range(len(loops)), key=lambda i: face_key(loops[i]))
-    model_faces: dict[str, tuple[int, ...]] = {}
-    for rank, i in enumerate(order):
-        loop = [new_index[j] for j in loops[i][1]]
-        start = loop.index(min(loop))
-        model_faces[face_name(rank)] = tuple(loop[start:] + loop[:start])
-    try:
-        return Polyhedron(
-            vertices,
-            model_faces,
-            name=name,
-            center_of_mass=None if center_of_mass is None else np.asarray(center_of_mass),
-            units=units,
-            rtol=rtol,
-        )
-    except ModelError as exc:
+    big = float(np.abs(p).max())
+    if big > MAX_COORDINATE:
         raise MeshError(
-            f"the hull of the points does not make a valid model at tolerance rtol={rtol:g} "
-            f"({exc}); try a larger tolerance"
-        ) from None
+            f"a coordinate of magnitude {big:.3g} is beyond {MAX_COORDINATE:g}: products of "
+            "such numbers overflow; express the points in other units"
+        )
+    try:
+        rtol = check_tolerance(rtol, "rtol")
+        angle = check_tolerance(angle, "merge angle", allow_zero=True)
+    except InputError as exc:
+        raise MeshError(str(exc)) from None
+    if angle >= 90:
+        raise MeshError(f"the merge angle must be below 90 degrees, got {angle:g}")
+    if max_faces is not None and (isinstance(max_faces, bool) or int(max_faces) < 4):
+        raise MeshError(f"max_faces must be an integer >= 4, got {max_faces!r}")
+    return _hull_model(p, name=name, rtol=rtol, angle=angle, max_faces=max_faces,
+                       center_of_mass=center_of_mass, units=units)
 
 
 def from_mesh(
     path: str | Path,
     *,
     name: str | None = None,
-    rtol: float = 1e-6,
-    allow_open: bool = False,
+    rtol: float = MESH_RTOL,
+    angle: float = 0.0,
+    max_faces: int | None = None,
+    strict: bool = False,
     units: str = "m",
+    notes: list[str] | None = None,
+    allow_open: bool = True,
 ) -> Polyhedron:
     """An object model from a mesh file (STL, OBJ, PLY, OFF, GLB, ... anything trimesh reads).
 
-    The model is the mesh's convex hull, with coplanar triangles merged into polygon faces
-    within ``rtol``. For a non-convex mesh, hull faces on which the mesh has no face (the
-    object rests there on edges or vertices: the paper's virtual bottom faces) are marked
-    virtual, and the centre of mass is the mesh's own (the hull's would be wrong).
+    The mesh is cleaned as trimesh does it (duplicate vertices welded, also across texture
+    seams; degenerate and duplicate triangles dropped; windings made consistent; small holes
+    filled). The model is the mesh's convex hull, with nearly coplanar facets merged within
+    ``rtol`` (relative to the size) or ``angle``. For a closed non-convex mesh, hull faces on
+    which the mesh has no face (the object rests there on edges or vertices: the paper's
+    virtual bottom faces) are marked virtual, and the centre of mass is the mesh's own (the
+    hull's would be wrong). An open or non-manifold mesh, or one of several pieces, has no
+    defined volume: its model is the hull of its points, with the hull's centroid as centre
+    of mass, and a note says so (``strict=True`` refuses it instead).
 
     Parameters
     ----------
@@ -277,20 +390,29 @@ def from_mesh(
     name : str, optional
         Object name; default the file's stem.
     rtol : float
-        Merging tolerance relative to the diameter.
-    allow_open : bool
-        Accept a mesh that does not close a volume, using the hull of its vertices (and the
-        hull's centroid as centre of mass).
+        Merging tolerance relative to the object's size; the model carries it (or the larger
+        tolerance its merged faces need) as its own ``rtol``.
+    angle : float
+        Also merge neighbouring hull facets whose normals differ by at most this many degrees.
+    max_faces : int, optional
+        Facet a curved object (a ball, a can) coarsely enough to have at most this many faces.
+    strict : bool
+        Refuse an open, non-manifold or multi-piece mesh instead of taking its hull.
     units : str
         Length units of the file.
+    notes : list of str, optional
+        One-line notes on what was done to the mesh are appended here.
+    allow_open : bool
+        Kept for compatibility: open meshes are accepted unless ``strict``.
 
     Raises
     ------
     MeshError
-        Unreadable file, missing ``trimesh``, open mesh (unless ``allow_open``), degenerate
-        points; the message names the file.
+        Unreadable file, missing ``trimesh``, degenerate or non-finite points, an open mesh
+        with ``strict``; the message names the file.
     """
     path = Path(path)
+    notes = [] if notes is None else notes
     try:
         import trimesh  # optional dependency: only mesh files need it
     except ImportError:
@@ -301,61 +423,113 @@ def from_mesh(
     if not path.is_file():
         raise MeshError(f"{path}: no such mesh file")
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=True)
+        mesh = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for corrupt or unknown files
-        raise MeshError(f"{path}: trimesh cannot read it as a mesh: {exc}") from None
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise MeshError(f"{path}: trimesh cannot read it as a mesh: {first}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.vertices) == 0:
         raise MeshError(f"{path}: the file holds no triangle mesh")
     pts = np.asarray(mesh.vertices, dtype=float)
+    bad = np.flatnonzero(~np.all(np.isfinite(pts), axis=1))
+    if bad.size:
+        raise MeshError(
+            f"{path}: vertex {int(bad[0])} is not finite ({pts[bad[0]].tolist()}); fix or "
+            "remove it in the mesh"
+        )
     if len(pts) < 4:
         raise MeshError(f"{path}: a solid needs at least 4 points, the mesh has {len(pts)}")
-    if not mesh.is_watertight and not allow_open:
-        n_open = len(
-            trimesh.grouping.group_rows(  # type: ignore[no-untyped-call]
-                mesh.edges_sorted, require_count=1
-            )
-        )
+    if len(mesh.faces) and _clean(mesh, trimesh):
+        notes.append(f"{path.name}: filled small holes in the mesh to close it")
+    pts = np.asarray(mesh.vertices, dtype=float) if len(mesh.vertices) >= 4 else pts
+    closed = len(mesh.faces) > 0 and bool(mesh.is_watertight)
+    pieces = int(mesh.body_count) if len(mesh.faces) else 1
+    why = ""
+    if not len(mesh.faces):
+        why = "it has no triangles"
+    elif pieces > 1:
+        why = f"it is {pieces} separate pieces"
+    elif not closed:
+        open_edges = len(trimesh.grouping.group_rows(  # type: ignore[no-untyped-call]
+            mesh.edges_sorted, require_count=1))
+        why = (f"it is not closed ({open_edges} edges border only one triangle)"
+               if open_edges else "it is not a manifold (some edges border more than two "
+               "triangles)")
+    if why and strict:
         raise MeshError(
-            f"{path}: the mesh is not closed ({n_open} edges border only one triangle), so "
-            "its volume and centre of mass are undefined; repair it, or accept the hull of "
-            "its points with allow_open=True (--allow-open)"
+            f"{path}: {why}, so its volume and centre of mass are undefined; repair it, or "
+            "leave out --strict to use the convex hull of its points"
         )
     try:
-        hull = convex_hull(pts, name=name or path.stem, rtol=rtol, units=units)
+        hull = convex_hull(pts, name=name or path.stem, rtol=rtol, angle=angle,
+                           max_faces=max_faces, units=units)
     except MeshError as exc:
         raise MeshError(f"{path}: {exc}") from None
-    if not mesh.is_watertight:
+    if why:
+        notes.append(
+            f"{path.name}: {why}: the model is the convex hull of its points, with the hull's "
+            "centroid as centre of mass"
+        )
         return hull
     if mesh.volume < 0:
         mesh.invert()
-    convex = abs(mesh.volume - hull.volume) <= 1e-6 * hull.volume
-    if convex:
-        return hull
+    volume = float(mesh.volume)
+    area = float(sum(hull.face_areas.values()))
+    if hull.volume - volume <= 2 * hull.atol * area:
+        return hull  # convex: the hull is the object
     try:
         return dataclasses.replace(
             hull,
             center_of_mass=np.asarray(mesh.center_mass, dtype=float),
-            virtual_faces=_virtual_faces(hull, mesh, rtol),
+            virtual_faces=_virtual_faces(hull, mesh),
         )
     except ModelError as exc:
         raise MeshError(f"{path}: {exc}") from None
 
 
-def _virtual_faces(hull: Polyhedron, mesh: Any, rtol: float) -> frozenset[str]:
+def _clean(mesh: Any, trimesh: Any) -> bool:
+    """Weld, drop degenerate and duplicate triangles, orient, fill small holes (in place).
+
+    Returns whether holes were filled."""
+    # texture seams and split normals duplicate vertices: weld them all
+    mesh.merge_vertices(merge_tex=True, merge_norm=True)
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.update_faces(mesh.unique_faces())
+    mesh.remove_unreferenced_vertices()
+    if not len(mesh.faces):
+        return False
+    filled = False
+    if not mesh.is_watertight:
+        filled = bool(trimesh.repair.fill_holes(mesh))
+    if mesh.is_watertight and not mesh.is_winding_consistent:
+        trimesh.repair.fix_winding(mesh)
+    return filled
+
+
+def _virtual_faces(hull: Polyhedron, mesh: Any) -> frozenset[str]:
     """Hull faces on which the mesh has no triangle: the object touches them only along
     edges or at vertices (the paper's virtual bottom faces). A hull face partly covered by a
     mesh face (a non-convex face, such as the side of an L) is a real face: the object rests
     on that face, and the hull face is its supporting polygon."""
     tri = np.asarray(mesh.triangles, dtype=np.float64)
-    normals = np.asarray(mesh.face_normals, dtype=np.float64)
+    tri_n = np.asarray(mesh.face_normals, dtype=np.float64)
     areas = np.asarray(mesh.area_faces, dtype=np.float64)
-    atol = rtol * hull.diameter
-    out = set()
-    for f in hull.faces:
-        n = hull.normals[f]
-        p0 = hull.vertices[hull.faces[f][0]]
-        on_plane = np.all(np.abs((tri - p0) @ n) <= atol, axis=1) & (normals @ n > 0.5)
-        covered = float(areas[on_plane].sum())
-        if covered <= 1e-6 * hull.face_areas[f]:
-            out.add(f)
-    return frozenset(out)
+    names = hull.face_ids
+    normals = np.array([hull.normals[f] for f in names])
+    anchors = hull.vertices[[hull.faces[f][0] for f in names]]
+    atol = hull.atol
+    # each triangle can only lie on a hull face of about its own normal: look at a few
+    k = min(8, len(names))
+    _, cand = cKDTree(normals).query(tri_n, k=k)
+    cand = np.asarray(cand).reshape(len(tri), k)
+    covered = np.zeros(len(names))
+    taken = np.zeros(len(tri), dtype=bool)
+    for j in range(k):
+        f = cand[:, j]
+        dist = np.abs(np.einsum("tvk,tk->tv", tri - anchors[f][:, None, :], normals[f]))
+        on = (~taken) & np.all(dist <= atol, axis=1) & (np.einsum("tk,tk->t", tri_n,
+                                                                   normals[f]) > 0.5)
+        covered += np.bincount(f[on], weights=areas[on], minlength=len(names))
+        taken |= on
+    face_area = np.array([hull.face_areas[f] for f in names])
+    return frozenset(f for f, c, a in zip(names, covered, face_area, strict=True)
+                     if c <= 1e-6 * a)

@@ -41,7 +41,7 @@ from nonprehensile.motion.stores import display_name, is_postgres_url
 __all__ = ["SCHEMA_VERSION", "UPDATE_BATCH", "PostgresStore", "is_postgres_url"]
 
 #: Version of the tables' layout; a database written by a newer layout is refused.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 #: Rows per UPDATE statement when keys and labels are rewritten (a recalibration).
 UPDATE_BATCH = 10_000
 #: Advisory lock that serialises creating the tables (any constant, ours).
@@ -58,8 +58,11 @@ _DDL = (
         micro bigint NOT NULL DEFAULT -1,
         PRIMARY KEY (store, id)
     )""",
-    # tables made before the micro-cluster record (method "micro") get its column
+    # tables made before the micro-cluster record (method "micro", schema 2) get its column
     "ALTER TABLE np_samples ADD COLUMN IF NOT EXISTS micro bigint NOT NULL DEFAULT -1",
+    # a vector is 8 bytes a value of noise-like floats: compressing it gains nothing and
+    # costs the server time on every insert, so it is stored out of line uncompressed
+    "ALTER TABLE np_samples ALTER COLUMN vector SET STORAGE EXTERNAL",
     "CREATE INDEX IF NOT EXISTS np_samples_key ON np_samples (store, key, id)",
     "CREATE INDEX IF NOT EXISTS np_samples_label_key ON np_samples (store, label, key, id)",
     """CREATE TABLE IF NOT EXISTS np_meta (
@@ -94,6 +97,18 @@ def connect(url: str, *, timeout: float = 30.0) -> psycopg.Connection[Any]:
 
 def ensure_schema(conn: psycopg.Connection[Any]) -> None:
     """Create the tables on first use; refuse a database of a newer layout."""
+    # the usual case, a database already set up, costs one query and takes no lock (the DDL
+    # path's advisory lock would be held to the end of a caller's transaction)
+    if conn.execute("SELECT to_regclass('np_schema') IS NOT NULL").fetchone() == (True,):
+        row = conn.execute("SELECT max(version) FROM np_schema").fetchone()
+        version = None if row is None else row[0]
+        if version == SCHEMA_VERSION:
+            return
+        if version is not None and version > SCHEMA_VERSION:
+            raise InputError(
+                f"the database holds nonprehensile stores of schema version {version}; this "
+                f"version reads {SCHEMA_VERSION}: upgrade nonprehensile"
+            )
     with conn.transaction():
         conn.execute("SELECT pg_advisory_xact_lock(%s)", (_DDL_LOCK,))
         for stmt in _DDL:
@@ -102,6 +117,9 @@ def ensure_schema(conn: psycopg.Connection[Any]) -> None:
         version = None if row is None else row[0]
         if version is None:
             conn.execute("INSERT INTO np_schema (version) VALUES (%s)", (SCHEMA_VERSION,))
+        elif version < SCHEMA_VERSION:
+            # an older layout, brought up to date by the DDL above (schema 2: column micro)
+            conn.execute("UPDATE np_schema SET version = %s", (SCHEMA_VERSION,))
         elif version > SCHEMA_VERSION:
             raise InputError(
                 f"the database holds nonprehensile stores of schema version {version}; this "
