@@ -120,7 +120,8 @@ def test_schema_created_on_first_use_and_versioned(pg_url: str) -> None:
         assert store.info()["schema_version"] == pgstore.SCHEMA_VERSION
         store.add(np.zeros((1, 2)), [0], np.array([0]))
     with psycopg.connect(pg_url, autocommit=True) as conn:
-        assert conn.execute("SELECT version FROM np_schema").fetchall() == [(pgstore.SCHEMA_VERSION,)]
+        rows = conn.execute("SELECT version FROM np_schema").fetchall()
+        assert rows == [(pgstore.SCHEMA_VERSION,)]
         conn.execute("UPDATE np_schema SET version = 99")
     with pytest.raises(InputError, match=r"schema version 99.*upgrade"):
         PostgresStore(pg_url)
