@@ -67,7 +67,7 @@ def _one_blas_thread() -> Iterator[None]:
     """BLAS on one thread for the job's small matrices: on a shared 2-core machine a second
     BLAS thread waits for a busy core, and a call takes 10x longer (issue 16)."""
     try:
-        from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
+        from threadpoolctl import threadpool_limits
     except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
         yield
         return
