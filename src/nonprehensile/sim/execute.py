@@ -116,6 +116,11 @@ def replay_demonstration(
     return Outcome(label, result, cmp)
 
 
+def _ease(s: FloatArray) -> FloatArray:
+    """Minimum-jerk profile from 0 to 1."""
+    return np.asarray(s**3 * (10.0 - 15.0 * s + 6.0 * s**2))
+
+
 def _smooth(pos: FloatArray, n: int) -> FloatArray:
     """Centred moving average over ``n`` frames along axis 0 (ends padded by repetition)."""
     k = np.ones(n) / n
@@ -160,7 +165,15 @@ def step_targets(
         rate = ref.rate
         skip = 0 if total == 0 else 1  # arcs share their boundary frame
         for k in wanted:
-            p = ref.positions[:, _marker(fingers, k, ref.marker_names)]
+            p = np.array(ref.positions[:, _marker(fingers, k, ref.marker_names)])
+            if chunks[k]:
+                # consecutive arcs' references may be medoids of different demonstrations,
+                # whose fingers were at slightly different places at the shared event: start
+                # where the previous arc ended and blend into this arc's own path, so the
+                # fingertip never jumps
+                gap = chunks[k][-1][-1] - p[0]
+                w = 1.0 - _ease(np.linspace(0.0, 1.0, len(p)))
+                p = p + np.outer(w, gap)
             chunks[k].append(p[skip:])
         total += len(ref.positions) - skip
         times.append((total - 1) / ref.rate)
