@@ -21,6 +21,7 @@ from nonprehensile.demonstrations.annotate import DetectionParams, annotate_data
 from nonprehensile.demonstrations.dataset import Demonstration, load_dataset
 from nonprehensile.demonstrations.synth import synthesize
 from nonprehensile.io import load_document, save_document
+from nonprehensile.states import angle_diff
 
 N_PER_SKILL = 30  # the bundled dataset's size: 180 demonstrations, 3 mentors, 6 skills
 
@@ -69,7 +70,9 @@ def _score(folder: Path, truth: dict[str, Demonstration], refine: bool) -> dict[
         res = r.result
         chain = len(res.chain) == len(d.skill.events) and all(
             a.pairs == b.pairs for a, b in zip(res.chain, d.skill.events, strict=True))
-        states = res.initial == d.initial and res.final == d.final
+        # the states found, matched or not, within 5 degrees of the truth
+        states = all(a is not None and a.face == b.face and abs(angle_diff(a.theta, b.theta))
+                     <= 5.0 for a, b in ((res.initial, d.initial), (res.final, d.final)))
         chain_ok += chain
         states_ok += states
         both += chain and states

@@ -5,12 +5,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import networkx as nx
 import numpy as np
 import pytest
 from click.testing import CliRunner
 from hypothesis import given, strategies as st
 
 from nonprehensile.cli import main
+from nonprehensile.errors import InputError
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
 from nonprehensile.maneuvers import classify
@@ -49,7 +51,17 @@ def test_offset_start(a: State, b: State, turn: float) -> None:
     goal = State(b.face, b.theta + turn)
     pl = plan(POLY, EXP, start, goal, position=(0.3, -0.2))
     assert pl.offset.translate == (0.3, -0.2)
-    assert abs(pl.offset.rotate_deg) <= 45 + 1e-9
+    # the agent's first placement turns it so that it sees the start as a model state ...
+    first, nearest = find_offset(POLY, STATES, start)
+    assert any(pl.offset.state_to_model(start).isclose(s) for s in STATES)
+    # ... the nearest such turn unless another one makes the plan cheaper
+    target = nearest.state_to_model(goal)
+    if any(target.isclose(s) for s in STATES):
+        target = next(s for s in STATES if target.isclose(s))
+        old = nx.shortest_path_length(EXP.graph.graph, first, target)
+        assert pl.cost <= old
+        if pl.cost == old:
+            assert abs(pl.offset.rotate_deg) <= 45 + 1e-9
     check_plan_geometry(POLY, start, goal)
 
 
@@ -70,14 +82,49 @@ def test_shortest_plan_and_costs() -> None:
 
 
 def test_unreachable_goal_names_reachable_states() -> None:
-    exp = expand(POLY, ALL_SKILLS[:1], STATES)  # push-roll only: four states
+    exp = expand(POLY, ALL_SKILLS[:1], STATES)  # push-roll only: rolls one way
     with pytest.raises(NoPlanError) as info:
-        plan(POLY, exp, State("a", 0), State("a", 90))
-    assert set(info.value.reachable) == {State("a", 0), State("d", 0), State("c", 0),
-                                         State("f", 0)}
-    assert "reachable from a:0" in str(info.value)
-    with pytest.raises(NoPlanError, match="not a state of the model"):
+        plan(POLY, exp, State("a", 0), State("a", 45))
+    # turning the agent between rolls rolls the cube any way: all 24 orientations, none other
+    assert set(info.value.reachable) == set(STATES)
+    assert "reachable states (24)" in str(info.value)
+    with pytest.raises(NoPlanError, match="even relocating the agent"):
         plan(POLY, EXP, State("a", 0), State("a", 45))
+
+
+def test_relocation_is_a_move_with_its_cost() -> None:
+    exp = expand(POLY, ALL_SKILLS[:1], STATES)  # push-roll only
+    # the model alone never turns the cube on its face a; the agent walking around it does
+    pl = plan(POLY, exp, State("a", 0), State("a", 90), relocation_cost=0.25)
+    check = State("a", 0)
+    for step in pl.steps:
+        assert step.start_world.isclose(check)
+        assert step.agent is not None
+        m = classify(POLY, step.start_world, step.end_world)
+        assert m.kind == "rolling"
+        check = step.end_world
+    assert check.isclose(State("a", 90))
+    assert pl.relocations >= 1
+    assert pl.cost == pytest.approx(len(pl.steps) + 0.25 * pl.relocations)
+    assert [s.relocation_cost for s in pl.steps[1:] if s.relocated] == [0.25] * pl.relocations
+    # a relocation is a move like any other: a dearer one never makes the plan cheaper
+    dear = plan(POLY, exp, State("a", 0), State("a", 90), relocation_cost=5)
+    assert dear.cost >= pl.cost
+    doc = pl.to_dict()
+    assert doc["relocations"] == pl.relocations
+    assert all(s["agent"]["rotate_deg"] is not None for s in doc["steps"])
+    with pytest.raises(InputError, match="relocation cost"):
+        plan(POLY, exp, State("a", 0), State("a", 90), relocation_cost=-1)
+
+
+@pytest.mark.parametrize("step", [90.0, 10.0, 1.0])
+def test_issue_task_planned_at_any_step(step: float) -> None:
+    states = states_by_step(POLY, step)
+    exp = expand(POLY, ALL_SKILLS, states)
+    pl = plan(POLY, exp, State("b", 200), State("e", 110))
+    assert [(str(s.start_world), str(s.end_world)) for s in pl.steps] == [
+        ("b:200", "a:290"), ("a:290", "e:110")]
+    assert pl.offset.rotate_deg == pytest.approx(20) and pl.relocations == 0
 
 
 class FakeLibrary:

@@ -51,6 +51,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
                "Object models: show one, or make one from a mesh."),
     "plan": ("nonprehensile.cli_plan:plan_cmd",
              "Plan transitions, contact events and finger motions from --from to --to."),
+    "serve": ("nonprehensile.cli_serve:serve_group",
+              "Run the demonstration service: mentors upload demonstrations into a PostgreSQL "
+              "store."),
     "simulate": ("nonprehensile.cli_sim:simulate_group",
                  "Execute demonstrations, inferred transitions and plans in the MuJoCo "
                  "simulation."),

@@ -33,7 +33,7 @@ from nonprehensile.pipeline import (
     run_demo,
     write_plan_motions,
 )
-from nonprehensile.planning import plan
+from nonprehensile.planning import DEFAULT_RELOCATION_COST, plan
 from nonprehensile.skills.contacts import format_event
 from nonprehensile.skills.skill import Skill, group_by_maneuver, skill_graph, skill_to_dict
 from nonprehensile.states import State
@@ -199,11 +199,19 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
         f"{len(plan_doc['steps'])} step(s), cost {fmt_num(plan_doc['cost'])}; relocate the "
         f"agent by {fmt_num(off['rotate_deg'])} degrees and ({fmt_num(off['translate'][0])}, "
         f"{fmt_num(off['translate'][1])})"
+        + (f"; it relocates {plan_doc.get('relocations')} more time(s) between steps"
+           if plan_doc.get("relocations") else "")
     )
     for i, step in enumerate(plan_doc["steps"], start=1):
+        agent = step.get("agent")
+        where = ""
+        if agent is not None:
+            moved = "relocated: " if step.get("relocated") and i > 1 else ""
+            where = (f"; {moved}agent at {fmt_num(agent['rotate_deg'])} deg, "
+                     f"({fmt_num(agent['translate'][0])}, {fmt_num(agent['translate'][1])})")
         t = Table(title=f"step {i}: {State.from_dict(step['from'])} -> "
                         f"{State.from_dict(step['to'])} by {step['skill']} ({step['maneuver']}, "
-                        f"{'demonstrated' if step['demonstrated'] else 'inferred'})")
+                        f"{'demonstrated' if step['demonstrated'] else 'inferred'}){where}")
         t.add_column("event")
         t.add_column("contacts")
         t.add_column("then")
@@ -229,6 +237,9 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
               help="Where the object is on the table (x y), for the agent's offset.")
 @click.option("--cost", "costs", multiple=True, callback=_parse_costs,
               help="Cost of a skill, SKILL=COST (repeatable); default 1 per transition.")
+@click.option("--relocation-cost", type=float, default=DEFAULT_RELOCATION_COST,
+              show_default=True,
+              help="Cost of relocating the agent between steps (its first placement is free).")
 @click.option("--dataset", default=None,
               help="Demonstrations (a dataset folder, or `cube`) to attach reference motions.")
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
@@ -240,8 +251,9 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
 @handle_errors
 def plan_cmd(
     skills_file: str, start: State, goal: State, step: float | None, states_file: str | None,
-    position: tuple[float, float], costs: dict[str, float] | None, dataset: str | None,
-    out_dir: str | None, rtol: float | None, atol: float | None, angle_tol: float, as_json: bool,
+    position: tuple[float, float], costs: dict[str, float] | None, relocation_cost: float,
+    dataset: str | None, out_dir: str | None, rtol: float | None, atol: float | None,
+    angle_tol: float, as_json: bool,
 ) -> None:
     """Plan transitions, contact events and finger motions from --from to --to."""
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
@@ -257,7 +269,7 @@ def plan_cmd(
                                                progress=bars)
         scale = ds.scale
     result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
-                  angle_tol=angle_tol, scale=scale)
+                  angle_tol=angle_tol, scale=scale, relocation_cost=relocation_cost)
     doc = result.to_dict()
     if out_dir is not None:
         written = write_plan_motions(result, out_dir)

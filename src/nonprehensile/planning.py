@@ -23,10 +23,10 @@ robot controller uses).
 
 from __future__ import annotations
 
-import itertools
+import heapq
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import networkx as nx
@@ -42,6 +42,7 @@ from nonprehensile.skills.skill import events_to_dicts
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex, angle_diff, state_pose
 
 __all__ = [
+    "DEFAULT_RELOCATION_COST",
     "MotionLibrary",
     "NoPlanError",
     "ObjectPose",
@@ -55,6 +56,11 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
+
+#: Default cost of relocating the agent between steps (a transition costs 1 by default).
+DEFAULT_RELOCATION_COST = 0.5
+#: Most search nodes the planner expands before giving up (a very fine --states set).
+MAX_SEARCH_NODES = 2_000_000
 
 
 class NoPlanError(InputError):
@@ -198,6 +204,11 @@ class PlanStep:
     ``start_pose`` and ``end_pose`` are the object's world poses before and after the step,
     tracked through the plan's exact maneuvers; the step's reference motions are placed on
     the object where ``start_pose`` puts it.
+
+    ``agent`` is where the agent stands for this step (its rotation about the vertical and the
+    origin of its frame, world units); ``relocated`` says that it moved there just before the
+    step (always for the first step: the paper's Section VII, step 1), at
+    ``relocation_cost`` (zero for the first placement).
     """
 
     transition: InferredTransition
@@ -207,6 +218,9 @@ class PlanStep:
     cost: float
     start_pose: ObjectPose | None = None
     end_pose: ObjectPose | None = None
+    agent: Offset | None = None
+    relocated: bool = False
+    relocation_cost: float = 0.0
 
     def to_dict(self, *, with_positions: bool = False) -> dict[str, Any]:
         """The spec's JSON form of a step."""
@@ -232,6 +246,9 @@ class PlanStep:
             "events": events_to_dicts(t.skill.events),
             "motions": motions,
             "cost": self.cost,
+            "agent": self.agent.to_dict() if self.agent is not None else None,
+            "relocated": self.relocated,
+            "relocation_cost": self.relocation_cost,
             "pose": {
                 "from": self.start_pose.to_dict() if self.start_pose is not None else None,
                 "to": self.end_pose.to_dict() if self.end_pose is not None else None,
@@ -250,8 +267,13 @@ class Plan:
 
     @property
     def cost(self) -> float:
-        """Total cost."""
-        return float(sum(s.cost for s in self.steps))
+        """Total cost: the transitions' and the agent's relocations'."""
+        return float(sum(s.cost + s.relocation_cost for s in self.steps))
+
+    @property
+    def relocations(self) -> int:
+        """How many times the agent moves after its first placement."""
+        return sum(s.relocated for s in self.steps[1:])
 
     def to_dict(self, *, with_positions: bool = False) -> dict[str, Any]:
         """The spec's ``nonprehensile plan --json`` document."""
@@ -260,6 +282,7 @@ class Plan:
             "goal": self.goal.to_dict(),
             "offset": self.offset.to_dict(),
             "cost": self.cost,
+            "relocations": self.relocations,
             "steps": [s.to_dict(with_positions=with_positions) for s in self.steps],
         }
 
@@ -364,6 +387,7 @@ def plan(
     motions: MotionLibrary | None = None,
     angle_tol: float = DEFAULT_ANGLE_TOL,
     scale: float = 1.0,
+    relocation_cost: float = DEFAULT_RELOCATION_COST,
 ) -> Plan:
     """Plan the transitions, contact events and finger motions from ``start`` to ``goal``.
 
@@ -388,6 +412,9 @@ def plan(
         World units per model unit (a dataset's ``scale``: metres per model unit), so that
         the object's tracked positions are in the units of ``position`` and of the
         reference motions.
+    relocation_cost : float
+        Cost of relocating the agent between two steps (turning about the vertical and
+        moving to the object). Its first placement, before the first step, is free.
 
     Returns
     -------
@@ -406,47 +433,121 @@ def plan(
     model_states = expansion.graph.states
     costs = _check_costs(costs, default_cost,
                          {_demonstrated_name(t.skill.name) for t in expansion.transitions})
-    first, offset = find_offset(poly, model_states, start, position=position,
-                                angle_tol=angle_tol)
-    target_model = offset.state_to_model(goal)
-    index = StateIndex(model_states)
-    hit = index.find(target_model, angle_tol)
-    reachable = sorted(nx.descendants(graph, first) | {first})
-    if hit is None:
+    relocation_cost = float(relocation_cost)
+    if not (math.isfinite(relocation_cost) and relocation_cost >= 0):
+        raise InputError(f"the relocation cost must be a finite number >= 0, got "
+                         f"{relocation_cost!r}")
+    # validates the start (a face the model rests on) and the position
+    _, offset = find_offset(poly, model_states, start, position=position,
+                            angle_tol=angle_tol)
+    poly.loop(goal.face)
+    if start.isclose(goal, angle_tol):
+        return Plan(start, goal, offset, ())
+    moves = _search(graph, start, goal, costs, default_cost, relocation_cost, angle_tol)
+    steps: list[PlanStep] = []
+    agent = offset
+    here = offset.translate  # where the object's centre of mass is on the table
+    rot = trans = com = np.zeros(3)
+    for k, (u, v, skill, cost, phi, relocated) in enumerate(moves):
+        if relocated:
+            # the agent turns to `phi` and stands at the object: in its new frame the object
+            # lies in the model state u with its centre of mass above the origin
+            agent = Offset(angle_diff(phi, 0.0) + 0.0, here)
+            rot, trans = state_pose(poly, u)
+            trans = scale * trans
+            com = np.zeros(3)
+        t = expansion.adapted(u, v, skill)
+        step, rot, trans, com = _make_step(poly, t, agent, rot, trans, com, scale, motions,
+                                           cost, angle_tol)
+        steps.append(replace(step, agent=agent, relocated=relocated,
+                             relocation_cost=relocation_cost if relocated and k > 0 else 0.0))
+        assert step.end_pose is not None
+        here = step.end_pose.position
+    return Plan(start, goal, steps[0].agent or offset, tuple(steps))
+
+
+def _norm(theta: float) -> float:
+    """An angle in [0, 360), rounded so that equal angles are equal keys."""
+    a = round(theta % 360.0, 6)
+    return 0.0 if a >= 360.0 else a + 0.0
+
+
+def _search(
+    graph: nx.MultiDiGraph,
+    start: State,
+    goal: State,
+    costs: Mapping[str, float] | None,
+    default_cost: float,
+    relocation_cost: float,
+    angle_tol: float,
+) -> list[tuple[State, State, str, float, float, bool]]:
+    """Dijkstra over (world state, agent rotation): a transition of the expanded graph is a
+    move from any world state that the agent, turned by ``phi``, sees as its start; turning
+    the agent between steps is a move of its own cost.
+
+    Returns, per step: the model arc ``(u, v)``, its skill and cost, the agent's rotation and
+    whether it relocated before the step. Ties are broken by the agent's total turning.
+    """
+    by_face: dict[str, list[tuple[State, State, str, float]]] = {}
+    for u, v in set(graph.edges()):
+        if u == v:
+            continue
+        c, skill = _arc_cost(graph.get_edge_data(u, v), costs, default_cost)
+        by_face.setdefault(u.face, []).append((u, v, skill, c))
+    for arcs in by_face.values():
+        arcs.sort(key=lambda a: (a[0], a[1], a[2]))
+    Node = tuple[str, float, float | None]  # world face, world theta, agent rotation
+    start_node: Node = (start.face, _norm(start.theta), None)
+    dist: dict[Node, tuple[float, float]] = {start_node: (0.0, 0.0)}
+    parent: dict[Node, tuple[Node, tuple[State, State, str, float, float, bool]]] = {}
+    heap: list[tuple[float, float, int, Node]] = [(0.0, 0.0, 0, start_node)]
+    done: set[Node] = set()
+    seen_world: set[tuple[str, float]] = {(start.face, _norm(start.theta))}
+    counter = 0
+    end: Node | None = None
+    while heap:
+        c, r, _, node = heapq.heappop(heap)
+        if node in done:
+            continue
+        done.add(node)
+        face, theta, phi = node
+        if face == goal.face and abs(angle_diff(theta, goal.theta)) <= angle_tol:
+            end = node
+            break
+        if len(done) > MAX_SEARCH_NODES:
+            raise InputError(f"the plan search passed {MAX_SEARCH_NODES} states without reaching "
+                             f"{goal}; use a coarser state set (--step or --states)")
+        for u, v, skill, ec in by_face.get(face, ()):
+            phi_e = _norm(theta - u.theta)
+            if phi is None:  # the first placement: free, but the least turning wins ties
+                dc, dr, moved = 0.0, abs(angle_diff(phi_e, 0.0)), True
+            elif abs(angle_diff(phi_e, phi)) <= 1e-6:
+                dc, dr, moved = 0.0, 0.0, False
+            else:
+                dc, dr, moved = relocation_cost, abs(angle_diff(phi_e, phi)), True
+            nxt: Node = (v.face, _norm(v.theta + phi_e), phi_e)
+            key = (c + ec + dc, r + dr)
+            if nxt not in dist or key < dist[nxt]:
+                dist[nxt] = key
+                parent[nxt] = (node, (u, v, skill, ec, phi_e, moved))
+                counter += 1
+                heapq.heappush(heap, (key[0], key[1], counter, nxt))
+                seen_world.add((nxt[0], nxt[1]))
+    if end is None:
+        reachable = sorted(State(f, t) for f, t in seen_world)
+        shown = ", ".join(map(str, reachable[:40])) + (
+            f", ... ({len(reachable) - 40} more)" if len(reachable) > 40 else "")
         raise NoPlanError(
-            f"the goal {goal} is not a state of the model"
-            + (f" once the agent turns by {offset.rotate_deg:g} degrees (it would be "
-               f"{target_model})" if offset.rotate_deg else "")
-            + f"; reachable states: {', '.join(map(str, reachable))}",
+            f"no sequence of known skills takes {start} to {goal}, even relocating the agent "
+            f"between steps; reachable states ({len(reachable)}): {shown}",
             reachable,
         )
-    target = model_states[hit]
-    if target == first:
-        return Plan(start, goal, offset, ())
-
-    def weight(u: State, v: State, data: Mapping[str, Any]) -> float:
-        return _arc_cost(data, costs, default_cost)[0]
-
-    try:
-        path = nx.dijkstra_path(graph, first, target, weight=weight)
-    except nx.NetworkXNoPath:
-        raise NoPlanError(
-            f"no sequence of known skills takes {first} to {target}; reachable from {first}: "
-            f"{', '.join(map(str, reachable))}",
-            reachable,
-        ) from None
-    steps = []
-    # the object's pose in the agent's frame (the model's orientations), tracked step by step
-    rot, trans = state_pose(poly, first)
-    trans = scale * trans
-    com = np.zeros(3)  # the centre of mass on the table, agent's frame (z = 0)
-    for u, v in itertools.pairwise(path):
-        cost, skill = _arc_cost(graph.get_edge_data(u, v), costs, default_cost)
-        t = expansion.adapted(u, v, skill)
-        step, rot, trans, com = _make_step(poly, t, offset, rot, trans, com, scale, motions,
-                                           cost, angle_tol)
-        steps.append(step)
-    return Plan(start, goal, offset, tuple(steps))
+    path = []
+    node = end
+    while node != start_node:
+        node, move = parent[node]
+        path.append(move)
+    return path[::-1]
 
 
 def _make_step(

@@ -274,7 +274,8 @@ def _hysteresis(value: FloatArray, on: float, off: float) -> NDArray[np.bool_]:
     v = np.asarray(value)
     flat = v.reshape(len(v), -1)
     state = np.zeros(flat.shape, bool)
-    cur = flat[0] < on
+    # the first frame has no history: within the band, the nearer threshold decides
+    cur = flat[0] < 0.5 * (on + off)
     for i in range(len(flat)):
         x = flat[i]
         cur = np.where(x < on, True, np.where(x > off, False, cur))
@@ -550,11 +551,11 @@ def _fmt_state(pairs: frozenset[ContactPair]) -> str:
 def _merge_flickers(
     runs: list[tuple[int, int, Any]], min_frames: int, rate: float, doubts: list[str]
 ) -> list[tuple[int, int, Any]]:
-    """Drop runs shorter than ``min_frames`` (not the first or last), shortest first."""
+    """Drop runs shorter than ``min_frames``, shortest first (a short first or last run
+    joins its neighbour)."""
     runs = list(runs)
-    while True:
-        inner = [(e - s, j) for j, (s, e, _) in enumerate(runs) if 0 < j < len(runs) - 1]
-        short = [x for x in inner if x[0] < min_frames]
+    while len(runs) > 1:
+        short = [(e - s, j) for j, (s, e, _) in enumerate(runs) if e - s < min_frames]
         if not short:
             return runs
         _, j = min(short)
@@ -562,12 +563,19 @@ def _merge_flickers(
         doubts.append(f"contact state {_fmt_state(x)} lasted {e - s} frame(s) at "
                       f"{s / rate:.3f} s (a flicker, shorter than the minimum duration): "
                       "dropped")
+        if j == 0:
+            runs[0:2] = [(0, runs[1][1], runs[1][2])]
+            continue
+        if j == len(runs) - 1:
+            runs[j - 1:] = [(runs[j - 1][0], e, runs[j - 1][2])]
+            continue
         prev, nxt = runs[j - 1], runs[j + 1]
         if prev[2] == nxt[2]:
             runs[j - 1:j + 2] = [(prev[0], nxt[1], prev[2])]
         else:
             # the change happens where the next state begins; the flicker joins the previous
             runs[j - 1:j + 1] = [(prev[0], e, prev[2])]
+    return runs
 
 
 def _changes(a: frozenset[ContactPair], b: frozenset[ContactPair]) -> list[tuple[str, Any]]:
@@ -690,7 +698,7 @@ def annotate_recording(
     frames_f: list[float] = []
     for j, (s, _e, x) in enumerate(runs):
         if j == 0:
-            frames_f.append(_approach_onset(hand, runs, rate, doubts))
+            frames_f.append(_approach_onset(hand, runs, rate, doubts, refine=p.refine))
             continue
         lo = runs[j - 1][0]
         hi = runs[j + 1][0] if j + 1 < len(runs) else n - 1
@@ -785,7 +793,7 @@ def annotate_recording(
 
 def _approach_onset(
     hand: FloatArray, runs: list[tuple[int, int, Any]], rate: float, doubts: list[str],
-    threshold: float = 0.003, span: float = 0.004,
+    threshold: float = 0.003, span: float = 0.004, refine: bool = True,
 ) -> float:
     """Frame at which the hand starts moving, before the first change of contact.
 
@@ -805,6 +813,8 @@ def _approach_onset(
                       "put at the first frame")
         return 0.0
     k = int(over[0])
+    if not refine:
+        return float(k)
     t = _refine(disp, k, True, 0, end, rate, span=span, back_s=0.8)
     return max(0.0, t)
 

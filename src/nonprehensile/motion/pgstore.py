@@ -57,6 +57,9 @@ _DDL = (
         vector bytea NOT NULL,
         PRIMARY KEY (store, id)
     )""",
+    # a vector is 8 bytes a value of noise-like floats: compressing it gains nothing and
+    # costs the server time on every insert, so it is stored out of line uncompressed
+    "ALTER TABLE np_samples ALTER COLUMN vector SET STORAGE EXTERNAL",
     "CREATE INDEX IF NOT EXISTS np_samples_key ON np_samples (store, key, id)",
     "CREATE INDEX IF NOT EXISTS np_samples_label_key ON np_samples (store, label, key, id)",
     """CREATE TABLE IF NOT EXISTS np_meta (
@@ -91,6 +94,18 @@ def connect(url: str, *, timeout: float = 30.0) -> psycopg.Connection[Any]:
 
 def ensure_schema(conn: psycopg.Connection[Any]) -> None:
     """Create the tables on first use; refuse a database of a newer layout."""
+    # the usual case, a database already set up, costs one query and takes no lock (the DDL
+    # path's advisory lock would be held to the end of a caller's transaction)
+    if conn.execute("SELECT to_regclass('np_schema') IS NOT NULL").fetchone() == (True,):
+        row = conn.execute("SELECT max(version) FROM np_schema").fetchone()
+        version = None if row is None else row[0]
+        if version == SCHEMA_VERSION:
+            return
+        if version is not None and version > SCHEMA_VERSION:
+            raise InputError(
+                f"the database holds nonprehensile stores of schema version {version}; this "
+                f"version reads {SCHEMA_VERSION}: upgrade nonprehensile"
+            )
     with conn.transaction():
         conn.execute("SELECT pg_advisory_xact_lock(%s)", (_DDL_LOCK,))
         for stmt in _DDL:

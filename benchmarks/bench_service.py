@@ -1,0 +1,271 @@
+"""The demonstration service under load, on loopback, with a crash in the middle.
+
+8 concurrent uploaders send the bundled dataset's 180 recordings (each with its mentor's
+token) to ``nonprehensile serve`` on 127.0.0.1, backed by PostgreSQL. After a third of them
+the server is killed with SIGKILL and started again; uploaders retry what failed (an upload
+is idempotent). Checked afterwards, in the database: every upload that got a 2xx is stored,
+each of the 180 exactly once, every stored sample belongs to exactly one upload and every
+upload has all its segments (nothing half-written), and each arc's clusterer state agrees
+with its samples. Reported: throughput and p50/p99 latency of the uploads.
+
+Then the registration throughput into PostgreSQL with batched inserts: flattened segments
+(4 800 floats each) registered by a clusterer on a ``PostgresStore`` in batches of 500
+(keying + COPY), and the bare ``PostgresStore.add`` (COPY) for comparison.
+
+The server comes from ``NONPREHENSILE_TEST_PG`` or is started with ``.ci/start-postgres``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit, urlunsplit
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+N_UPLOADERS = 8
+KILL_AFTER = 60  # uploads answered before the server is killed
+GOAL_SAMPLES_PER_S = 2000.0
+
+
+def _server() -> tuple[str, str | None]:
+    url = os.environ.get("NONPREHENSILE_TEST_PG")
+    if url:
+        return url, None
+    tmp = tempfile.mkdtemp(prefix="np-bench-pg-")
+    proc = subprocess.run([str(REPO / ".ci" / "start-postgres"), tmp], capture_output=True,
+                          text=True, check=True, timeout=120)
+    return proc.stdout.strip().splitlines()[-1], tmp
+
+
+def _fresh_db(url: str) -> str:
+    import psycopg
+
+    name = f"bench_{uuid.uuid4().hex[:10]}"
+    with psycopg.connect(url, autocommit=True) as conn:
+        conn.execute(f"CREATE DATABASE {name}")
+    return urlunsplit(urlsplit(url)._replace(path=f"/{name}"))
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _start(db: str, port: int) -> subprocess.Popen[bytes]:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen(
+        [sys.executable, "-m", "nonprehensile.cli", "serve", "--store", db, "--host",
+         "127.0.0.1", "--port", str(port), "--recalibrate-every", "2"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+
+
+def _wait_up(base: str, timeout: float = 120.0) -> None:
+    import httpx
+
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < timeout:
+        try:
+            if httpx.get(f"{base}/health", timeout=2).status_code == 200:
+                return
+        except httpx.TransportError:
+            pass
+        time.sleep(0.1)
+    raise RuntimeError("the server did not come up")
+
+
+def load_test() -> dict[str, Any]:
+    import httpx
+    import psycopg
+
+    from nonprehensile.demonstrations.dataset import dataset_path
+    from nonprehensile.service.db import create_token, make_pool
+
+    pg, tmp = _server()
+    db = _fresh_db(pg)
+    pool = make_pool(db, max_size=2)
+    with pool.connection() as conn:
+        tokens = {m: create_token(conn, m) for m in ("ana", "ben", "chen")}
+    pool.close()
+    cube = dataset_path("cube")
+    ann = json.loads((cube / "annotations.json").read_text())["demonstrations"]
+    jobs: queue.Queue[dict[str, Any]] = queue.Queue()
+    for e in ann:
+        jobs.put(e)
+    port = _port()
+    base = f"http://127.0.0.1:{port}"
+    server = {"proc": _start(db, port)}
+    _wait_up(base)
+    lat: list[float] = []
+    ok: dict[str, str] = {}  # file -> upload hash, from 2xx replies
+    duplicates = 0
+    retries = 0
+    answered = 0
+    lock = threading.Lock()
+    killed = threading.Event()
+
+    def uploader() -> None:
+        nonlocal duplicates, retries, answered
+        with httpx.Client(timeout=120) as client:
+            while True:
+                try:
+                    e = jobs.get_nowait()
+                except queue.Empty:
+                    return
+                ann_entry = {k: v for k, v in e.items() if k not in ("file", "mentor")}
+                body = (cube / e["file"]).read_bytes()
+                for _attempt in range(200):  # bounded: a server down for good ends the run
+                    t0 = time.perf_counter()
+                    try:
+                        r = client.post(f"{base}/demonstrations",
+                                        files={"file": (e["file"], body)},
+                                        data={"annotation": json.dumps(ann_entry)},
+                                        headers={"Authorization": f"Bearer {tokens[e['mentor']]}"})
+                    except httpx.TransportError:
+                        with lock:
+                            retries += 1
+                        time.sleep(0.2)
+                        continue
+                    dt = time.perf_counter() - t0
+                    if r.status_code >= 500:
+                        with lock:
+                            retries += 1
+                        time.sleep(0.2)
+                        continue
+                    if r.status_code not in (200, 201):
+                        raise RuntimeError(f"{e['file']}: {r.status_code} {r.text[:200]}")
+                    with lock:
+                        lat.append(dt)
+                        answered += 1
+                        ok[e["file"]] = r.json()["upload"]
+                        duplicates += bool(r.json()["duplicate"])
+                    break
+                else:
+                    raise RuntimeError(f"{e['file']}: no answer after 200 attempts")
+
+    def killer() -> None:
+        while answered < KILL_AFTER:
+            time.sleep(0.01)
+        server["proc"].send_signal(signal.SIGKILL)
+        server["proc"].wait()
+        killed.set()
+        server["proc"] = _start(db, port)
+
+    t0 = time.perf_counter()
+    threads = [threading.Thread(target=uploader) for _ in range(N_UPLOADERS)]
+    kt = threading.Thread(target=killer)
+    kt.start()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    kt.join()
+    wall = time.perf_counter() - t0
+    # what the database holds
+    with psycopg.connect(db, autocommit=True) as conn:
+        stored = {h for (h,) in conn.execute("SELECT hash FROM np_uploads").fetchall()}
+        n_uploads = len(stored)
+        orphans = conn.execute(
+            "SELECT count(*) FROM np_samples s LEFT JOIN np_upload_samples u "
+            "ON u.arc = s.store AND u.sample = s.id WHERE u.hash IS NULL").fetchone()[0]
+        per_upload = conn.execute(
+            "SELECT p.skill, count(u.step) FROM np_uploads p LEFT JOIN np_upload_samples u "
+            "ON u.hash = p.hash GROUP BY p.hash, p.skill").fetchall()
+        empty_reply = conn.execute(
+            "SELECT count(*) FROM np_uploads WHERE reply = '{}'::jsonb").fetchone()[0]
+        n_samples = conn.execute("SELECT count(*) FROM np_samples").fetchone()[0]
+        arcs = [r[0] for r in conn.execute("SELECT DISTINCT store FROM np_samples")]
+    from nonprehensile.motion.clustering import HilbertClusterer
+    from nonprehensile.motion.pgstore import PostgresStore
+
+    states_ok = 0
+    for arc in arcs:
+        with PostgresStore(db, arc) as st:
+            HilbertClusterer.load_state(st.get_meta("hilbert_clusterer") or b"", st)
+            states_ok += 1
+    steps = {}
+    for skill, n in per_upload:
+        steps.setdefault(skill, set()).add(n)
+    server["proc"].send_signal(signal.SIGINT)
+    try:
+        server["proc"].wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        server["proc"].kill()
+    if tmp:
+        subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], check=False)
+    lat_ms = np.array(lat) * 1000
+    return {
+        "uploads": len(ann), "answered_2xx": len(ok), "stored": n_uploads,
+        "all_2xx_stored": set(ok.values()) <= stored, "duplicates_answered": duplicates,
+        "retries": retries, "killed": killed.is_set(), "orphan_samples": int(orphans),
+        "uploads_without_reply": int(empty_reply), "segments_per_skill": {
+            k: sorted(v) for k, v in steps.items()}, "samples": int(n_samples),
+        "arc_states_consistent": f"{states_ok}/{len(arcs)}",
+        "wall_s": round(wall, 2), "uploads_per_s": round(len(ann) / wall, 2),
+        "segments_per_s": round(n_samples / wall, 1),
+        "p50_ms": round(float(np.percentile(lat_ms, 50)), 1),
+        "p99_ms": round(float(np.percentile(lat_ms, 99)), 1),
+    }
+
+
+def insert_throughput() -> dict[str, Any]:
+    from threadpoolctl import threadpool_limits
+
+    from nonprehensile.motion.clustering import HilbertClusterer
+    from nonprehensile.motion.pgstore import PostgresStore
+
+    pg, tmp = _server()
+    db = _fresh_db(pg)
+    rng = np.random.default_rng(0)
+    n, d, batch = 10_000, 4800, 500
+    centres = rng.normal(scale=3.0, size=(6, d))
+    x = centres[rng.integers(0, 6, n)] + rng.normal(size=(n, d))
+    out: dict[str, Any] = {"samples": n, "features": d, "batch": batch}
+    with PostgresStore(db, "bare") as st:
+        t0 = time.perf_counter()
+        for s in range(0, n, batch):
+            st.add(x[s : s + batch], [0] * batch, np.zeros(batch, dtype=np.int64))
+        out["copy_samples_per_s"] = round(n / (time.perf_counter() - t0))
+    with PostgresStore(db, "clustered") as st, threadpool_limits(1):
+        c = HilbertClusterer(6, init_size=1000, growth=1e12, drift_fraction=1e12, store=st,
+                             random_state=0)
+        c.partial_fit(x[:1000])  # the first batch: a clustering, not timed
+        t0 = time.perf_counter()
+        for s in range(1000, n, batch):
+            with st.transaction():
+                c.partial_fit(x[s : s + batch])
+                st.put_meta("hilbert_clusterer", c.save_state())
+        out["registered_samples_per_s"] = round((n - 1000) / (time.perf_counter() - t0))
+    out["goal"] = GOAL_SAMPLES_PER_S
+    if tmp:
+        subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], check=False)
+    return out
+
+
+def main() -> None:
+    res = load_test()
+    print("   load test (8 uploaders, 180 recordings, SIGKILL after "
+          f"{KILL_AFTER} answers, restart):")
+    for k, v in res.items():
+        print(f"     {k}: {v}")
+    ins = insert_throughput()
+    print("   registration into PostgreSQL, batched:")
+    for k, v in ins.items():
+        print(f"     {k}: {v}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,151 @@
+"""``nonprehensile serve``: the demonstration service, and its mentors' tokens.
+
+Registered on the main group by :mod:`nonprehensile.cli`. ``serve --store URL`` runs the HTTP
+service (FastAPI on uvicorn) until interrupted; ``serve token create MENTOR --store URL``
+prints a new bearer token once (the database keeps only its hash).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+
+from nonprehensile.cli_common import emit_json, err, handle_errors, out
+from nonprehensile.errors import InputError
+
+__all__ = ["serve_group"]
+
+#: The default upload size limit, bytes (nonprehensile.service.app.DEFAULT_MAX_BYTES).
+_MAX_BYTES = 64 * 1024 * 1024
+
+
+def _pool(store: str) -> Any:
+    try:
+        from nonprehensile.service.db import make_pool
+    except ImportError:
+        raise InputError("the service needs its extra: pip install 'nonprehensile[service]'"
+                         ) from None
+    return make_pool(store, max_size=2)
+
+
+store_option = click.option("--store", required=True, metavar="URL",
+                            help="The PostgreSQL database (postgresql://user@host:port/db).")
+
+
+@click.group("serve", invoke_without_command=True)
+@click.option("--store", default=None, metavar="URL",
+              help="The PostgreSQL database (postgresql://user@host:port/db).")
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to listen on (127.0.0.1: this machine only).")
+@click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True)
+@click.option("--dataset", default="cube", show_default=True,
+              help="Dataset folder (or bundled name) whose skills file and settings "
+                   "(scale, markers, fingers, gap limit) every upload uses.")
+@click.option("--max-bytes", type=click.IntRange(1024, 2**31), default=_MAX_BYTES,
+              show_default=True, help="Largest request body, bytes.")
+@click.option("--recalibrate-every", type=click.FloatRange(0, 86400), default=5.0,
+              show_default=True,
+              help="Seconds between checks for arcs due a background recalibration (0: only "
+                   "on POST /recalibrate).")
+@click.option("--workers", type=click.IntRange(1, 64), default=8, show_default=True,
+              help="Database connections in the pool.")
+@click.pass_context
+@handle_errors
+def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dataset: str,
+                max_bytes: int, recalibrate_every: float, workers: int) -> None:
+    """Run the demonstration service: mentors upload demonstrations into a PostgreSQL store.
+
+    Without a subcommand, serves http://HOST:PORT until interrupted (OpenAPI at
+    /openapi.json). `serve token create MENTOR --store URL` makes a mentor's token."""
+    if ctx.invoked_subcommand is not None:
+        return
+    if store is None:
+        raise InputError("give --store postgresql://user@host:port/db (the service's database)")
+    try:
+        import uvicorn
+
+        from nonprehensile.service import ServiceConfig, create_app, load_template, make_pool
+    except ImportError:
+        raise InputError("the service needs its extra: pip install 'nonprehensile[service]'"
+                         ) from None
+    from nonprehensile.motion.stores import display_name
+
+    template = load_template(dataset)
+    pool = make_pool(store, max_size=workers + 2)
+    config = ServiceConfig(display_name(store), max_bytes=max_bytes,
+                           recalibrate_every=recalibrate_every)
+    app = create_app(pool, template, config)
+    err.print(f"serving {display_name(store)} on http://{host}:{port} (OpenAPI at "
+              f"/openapi.json, docs at /docs); Ctrl-C stops")
+    try:
+        uvicorn.run(app, host=host, port=port, log_level="warning", workers=1,
+                    limit_concurrency=max(16, 4 * workers), timeout_keep_alive=30)
+    finally:
+        pool.close()
+
+
+@serve_group.group("token")
+def token_group() -> None:
+    """Mentors' bearer tokens: create, list, revoke."""
+
+
+@token_group.command("create")
+@click.argument("mentor")
+@store_option
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
+@handle_errors
+def token_create(mentor: str, store: str, as_json: bool) -> None:
+    """Create a bearer token for MENTOR and print it (only once: keep it)."""
+    from nonprehensile.service.db import create_token
+
+    pool = _pool(store)
+    try:
+        with pool.connection() as conn:
+            token = create_token(conn, mentor)
+    finally:
+        pool.close()
+    if as_json:
+        emit_json({"mentor": mentor.strip(), "token": token})
+        return
+    out.print(token)
+    err.print(f"token for {mentor.strip()!r}: send it as 'Authorization: Bearer <token>'; "
+              "it is not shown again")
+
+
+@token_group.command("list")
+@store_option
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
+@handle_errors
+def token_list(store: str, as_json: bool) -> None:
+    """List the mentors and their number of live tokens (never the tokens)."""
+    from nonprehensile.service.db import list_tokens
+
+    pool = _pool(store)
+    try:
+        with pool.connection() as conn:
+            rows = list_tokens(conn)
+    finally:
+        pool.close()
+    if as_json:
+        emit_json({"mentors": rows})
+        return
+    for r in rows:
+        out.print(f"{r['mentor']}: {r['tokens']} live token(s), since {r['since']}")
+
+
+@token_group.command("revoke")
+@click.argument("mentor")
+@store_option
+@handle_errors
+def token_revoke(mentor: str, store: str) -> None:
+    """Revoke every token of MENTOR."""
+    from nonprehensile.service.db import revoke_tokens
+
+    pool = _pool(store)
+    try:
+        with pool.connection() as conn:
+            n = revoke_tokens(conn, mentor)
+    finally:
+        pool.close()
+    err.print(f"revoked {n} token(s) of {mentor.strip()!r}")

@@ -1,0 +1,513 @@
+"""Uploads: validated as ``dataset show`` validates, segmented, keyed and registered.
+
+An upload is one recording (C3D or Motive CSV) with its annotation entry, or a whole dataset
+folder as an archive (zip or tar). Either way the service writes a dataset folder (the
+service's own skills file and dataset-wide settings, the upload's entries and files) and runs
+:func:`~nonprehensile.demonstrations.dataset.check_dataset` on it: the problems are those the
+CLI lists, line for line. Each accepted demonstration is cut at its events
+(:func:`~nonprehensile.demonstrations.segment.segment_demonstration`), each piece flattened
+and registered to the clusterer of its arc (one :class:`~nonprehensile.motion.pgstore.
+PostgresStore` per pair of contact events, as the pipeline clusters them), all in one database
+transaction together with the upload's row: a killed server leaves an upload whole or absent.
+
+Recalibration runs in the background (:meth:`Registry.recalibrate`): the heavy part (principal
+components, re-keying, clustering) works on a snapshot without any lock; only the final write
+of the new keys takes the arc's lock, and the samples registered meanwhile are registered to
+the new model then.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import io
+import json
+import shutil
+import tarfile
+import tempfile
+import zipfile
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path, PurePosixPath
+from typing import Any
+
+import psycopg
+from psycopg_pool import ConnectionPool
+
+from nonprehensile.demonstrations.dataset import (
+    ANNOTATION_FILES,
+    Dataset,
+    Demonstration,
+    Problem,
+    _annotations_file,
+    check_dataset,
+    dataset_path,
+)
+from nonprehensile.demonstrations.segment import SkillGraphs, segment_demonstration, skill_graphs
+from nonprehensile.errors import InputError, NonprehensileError
+from nonprehensile.io import load_document, read_skills
+from nonprehensile.motion.clustering import HilbertClusterer
+from nonprehensile.motion.library import flatten_segments
+from nonprehensile.motion.pgstore import PostgresStore
+from nonprehensile.motion.store import MemoryStore
+
+__all__ = ["Forbidden", "Registry", "Rejected", "Template", "content_hash", "extract_archive",
+           "load_template"]
+
+#: Name of an arc clusterer's state in its store's meta table.
+STATE = "hilbert_clusterer"
+#: Sample count at the arc's last background recalibration (meta, decimal text).
+RECAL_N = "service_recalibrated_at"
+#: Samples an arc gathers before its first clustering.
+DEFAULT_INIT_SIZE = 10
+#: Most files in an uploaded archive.
+MAX_ARCHIVE_FILES = 5000
+_TRAJECTORY_SUFFIXES = (".c3d", ".csv")
+
+
+class Rejected(InputError):
+    """An upload that fails validation: HTTP 422 with every problem, one line each."""
+
+    def __init__(self, message: str, problems: list[str] | None = None, status: int = 422):
+        super().__init__(message)
+        self.problems = problems or [message]
+        self.status = status
+
+
+class Forbidden(InputError):
+    """A mentor acting on another mentor's data: HTTP 403."""
+
+
+@dataclass(frozen=True, eq=False)
+class Template:
+    """The service's dataset context: the skills and dataset-wide settings every upload uses.
+
+    Attributes
+    ----------
+    top : dict
+        The annotations' dataset-wide keys (``format``, ``skills`` as an absolute path,
+        ``scale``, ``gap_limit``, ``fingers``, ``markers``).
+    graphs : SkillGraphs
+        The skill graphs of the skills.
+    arcs : dict
+        ``(group, source, target)`` to the arc's store name, e.g. ``rolling-g0-n1-n2``.
+    arc_skills : dict
+        Store name to the number of skills sharing the arc (the clusters asked for).
+    """
+
+    top: dict[str, Any]
+    graphs: SkillGraphs
+    arcs: dict[tuple[int, Any, Any], str] = field(default_factory=dict)
+    arc_skills: dict[str, int] = field(default_factory=dict)
+
+
+def load_template(spec: str | Path) -> Template:
+    """The context of a dataset folder (or bundled name): its skills and settings."""
+    root = dataset_path(spec)
+    ann = _annotations_file(root)
+    if ann is None:
+        raise InputError(f"{root}: no annotations file; expected one of {list(ANNOTATION_FILES)}")
+    doc = load_document(ann)
+    if not isinstance(doc, Mapping) or not isinstance(doc.get("skills"), str):
+        raise InputError(f"{ann}: the annotations must name a skills file")
+    top = {k: v for k, v in doc.items() if k != "demonstrations"}
+    top["skills"] = str((root / doc["skills"]).resolve())
+    poly, skills = read_skills(top["skills"])
+    graphs = skill_graphs(poly, skills)
+    arcs: dict[tuple[int, Any, Any], str] = {}
+    arc_keys: dict[str, set[str]] = {}
+    for g, graph in enumerate(graphs.graphs):
+        names = {node: i for i, node in enumerate(graph.nodes)}
+        for u, v, key in graph.edges(keys=True):
+            name = f"{graph.graph['maneuver']}-g{g}-n{names[u]}-n{names[v]}"
+            arcs[(g, u, v)] = name
+            arc_keys.setdefault(name, set()).add(str(key))
+    return Template(top, graphs, arcs, {n: len(k) for n, k in arc_keys.items()})
+
+
+def content_hash(mentor: str, entry: Mapping[str, Any], data: bytes) -> str:
+    """SHA-256 of an upload: the mentor, the annotation (without the file's name), the bytes."""
+    ann = {k: v for k, v in entry.items() if k not in ("file", "mentor")}
+    h = hashlib.sha256()
+    h.update(mentor.encode() + b"\0")
+    h.update(json.dumps(ann, sort_keys=True, separators=(",", ":")).encode() + b"\0")
+    h.update(data)
+    return h.hexdigest()
+
+
+def _safe_name(filename: str | None) -> str:
+    name = PurePosixPath((filename or "").replace("\\", "/")).name
+    if not name or name.startswith(".") or len(name) > 200:
+        raise Rejected(f"the recording's file name {filename!r} is not usable; name it like "
+                       "take_01.c3d or take_01.csv", status=400)
+    if PurePosixPath(name).suffix.lower() not in _TRAJECTORY_SUFFIXES:
+        raise Rejected(f"{name}: unknown trajectory format {PurePosixPath(name).suffix!r}; "
+                       "use .c3d or a Motive .csv", status=400)
+    return name
+
+
+def _problems(problems: list[Problem], root: Path) -> Rejected:
+    lines = [str(p) for p in problems]
+    return Rejected(f"{len(lines)} problem(s) in the upload, nothing was stored: "
+                    + "; ".join(lines), lines)
+
+
+@contextlib.contextmanager
+def single_upload(template: Template, mentor: str, filename: str | None, data: bytes,
+                  annotation: Any) -> Iterator[tuple[Dataset, list[str]]]:
+    """Check one recording and its annotation entry as ``dataset show`` would.
+
+    Yields the one-demonstration dataset and its content hash (as a list of one).
+    """
+    if not isinstance(annotation, Mapping):
+        raise Rejected("the annotation must be a JSON object: one entry of the annotations' "
+                       "'demonstrations' list (skill, initial, final, events)", status=400)
+    name = _safe_name(filename)
+    given = annotation.get("mentor")
+    if given is not None and given != mentor:
+        raise Forbidden(f"the annotation names mentor {given!r} but the token is {mentor!r}'s; "
+                        "a mentor uploads only their own demonstrations")
+    entry = {**annotation, "file": name, "mentor": mentor}
+    with tempfile.TemporaryDirectory(prefix="np-upload-") as tmp:
+        root = Path(tmp)
+        (root / name).write_bytes(data)
+        doc = {**template.top, "demonstrations": [entry]}
+        (root / ANNOTATION_FILES[0]).write_text(json.dumps(doc))
+        ds, problems = check_dataset(root)
+        if ds is None:
+            raise _problems(problems, root)
+        yield ds, [content_hash(mentor, entry, data)]
+
+
+def extract_archive(data: bytes, dest: Path, max_bytes: int) -> Path:
+    """Unpack a zip or tar archive of a dataset folder into ``dest``; the dataset's root.
+
+    Refuses absolute names, ``..``, links, more than :data:`MAX_ARCHIVE_FILES` files and more
+    than ``max_bytes`` unpacked.
+    """
+    members: list[tuple[str, Any]] = []
+
+    def check(name: str) -> PurePosixPath:
+        p = PurePosixPath(name)
+        if p.is_absolute() or ".." in p.parts or not p.parts:
+            raise Rejected(f"archive member {name!r} lies outside the archive's folder", status=400)
+        return p
+
+    total = 0
+    if zipfile.is_zipfile(io.BytesIO(data)):
+        try:
+            zf = zipfile.ZipFile(io.BytesIO(data))
+            infos = zf.infolist()
+        except (zipfile.BadZipFile, ValueError) as exc:
+            raise Rejected(f"the archive is not a readable zip file ({exc})", status=400) from None
+        if len(infos) > MAX_ARCHIVE_FILES:
+            raise Rejected(f"the archive has {len(infos)} files, more than "
+                           f"{MAX_ARCHIVE_FILES}", status=413)
+        for info in infos:
+            check(info.filename)
+            total += info.file_size
+            if total > max_bytes:
+                raise Rejected(f"the archive unpacks to more than {max_bytes} bytes", status=413)
+            members.append((info.filename, info))
+        for name, info in members:
+            if info.is_dir():
+                continue
+            target = dest / name
+            target.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                with zf.open(info) as src, target.open("wb") as out:
+                    shutil.copyfileobj(src, out)
+            except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+                raise Rejected(f"archive member {name!r} cannot be read ({exc})",
+                               status=400) from None
+    else:
+        try:
+            tf = tarfile.open(fileobj=io.BytesIO(data), mode="r:*")  # noqa: SIM115
+            infos_t = tf.getmembers()
+        except (tarfile.TarError, EOFError, OSError) as exc:
+            raise Rejected(f"the upload is neither a zip nor a tar archive ({exc})",
+                           status=400) from None
+        if len(infos_t) > MAX_ARCHIVE_FILES:
+            raise Rejected(f"the archive has {len(infos_t)} files, more than "
+                           f"{MAX_ARCHIVE_FILES}", status=413)
+        for ti in infos_t:
+            check(ti.name)
+            if not (ti.isfile() or ti.isdir()):
+                raise Rejected(f"archive member {ti.name!r} is a link or a device; a dataset "
+                               "archive holds plain files", status=400)
+            total += ti.size
+            if total > max_bytes:
+                raise Rejected(f"the archive unpacks to more than {max_bytes} bytes", status=413)
+        try:
+            tf.extractall(dest, filter="data")
+        except (tarfile.TarError, OSError, EOFError) as exc:
+            raise Rejected(f"the archive cannot be unpacked ({exc})", status=400) from None
+    # the dataset's root: the folder holding the annotations file (the top or its one child)
+    for cand in [dest, *sorted(p for p in dest.iterdir() if p.is_dir())]:
+        if _annotations_file(cand) is not None:
+            return cand
+    raise Rejected(f"the archive holds no annotations file ({', '.join(ANNOTATION_FILES)}) at "
+                   "its top or in its one folder", status=422)
+
+
+@contextlib.contextmanager
+def archive_upload(template: Template, mentor: str, data: bytes,
+                   max_bytes: int) -> Iterator[tuple[Dataset, list[str]]]:
+    """Check a dataset archive as ``dataset show`` would; yields it and each demo's hash.
+
+    The archive's own skills file is not used: its demonstrations must be of the service's
+    skills (the archive's dataset-wide settings must match the service's).
+    """
+    with tempfile.TemporaryDirectory(prefix="np-archive-") as tmp:
+        root = extract_archive(data, Path(tmp), max_bytes)
+        ann = _annotations_file(root)
+        assert ann is not None
+        try:
+            doc = load_document(ann)
+        except InputError as exc:
+            raise Rejected(f"{ann.name}: {exc}") from None
+        if not isinstance(doc, Mapping) or not isinstance(doc.get("demonstrations"), list):
+            raise Rejected(f"{ann.name}: the annotations must be an object with a "
+                           "'demonstrations' list (see docs/dataset.md)")
+        for key in ("scale", "gap_limit", "fingers", "markers", "format"):
+            if key in doc and key in template.top and doc[key] != template.top[key]:
+                raise Rejected(f"{ann.name}: '{key}' is {doc[key]!r}, the service's datasets "
+                               f"have {template.top[key]!r}; export the archive with the "
+                               "service's settings")
+        for i, item in enumerate(doc["demonstrations"]):
+            if isinstance(item, Mapping) and item.get("mentor") != mentor:
+                raise Forbidden(f"{ann.name} (demonstration {i}): mentor "
+                                f"{item.get('mentor')!r} is not the token's mentor {mentor!r}; "
+                                "a mentor uploads only their own demonstrations")
+        ann.unlink()
+        (root / ANNOTATION_FILES[0]).write_text(json.dumps(
+            {**template.top, "demonstrations": doc["demonstrations"]}))
+        ds, problems = check_dataset(root)
+        if ds is None:
+            raise _problems(problems, root)
+        hashes = []
+        for d, item in zip(ds.demonstrations, doc["demonstrations"], strict=True):
+            hashes.append(content_hash(mentor, item, (root / d.file).read_bytes()))
+        if len(set(hashes)) != len(hashes):
+            raise Rejected("the archive holds the same demonstration twice")
+        yield ds, hashes
+
+
+class Registry:
+    """Registers demonstrations to their arcs' clusterers in PostgreSQL.
+
+    Parameters
+    ----------
+    pool : ConnectionPool
+        Autocommit connections to the database (tables created).
+    template : Template
+    init_size : int
+        Samples an arc gathers before its first clustering.
+    growth : float
+        A background recalibration of an arc is due when its count reaches ``growth`` times
+        the count at its last one.
+    seed : int
+        Random seed of the arcs' clusterers.
+    """
+
+    def __init__(self, pool: ConnectionPool, template: Template, *,
+                 init_size: int = DEFAULT_INIT_SIZE, growth: float = 2.0, seed: int = 0) -> None:
+        self.pool = pool
+        self.template = template
+        self.init_size = init_size
+        self.growth = growth
+        self.seed = seed
+
+    # ------------------------------------------------------------------ clusterers
+
+    def _new_clusterer(self, arc: str, store: PostgresStore) -> HilbertClusterer:
+        k = self.template.arc_skills.get(arc, 1)
+        # recalibrations are the background job's: the clusterer never runs one inline
+        # (beyond completing its first batch), so an upload never waits for one
+        return HilbertClusterer(k if k > 1 else None, init_size=self.init_size, growth=1e12,
+                                drift_fraction=1e12, store=store, random_state=self.seed)
+
+    def _clusterer(self, arc: str, store: PostgresStore) -> HilbertClusterer:
+        state = store.get_meta(STATE)
+        if state is None:
+            return self._new_clusterer(arc, store)
+        return HilbertClusterer.load_state(state, store)
+
+    # ------------------------------------------------------------------ uploads
+
+    def register(self, mentor: str, dataset: Dataset, hashes: list[str],
+                 kind: str) -> list[dict[str, Any]]:
+        """Register each demonstration (skipping those already stored); their replies."""
+        return [self._register_one(mentor, d, h, kind)
+                for d, h in zip(dataset.demonstrations, hashes, strict=True)]
+
+    def _register_one(self, mentor: str, demo: Demonstration, digest: str,
+                      kind: str) -> dict[str, Any]:
+        segments = segment_demonstration(demo, self.template.graphs,
+                                         max_gap=int(self.template.top.get("gap_limit", 12)))
+        vectors = flatten_segments(segments)
+        arcs = [self.template.arcs[(s.arc.group, s.arc.source, s.arc.target)] for s in segments]
+        with self.pool.connection() as conn, conn.transaction():
+            # claims the hash; an identical upload in flight waits here for this one's commit
+            claimed = conn.execute(
+                "INSERT INTO np_uploads (hash, mentor, file, skill, kind, reply) "
+                "VALUES (%s, %s, %s, %s, %s, '{}'::jsonb) ON CONFLICT (hash) DO NOTHING "
+                "RETURNING hash", (digest, mentor, demo.file, demo.skill.name, kind)
+            ).fetchone()
+            if claimed is None:
+                return {**self.upload(conn, digest), "duplicate": True}
+            with contextlib.ExitStack() as stack:
+                stores = {}
+                for arc in sorted(set(arcs)):  # one lock order: no deadlock between uploads
+                    stores[arc] = PostgresStore(conn, arc)
+                    stack.enter_context(stores[arc].transaction())
+                for step, (seg, arc) in enumerate(zip(segments, arcs, strict=True)):
+                    store = stores[arc]
+                    c = self._clusterer(arc, store)
+                    c.partial_fit(vectors[step : step + 1])
+                    store.put_meta(STATE, c.save_state())
+                    conn.execute(
+                        "INSERT INTO np_upload_samples (hash, step, arc, sample) "
+                        "VALUES (%s, %s, %s, %s)", (digest, seg.step, arc, store.n_samples - 1))
+            reply = self.upload(conn, digest)
+            conn.execute("UPDATE np_uploads SET reply = %s WHERE hash = %s",
+                         (json.dumps(reply), digest))
+        return {**reply, "duplicate": False}
+
+    def upload(self, conn: psycopg.Connection[Any], digest: str) -> dict[str, Any]:
+        """An upload's document: who, what, and each segment's arc, sample and cluster now."""
+        row = conn.execute("SELECT mentor, file, skill, kind, withdrawn FROM np_uploads "
+                           "WHERE hash = %s", (digest,)).fetchone()
+        if row is None:
+            raise Rejected(f"no upload {digest}", status=404)
+        segs = conn.execute(
+            "SELECT u.step, u.arc, u.sample, s.label FROM np_upload_samples u "
+            "JOIN np_samples s ON s.store = u.arc AND s.id = u.sample "
+            "WHERE u.hash = %s ORDER BY u.step", (digest,)
+        ).fetchall()
+        return {
+            "upload": digest, "mentor": row[0], "file": row[1], "skill": row[2],
+            "kind": row[3], "withdrawn": bool(row[4]),
+            "segments": [{"step": st, "arc": arc, "sample": int(sample),
+                          "cluster": None if label < 0 else int(label)}
+                         for st, arc, sample, label in segs],
+        }
+
+    def withdraw(self, mentor: str, digest: str) -> dict[str, Any]:
+        """Withdraw an upload of ``mentor``'s (another's: :class:`Forbidden`)."""
+        with self.pool.connection() as conn, conn.transaction():
+            row = conn.execute("SELECT mentor FROM np_uploads WHERE hash = %s FOR UPDATE",
+                               (digest,)).fetchone()
+            if row is None:
+                raise Rejected(f"no upload {digest}", status=404)
+            if row[0] != mentor:
+                raise Forbidden(f"upload {digest} is {row[0]!r}'s; a mentor withdraws only "
+                                "their own uploads")
+            conn.execute("UPDATE np_uploads SET withdrawn = true WHERE hash = %s", (digest,))
+            return self.upload(conn, digest)
+
+    # ------------------------------------------------------------------ listings
+
+    def clusters(self) -> list[dict[str, Any]]:
+        """Every arc with samples: its clusters and their sizes (withdrawn uploads left out)."""
+        with self.pool.connection() as conn:
+            rows = conn.execute(
+                "SELECT s.store, s.label, count(*) FROM np_samples s "
+                "LEFT JOIN np_upload_samples u ON u.arc = s.store AND u.sample = s.id "
+                "LEFT JOIN np_uploads p ON p.hash = u.hash "
+                "WHERE p.withdrawn IS NOT TRUE "
+                "GROUP BY s.store, s.label ORDER BY s.store, s.label"
+            ).fetchall()
+            recal: dict[str, str] = dict(conn.execute(
+                "SELECT store, convert_from(value, 'UTF8') FROM np_meta WHERE name = %s",
+                (RECAL_N,)).fetchall())
+        out: dict[str, dict[str, Any]] = {}
+        for store, label, n in rows:
+            arc = out.setdefault(store, {"arc": store, "samples": 0, "pending": 0,
+                                         "clusters": [],
+                                         "recalibrated_at": int(recal.get(store, 0))})
+            arc["samples"] += int(n)
+            if label < 0:
+                arc["pending"] += int(n)
+            else:
+                arc["clusters"].append({"id": int(label), "size": int(n)})
+        return list(out.values())
+
+    def mentor_stats(self, mentor: str | None = None) -> list[dict[str, Any]]:
+        """Per mentor: uploads, withdrawn, segments, and counts per skill and per cluster."""
+        with self.pool.connection() as conn:
+            where, args = ("WHERE p.mentor = %s", (mentor,)) if mentor else ("", ())
+            ups = conn.execute(
+                f"SELECT p.mentor, p.skill, p.withdrawn, count(*) FROM np_uploads p {where} "
+                "GROUP BY p.mentor, p.skill, p.withdrawn ORDER BY 1, 2", args).fetchall()
+            segs = conn.execute(
+                "SELECT p.mentor, u.arc, s.label, count(*) FROM np_uploads p "
+                "JOIN np_upload_samples u ON u.hash = p.hash "
+                "JOIN np_samples s ON s.store = u.arc AND s.id = u.sample "
+                f"{where}{' AND' if where else 'WHERE'} NOT p.withdrawn "
+                "GROUP BY 1, 2, 3 ORDER BY 1, 2, 3", args).fetchall()
+        out: dict[str, dict[str, Any]] = {}
+        for m, skill, withdrawn, n in ups:
+            doc = out.setdefault(m, {"mentor": m, "uploads": 0, "withdrawn": 0, "segments": 0,
+                                     "skills": {}, "clusters": []})
+            if withdrawn:
+                doc["withdrawn"] += int(n)
+            else:
+                doc["uploads"] += int(n)
+                doc["skills"][skill] = doc["skills"].get(skill, 0) + int(n)
+        for m, arc, label, n in segs:
+            doc = out[m]
+            doc["segments"] += int(n)
+            doc["clusters"].append({"arc": arc, "cluster": None if label < 0 else int(label),
+                                    "segments": int(n)})
+        return list(out.values())
+
+    # ------------------------------------------------------------------ recalibration
+
+    def arcs_due(self) -> list[str]:
+        """Arcs whose count reached ``growth`` times the count at their last recalibration."""
+        with self.pool.connection() as conn:
+            rows = conn.execute(
+                "SELECT s.store, max(s.id) + 1, convert_from(m.value, 'UTF8') FROM np_samples s "
+                "LEFT JOIN np_meta m ON m.store = s.store AND m.name = %s "
+                "GROUP BY s.store, m.value", (RECAL_N,)).fetchall()
+        due = []
+        for store, n, last in rows:
+            last_n = int(last) if last else self.init_size
+            if n >= self.init_size and n >= self.growth * last_n:
+                due.append(store)
+        return due
+
+    def recalibrate(self, arc: str) -> dict[str, Any]:
+        """Recalibrate one arc without blocking uploads (see the module notes)."""
+        with self.pool.connection() as conn:
+            # a consistent snapshot, read without the arc's lock (MVCC)
+            with conn.transaction():
+                conn.execute("SET TRANSACTION ISOLATION LEVEL REPEATABLE READ")
+                store = PostgresStore(conn, arc)
+                state = store.get_meta(STATE)
+                n0 = store.n_samples
+                if state is None or n0 < self.init_size:
+                    return {"arc": arc, "recalibrated": False, "samples": n0}
+                snap = MemoryStore()
+                snap.add(store.vectors(0, n0), store.keys(), store.labels())
+            c = HilbertClusterer.load_state(state, snap)
+            c.recalibrate()  # the heavy part: no lock held
+            with conn.transaction(), store.transaction():
+                n1 = store.n_samples
+                if n1 > n0:
+                    # registered meanwhile: registered again, to the new model
+                    c.partial_fit(store.vectors(n0, n1))
+                store.update(0, snap.keys(), snap.labels())
+                store.put_meta(STATE, c.save_state())
+                store.put_meta(RECAL_N, str(n1).encode())
+        return {"arc": arc, "recalibrated": True, "samples": n1, "during": n1 - n0,
+                "clusters": int(c.n_clusters_)}
+
+
+def registration_error(exc: Exception) -> NonprehensileError:
+    """An error of segmenting a checked demonstration, as a rejection (a 422)."""
+    if isinstance(exc, InputError) and not isinstance(exc, Rejected | Forbidden):
+        return Rejected(str(exc))
+    return exc if isinstance(exc, NonprehensileError) else NonprehensileError(str(exc))
+

@@ -1,0 +1,341 @@
+"""The demonstration service: tokens, uploads validated as `dataset show` validates,
+idempotency, mentors' data, size limit, background recalibration, listings, a schema fuzz, and
+one real uvicorn on 127.0.0.1."""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import zipfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+
+pytest.importorskip("fastapi", reason="the service extra (FastAPI) is not installed")
+pytest.importorskip("psycopg", reason="the pg extra (psycopg) is not installed")
+
+from fastapi.testclient import TestClient
+
+from nonprehensile.cli import main
+from nonprehensile.demonstrations.dataset import dataset_path
+from nonprehensile.motion.clustering import HilbertClusterer
+from nonprehensile.service import (
+    ServiceConfig,
+    create_app,
+    create_token,
+    load_template,
+    make_pool,
+)
+from nonprehensile.service.ingest import Registry
+
+CUBE = dataset_path("cube")
+ANN = json.loads((CUBE / "annotations.json").read_text())
+MAX_BYTES = 1_000_000
+#: Samples an arc gathers before its first clustering (small: uploads cost time).
+INIT = 4
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_blas_thread() -> Iterator[None]:
+    # a loaded 2-core machine runs an SVD 10x slower with several BLAS threads than with one
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        yield
+
+
+def entries(skill: str, mentor: str, n: int) -> list[dict[str, Any]]:
+    return [d for d in ANN["demonstrations"]
+            if d["skill"] == skill and d["mentor"] == mentor][:n]
+
+
+def form(entry: dict[str, Any], *, annotation: dict[str, Any] | None = None
+         ) -> dict[str, Any]:
+    ann = annotation if annotation is not None else {
+        k: v for k, v in entry.items() if k not in ("file", "mentor")}
+    return {"files": {"file": (entry["file"], (CUBE / entry["file"]).read_bytes(),
+                               "application/octet-stream")},
+            "data": {"annotation": json.dumps(ann)}}
+
+
+@pytest.fixture(scope="module")
+def template() -> Any:
+    return load_template("cube")
+
+
+@pytest.fixture
+def service(pg_url: str, template: Any) -> Iterator[dict[str, Any]]:
+    pool = make_pool(pg_url, max_size=6)
+    with pool.connection() as conn:
+        tokens = {m: create_token(conn, m) for m in ("ana", "ben")}
+    registry = Registry(pool, template, init_size=INIT)
+    app = create_app(pool, template, ServiceConfig("test", max_bytes=MAX_BYTES),
+                     registry=registry, background=False)
+    with TestClient(app) as client:
+        yield {"client": client, "tokens": tokens, "registry": registry, "pool": pool,
+               "auth": {m: {"Authorization": f"Bearer {t}"} for m, t in tokens.items()}}
+    pool.close()
+
+
+def test_health_and_openapi(service: dict[str, Any]) -> None:
+    c = service["client"]
+    assert c.get("/health").json()["status"] == "ok"
+    paths = c.get("/openapi.json").json()["paths"]
+    assert {"/health", "/demonstrations", "/datasets", "/clusters", "/mentors",
+            "/uploads/{digest}", "/recalibrate"} <= set(paths)
+
+
+def test_every_post_needs_a_token(service: dict[str, Any]) -> None:
+    c = service["client"]
+    e = entries("push-roll", "ana", 1)[0]
+    r = c.post("/demonstrations", **form(e))
+    assert r.status_code == 401 and "token" in r.json()["detail"]
+    r = c.post("/demonstrations", **form(e), headers={"Authorization": "Bearer np_wrong"})
+    assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer"
+    assert c.post("/recalibrate").status_code == 401
+    assert c.delete("/uploads/abc").status_code == 401
+
+
+def test_uploads_register_to_clusters_idempotently(service: dict[str, Any]) -> None:
+    c, auth = service["client"], service["auth"]
+    replies = []
+    for e in entries("push-roll", "ana", 3) + entries("push-roll", "ben", 3):
+        mentor = e["mentor"]
+        r = c.post("/demonstrations", **form(e), headers=auth[mentor])
+        assert r.status_code == 201, r.text
+        replies.append(r.json())
+    last = replies[-1]
+    # push-roll has 4 motions: 4 segments, each on its arc, clustered once INIT are there
+    assert [s["step"] for s in last["segments"]] == [0, 1, 2, 3]
+    assert all(s["arc"].startswith("rolling-g0-") for s in last["segments"])
+    assert all(isinstance(s["cluster"], int) for s in last["segments"])
+    assert replies[0]["segments"][0]["cluster"] is None  # before the first clustering
+    # the same upload again: one copy, the same reply
+    e = entries("push-roll", "ben", 3)[-1]
+    again = c.post("/demonstrations", **form(e), headers=auth["ben"])
+    assert again.status_code == 200 and again.json()["duplicate"]
+    assert again.json()["upload"] == last["upload"]
+    arcs = c.get("/clusters").json()["arcs"]
+    assert len(arcs) == 4 and all(a["samples"] == 6 and a["pending"] == 0 for a in arcs)
+    got = c.get(f"/uploads/{replies[0]['upload']}").json()
+    assert got["mentor"] == "ana" and all(s["cluster"] is not None for s in got["segments"])
+    stats = {m["mentor"]: m for m in c.get("/mentors").json()["mentors"]}
+    assert stats["ana"]["uploads"] == 3 and stats["ben"]["segments"] == 12
+    assert c.get("/mentors/ana").json()["skills"] == {"push-roll": 3}
+    assert c.get("/mentors/nobody").status_code == 404
+
+
+def test_bad_uploads_get_the_clis_reasons(service: dict[str, Any], tmp_path: Path) -> None:
+    c, auth = service["client"], service["auth"]
+    e = entries("twist", "ana", 1)[0]
+    bad = {k: v for k, v in e.items() if k not in ("file", "mentor")}
+    bad["events"] = list(reversed(bad["events"]))
+    r = c.post("/demonstrations", **form(e, annotation=bad), headers=auth["ana"])
+    assert r.status_code == 422
+    problems = r.json()["problems"]
+    # the CLI's lines for the same demonstration in a dataset folder
+    folder = tmp_path / "ds"
+    folder.mkdir()
+    (folder / e["file"]).write_bytes((CUBE / e["file"]).read_bytes())
+    top = {k: v for k, v in ANN.items() if k != "demonstrations"}
+    top["skills"] = str(CUBE / ANN["skills"])
+    (folder / "annotations.json").write_text(json.dumps(
+        {**top, "demonstrations": [{**bad, "file": e["file"], "mentor": "ana"}]}))
+    cli = CliRunner().invoke(main, ["dataset", "show", str(folder)])
+    assert cli.exit_code == 2
+    for line in problems:
+        assert f"  - {line}" in cli.output.replace("\n    ", " ") or line in cli.output
+    # garbage recording, unknown suffix, not JSON, another mentor's name, missing field
+    r = c.post("/demonstrations", files={"file": ("t.c3d", b"garbage", "x/y")},
+               data={"annotation": json.dumps(bad)}, headers=auth["ana"])
+    assert r.status_code == 422 and r.json()["problems"][0].startswith("t.c3d (demonstration 0)")
+    r = c.post("/demonstrations", files={"file": ("t.txt", b"x", "x/y")},
+               data={"annotation": "{}"}, headers=auth["ana"])
+    assert r.status_code == 400 and "unknown trajectory format" in r.json()["detail"]
+    r = c.post("/demonstrations", **{**form(e), "data": {"annotation": "{nope"}},
+               headers=auth["ana"])
+    assert r.status_code == 400 and "not valid JSON" in r.json()["detail"]
+    r = c.post("/demonstrations", **form(e, annotation={**bad, "mentor": "ben"}),
+               headers=auth["ana"])
+    assert r.status_code == 403
+    r = c.post("/demonstrations", data={"annotation": "{}"}, headers=auth["ana"])
+    assert r.status_code == 400 and "file" in r.json()["detail"]
+    # oversized body: refused before it is read
+    r = c.post("/demonstrations", files={"file": ("big.c3d", b"\0" * (MAX_BYTES + 1), "x/y")},
+               data={"annotation": "{}"}, headers=auth["ana"])
+    assert r.status_code == 413
+    assert c.get("/clusters").json()["arcs"] == []
+
+
+def test_mentors_cannot_touch_each_others_data(service: dict[str, Any]) -> None:
+    c, auth = service["client"], service["auth"]
+    e = entries("roll-arc", "ana", 1)[0]
+    up = c.post("/demonstrations", **form(e), headers=auth["ana"]).json()["upload"]
+    r = c.delete(f"/uploads/{up}", headers=auth["ben"])
+    assert r.status_code == 403 and "'ana'" in r.json()["detail"]
+    assert not c.get(f"/uploads/{up}").json()["withdrawn"]
+    r = c.delete(f"/uploads/{up}", headers=auth["ana"])
+    assert r.status_code == 200 and r.json()["withdrawn"]
+    assert c.get("/mentors/ana").json()["withdrawn"] == 1
+    assert c.delete("/uploads/nope", headers=auth["ana"]).status_code == 404
+
+
+def _zip(files: dict[str, bytes]) -> bytes:
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as zf:
+        for name, data in files.items():
+            zf.writestr(name, data)
+    return buf.getvalue()
+
+
+def test_dataset_archives(service: dict[str, Any]) -> None:
+    c, auth = service["client"], service["auth"]
+    demos = entries("tumble-lift", "ben", 3)
+    skills = (CUBE / ANN["skills"]).read_bytes()
+    top = {k: v for k, v in ANN.items() if k != "demonstrations"}
+    files = {f"takes/{d['file']}": (CUBE / d["file"]).read_bytes() for d in demos}
+    files["takes/skills.json"] = skills
+    files["takes/annotations.json"] = json.dumps({**top, "demonstrations": demos}).encode()
+    archive = _zip(files)
+    r = c.post("/datasets", files={"archive": ("t.zip", archive, "application/zip")},
+               headers=auth["ben"])
+    assert r.status_code == 201, r.text
+    assert r.json()["stored"] == 3 and len(r.json()["uploads"]) == 3
+    r = c.post("/datasets", files={"archive": ("t.zip", archive, "application/zip")},
+               headers=auth["ben"])
+    assert r.status_code == 200 and r.json()["duplicates"] == 3
+    r = c.post("/datasets", files={"archive": ("t.zip", archive, "application/zip")},
+               headers=auth["ana"])
+    assert r.status_code == 403 and "'ben'" in r.json()["detail"]
+    evil = _zip({"../escape.txt": b"x", "annotations.json": b"{}"})
+    r = c.post("/datasets", files={"archive": ("e.zip", evil, "application/zip")},
+               headers=auth["ben"])
+    assert r.status_code == 400 and "outside" in r.json()["detail"]
+    r = c.post("/datasets", files={"archive": ("e.zip", b"not an archive", "x/y")},
+               headers=auth["ben"])
+    assert r.status_code == 400
+
+
+def test_background_recalibration_never_blocks_uploads(
+    service: dict[str, Any], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    c, auth, reg = service["client"], service["auth"], service["registry"]
+    first = entries("twist", "ana", 4) + entries("twist", "ben", 4)
+    for e in first:
+        assert c.post("/demonstrations", **form(e), headers=auth[e["mentor"]]).status_code == 201
+    due = reg.arcs_due()
+    assert due and all(a.startswith("rotating-") for a in due)
+    arc = due[0]
+    # uploads made while the recalibration computes: they must not wait for it (a lock held
+    # here would make them time out), and they end up registered to the new model
+    late = entries("twist", "chen", 2)
+    real = HilbertClusterer.recalibrate
+    with service["pool"].connection() as conn:
+        chen = create_token(conn, "chen")
+    auth["chen"] = {"Authorization": f"Bearer {chen}"}
+
+    def during(self: HilbertClusterer) -> HilbertClusterer:
+        t0 = time.perf_counter()
+        for e in late:
+            r = c.post("/demonstrations", **form(e), headers=auth["chen"])
+            assert r.status_code == 201, r.text
+        assert time.perf_counter() - t0 < 20
+        return real(self)
+
+    monkeypatch.setattr(HilbertClusterer, "recalibrate", during)
+    res = reg.recalibrate(arc)
+    monkeypatch.setattr(HilbertClusterer, "recalibrate", real)
+    assert res["recalibrated"] and res["during"] == 2 and res["samples"] == 10
+    listing = {a["arc"]: a for a in c.get("/clusters").json()["arcs"]}
+    assert listing[arc]["recalibrated_at"] == 10 and listing[arc]["pending"] == 0
+    assert sum(cl["size"] for cl in listing[arc]["clusters"]) == 10
+    assert c.post("/recalibrate", headers=auth["ana"]).status_code == 202
+
+
+def test_schema_fuzz_never_500(service: dict[str, Any]) -> None:
+    schemathesis = pytest.importorskip("schemathesis")
+    from hypothesis import HealthCheck, settings
+
+    app = service["client"].app
+    schema = schemathesis.openapi.from_asgi("/openapi.json", app)
+    token = service["tokens"]["ana"]
+    failures = []
+    for op in schema.get_all_operations():
+        operation = op.ok()
+
+        @settings(max_examples=8, deadline=None, database=None,
+                  suppress_health_check=list(HealthCheck))
+        def check(case: Any) -> None:
+            headers = {"Authorization": f"Bearer {token}"}
+            response = case.call(headers=headers)
+            if response.status_code >= 500:
+                failures.append((case.method, case.path, response.status_code,
+                                 response.text[:200]))
+
+        from hypothesis import given
+
+        given(operation.as_strategy())(check)()
+    assert not failures, failures
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_real_uvicorn_on_loopback(pg_url: str) -> None:
+    import httpx
+
+    runner = CliRunner()
+    r = runner.invoke(main, ["serve", "token", "create", "dana", "--store", pg_url, "--json"])
+    assert r.exit_code == 0, r.output
+    token = json.loads(r.stdout)["token"]
+    r = runner.invoke(main, ["serve", "token", "list", "--store", pg_url, "--json"])
+    assert json.loads(r.stdout)["mentors"] == [
+        {"mentor": "dana", "tokens": 1, "since": json.loads(r.stdout)["mentors"][0]["since"]}]
+    port = _free_port()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "nonprehensile.cli", "serve", "--store", pg_url, "--host",
+         "127.0.0.1", "--port", str(port), "--recalibrate-every", "0"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+    try:
+        url = f"http://127.0.0.1:{port}"
+        for _ in range(300):
+            try:
+                if httpx.get(f"{url}/health", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                time.sleep(0.1)
+        else:
+            pytest.fail("the server did not come up: " + proc.stderr.read().decode()[:500]
+                        if proc.stderr else "")
+        e = entries("roll-pull", "chen", 1)[0]
+        f = form(e)
+        ann = {k: v for k, v in e.items() if k not in ("file", "mentor")}
+        r = httpx.post(f"{url}/demonstrations", files=f["files"],
+                       data={"annotation": json.dumps({**ann, "mentor": "chen"})},
+                       headers={"Authorization": f"Bearer {token}"}, timeout=60)
+        assert r.status_code == 403  # the entry is chen's, the token dana's
+        r = httpx.post(f"{url}/demonstrations", files=f["files"],
+                       data={"annotation": json.dumps(ann)},
+                       headers={"Authorization": f"Bearer {token}"}, timeout=60)
+        assert r.status_code == 201, r.text
+        assert r.json()["mentor"] == "dana" and len(r.json()["segments"]) >= 2
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
