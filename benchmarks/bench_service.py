@@ -10,7 +10,9 @@ with its samples. Reported: throughput and p50/p99 latency of the uploads.
 
 Then the registration throughput into PostgreSQL with batched inserts: flattened segments
 (4 800 floats each) registered by a clusterer on a ``PostgresStore`` in batches of 500
-(keying + COPY), and the bare ``PostgresStore.add`` (COPY) for comparison.
+(keying + COPY, one transaction a batch, the model checkpointed every 4 096 samples as the
+service does), the same with the model saved after every batch, and the bare
+``PostgresStore.add`` (COPY) for comparison.
 
 The server comes from ``NONPREHENSILE_TEST_PG`` or is started with ``.ci/start-postgres``.
 """
@@ -188,13 +190,17 @@ def load_test() -> dict[str, Any]:
             "SELECT count(*) FROM np_uploads WHERE reply = '{}'::jsonb").fetchone()[0]
         n_samples = conn.execute("SELECT count(*) FROM np_samples").fetchone()[0]
         arcs = [r[0] for r in conn.execute("SELECT DISTINCT store FROM np_samples")]
-    from nonprehensile.motion.clustering import HilbertClusterer
     from nonprehensile.motion.pgstore import PostgresStore
+    from nonprehensile.service.ingest import CHECKPOINT_N, STATE, _replayed
 
     states_ok = 0
     for arc in arcs:
+        # the checkpointed model, with the samples after it registered again, gives the
+        # stored keys and ids exactly (_replayed raises otherwise)
         with PostgresStore(db, arc) as st:
-            HilbertClusterer.load_state(st.get_meta("hilbert_clusterer") or b"", st)
+            n_seen = int((st.get_meta(CHECKPOINT_N) or b"0").decode())
+            _replayed(arc, st.get_meta(STATE) or b"", n_seen, st.vectors(0, st.n_samples),
+                      st.keys(), st.labels())
             states_ok += 1
     steps = {}
     for skill, n in per_upload:
@@ -239,16 +245,26 @@ def insert_throughput() -> dict[str, Any]:
         for s in range(0, n, batch):
             st.add(x[s : s + batch], [0] * batch, np.zeros(batch, dtype=np.int64))
         out["copy_samples_per_s"] = round(n / (time.perf_counter() - t0))
-    with PostgresStore(db, "clustered") as st, threadpool_limits(1):
-        c = HilbertClusterer(6, init_size=1000, growth=1e12, drift_fraction=1e12, store=st,
-                             random_state=0)
-        c.partial_fit(x[:1000])  # the first batch: a clustering, not timed
-        t0 = time.perf_counter()
-        for s in range(1000, n, batch):
-            with st.transaction():
-                c.partial_fit(x[s : s + batch])
-                st.put_meta("hilbert_clusterer", c.save_state())
-        out["registered_samples_per_s"] = round((n - 1000) / (time.perf_counter() - t0))
+    # registration as the service does it: keying + COPY per batch, a checkpoint of the
+    # model every CHECKPOINT samples (the samples after it are its log); and, for
+    # comparison, the model saved with every batch
+    for label, every in (("registered_samples_per_s", 4096), ("registered_state_every_batch",
+                                                                batch)):
+        with PostgresStore(db, label) as st, threadpool_limits(1):
+            c = HilbertClusterer(6, init_size=1000, growth=1e12, drift_fraction=1e12, store=st,
+                                 random_state=0)
+            c.partial_fit(x[:1000])  # the first batch: a clustering, not timed
+            last = 1000
+            t0 = time.perf_counter()
+            for s in range(1000, n, batch):
+                with st.transaction():
+                    c.partial_fit(x[s : s + batch])
+                    st.put_meta("generation", str(c.n_samples_seen_).encode())
+                    if c.n_samples_seen_ - last >= every:
+                        st.put_meta("hilbert_clusterer", c.save_state())
+                        last = c.n_samples_seen_
+            out[label] = round((n - 1000) / (time.perf_counter() - t0))
+        out["state_mb"] = round(len(c.save_state()) / 1e6, 1)
     out["goal"] = GOAL_SAMPLES_PER_S
     if tmp:
         subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], check=False)
