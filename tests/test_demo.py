@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from nonprehensile.io import load_model
 from nonprehensile.maneuvers import classify
 from nonprehensile.pipeline import write_plan_motions
 from nonprehensile.states import State
-from test_report import CHROMIUM, loaded_images
+from test_report import CHROMIUM, loaded_dom, loaded_images
 
 
 @pytest.fixture(scope="module")
@@ -109,6 +110,25 @@ def test_demo_report_renders_in_chromium(
     page = out / "index.html"
     n = page.read_text().count("<img ")
     assert loaded_images(page, tmp_path / "profile") == f"{n}/{n}"
+    # the plan's pictures are among the loaded images: the filmstrip shows every step
+    dom = loaded_dom(page, tmp_path / "profile2")
+    film = [img for img in re.findall(r"<img [^>]*>", dom) if 'alt="Plan filmstrip' in img]
+    assert len(film) == 1 and "data:image/png;base64," in film[0]
+
+
+def test_demo_report_names_version_seed_command_and_reads_well(
+    demo_run: tuple[Path, dict[str, object]],
+) -> None:
+    out, _ = demo_run
+    html = (out / "index.html").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["meta"]["seed"] == "0" and summary["meta"]["nonprehensile"]
+    for key in ("nonprehensile", "seed", "command"):
+        assert f"<th>{key}</th>" in html
+    assert "nonprehensile demo" in summary["meta"]["command"]
+    assert not re.search(r"\b1 (demonstrations|demos|transitions|steps|faces)\b", html)
+    # every skill is drawn on the state-transition graph; the plan says where the agent is
+    assert "(every skill drawn)" in html and "<th>agent</th>" in html
 
 
 def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:
