@@ -11,9 +11,14 @@ it and shows its progress.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import json
+import os
+import pickle
+import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -55,6 +60,19 @@ StageProgress = Callable[[str, int, int], None]
 DEFAULT_START = State("b", 200.0)
 DEFAULT_GOAL = State("e", 110.0)
 DEFAULT_POSITION = (0.30, 0.10)
+
+
+@contextlib.contextmanager
+def _one_blas_thread() -> Iterator[None]:
+    """BLAS on one thread for the job's small matrices: on a shared 2-core machine a second
+    BLAS thread waits for a busy core, and a call takes 10x longer (issue 16)."""
+    try:
+        from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 def _version() -> str:
@@ -176,6 +194,7 @@ def motions_from_dataset(
     poly: Polyhedron | None = None,
     seed: int = 0,
     progress: StageProgress = _quiet,
+    cache: str | Path | bool | None = True,
 ) -> tuple[Dataset, ClusteredMotions]:
     """Load a dataset, segment it and cluster its motions: the planner's reference motions.
 
@@ -184,12 +203,102 @@ def motions_from_dataset(
     is only meaningful for the skill it shows. (Skills it does not demonstrate simply get no
     reference motion.)
 
+    The result is built once per dataset and kept in a cache folder (``cache``: a folder,
+    True for :func:`cache_dir`, False for none). It is keyed by the size and modification
+    time of every file in the dataset folder, the seed and the package version, so a changed,
+    added or removed file rebuilds it.
+
     Raises
     ------
     InputError
         Another object, or a skill of the same name demonstrated differently.
     """
+    folder = cache_dir() if cache is True else (Path(cache) if cache else None)
+    cached = _cached_motions(dataset, seed, folder)
+    if cached is not None:
+        ds, motions = cached
+        progress("loading", 1, 1)
+        _check_same_model(dataset, ds, skills, poly)
+        return ds, motions
     ds = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n))
+    _check_same_model(dataset, ds, skills, poly)
+    _, segments = segment_dataset(ds)
+    motions, _ = cluster_segments(segments, seed=seed, progress=progress)
+    _store_motions(dataset, seed, folder, (ds, motions))
+    return ds, motions
+
+
+#: Bumped when what the cache holds changes shape.
+_CACHE_FORMAT = "motions/1"
+
+
+def cache_dir() -> Path:
+    """Where built motion libraries are kept: ``$NONPREHENSILE_CACHE``, else
+    ``$XDG_CACHE_HOME/nonprehensile``, else ``~/.cache/nonprehensile``."""
+    env = os.environ.get("NONPREHENSILE_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "nonprehensile"
+
+
+def _dataset_key(dataset: str | Path, seed: int) -> str | None:
+    """A digest of every file of the dataset folder (path, size, mtime), the seed and the
+    versions; None when the folder cannot be listed."""
+    from nonprehensile.demonstrations.dataset import dataset_path
+
+    try:
+        root = dataset_path(dataset).resolve()
+        entries = sorted(
+            (str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns)
+            for p in root.rglob("*") if p.is_file()
+        )
+    except (OSError, InputError):
+        return None
+    h = hashlib.sha256(repr((_CACHE_FORMAT, _version(), str(root), seed, MIN_CLUSTERED,
+                             entries)).encode())
+    return h.hexdigest()[:32]
+
+
+def _cached_motions(dataset: str | Path, seed: int, folder: Path | None
+                    ) -> tuple[Dataset, ClusteredMotions] | None:
+    if folder is None:
+        return None
+    key = _dataset_key(dataset, seed)
+    path = folder / f"motions-{key}.pickle"
+    if key is None or not path.is_file():
+        return None
+    try:
+        with path.open("rb") as fh:
+            # our own cache file, written by _store_motions below (a folder the user owns)
+            value = pickle.load(fh)
+    except Exception:  # a damaged or stale cache (any unpickling error) is rebuilt
+        return None
+    if (not isinstance(value, tuple) or len(value) != 2
+            or not isinstance(value[0], Dataset) or not isinstance(value[1], ClusteredMotions)):
+        return None
+    return value
+
+
+def _store_motions(dataset: str | Path, seed: int, folder: Path | None,
+                   value: tuple[Dataset, ClusteredMotions]) -> None:
+    key = _dataset_key(dataset, seed) if folder is not None else None
+    if folder is None or key is None:
+        return
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".motions-", suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:
+            pickle.dump(value, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, folder / f"motions-{key}.pickle")  # atomic: readers see all or none
+    except OSError:
+        # a read-only or full cache folder only costs the next call its time
+        with contextlib.suppress(OSError, UnboundLocalError):
+            os.unlink(tmp)
+
+
+def _check_same_model(dataset: str | Path, ds: Dataset, skills: Sequence[Skill] | None,
+                      poly: Polyhedron | None) -> None:
     if poly is not None and (poly.faces != ds.poly.faces
                              or poly.vertices.shape != ds.poly.vertices.shape
                              or not np.allclose(poly.vertices, ds.poly.vertices)):
@@ -206,9 +315,6 @@ def motions_from_dataset(
                 f"{dataset}: skill {s.name!r} is demonstrated there differently (its states "
                 "or contact events differ from the skills file's)"
             )
-    _, segments = segment_dataset(ds)
-    motions, _ = cluster_segments(segments, seed=seed, progress=progress)
-    return ds, motions
 
 
 def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
@@ -306,7 +412,8 @@ def run_demo(
     lap("inference")
     graphs, segments = segment_dataset(ds)
     lap("segmentation")
-    motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
+    with _one_blas_thread():
+        motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
     lap("clustering")
     result: Plan = plan(poly, exp, start, goal, position=position, motions=motions,
                         scale=ds.scale)
