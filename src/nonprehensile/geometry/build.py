@@ -181,7 +181,9 @@ def _hull_loops(points: FloatArray, hull: Any) -> tuple[list[list[int]], FloatAr
     order = np.lexsort((-ang, owner))  # clockwise from outside: decreasing angle
     owner, vertex = owner[order], vertex[order]
     bounds = np.flatnonzero(np.diff(owner)) + 1
-    loops = [seg.tolist() for seg in np.split(vertex, bounds)]
+    cuts = [0, *bounds.tolist(), len(vertex)]
+    flat = vertex.tolist()
+    loops = [flat[cuts[k] : cuts[k + 1]] for k in range(len(cuts) - 1)]
     present = owner[np.r_[0, bounds]] if len(owner) else np.zeros(0, dtype=np.int64)
     if len(present) != n_groups:  # a facet left with no corner: keep the ones that have
         normals = normals[present]
