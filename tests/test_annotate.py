@@ -25,10 +25,17 @@ from nonprehensile.demonstrations.synth import DEFAULT_MENTORS, synthesize, synt
 from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup, parse_object_setup
 from nonprehensile.errors import DemonstrationError
 from nonprehensile.io import load_document, load_model, save_document
-from nonprehensile.skills.contacts import Edge, Face, Vertex
+from nonprehensile.skills.contacts import Edge, Face, Vertex, format_event
 from nonprehensile.states import State, state_pose
 
 CUBE = load_model("cube")
+
+
+def load_skills_cube() -> list:  # type: ignore[type-arg]
+    from importlib import resources
+
+    from nonprehensile.io import read_skills
+    return read_skills(Path(str(resources.files("nonprehensile") / "data" / "cube_skills.json")))[1]
 
 
 def _box_truth(p: np.ndarray) -> tuple[float, int]:
@@ -102,6 +109,9 @@ def test_events_states_and_chains_are_found_without_event_times(tracked, source:
         errors += [(t - e.time) * d.trajectory.rate for e, t in pairs]
         if len(a.candidates) > 1:  # same events, different motions: said, never hidden
             assert any("differ in their finger motion only" in x for x in a.doubts)
+        lab = a.labels(d.trajectory.n_frames, d.trajectory.rate)
+        k = round(a.times[1] * d.trajectory.rate) + 1
+        assert lab.to_records()[k]["contacts"] == format_event(a.chain[1])
     # contact changes (every event but the first, which no contact marks) within 2 frames
     assert np.median(np.abs(errors)) < 2.0
 
@@ -154,6 +164,12 @@ def test_frame_labels() -> None:
     assert lab.arc.tolist() == [-1, 0, 0, 0, 0, 1, 1, 1, 1, 1, -1, -1, -1]
     rec = lab.to_records()
     assert rec[5] == {"frame": 5, "skill": "twist", "event": "grip", "arc": "grip->done"}
+    twist = next(s for s in load_skills_cube() if s.name == "twist")
+    rec = frame_labels(ev, 13, 10.0, "twist", twist.events).to_records()
+    assert rec[0]["contacts"] == [] and rec[12]["contacts"] == ["(G,a)"]
+    assert rec[6]["contacts"] == ["(R1,f)", "(R2,e)", "(G,a)"]
+    with pytest.raises(DemonstrationError, match="event times for a chain"):
+        frame_labels(ev[:2], 13, 10.0, "twist", twist.events)
 
 
 def test_object_setup_is_checked() -> None:

@@ -407,6 +407,10 @@ class RecordingAnnotation:
         """The events with their times (the annotations' form)."""
         return tuple(EventTime(e.id, t) for e, t in zip(self.chain, self.times, strict=True))
 
+    def labels(self, n_frames: int, rate: float) -> FrameLabels:
+        """Per-frame labels (skill, event with its contacts, arc) of the recording."""
+        return frame_labels(self.events, n_frames, rate, self.skill, self.chain)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form (``dataset annotate --json``)."""
         return {
@@ -856,41 +860,54 @@ class FrameLabels:
         before the first event and after the last.
     event_ids : tuple of str
         The events' ids, indexed by ``event``.
+    contacts : tuple of tuple of str
+        Each event's contact pairs (``"(R1,f)"``, ...), indexed by ``event``; empty when not
+        given.
     """
 
     skill: str | None
     event: IntArray
     arc: IntArray
     event_ids: tuple[str, ...]
+    contacts: tuple[tuple[str, ...], ...] = ()
 
     def to_records(self) -> list[dict[str, Any]]:
-        """One dict per frame: ``{"frame", "skill", "event", "arc"}`` (arc as ``from->to``)."""
+        """One dict per frame: ``{"frame", "skill", "event", "arc"}`` (arc as ``from->to``),
+        and ``"contacts"`` (the event's pairs) when known."""
         out = []
         for i, (e, a) in enumerate(zip(self.event.tolist(), self.arc.tolist(), strict=True)):
-            out.append({
+            row: dict[str, Any] = {
                 "frame": i,
                 "skill": self.skill,
                 "event": self.event_ids[e] if e >= 0 else None,
                 "arc": (f"{self.event_ids[a]}->{self.event_ids[a + 1]}" if a >= 0 else None),
-            })
+            }
+            if self.contacts:
+                row["contacts"] = list(self.contacts[e]) if e >= 0 else []
+            out.append(row)
         return out
 
 
 def frame_labels(
-    events: Sequence[EventTime], n_frames: int, rate: float, skill: str | None = None
+    events: Sequence[EventTime], n_frames: int, rate: float, skill: str | None = None,
+    chain: Sequence[ContactEvent] = (),
 ) -> FrameLabels:
     """Label every frame with its event and arc (from detected or annotated event times).
 
     A frame at time ``t`` belongs to event ``j`` when ``t_j <= t < t_{j+1}``, and to arc
     ``j`` (from event ``j`` to ``j + 1``) in the same interval; the last event's frames
-    belong to no arc.
+    belong to no arc. ``chain`` (the skill's events, same order) adds each frame's contacts.
     """
     t = np.arange(n_frames) / rate
     times = np.array([e.time for e in events])
     ev = np.searchsorted(times, t + 1e-9, side="right") - 1
     arc = np.where((ev >= 0) & (ev < len(times) - 1), ev, -1)
+    contacts = tuple(tuple(format_event(c)) for c in chain)
+    if contacts and len(contacts) != len(events):
+        raise DemonstrationError(f"frame_labels: {len(events)} event times for a chain of "
+                                 f"{len(contacts)} events")
     return FrameLabels(skill, ev.astype(np.int64), arc.astype(np.int64),
-                       tuple(e.id for e in events))
+                       tuple(e.id for e in events), contacts)
 
 
 # ------------------------------------------------------------------------------ datasets
