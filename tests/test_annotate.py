@@ -238,3 +238,45 @@ def test_annotate_bad_input_exits_2(tmp_path: Path) -> None:
     assert res.exit_code == 2
     with pytest.raises(DemonstrationError, match="holds it"):
         annotate_dataset(takes, relative_to=tmp_path / "other")
+
+
+def test_rigid_body_with_its_own_pivot(tmp_path: Path) -> None:
+    """Motive puts a rigid body's pivot at its markers' centroid, axes along the world's:
+    the annotations say where the model is in that frame, and the events come out the same."""
+    from scipy.spatial.transform import Rotation
+
+    from nonprehensile.demonstrations.formats import read_motive_csv, write_motive_csv
+
+    takes = tmp_path / "takes"
+    synthesize(takes, seed=8, n_per_skill=1, mentors=1, trajectory_format="csv",
+               track_object=True)
+    _recordings_only(takes)
+    plain = annotate_dataset(takes)
+    # the model frame in the body frame: x_body = Rb x_model + tb (model units; mm = * 50)
+    rb = Rotation.from_euler("xyz", [20, -35, 110], degrees=True)
+    tb = np.array([-0.5, 0.2, -0.4])
+    for f in takes.glob("*.csv"):
+        traj = read_motive_csv(f)
+        body = traj.rigid_body("cube")
+        r_m = Rotation.from_quat(body.quaternions[body.valid])
+        r_b = r_m * rb.inv()
+        q = np.full_like(body.quaternions, np.nan)
+        p = np.full_like(body.positions, np.nan)
+        q[body.valid] = r_b.as_quat()
+        p[body.valid] = body.positions[body.valid] - r_b.apply(tb * 50.0)
+        moved = PoseTrajectory("cube", p, q, body.rate, body.units)
+        write_motive_csv(MarkerTrajectory(traj.positions, traj.marker_names, traj.rate,
+                                          traj.units, (moved,)), f)
+    doc = load_document(takes / "annotations.json")
+    doc["rigid_body"] = {"name": "cube", "origin": tb.tolist(), "rotation": rb.as_quat().tolist()}
+    save_document(doc, takes / "annotations.json")
+    moved_report = annotate_dataset(takes)
+    for a, b in zip(plain.recordings, moved_report.recordings, strict=True):
+        assert a.result.skill == b.result.skill and a.result.chain == b.result.chain
+        assert np.allclose(a.result.times, b.result.times, atol=1.5 / 120)
+    doc["rigid_body"] = "cube"  # the pivot ignored: the poses are wrong, and it shows
+    save_document(doc, takes / "annotations.json")
+    wrong = annotate_dataset(takes)
+    assert all(r.result.skill is None for r in wrong.recordings)
+    with pytest.raises(DemonstrationError, match="'rotation' must be 4 finite numbers"):
+        object_setup({"name": "cube", "rotation": [0, 0, 1]}, None)
