@@ -130,6 +130,10 @@ def test_flickers_and_unknown_chains_are_reported(tracked) -> None:
         ["(G,a)"], ["(R1,f)", "(G,a)"], ["(R1,f)", "(G,E(a,d))"], ["(R1,f)", "(G,d)"],
         ["(G,d)"]]
     assert any("fits no skill" in x for x in a.doubts)
+    # the proposal is a skills-file entry the project reads back: the same maneuver
+    from nonprehensile.skills.skill import skill_from_dict
+    proposed = skill_from_dict(a.proposal, ds.poly)
+    assert proposed.maneuver == "rolling" and len(proposed.motions) == 4
     # a fingertip that dips into contact for two frames is a flicker, dropped and listed
     pos = np.array(d.trajectory.positions)
     k = d.trajectory.marker_names.index("thumb_tip")

@@ -97,7 +97,7 @@ def annotate_cmd(
         err.print(f"doubt: {line}", markup=False)
     for prop in report.proposals:
         err.print(f"proposed skill for {', '.join(prop['recordings'])}:", markup=False)
-        err.print_json(data={k: v for k, v in prop.items() if k != "recordings"})
+        err.print_json(data=prop["skill"])
     n_ok = len(report.recordings) - len(report.unmatched)
     err.print(f"wrote {dest}: {n_ok} of {len(report.recordings)} recordings annotated, "
               f"{len(report.unmatched)} fit no skill, {len(report.doubts)} doubtful calls")

@@ -947,8 +947,8 @@ class AnnotationReport:
     recordings : tuple of AnnotatedRecording
         Every recording, in the input's order.
     proposals : tuple of dict
-        Skills-file entries proposed for the chains that fit no skill (one per distinct chain
-        and pair of states), each with ``"recordings"``: the files showing it.
+        One per distinct chain (and pair of states) that fits no skill: ``{"skill": a
+        skills-file entry, "recordings": [the files showing it]}``.
     """
 
     annotations: dict[str, Any]
@@ -1136,7 +1136,7 @@ def annotate_dataset(
             continue
         key = repr({k: v for k, v in prop.items() if k != "name"})
         if key not in proposals:
-            proposals[key] = {**prop, "name": f"proposed-{len(proposals) + 1}",
+            proposals[key] = {"skill": {**prop, "name": f"proposed-{len(proposals) + 1}"},
                               "recordings": []}
         proposals[key]["recordings"].append(r.file)
     return AnnotationReport(doc, tuple(done), tuple(proposals.values()))
