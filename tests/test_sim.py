@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
 
+# headless offscreen rendering (as nonprehensile.sim sets it when it is imported first)
+if not os.environ.get("DISPLAY"):
+    os.environ.setdefault("MUJOCO_GL", "egl")
 pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not installed")
 
 from nonprehensile.errors import InputError

@@ -256,3 +256,41 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       "yes" if r["success"] else "NO")
         out.print(t)
     _finish(records, as_json, "steps", {"params": params.to_dict(), "plan": result.to_dict()})
+
+
+@simulate_group.command("record")
+@click.argument("skills_file", type=click.Path(dir_okay=False))
+@click.argument("out_dir", type=click.Path(file_okay=False))
+@click.option("--n-per-skill", type=int, default=30, show_default=True)
+@click.option("--scale", type=float, default=0.05, show_default=True,
+              help="Metres per model unit.")
+@click.option("--seed", type=int, default=20190520, show_default=True)
+@click.option("--max-attempts", type=int, default=60, show_default=True,
+              help="Takes a mentor may try for one demonstration.")
+@click.option("--format", "trajectory_format", type=click.Choice(["c3d", "csv"]),
+              default="c3d", show_default=True)
+@_physics_options
+@json_option
+@handle_errors
+def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, scale: float, seed: int,
+                    max_attempts: int, trajectory_format: str, as_json: bool, tol_deg: float,
+                    **kw: Any) -> None:
+    """Record a dataset of demonstrations from the physics itself: fingers push the
+    simulated object; poses and contact events are read from physics."""
+    del tol_deg
+    params = _params(kw)
+    from nonprehensile.sim.record import record_dataset, write_recorded
+
+    with progress_bar("recording", as_json) as bar:
+        ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
+                                   scale=scale, params=params, max_attempts=max_attempts,
+                                   progress=bar)
+    path = write_recorded(ds, out_dir, trajectory_format)
+    doc = {"annotations": str(path), "demonstrations": len(ds.demonstrations),
+           "takes": stats, "params": params.to_dict()}
+    if as_json:
+        emit_json(doc)
+        return
+    for name, st in stats.items():
+        out.print(f"{name}: {st['kept']} kept of {st['tried']} takes")
+    out.print(f"wrote {len(ds.demonstrations)} demonstrations to {out_dir}")

@@ -360,6 +360,7 @@ def _write_report(
     progress("figures", 5, n_fig)
     sections.append(_motion_section(summary, arcs, fig_traj, hist_pngs))
     sections.append(_plan_section(result))
+    sections.append(_physics(ds, result, summary))
     progress("figures", 6, n_fig)
     return write_report(
         out, f"nonprehensile: {poly.name}",
@@ -369,6 +370,22 @@ def _write_report(
         "motions, and a plan between two states that were never demonstrated.",
         sections,
     )
+
+
+def _physics(ds: Dataset, result: Plan, summary: dict[str, Any]) -> Section:
+    """The plan executed in MuJoCo (issue 9); a note instead where that cannot be done."""
+    from nonprehensile.errors import NonprehensileError
+    from nonprehensile.viz.physics import physics_section
+
+    try:
+        section, records = physics_section(ds.poly, result, scale=ds.scale,
+                                           fingers=ds.fingers)
+    except NonprehensileError as exc:
+        summary["physics"] = {"error": str(exc)}
+        return Section("Physics: the plan executed in MuJoCo", [f"Not simulated: {exc}"])
+    summary["physics"] = {"steps": records,
+                          "all_as_predicted": all(r["success"] for r in records)}
+    return section
 
 
 def _object_section(poly: Any, summary: dict[str, Any], png: bytes) -> Section:

@@ -3,6 +3,13 @@
 Needs the ``sim`` extra (``pip install 'nonprehensile[sim]'``). See ``docs/physics.md``.
 """
 
+import os
+
+# offscreen rendering without a display: EGL (set before mujoco is imported; physics itself
+# never needs OpenGL)
+if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
+    os.environ["MUJOCO_GL"] = "egl"
+
 from nonprehensile.sim.run import SimEvent, SimResult, Simulator, default_scale, pose_of_state
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams, scene_xml
 

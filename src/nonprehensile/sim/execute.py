@@ -84,9 +84,14 @@ def _marker(fingers: Mapping[str, str], k: int, names: tuple[str, ...] | list[st
 
 def replay_demonstration(
     sim: Simulator, dataset: Dataset, demo: Demonstration, *,
-    angle_tol: float = DEFAULT_ANGLE_TOL_DEG,
+    angle_tol: float = DEFAULT_ANGLE_TOL_DEG, smooth: int = 9,
 ) -> Outcome:
-    """Replay one demonstration open loop and compare with its annotations."""
+    """Replay one demonstration open loop and compare with its annotations.
+
+    The recorded tip markers (gaps filled) are smoothed by a centred moving average of
+    ``smooth`` frames, as a tracking controller filters measurement noise, before they drive
+    the fingertips.
+    """
     traj = demo.trajectory.to_units("m")
     pos = fill_gaps(traj.positions, max(dataset.gap_limit, 1) * 4)
     pos = np.asarray(pos)
@@ -97,6 +102,8 @@ def replay_demonstration(
                 ok = np.isfinite(col)
                 if ok.any():
                     pos[:, j, a] = np.interp(np.arange(len(col)), np.flatnonzero(ok), col[ok])
+    if smooth > 1:
+        pos = _smooth(pos, smooth)
     targets = {k: pos[:, _marker(dataset.fingers, k, traj.marker_names)]
                for k in fingers_of(demo.skill)}
     start = pose_of_state(dataset.poly, demo.initial, (0.0, 0.0), sim.scale)
@@ -107,6 +114,17 @@ def replay_demonstration(
     label = {"file": demo.file, "skill": demo.skill.name, "mentor": demo.mentor,
              "from": demo.initial.to_dict(), "to": demo.final.to_dict()}
     return Outcome(label, result, cmp)
+
+
+def _smooth(pos: FloatArray, n: int) -> FloatArray:
+    """Centred moving average over ``n`` frames along axis 0 (ends padded by repetition)."""
+    k = np.ones(n) / n
+    pad = np.concatenate([np.repeat(pos[:1], n // 2, axis=0), pos,
+                          np.repeat(pos[-1:], n - 1 - n // 2, axis=0)])
+    flat = pad.reshape(len(pad), -1)
+    out = np.column_stack([np.convolve(flat[:, j], k, mode="valid")
+                           for j in range(flat.shape[1])])
+    return out.reshape(pos.shape)
 
 
 def step_targets(
@@ -154,14 +172,15 @@ def simulate_step(
     sim: Simulator, step: PlanStep, *, fingers: Mapping[str, str] = DEFAULT_FINGERS,
     continue_from_current: bool = False, check_position: bool = True,
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG, position_tol: float = DEFAULT_POSITION_TOL,
-    label: Mapping[str, Any] | None = None,
+    label: Mapping[str, Any] | None = None, keep_trace: int = 0,
 ) -> Outcome:
     """Simulate one step: the object starts at the step's planned pose (or, with
     ``continue_from_current``, wherever the previous simulation left it)."""
     targets, rate, times = step_targets(step, fingers)
     if step.start_pose is None or step.end_pose is None:
         raise InputError("the step carries no object pose: make it with plan() or step_for()")
-    result = sim.run(None if continue_from_current else step.start_pose, targets, rate)
+    result = sim.run(None if continue_from_current else step.start_pose, targets, rate,
+                     keep_trace=keep_trace)
     t = step.transition
     cmp = compare(sim.poly, t.skill, result, predicted=step.end_world,
                   predicted_pose=step.end_pose if check_position else None,

@@ -75,7 +75,7 @@ class SimParams:
     finger_mass: float = 0.02
     timestep: float = 0.001
     settle: float = 1.5
-    debounce: float = 0.02
+    debounce: float = 0.01
     contact_tol: float = 0.0015
 
     def __post_init__(self) -> None:
@@ -179,7 +179,9 @@ def scene_xml(
     if why is not None:
         raise InputError(why)
     inertia = solid_inertia(poly, scale, params.mass)
-    tris = [(loop[0], loop[i], loop[i + 1]) for loop in poly.faces.values()
+    # the spec's loops run clockwise seen from outside; MuJoCo wants counterclockwise
+    # triangles (their normals point out), or it culls the faces when it draws them
+    tris = [(loop[0], loop[i + 1], loop[i]) for loop in poly.faces.values()
             for i in range(1, len(loop) - 1)]
     kp = params.stiffness
     kv = 2.0 * math.sqrt(kp * params.finger_mass)  # critical damping
