@@ -285,3 +285,16 @@ def test_rigid_body_with_its_own_pivot(tmp_path: Path) -> None:
     assert all(r.result.skill is None for r in wrong.recordings)
     with pytest.raises(DemonstrationError, match="'rotation' must be 4 finite numbers"):
         object_setup({"name": "cube", "rotation": [0, 0, 1]}, None)
+
+
+def test_skill_events_within_a_longer_chain() -> None:
+    """A finger that lets go while the cube falls over adds states; the skill still fits."""
+    from nonprehensile.demonstrations.annotate import _embed
+
+    a, b, c, x, d = (frozenset({k}) for k in "abcxd")  # stand-ins for contact states
+    assert _embed([a, b, c, d], [a, b, c, d], True) == [0, 1, 2, 3]
+    assert _embed([a, b, c, d], [a, b, x, c, d], True) is None
+    assert _embed([a, b, c, d], [a, b, x, c, x, d], False) == [0, 1, 3, 5]
+    assert _embed([a, b, c, d], [x, a, b, c, d], False) is None  # must start at the start
+    assert _embed([a, b, c, d], [a, b, c, d, x], False) is None  # and end at the end
+    assert _embed([a, b, c, d], [a, c, b, d], False) is None  # in order

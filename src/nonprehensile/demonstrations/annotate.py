@@ -763,17 +763,25 @@ def annotate_recording(
         chain_ev = [c for c in chain if c is not None]
     norm = [normalize_event(e, poly) for e in chain_ev]
 
-    candidates = []
-    for sk in skills:
-        ev = [normalize_event(e, poly) for e in sk.events]
-        if len(ev) == len(norm) and all(a.pairs == b.pairs for a, b in zip(ev, norm,
-                                                                            strict=True)):
+    # exact: the chain is the skill's; else the skill's events in order within the chain,
+    # from its first state to its last (extra states between them are listed, not used)
+    candidates: list[Skill] = []
+    picks: dict[str, list[int]] = {}
+    for exact in (True, False):
+        for sk in skills:
+            ev = [normalize_event(e, poly) for e in sk.events]
+            idx = _embed([e.pairs for e in ev], [e.pairs for e in norm], exact)
+            if idx is None:
+                continue
             if _states_close(initial, sk.initial, p.state_tol) and _states_close(
                     final, sk.final, p.state_tol):
                 candidates.append(sk)
-            else:
+                picks[sk.name] = idx
+            elif exact:
                 doubts.append(f"the events are those of skill {sk.name!r}, but the states "
                               f"{initial} -> {final} are not its {sk.initial} -> {sk.final}")
+        if candidates:
+            break
     skill = candidates[0] if candidates else None
     proposal = None
     if skill is None:
@@ -785,6 +793,12 @@ def annotate_recording(
             doubts.append(f"skills {[s.name for s in candidates]} have these same events and "
                           f"states (they differ in their finger motion only): chose "
                           f"{skill.name!r}; the motion model tells them apart")
+        idx = picks[skill.name]
+        for j in sorted(set(range(len(norm))) - set(idx)):
+            doubts.append(f"contact state {_fmt_state(norm[j].pairs)} from "
+                          f"{frames_f[j] / rate:.3f} s is not an event of skill "
+                          f"{skill.name!r}, whose events occur around it in order: left out")
+        frames_f = [frames_f[j] for j in idx]
         chain_out = tuple(ContactEvent(e.id, e.pairs) for e in skill.events)
         initial, final = skill.initial, skill.final
     times = tuple(float(f) / rate for f in frames_f)
@@ -793,6 +807,34 @@ def annotate_recording(
         tuple(s.name for s in candidates), proposal, tuple(doubts),
         tuple(round(f) for f in frames_f),
     )
+
+
+def _embed(
+    want: Sequence[frozenset[ContactPair]], got: Sequence[frozenset[ContactPair]], exact: bool
+) -> list[int] | None:
+    """Indices of ``got`` holding ``want`` in order (each at its earliest), or None.
+
+    ``exact``: ``got`` is ``want``. Otherwise ``want`` must be a subsequence of ``got`` that
+    starts at its first state and ends at its last.
+    """
+    if exact:
+        return list(range(len(got))) if list(want) == list(got) else None
+    if not want or not got or want[0] != got[0] or want[-1] != got[-1]:
+        return None
+    idx = [0]
+    j = 1
+    for w in want[1:-1]:
+        while j < len(got) - 1 and got[j] != w:
+            j += 1
+        if j >= len(got) - 1:
+            return None
+        idx.append(j)
+        j += 1
+    if len(want) > 1:
+        if len(got) - 1 in idx:
+            return None
+        idx.append(len(got) - 1)
+    return idx
 
 
 def _approach_onset(
