@@ -10,7 +10,9 @@ with its samples. Reported: throughput and p50/p99 latency of the uploads.
 
 Then the registration throughput into PostgreSQL with batched inserts: flattened segments
 (4 800 floats each) registered by a clusterer on a ``PostgresStore`` in batches of 500
-(keying + COPY), and the bare ``PostgresStore.add`` (COPY) for comparison.
+(keying + COPY, one transaction a batch, the model checkpointed every 4 096 samples as the
+service does), the same with the model saved after every batch, and the bare
+``PostgresStore.add`` (COPY) for comparison.
 
 The server comes from ``NONPREHENSILE_TEST_PG`` or is started with ``.ci/start-postgres``.
 """
@@ -188,13 +190,17 @@ def load_test() -> dict[str, Any]:
             "SELECT count(*) FROM np_uploads WHERE reply = '{}'::jsonb").fetchone()[0]
         n_samples = conn.execute("SELECT count(*) FROM np_samples").fetchone()[0]
         arcs = [r[0] for r in conn.execute("SELECT DISTINCT store FROM np_samples")]
-    from nonprehensile.motion.clustering import HilbertClusterer
     from nonprehensile.motion.pgstore import PostgresStore
+    from nonprehensile.service.ingest import CHECKPOINT_N, STATE, _replayed
 
     states_ok = 0
     for arc in arcs:
+        # the checkpointed model, with the samples after it registered again, gives the
+        # stored keys and ids exactly (_replayed raises otherwise)
         with PostgresStore(db, arc) as st:
-            HilbertClusterer.load_state(st.get_meta("hilbert_clusterer") or b"", st)
+            n_seen = int((st.get_meta(CHECKPOINT_N) or b"0").decode())
+            _replayed(arc, st.get_meta(STATE) or b"", n_seen, st.vectors(0, st.n_samples),
+                      st.keys(), st.labels())
             states_ok += 1
     steps = {}
     for skill, n in per_upload:
@@ -239,23 +245,106 @@ def insert_throughput() -> dict[str, Any]:
         for s in range(0, n, batch):
             st.add(x[s : s + batch], [0] * batch, np.zeros(batch, dtype=np.int64))
         out["copy_samples_per_s"] = round(n / (time.perf_counter() - t0))
-    with PostgresStore(db, "clustered") as st, threadpool_limits(1):
-        c = HilbertClusterer(6, init_size=1000, growth=1e12, drift_fraction=1e12, store=st,
-                             random_state=0)
-        c.partial_fit(x[:1000])  # the first batch: a clustering, not timed
-        t0 = time.perf_counter()
-        for s in range(1000, n, batch):
-            with st.transaction():
-                c.partial_fit(x[s : s + batch])
-                st.put_meta("hilbert_clusterer", c.save_state())
-        out["registered_samples_per_s"] = round((n - 1000) / (time.perf_counter() - t0))
+    # registration as the service does it: keying + COPY per batch, a checkpoint of the
+    # model every CHECKPOINT samples (the samples after it are its log); and, for
+    # comparison, the model saved with every batch
+    for label, every in (("registered_samples_per_s", 4096), ("registered_state_every_batch",
+                                                                batch)):
+        with PostgresStore(db, label) as st, threadpool_limits(1):
+            c = HilbertClusterer(6, init_size=1000, growth=1e12, drift_fraction=1e12, store=st,
+                                 random_state=0)
+            c.partial_fit(x[:1000])  # the first batch: a clustering, not timed
+            last = 1000
+            t0 = time.perf_counter()
+            for s in range(1000, n, batch):
+                with st.transaction():
+                    c.partial_fit(x[s : s + batch])
+                    st.put_meta("generation", str(c.n_samples_seen_).encode())
+                    if c.n_samples_seen_ - last >= every:
+                        st.put_meta("hilbert_clusterer", c.save_state())
+                        last = c.n_samples_seen_
+            out[label] = round((n - 1000) / (time.perf_counter() - t0))
+        out["state_mb"] = round(len(c.save_state()) / 1e6, 1)
     out["goal"] = GOAL_SAMPLES_PER_S
     if tmp:
         subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], check=False)
     return out
 
 
+def fuzz(examples: int = 60) -> dict[str, Any]:
+    """Schemathesis over the OpenAPI schema, every operation, with a mentor's token: no 5xx."""
+    import schemathesis
+    from fastapi.testclient import TestClient
+    from hypothesis import HealthCheck, given, settings
+
+    from nonprehensile.service import ServiceConfig, create_app, load_template
+    from nonprehensile.service.db import create_token, make_pool
+
+    pg, tmp = _server()
+    db = _fresh_db(pg)
+    pool = make_pool(db, max_size=4)
+    with pool.connection() as conn:
+        token = create_token(conn, "fuzzer")
+    app = create_app(pool, load_template("cube"), ServiceConfig("bench", max_bytes=1 << 20),
+                     background=False)
+    cases = 0
+    errors: list[tuple[str, str, int]] = []
+    statuses: dict[int, int] = {}
+    with TestClient(app):
+        schema = schemathesis.openapi.from_asgi("/openapi.json", app)
+        for op in schema.get_all_operations():
+            operation = op.ok()
+
+            @settings(max_examples=examples, deadline=None, database=None,
+                      suppress_health_check=list(HealthCheck))
+            def check(case: Any) -> None:
+                nonlocal cases
+                for headers in ({"Authorization": f"Bearer {token}"}, {}):
+                    r = case.call(headers=headers)
+                    cases += 1
+                    statuses[r.status_code] = statuses.get(r.status_code, 0) + 1
+                    if r.status_code >= 500:
+                        errors.append((case.method, case.path, r.status_code))
+
+            given(operation.as_strategy())(check)()
+        # malformed recordings: a real take with bytes flipped, cut short, or doubled
+        from nonprehensile.demonstrations.dataset import dataset_path
+
+        cube = dataset_path("cube")
+        entry = json.loads((cube / "annotations.json").read_text())["demonstrations"][0]
+        ann = json.dumps({k: v for k, v in entry.items() if k not in ("file", "mentor")})
+        good = (cube / entry["file"]).read_bytes()
+        rng = np.random.default_rng(0)
+        client = TestClient(app)
+        for i in range(examples):
+            data = bytearray(good)
+            if i % 3 == 0:
+                pos = rng.integers(0, len(data), size=8)
+                for p in pos:
+                    data[p] = int(rng.integers(0, 256))
+            elif i % 3 == 1:
+                data = data[: int(rng.integers(0, len(data)))]
+            else:
+                data = data + data[: int(rng.integers(1, 4096))]
+            r = client.post("/demonstrations", files={"file": (f"m{i}.c3d", bytes(data))},
+                            data={"annotation": ann},
+                            headers={"Authorization": f"Bearer {token}"})
+            cases += 1
+            statuses[r.status_code] = statuses.get(r.status_code, 0) + 1
+            if r.status_code >= 500:
+                errors.append(("POST", f"/demonstrations (mutated take {i})", r.status_code))
+    pool.close()
+    if tmp:
+        subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], check=False)
+    return {"requests": cases, "server_errors": len(errors), "first_errors": errors[:5],
+            "statuses": dict(sorted(statuses.items()))}
+
+
 def main() -> None:
+    fz = fuzz()
+    print("   schemathesis over /openapi.json (with and without a token):")
+    for k, v in fz.items():
+        print(f"     {k}: {v}")
     res = load_test()
     print("   load test (8 uploaders, 180 recordings, SIGKILL after "
           f"{KILL_AFTER} answers, restart):")

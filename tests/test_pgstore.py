@@ -120,7 +120,19 @@ def test_schema_created_on_first_use_and_versioned(pg_url: str) -> None:
         assert store.info()["schema_version"] == pgstore.SCHEMA_VERSION
         store.add(np.zeros((1, 2)), [0], np.array([0]))
     with psycopg.connect(pg_url, autocommit=True) as conn:
-        assert conn.execute("SELECT version FROM np_schema").fetchall() == [(1,)]
+        assert conn.execute("SELECT version FROM np_schema").fetchall() == [(2,)]
+        # a version-1 database (no micro-cluster column) is migrated when opened
+        conn.execute("ALTER TABLE np_samples DROP COLUMN micro")
+        conn.execute("UPDATE np_schema SET version = 1")
+    with PostgresStore(pg_url) as store:
+        assert store.micro_ids().tolist() == [-1]
+        store.add(np.ones((2, 2)), [1, 2], np.array([0, 0]), micro=np.array([5, 6]))
+        store.update(1, [3], np.array([1]), micro=np.array([7]))
+        assert store.micro_ids().tolist() == [-1, 7, 6] and store.keys() == [0, 3, 2]
+        with pytest.raises(InputError, match="micro-cluster"):
+            store.add(np.ones((2, 2)), [1, 2], np.array([0, 0]), micro=np.array([5]))
+    with psycopg.connect(pg_url, autocommit=True) as conn:
+        assert conn.execute("SELECT version FROM np_schema").fetchall() == [(2,)]
         conn.execute("UPDATE np_schema SET version = 99")
     with pytest.raises(InputError, match=r"schema version 99.*upgrade"):
         PostgresStore(pg_url)

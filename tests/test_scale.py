@@ -21,6 +21,7 @@ from nonprehensile.motion.scale import (
     KeyModel,
     export_parquet,
     project,
+    recluster_chunk,
     rekey_chunk,
     rekey_parquet,
     rekey_store,
@@ -28,14 +29,18 @@ from nonprehensile.motion.scale import (
 )
 from nonprehensile.motion.stores import open_store
 
+TRUTH: dict[str, np.ndarray] = {}
+
 
 @pytest.fixture(scope="module")
 def fitted() -> tuple[np.ndarray, KeyModel, HilbertClusterer]:
     rng = np.random.default_rng(3)
     centres = rng.normal(scale=5.0, size=(4, 120))
-    x = centres[rng.integers(0, 4, 1500)] + rng.normal(size=(1500, 120))
+    y = rng.integers(0, 4, 1500)
+    x = centres[y] + rng.normal(size=(1500, 120))
     with threadpool_limits(1):
         c = HilbertClusterer(4, init_size=150, random_state=0).fit(x[:150])
+    TRUTH["y"] = y
     return x, KeyModel.from_clusterer(c), c
 
 
@@ -96,7 +101,19 @@ def test_rekey_on_a_local_dask_cluster(fitted: tuple, store_spec: str, tmp_path:
             distributed.Client(cluster) as client:
         from_store = rekey_store(store_spec, model, name=name, chunk=200, scheduler=client)
         from_parquet = rekey_parquet(pq_path, model, scheduler=client)
+        k2, labels = rekey_store(store_spec, model, name=name, chunk=333, scheduler=client,
+                                 labels=True)
+        k3, labels3 = rekey_parquet(pq_path, model, scheduler=client, labels=True)
     np.testing.assert_array_equal(from_store, want)
+    np.testing.assert_array_equal(k2, want)
+    np.testing.assert_array_equal(k3, want)
+    with threadpool_limits(1):
+        np.testing.assert_array_equal(labels, recluster_chunk(x, model)[1])
+    np.testing.assert_array_equal(labels3, labels)
+    # re-clustering finds the four generating clusters (an independent truth)
+    from sklearn.metrics import adjusted_rand_score
+
+    assert adjusted_rand_score(TRUTH["y"], labels) == 1.0
     np.testing.assert_array_equal(from_parquet, want)
     # Dask's local threads, other chunks: the same
     np.testing.assert_array_equal(rekey_store(store_spec, model, name=name, chunk=999), want)

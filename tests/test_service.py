@@ -28,6 +28,7 @@ from fastapi.testclient import TestClient
 from nonprehensile.cli import main
 from nonprehensile.demonstrations.dataset import dataset_path
 from nonprehensile.motion.clustering import HilbertClusterer
+from nonprehensile.motion.pgstore import PostgresStore
 from nonprehensile.service import (
     ServiceConfig,
     create_app,
@@ -35,7 +36,7 @@ from nonprehensile.service import (
     load_template,
     make_pool,
 )
-from nonprehensile.service.ingest import Registry
+from nonprehensile.service.ingest import CHECKPOINT_N, Registry
 
 CUBE = dataset_path("cube")
 ANN = json.loads((CUBE / "annotations.json").read_text())
@@ -77,7 +78,7 @@ def service(pg_url: str, template: Any) -> Iterator[dict[str, Any]]:
     pool = make_pool(pg_url, max_size=6)
     with pool.connection() as conn:
         tokens = {m: create_token(conn, m) for m in ("ana", "ben")}
-    registry = Registry(pool, template, init_size=INIT)
+    registry = Registry(pool, template, init_size=INIT, checkpoint=3)
     app = create_app(pool, template, ServiceConfig("test", max_bytes=MAX_BYTES),
                      registry=registry, background=False)
     with TestClient(app) as client:
@@ -126,11 +127,24 @@ def test_uploads_register_to_clusters_idempotently(service: dict[str, Any]) -> N
     assert again.json()["upload"] == last["upload"]
     arcs = c.get("/clusters").json()["arcs"]
     assert len(arcs) == 4 and all(a["samples"] == 6 and a["pending"] == 0 for a in arcs)
+    # a restarted server (no model in memory) rebuilds each arc's model from its checkpoint
+    # and the samples stored after it, checking that they get the keys they have
+    arc = last["segments"][0]["arc"]
+    with service["pool"].connection() as conn:
+        store = PostgresStore(conn, arc)
+        assert int(store.get_meta(CHECKPOINT_N) or b"0") < store.n_samples
+        before = store.keys()
+    service["registry"]._cache.clear()
+    e = entries("push-roll", "ana", 4)[-1]
+    r = c.post("/demonstrations", **form(e), headers=auth["ana"])
+    assert r.status_code == 201, r.text
+    with service["pool"].connection() as conn:
+        assert PostgresStore(conn, arc).keys()[:6] == before
     got = c.get(f"/uploads/{replies[0]['upload']}").json()
     assert got["mentor"] == "ana" and all(s["cluster"] is not None for s in got["segments"])
     stats = {m["mentor"]: m for m in c.get("/mentors").json()["mentors"]}
-    assert stats["ana"]["uploads"] == 3 and stats["ben"]["segments"] == 12
-    assert c.get("/mentors/ana").json()["skills"] == {"push-roll": 3}
+    assert stats["ana"]["uploads"] == 4 and stats["ben"]["segments"] == 12
+    assert c.get("/mentors/ana").json()["skills"] == {"push-roll": 4}
     assert c.get("/mentors/nobody").status_code == 404
 
 

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 import psycopg
+from numpy.typing import ArrayLike
 from psycopg import errors as pg_errors, pq
 
 from nonprehensile.errors import InputError, StoreError
@@ -40,8 +41,9 @@ from nonprehensile.motion.stores import display_name, is_postgres_url
 
 __all__ = ["SCHEMA_VERSION", "UPDATE_BATCH", "PostgresStore", "is_postgres_url"]
 
-#: Version of the tables' layout; a database written by a newer layout is refused.
-SCHEMA_VERSION = 1
+#: Version of the tables' layout; a database written by a newer layout is refused, an older
+#: one is migrated (2: the micro-cluster id column).
+SCHEMA_VERSION = 2
 #: Rows per UPDATE statement when keys and labels are rewritten (a recalibration).
 UPDATE_BATCH = 10_000
 #: Advisory lock that serialises creating the tables (any constant, ours).
@@ -60,6 +62,8 @@ _DDL = (
     # a vector is 8 bytes a value of noise-like floats: compressing it gains nothing and
     # costs the server time on every insert, so it is stored out of line uncompressed
     "ALTER TABLE np_samples ALTER COLUMN vector SET STORAGE EXTERNAL",
+    # version 2: each sample's micro-cluster id (-1: none), as the clusterer registered it
+    "ALTER TABLE np_samples ADD COLUMN IF NOT EXISTS micro bigint NOT NULL DEFAULT -1",
     "CREATE INDEX IF NOT EXISTS np_samples_key ON np_samples (store, key, id)",
     "CREATE INDEX IF NOT EXISTS np_samples_label_key ON np_samples (store, label, key, id)",
     """CREATE TABLE IF NOT EXISTS np_meta (
@@ -68,6 +72,8 @@ _DDL = (
         value bytea NOT NULL,
         PRIMARY KEY (store, name)
     )""",
+    # the clusterer's state is megabytes of floats: pglz would spend seconds on each save
+    "ALTER TABLE np_meta ALTER COLUMN value SET STORAGE EXTERNAL",
 )
 
 
@@ -75,6 +81,17 @@ def _lock_id(name: str) -> int:
     """A signed 64-bit advisory lock id for a store name (stable across processes)."""
     return int.from_bytes(hashlib.blake2b(name.encode(), digest_size=8).digest(), "little",
                           signed=True)
+
+
+def _check_micro(micro: ArrayLike | None, m: int) -> IntArray:
+    """Micro-cluster ids of a batch of ``m`` samples (``-1`` for each when absent)."""
+    if micro is None:
+        return np.full(m, -1, dtype=np.int64)
+    mic = np.asarray(micro, dtype=np.int64)
+    if mic.shape != (m,):
+        raise InputError(f"store: {m} samples need as many micro-cluster ids, got shape "
+                         f"{mic.shape}")
+    return mic
 
 
 def connect(url: str, *, timeout: float = 30.0) -> psycopg.Connection[Any]:
@@ -114,6 +131,9 @@ def ensure_schema(conn: psycopg.Connection[Any]) -> None:
         version = None if row is None else row[0]
         if version is None:
             conn.execute("INSERT INTO np_schema (version) VALUES (%s)", (SCHEMA_VERSION,))
+        elif version < SCHEMA_VERSION:
+            # the statements above brought an older layout up to date
+            conn.execute("UPDATE np_schema SET version = %s", (SCHEMA_VERSION,))
         elif version > SCHEMA_VERSION:
             raise InputError(
                 f"the database holds nonprehensile stores of schema version {version}; this "
@@ -274,6 +294,13 @@ class PostgresStore:
         ).fetchall()
         return np.array([r[0] for r in rows], dtype=np.int64)
 
+    def micro_ids(self) -> IntArray:
+        """Micro-cluster ids of all samples, shape (n_samples,), in the order added."""
+        rows = self._conn.execute(
+            "SELECT micro FROM np_samples WHERE store = %s ORDER BY id", (self.name,)
+        ).fetchall()
+        return np.array([r[0] for r in rows], dtype=np.int64)
+
     def _ids_keys(self, sql: str, args: tuple[Any, ...]) -> tuple[IntArray, list[int]]:
         rows = self._conn.execute(sql, args).fetchall()
         return np.array([r[0] for r in rows], dtype=np.int64), [int(r[1]) for r in rows]
@@ -298,33 +325,48 @@ class PostgresStore:
 
     # ------------------------------------------------------------------ writes
 
-    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray) -> None:
+    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
+            micro: IntArray | None = None) -> None:
         v, lab = _check_batch(vectors, keys, labels, self.n_features)
+        mic = _check_micro(micro, v.shape[0])
         le = np.ascontiguousarray(v, dtype="<f8")
         with self.transaction():
             n0 = self.n_samples
             with self._conn.cursor() as cur, cur.copy(
-                "COPY np_samples (store, id, key, label, vector) FROM STDIN (FORMAT BINARY)"
+                "COPY np_samples (store, id, key, label, micro, vector) FROM STDIN "
+                "(FORMAT BINARY)"
             ) as cp:
-                cp.set_types(["text", "int8", "int8", "int8", "bytea"])
-                for i, (k, c) in enumerate(zip(keys, lab.tolist(), strict=True)):
-                    cp.write_row((self.name, n0 + i, int(k), int(c), le[i].tobytes()))
+                cp.set_types(["text", "int8", "int8", "int8", "int8", "bytea"])
+                for i, (k, c, u) in enumerate(zip(keys, lab.tolist(), mic.tolist(),
+                                                  strict=True)):
+                    cp.write_row((self.name, n0 + i, int(k), int(c), int(u), le[i].tobytes()))
         self._d = v.shape[1]
 
-    def update(self, start: int, keys: list[int], labels: IntArray) -> None:
+    def update(self, start: int, keys: list[int], labels: IntArray,
+               micro: IntArray | None = None) -> None:
         lab = [int(c) for c in np.asarray(labels).tolist()]
         if len(lab) != len(keys):
             raise InputError(f"store: {len(keys)} keys need as many labels, got {len(lab)}")
+        mic = None if micro is None else _check_micro(micro, len(keys)).tolist()
         with self.transaction():
             for s in range(0, len(keys), UPDATE_BATCH):
                 ks = [int(k) for k in keys[s : s + UPDATE_BATCH]]
                 ids = list(range(start + s, start + s + len(ks)))
-                self._conn.execute(
-                    "UPDATE np_samples AS t SET key = u.key, label = u.label "
-                    "FROM unnest(%s::bigint[], %s::bigint[], %s::bigint[]) AS u(id, key, label) "
-                    "WHERE t.store = %s AND t.id = u.id",
-                    (ids, ks, lab[s : s + UPDATE_BATCH], self.name),
-                )
+                if mic is None:
+                    self._conn.execute(
+                        "UPDATE np_samples AS t SET key = u.key, label = u.label FROM "
+                        "unnest(%s::bigint[], %s::bigint[], %s::bigint[]) AS u(id, key, label) "
+                        "WHERE t.store = %s AND t.id = u.id",
+                        (ids, ks, lab[s : s + UPDATE_BATCH], self.name),
+                    )
+                else:
+                    self._conn.execute(
+                        "UPDATE np_samples AS t SET key = u.key, label = u.label, micro = u.micro "
+                        "FROM unnest(%s::bigint[], %s::bigint[], %s::bigint[], %s::bigint[]) "
+                        "AS u(id, key, label, micro) WHERE t.store = %s AND t.id = u.id",
+                        (ids, ks, lab[s : s + UPDATE_BATCH], mic[s : s + UPDATE_BATCH],
+                         self.name),
+                    )
 
     def put_meta(self, name: str, value: bytes) -> None:
         with self.transaction():

@@ -31,8 +31,8 @@ from nonprehensile.errors import InputError
 from nonprehensile.motion.hilbert import encode, quantize
 from nonprehensile.motion.store import SampleStore
 
-__all__ = ["KeyModel", "export_parquet", "project", "rekey_chunk", "rekey_parquet",
-           "rekey_store", "write_keys"]
+__all__ = ["KeyModel", "export_parquet", "project", "recluster_chunk", "rekey_chunk",
+           "rekey_parquet", "rekey_store", "write_keys"]
 
 FloatArray = NDArray[np.float64]
 Keys = NDArray[np.uint64]
@@ -63,15 +63,24 @@ class KeyModel:
     lower: FloatArray
     upper: FloatArray
     order: int
+    centers: FloatArray | None = None
+    ids: NDArray[np.int64] | None = None
 
     @classmethod
     def from_clusterer(cls, c: Any) -> KeyModel:
-        """The model of a fitted :class:`~nonprehensile.motion.HilbertClusterer`."""
+        """The model of a fitted :class:`~nonprehensile.motion.HilbertClusterer`, with its
+        clusters' centres in component space (``cluster_centers_``) and ids."""
         if not getattr(c, "order_", 0):
             raise InputError("the clusterer is not fitted yet: nothing to re-key with")
+        centers = getattr(c, "cluster_centers_", None)
+        ids = getattr(c, "cluster_ids_", None)
+        ok = (centers is not None and ids is not None and np.ndim(centers) == 2
+              and len(centers) == len(ids) and len(ids) > 0)
         return cls(np.array(c.mean_, dtype=np.float64), np.array(c.components_, dtype=np.float64),
                    np.array(c.lower_, dtype=np.float64), np.array(c.upper_, dtype=np.float64),
-                   int(c.order_))
+                   int(c.order_),
+                   np.array(centers, dtype=np.float64) if ok else None,
+                   np.array(ids, dtype=np.int64) if ok else None)
 
 
 def project(x: FloatArray, mean: FloatArray, components: FloatArray) -> FloatArray:
@@ -99,6 +108,25 @@ def rekey_chunk(x: FloatArray, model: KeyModel) -> tuple[Keys, NDArray[np.bool_]
     z = project(x, model.mean, model.components)
     grid, outside = quantize(z, model.lower, model.upper, model.order)
     return np.asarray(encode(grid, model.order), dtype=np.uint64), outside
+
+
+def recluster_chunk(x: FloatArray, model: KeyModel) -> tuple[Keys, NDArray[np.int64]]:
+    """Keys and cluster ids of a chunk, shape (m,) each: a pure function of ``x`` and the model.
+
+    A sample takes the id of the nearest cluster centre in component space (squared
+    distances summed over the components in a fixed order; ties to the lower index), so its
+    id, like its key, depends on that sample and the model only.
+    """
+    if model.centers is None or model.ids is None:
+        raise InputError("the model has no cluster centres: build it with "
+                         "KeyModel.from_clusterer from a recalibrated clusterer")
+    z = project(x, model.mean, model.components)
+    grid, _ = quantize(z, model.lower, model.upper, model.order)
+    d2 = np.zeros((z.shape[0], model.centers.shape[0]))
+    for j in range(z.shape[1]):
+        d2 += (z[:, j : j + 1] - model.centers[None, :, j]) ** 2
+    return (np.asarray(encode(grid, model.order), dtype=np.uint64),
+            model.ids[np.argmin(d2, axis=1)])
 
 
 # ---------------------------------------------------------------------------- Parquet
@@ -134,7 +162,17 @@ def export_parquet(store: SampleStore, path: str | Path, *,
     return n
 
 
-def _parquet_chunk(path: str, group: int, model: KeyModel) -> tuple[NDArray[np.int64], Keys]:
+Part = tuple[NDArray[np.int64], Keys, NDArray[np.int64] | None]
+
+
+def _work(ids: NDArray[np.int64], x: FloatArray, model: KeyModel, labels: bool) -> Part:
+    if labels:
+        keys, lab = recluster_chunk(x, model)
+        return ids, keys, lab
+    return ids, rekey_chunk(x, model)[0], None
+
+
+def _parquet_chunk(path: str, group: int, model: KeyModel, labels: bool) -> Part:
     import pyarrow.parquet as pq
 
     t = pq.ParquetFile(path).read_row_group(group, columns=["id", "vector"])
@@ -142,17 +180,19 @@ def _parquet_chunk(path: str, group: int, model: KeyModel) -> tuple[NDArray[np.i
     vec = t.column("vector").combine_chunks()
     d = vec.type.list_size
     x = vec.flatten().to_numpy(zero_copy_only=False).reshape(-1, d)
-    return ids, rekey_chunk(x, model)[0]
+    return _work(ids, x, model, labels)
 
 
-def _gather(parts: Sequence[tuple[NDArray[np.int64], Keys]]) -> Keys:
-    if not parts:
-        return np.zeros(0, dtype=np.uint64)
-    ids = np.concatenate([p[0] for p in parts])
-    keys = np.concatenate([p[1] for p in parts])
-    out = np.empty(ids.size, dtype=np.uint64)
-    out[ids - ids.min()] = keys
-    return out
+def _gather(parts: Sequence[Part], labels: bool) -> Any:
+    ids = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, dtype=np.int64)
+    order = np.argsort(ids, kind="stable")
+    keys = (np.concatenate([p[1] for p in parts]) if parts
+            else np.zeros(0, dtype=np.uint64))[order]
+    if not labels:
+        return keys
+    lab = np.concatenate([p[2] for p in parts if p[2] is not None]) if parts else \
+        np.zeros(0, dtype=np.int64)
+    return keys, lab[order]
 
 
 def _compute(tasks: list[Any], scheduler: Any) -> list[Any]:
@@ -165,8 +205,11 @@ def _compute(tasks: list[Any], scheduler: Any) -> list[Any]:
     return list(compute(*tasks, scheduler=scheduler))  # type: ignore[no-untyped-call]
 
 
-def rekey_parquet(path: str | Path, model: KeyModel, *, scheduler: Any = None) -> Keys:
+def rekey_parquet(path: str | Path, model: KeyModel, *, scheduler: Any = None,
+                  labels: bool = False) -> Any:
     """Keys of every sample of a Parquet export, in id order, one Dask task per row group.
+
+    With ``labels=True``: keys and cluster ids (:func:`recluster_chunk`), a pair of arrays.
 
     Parameters
     ----------
@@ -180,12 +223,12 @@ def rekey_parquet(path: str | Path, model: KeyModel, *, scheduler: Any = None) -
     from dask.delayed import delayed
 
     n_groups = pq.ParquetFile(str(path)).num_row_groups
-    tasks = [delayed(_parquet_chunk)(str(path), g, model) for g in range(n_groups)]
-    return _gather(_compute(tasks, scheduler))
+    tasks = [delayed(_parquet_chunk)(str(path), g, model, labels) for g in range(n_groups)]
+    return _gather(_compute(tasks, scheduler), labels)
 
 
-def _store_chunk(spec: str, name: str | None, start: int, stop: int,
-                 model: KeyModel) -> tuple[NDArray[np.int64], Keys]:
+def _store_chunk(spec: str, name: str | None, start: int, stop: int, model: KeyModel,
+                 labels: bool) -> Part:
     from nonprehensile.motion.stores import open_store
 
     store = open_store(spec, name=name)
@@ -193,12 +236,14 @@ def _store_chunk(spec: str, name: str | None, start: int, stop: int,
         x = store.vectors(start, stop)
     finally:
         getattr(store, "close", lambda: None)()
-    return np.arange(start, stop, dtype=np.int64), rekey_chunk(x, model)[0]
+    return _work(np.arange(start, stop, dtype=np.int64), x, model, labels)
 
 
 def rekey_store(spec: str | Path, model: KeyModel, *, name: str | None = None,
-                chunk: int = DEFAULT_CHUNK, scheduler: Any = None) -> Keys:
+                chunk: int = DEFAULT_CHUNK, scheduler: Any = None, labels: bool = False) -> Any:
     """Keys of every sample of a store (a SQLite path or a PostgreSQL URL), in id order.
+
+    With ``labels=True``: keys and cluster ids (:func:`recluster_chunk`), a pair of arrays.
 
     Each Dask task opens the store itself and reads its chunk of ids (a range scan of the
     primary key), so the tasks run on any worker that reaches the database.
@@ -214,9 +259,9 @@ def rekey_store(spec: str | Path, model: KeyModel, *, name: str | None = None,
         n = store.n_samples
     finally:
         getattr(store, "close", lambda: None)()
-    tasks = [delayed(_store_chunk)(str(spec), name, s, min(n, s + chunk), model)
+    tasks = [delayed(_store_chunk)(str(spec), name, s, min(n, s + chunk), model, labels)
              for s in range(0, n, chunk)]
-    return _gather(_compute(tasks, scheduler))
+    return _gather(_compute(tasks, scheduler), labels)
 
 
 def write_keys(store: SampleStore, keys: Keys, labels: NDArray[np.int64] | None = None,

@@ -25,12 +25,14 @@ import json
 import shutil
 import tarfile
 import tempfile
+import uuid
 import zipfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Any
 
+import numpy as np
 import psycopg
 from psycopg_pool import ConnectionPool
 
@@ -60,6 +62,13 @@ STATE = "hilbert_clusterer"
 RECAL_N = "service_recalibrated_at"
 #: Samples an arc gathers before its first clustering.
 DEFAULT_INIT_SIZE = 10
+#: Samples registered to an arc between two checkpoints of its model (the samples after a
+#: checkpoint are registered again, deterministically, when the model is rebuilt).
+DEFAULT_CHECKPOINT = 64
+#: The arc's generation (meta): changes with every registration and recalibration.
+GENERATION = "service_generation"
+#: Samples the checkpointed model had seen (meta, decimal text).
+CHECKPOINT_N = "service_checkpoint_n"
 #: Most files in an uploaded archive.
 MAX_ARCHIVE_FILES = 5000
 _TRAJECTORY_SUFFIXES = (".c3d", ".csv")
@@ -311,12 +320,16 @@ class Registry:
     """
 
     def __init__(self, pool: ConnectionPool, template: Template, *,
-                 init_size: int = DEFAULT_INIT_SIZE, growth: float = 2.0, seed: int = 0) -> None:
+                 init_size: int = DEFAULT_INIT_SIZE, growth: float = 2.0,
+                 checkpoint: int = DEFAULT_CHECKPOINT, seed: int = 0) -> None:
         self.pool = pool
         self.template = template
         self.init_size = init_size
         self.growth = growth
+        self.checkpoint = checkpoint
         self.seed = seed
+        # arc -> (generation, clusterer): the model this process left the arc in
+        self._cache: dict[str, tuple[bytes, HilbertClusterer]] = {}
 
     # ------------------------------------------------------------------ clusterers
 
@@ -328,10 +341,49 @@ class Registry:
                                 drift_fraction=1e12, store=store, random_state=self.seed)
 
     def _clusterer(self, arc: str, store: PostgresStore) -> HilbertClusterer:
+        """The arc's clusterer, bound to ``store`` (whose lock the caller holds).
+
+        The one this process left the arc in is reused when the arc's generation says nobody
+        changed it since; otherwise the last checkpoint is loaded and the samples stored after
+        it are registered again (to a copy, in memory): registration is deterministic and
+        does not depend on how the stream is chunked, so this rebuilds exactly the model that
+        registered them (and checks it: the keys and ids must come out as stored).
+        """
+        gen = store.get_meta(GENERATION)
+        cached = self._cache.get(arc)
+        if cached is not None and gen is not None and cached[0] == gen:
+            c = cached[1]
+            c.store = store
+            return c
         state = store.get_meta(STATE)
+        n = store.n_samples
         if state is None:
+            if n:
+                raise NonprehensileError(f"arc {arc}: {n} samples but no clusterer state; "
+                                         "the store was changed outside the service")
             return self._new_clusterer(arc, store)
-        return HilbertClusterer.load_state(state, store)
+        n_seen = int((store.get_meta(CHECKPOINT_N) or b"0").decode())
+        c = _replayed(arc, state, n_seen, store.vectors(0, n), store.keys(), store.labels())
+        c.store = store
+        return c
+
+    def _save(self, store: PostgresStore, c: HilbertClusterer, checkpoint: bool,
+              pending: dict[str, tuple[bytes, HilbertClusterer]]) -> None:
+        """Record the arc's new generation, and a checkpoint of the model when asked."""
+        if checkpoint:
+            store.put_meta(STATE, c.save_state())
+            store.put_meta(CHECKPOINT_N, str(c.n_samples_seen_).encode())
+        gen = f"{c.n_samples_seen_}:{uuid.uuid4().hex}".encode()
+        store.put_meta(GENERATION, gen)
+        pending[store.name] = (gen, c)
+
+    def _checkpoint_due(self, store: PostgresStore, c: HilbertClusterer) -> bool:
+        # the first batch's model is saved as soon as it exists; later ones every
+        # `checkpoint` samples (the samples after a checkpoint are its log)
+        if c.n_samples_seen_ <= self.init_size:
+            return True
+        last = int((store.get_meta(CHECKPOINT_N) or b"0").decode())
+        return c.n_samples_seen_ - last >= self.checkpoint
 
     # ------------------------------------------------------------------ uploads
 
@@ -347,6 +399,21 @@ class Registry:
                                          max_gap=int(self.template.top.get("gap_limit", 12)))
         vectors = flatten_segments(segments)
         arcs = [self.template.arcs[(s.arc.group, s.arc.source, s.arc.target)] for s in segments]
+        pending: dict[str, tuple[bytes, HilbertClusterer]] = {}
+        try:
+            reply = self._register_tx(mentor, demo, digest, kind, segments, vectors, arcs,
+                                      pending)
+        except BaseException:
+            # rolled back: what the clusterers registered in it is gone from the database
+            for arc in set(arcs):
+                self._cache.pop(arc, None)
+            raise
+        self._cache.update(pending)
+        return reply
+
+    def _register_tx(self, mentor: str, demo: Demonstration, digest: str, kind: str,
+                     segments: list[Any], vectors: Any, arcs: list[str],
+                     pending: dict[str, tuple[bytes, HilbertClusterer]]) -> dict[str, Any]:
         with self.pool.connection() as conn, conn.transaction():
             # claims the hash; an identical upload in flight waits here for this one's commit
             claimed = conn.execute(
@@ -365,7 +432,7 @@ class Registry:
                     store = stores[arc]
                     c = self._clusterer(arc, store)
                     c.partial_fit(vectors[step : step + 1])
-                    store.put_meta(STATE, c.save_state())
+                    self._save(store, c, self._checkpoint_due(store, c), pending)
                     conn.execute(
                         "INSERT INTO np_upload_samples (hash, step, arc, sample) "
                         "VALUES (%s, %s, %s, %s)", (digest, seg.step, arc, store.n_samples - 1))
@@ -489,9 +556,10 @@ class Registry:
                 n0 = store.n_samples
                 if state is None or n0 < self.init_size:
                     return {"arc": arc, "recalibrated": False, "samples": n0}
-                snap = MemoryStore()
-                snap.add(store.vectors(0, n0), store.keys(), store.labels())
-            c = HilbertClusterer.load_state(state, snap)
+                n_seen = int((store.get_meta(CHECKPOINT_N) or b"0").decode())
+                c = _replayed(arc, state, n_seen, store.vectors(0, n0), store.keys(),
+                              store.labels())
+            snap = c.store
             c.recalibrate()  # the heavy part: no lock held
             with conn.transaction(), store.transaction():
                 n1 = store.n_samples
@@ -499,10 +567,33 @@ class Registry:
                     # registered meanwhile: registered again, to the new model
                     c.partial_fit(store.vectors(n0, n1))
                 store.update(0, snap.keys(), snap.labels())
-                store.put_meta(STATE, c.save_state())
+                c.store = store
+                pending: dict[str, tuple[bytes, HilbertClusterer]] = {}
+                self._save(store, c, True, pending)
                 store.put_meta(RECAL_N, str(n1).encode())
+            self._cache.update(pending)
         return {"arc": arc, "recalibrated": True, "samples": n1, "during": n1 - n0,
                 "clusters": int(c.n_clusters_)}
+
+
+def _replayed(arc: str, state: bytes, n_seen: int, x: Any, keys: list[int],
+              labels: Any) -> HilbertClusterer:
+    """The clusterer of a checkpoint (``n_seen`` samples) with the later samples of ``x``
+    registered again, on an in-memory store holding all of ``x``; checked against the keys
+    and ids stored for them."""
+    n = len(keys)
+    mem = MemoryStore()
+    if n_seen:
+        mem.add(x[:n_seen], keys[:n_seen], labels[:n_seen])
+    c = HilbertClusterer.load_state(state, mem)
+    if n > n_seen:
+        c.partial_fit(x[n_seen:])
+        if mem.keys()[n_seen:] != keys[n_seen:] or not np.array_equal(
+                mem.labels()[n_seen:], labels[n_seen:]):
+            raise NonprehensileError(
+                f"arc {arc}: registering samples {n_seen}..{n - 1} again after the checkpoint "
+                "gave other keys than those stored; recalibrate the arc")
+    return c
 
 
 def registration_error(exc: Exception) -> NonprehensileError:
