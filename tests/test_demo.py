@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from nonprehensile.io import load_model
 from nonprehensile.maneuvers import classify
 from nonprehensile.pipeline import write_plan_motions
 from nonprehensile.states import State
-from test_report import CHROMIUM, loaded_images
+from test_report import CHROMIUM, loaded_dom, loaded_images
 
 
 @pytest.fixture(scope="module")
@@ -109,6 +110,25 @@ def test_demo_report_renders_in_chromium(
     page = out / "index.html"
     n = page.read_text().count("<img ")
     assert loaded_images(page, tmp_path / "profile") == f"{n}/{n}"
+    # the plan's pictures are among the loaded images: the filmstrip shows every step
+    dom = loaded_dom(page, tmp_path / "profile2")
+    film = [img for img in re.findall(r"<img [^>]*>", dom) if 'alt="Plan filmstrip' in img]
+    assert len(film) == 1 and "data:image/png;base64," in film[0]
+
+
+def test_demo_report_names_version_seed_command_and_reads_well(
+    demo_run: tuple[Path, dict[str, object]],
+) -> None:
+    out, _ = demo_run
+    html = (out / "index.html").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["meta"]["seed"] == "0" and summary["meta"]["nonprehensile"]
+    for key in ("nonprehensile", "seed", "command"):
+        assert f"<th>{key}</th>" in html
+    assert "nonprehensile demo" in summary["meta"]["command"]
+    assert not re.search(r"\b1 (demonstrations|demos|transitions|steps|faces)\b", html)
+    # every skill is drawn on the state-transition graph; the plan says where the agent is
+    assert "(every skill drawn)" in html and "<th>agent</th>" in html
 
 
 def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:
@@ -125,3 +145,44 @@ def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:
     res = CliRunner().invoke(main, ["plan", skills, "--from", "a:0", "--to", "a:90", "--step",
                                     "90", "--out", str(out)])
     assert res.exit_code == 2 and "--dataset" in res.stderr
+
+
+def test_motion_library_is_built_once_and_rebuilt_when_a_file_changes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import os
+
+    import nonprehensile.pipeline as pipeline
+    from nonprehensile.demonstrations.synth import synthesize
+
+    root = tmp_path / "ds"
+    synthesize(root, seed=5, n_per_skill=2, mentors=2, dropouts=0.0)
+    built = []
+    real = pipeline.cluster_segments
+
+    def counting(*args: object, **kwargs: object) -> object:
+        built.append(1)
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(pipeline, "cluster_segments", counting)
+    cache = tmp_path / "cache"
+    ds1, m1 = pipeline.motions_from_dataset(root, cache=cache)
+    ds2, m2 = pipeline.motions_from_dataset(root, cache=cache)
+    assert len(built) == 1 and len(list(cache.glob("motions-*.pickle"))) == 1
+    assert np.array_equal(m1.labels, m2.labels) and np.array_equal(m1.vectors, m2.vectors)
+    assert len(ds2.demonstrations) == len(ds1.demonstrations)
+    # another seed is another library
+    pipeline.motions_from_dataset(root, cache=cache, seed=1)
+    assert len(built) == 2
+    # a changed file (here: its modification time) invalidates the cached one
+    f = next(root.glob("*.c3d"))
+    st = f.stat()
+    os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000_000))
+    pipeline.motions_from_dataset(root, cache=cache)
+    assert len(built) == 3
+    # a damaged cache file is rebuilt, never fatal; no cache at all works too
+    for p in cache.glob("motions-*.pickle"):
+        p.write_bytes(b"not a pickle")
+    pipeline.motions_from_dataset(root, cache=cache)
+    pipeline.motions_from_dataset(root, cache=False)
+    assert len(built) == 5

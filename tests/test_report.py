@@ -17,6 +17,14 @@ CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 
 def loaded_images(page: Path, profile: Path) -> str:
     """Open ``page`` in headless Chromium and read the count of loaded images it records."""
+    dom = loaded_dom(page, profile)
+    marker = 'data-images-loaded="'
+    start = dom.index(marker) + len(marker)
+    return dom[start:dom.index('"', start)]
+
+
+def loaded_dom(page: Path, profile: Path) -> str:
+    """The page's DOM after Chromium loaded it (scripts run)."""
     assert CHROMIUM is not None
     proc = subprocess.run(
         [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
@@ -25,9 +33,7 @@ def loaded_images(page: Path, profile: Path) -> str:
          "--dump-dom", page.resolve().as_uri()],
         capture_output=True, text=True, timeout=120, check=True,
     )
-    marker = 'data-images-loaded="'
-    start = proc.stdout.index(marker) + len(marker)
-    return proc.stdout[start:proc.stdout.index('"', start)]
+    return proc.stdout
 
 
 def _png() -> bytes:
@@ -57,3 +63,20 @@ def test_report_renders_in_chromium_with_every_image(tmp_path: Path) -> None:
     broken = page.read_text().replace("base64,", "base64,AAAA", 1)
     page.write_text(broken)
     assert loaded_images(page, tmp_path / "profile2") == "1/2"
+
+
+def test_figures_text_is_readable_at_page_size() -> None:
+    from nonprehensile.viz._figures import new_figure
+    from nonprehensile.viz.report import MIN_TEXT_PX, PAGE_WIDTH_PX, figure_to_png, readable
+
+    for width in (6.0, 20.0):  # the wide one is shown scaled down to the page
+        fig = new_figure(figsize=(width, 3), layout="constrained")
+        ax = fig.add_subplot()
+        ax.set_title("tiny", fontsize=5)
+        ax.set_xticks([0, 1], ["a", "b"], fontsize=4)
+        figure_to_png(fig, dpi=80)
+        shown = min(1.0, PAGE_WIDTH_PX / (width * 80))
+        sizes = [t.get_fontsize() for t in fig.findobj(lambda a: hasattr(a, "get_fontsize"))
+                 if getattr(a := t, "get_text", lambda: "")() and a.get_visible()]
+        assert sizes and min(sizes) * 80 / 72 * shown >= MIN_TEXT_PX - 1e-9
+        assert readable(fig, 80) * 80 / 72 * shown >= MIN_TEXT_PX - 1e-9

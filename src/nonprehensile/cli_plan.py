@@ -5,7 +5,10 @@ Registered in :data:`nonprehensile.cli.COMMANDS`.
 
 from __future__ import annotations
 
+import shlex
+import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import click
@@ -219,8 +222,10 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
         for j, ev in enumerate(step["events"]):
             m = step["motions"][j] if j < len(step["motions"]) else None
             ref = m["reference"] if m else None
-            ref_text = (f"cluster {ref['cluster']} medoid of {ref['n_demonstrations']}, "
-                        f"{ref['n_frames']} frames" if ref else ("-" if m else ""))
+            n_demos = ref["n_demonstrations"] if ref else 0
+            ref_text = (f"cluster {ref['cluster']} medoid of {n_demos} "
+                        f"demonstration{'' if n_demos == 1 else 's'}, {ref['n_frames']} frames"
+                        if ref else ("-" if m else ""))
             t.add_row(ev["id"], " ∧ ".join(ev["contacts"]), m["label"] if m else "", ref_text)
         out.print(t)
 
@@ -282,6 +287,14 @@ def plan_cmd(
 
 
 # ---------------------------------------------------------------------------- demo
+def _command_line() -> str | None:
+    """The command as typed, when the job runs from the ``nonprehensile`` script."""
+    if Path(sys.argv[0]).name != "nonprehensile":
+        return None
+    return shlex.join(["nonprehensile", *sys.argv[1:]])
+
+
+
 @click.command("demo")
 @click.option("--out", "out_dir", default="report", show_default=True,
               type=click.Path(file_okay=False), help="Folder of the report and summary.")
@@ -300,7 +313,7 @@ def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
     t0 = time.perf_counter()
     with stage_bars(as_json) as bars:
         result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
-                          progress=bars)
+                          progress=bars, command=_command_line())
     elapsed = time.perf_counter() - t0
     summary = result.summary
     if as_json:

@@ -11,9 +11,14 @@ it and shows its progress.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import json
+import os
+import pickle
+import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +40,9 @@ from nonprehensile.states import State, stable_faces, states_by_step
 from nonprehensile.viz.report import Section, figure_to_png, write_report
 
 __all__ = [
+    "REPORT_SECTIONS",
     "DemoResult",
+    "ReportContext",
     "cluster_segments",
     "motions_from_dataset",
     "run_demo",
@@ -53,6 +60,30 @@ StageProgress = Callable[[str, int, int], None]
 DEFAULT_START = State("b", 200.0)
 DEFAULT_GOAL = State("e", 110.0)
 DEFAULT_POSITION = (0.30, 0.10)
+
+
+@contextlib.contextmanager
+def _one_blas_thread() -> Iterator[None]:
+    """BLAS on one thread for the job's small matrices: on a shared 2-core machine a second
+    BLAS thread waits for a busy core, and a call takes 10x longer (issue 16)."""
+    try:
+        from threadpoolctl import threadpool_limits  # type: ignore[import-untyped]
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scikit-learn
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("nonprehensile")
+    except PackageNotFoundError:  # pragma: no cover - run from a source tree
+        from nonprehensile import __version__
+
+        return __version__
 
 
 def _quiet(stage: str, done: int, total: int) -> None:
@@ -125,6 +156,11 @@ def cluster_segments(
             # clusters as a recalibrated store holds them (the streamed ids are scored too)
             clusterer.recalibrate()
             found = np.asarray(clusterer.labels_, dtype=np.int64)
+        # clusters numbered 1, 2, ... on each arc in the order of their first segment: the
+        # numbers the report's histograms and the plan show (the clusterer's own ids are
+        # arbitrary, and differ from arc to arc)
+        first_seen = {c: k for k, c in enumerate(dict.fromkeys(found.tolist()), start=1)}
+        found = np.array([first_seen[c] for c in found.tolist()], dtype=np.int64)
         labels[rows] = found
         for r, v in zip(rows, x, strict=True):
             vectors[r] = v
@@ -158,6 +194,7 @@ def motions_from_dataset(
     poly: Polyhedron | None = None,
     seed: int = 0,
     progress: StageProgress = _quiet,
+    cache: str | Path | bool | None = True,
 ) -> tuple[Dataset, ClusteredMotions]:
     """Load a dataset, segment it and cluster its motions: the planner's reference motions.
 
@@ -166,12 +203,102 @@ def motions_from_dataset(
     is only meaningful for the skill it shows. (Skills it does not demonstrate simply get no
     reference motion.)
 
+    The result is built once per dataset and kept in a cache folder (``cache``: a folder,
+    True for :func:`cache_dir`, False for none). It is keyed by the size and modification
+    time of every file in the dataset folder, the seed and the package version, so a changed,
+    added or removed file rebuilds it.
+
     Raises
     ------
     InputError
         Another object, or a skill of the same name demonstrated differently.
     """
+    folder = cache_dir() if cache is True else (Path(cache) if cache else None)
+    cached = _cached_motions(dataset, seed, folder)
+    if cached is not None:
+        ds, motions = cached
+        progress("loading", 1, 1)
+        _check_same_model(dataset, ds, skills, poly)
+        return ds, motions
     ds = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n))
+    _check_same_model(dataset, ds, skills, poly)
+    _, segments = segment_dataset(ds)
+    motions, _ = cluster_segments(segments, seed=seed, progress=progress)
+    _store_motions(dataset, seed, folder, (ds, motions))
+    return ds, motions
+
+
+#: Bumped when what the cache holds changes shape.
+_CACHE_FORMAT = "motions/1"
+
+
+def cache_dir() -> Path:
+    """Where built motion libraries are kept: ``$NONPREHENSILE_CACHE``, else
+    ``$XDG_CACHE_HOME/nonprehensile``, else ``~/.cache/nonprehensile``."""
+    env = os.environ.get("NONPREHENSILE_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "nonprehensile"
+
+
+def _dataset_key(dataset: str | Path, seed: int) -> str | None:
+    """A digest of every file of the dataset folder (path, size, mtime), the seed and the
+    versions; None when the folder cannot be listed."""
+    from nonprehensile.demonstrations.dataset import dataset_path
+
+    try:
+        root = dataset_path(dataset).resolve()
+        entries = sorted(
+            (str(p.relative_to(root)), p.stat().st_size, p.stat().st_mtime_ns)
+            for p in root.rglob("*") if p.is_file()
+        )
+    except (OSError, InputError):
+        return None
+    h = hashlib.sha256(repr((_CACHE_FORMAT, _version(), str(root), seed, MIN_CLUSTERED,
+                             entries)).encode())
+    return h.hexdigest()[:32]
+
+
+def _cached_motions(dataset: str | Path, seed: int, folder: Path | None
+                    ) -> tuple[Dataset, ClusteredMotions] | None:
+    if folder is None:
+        return None
+    key = _dataset_key(dataset, seed)
+    path = folder / f"motions-{key}.pickle"
+    if key is None or not path.is_file():
+        return None
+    try:
+        with path.open("rb") as fh:
+            # our own cache file, written by _store_motions below (a folder the user owns)
+            value = pickle.load(fh)
+    except Exception:  # a damaged or stale cache (any unpickling error) is rebuilt
+        return None
+    if (not isinstance(value, tuple) or len(value) != 2
+            or not isinstance(value[0], Dataset) or not isinstance(value[1], ClusteredMotions)):
+        return None
+    return value
+
+
+def _store_motions(dataset: str | Path, seed: int, folder: Path | None,
+                   value: tuple[Dataset, ClusteredMotions]) -> None:
+    key = _dataset_key(dataset, seed) if folder is not None else None
+    if folder is None or key is None:
+        return
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".motions-", suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:
+            pickle.dump(value, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        os.replace(tmp, folder / f"motions-{key}.pickle")  # atomic: readers see all or none
+    except OSError:
+        # a read-only or full cache folder only costs the next call its time
+        with contextlib.suppress(OSError, UnboundLocalError):
+            os.unlink(tmp)
+
+
+def _check_same_model(dataset: str | Path, ds: Dataset, skills: Sequence[Skill] | None,
+                      poly: Polyhedron | None) -> None:
     if poly is not None and (poly.faces != ds.poly.faces
                              or poly.vertices.shape != ds.poly.vertices.shape
                              or not np.allclose(poly.vertices, ds.poly.vertices)):
@@ -188,9 +315,6 @@ def motions_from_dataset(
                 f"{dataset}: skill {s.name!r} is demonstrated there differently (its states "
                 "or contact events differ from the skills file's)"
             )
-    _, segments = segment_dataset(ds)
-    motions, _ = cluster_segments(segments, seed=seed, progress=progress)
-    return ds, motions
 
 
 def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
@@ -241,6 +365,7 @@ def run_demo(
     step: float = 90.0,
     seed: int = 0,
     progress: StageProgress = _quiet,
+    command: str | None = None,
 ) -> DemoResult:
     """Run the whole pipeline on a dataset and write the report.
 
@@ -260,6 +385,9 @@ def run_demo(
         Seed of the clustering's random choices.
     progress : callable
         ``progress(stage, done, total)``.
+    command : str, optional
+        The command line that ran the job, written on the report (default: the equivalent
+        ``nonprehensile demo`` command).
 
     Returns
     -------
@@ -284,7 +412,8 @@ def run_demo(
     lap("inference")
     graphs, segments = segment_dataset(ds)
     lap("segmentation")
-    motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
+    with _one_blas_thread():
+        motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
     lap("clustering")
     result: Plan = plan(poly, exp, start, goal, position=position, motions=motions,
                         scale=ds.scale)
@@ -310,8 +439,13 @@ def run_demo(
     }
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    meta = [("nonprehensile", _version()), ("seed", str(seed)),
+            ("command", command or f"nonprehensile demo --dataset {dataset} --from {start} "
+                                   f"--to {goal} --seed {seed}"),
+            ("dataset", str(ds.root or dataset))]
+    summary["meta"] = dict(meta)
     report = _write_report(out, ds, exp, graphs, segments, motions, arcs, result, summary,
-                           progress)
+                           progress, meta)
     lap("report")
     summary["seconds"] = times
     summary_path = out / "summary.json"
@@ -319,67 +453,67 @@ def run_demo(
     return DemoResult(summary, report, summary_path)
 
 
+@dataclass(frozen=True)
+class ReportContext:
+    """Everything the main job computed, for the report's sections to draw from."""
+
+    ds: Dataset
+    exp: Expansion
+    graphs: Any
+    segments: list[Segment]
+    motions: ClusteredMotions
+    arcs: list[dict[str, Any]]
+    result: Plan
+    summary: dict[str, Any]
+
+
+#: The report's sections, in order: ``"module:function"``, each function taking a
+#: :class:`ReportContext` and returning a :class:`~nonprehensile.viz.report.Section` (or None
+#: to leave itself out). A new section is one line here; its module imports what it draws
+#: with, inside the function.
+REPORT_SECTIONS: list[str] = [
+    "nonprehensile.pipeline:object_section",
+    "nonprehensile.pipeline:inference_section",
+    "nonprehensile.pipeline:motion_section",
+    "nonprehensile.pipeline:plan_section",
+    "nonprehensile.pipeline:physics_section",
+]
+
+
 def _write_report(
     out: Path, ds: Dataset, exp: Expansion, graphs: Any, segments: list[Segment],
     motions: ClusteredMotions, arcs: list[dict[str, Any]], result: Plan,
-    summary: dict[str, Any], progress: StageProgress,
+    summary: dict[str, Any], progress: StageProgress, meta: Sequence[tuple[str, str]] = (),
 ) -> Path:
-    from nonprehensile.viz import object_figure, skill_graphs_figure, state_graph_figure
-    from nonprehensile.viz.clusters import cluster_histogram_figure
-    from nonprehensile.viz.trajectories import trajectory_figure
+    import importlib
 
-    poly = ds.poly
-    n_fig = 6
-    progress("figures", 0, n_fig)
+    ctx = ReportContext(ds, exp, graphs, segments, motions, arcs, result, summary)
     sections = []
-
-    fig_object = figure_to_png(object_figure(poly))
-    progress("figures", 1, n_fig)
-    sections.append(_object_section(poly, summary, fig_object))
-
-    demo_skills = [s.name for s in ds.skills][:2]
-    fig_graph = figure_to_png(state_graph_figure(exp, skills=demo_skills))
-    progress("figures", 2, n_fig)
-    fig_skills = figure_to_png(skill_graphs_figure(list(graphs.graphs)))
-    progress("figures", 3, n_fig)
-    sections.append(_inference_section(exp, summary, fig_graph, fig_skills))
-
-    # the arcs where skills with the same contact events move differently: the paper's Fig. 12
-    shared = [a for a in arcs
-              if len(a["skills"]) > 1 and len(a["labels"]) > 1 and a["clusterer"] is not None]
-    tumbling = next((a for a in shared if a["group"] == 1), shared[0] if shared else None)
-    fig_traj = figure_to_png(trajectory_figure(ds, tumbling["skills"] if tumbling else None))
-    progress("figures", 4, n_fig)
-    hist_pngs = []
-    for a in shared:
-        rows = a["rows"]
-        title = f"{a['from']} -> {a['to']} ({', '.join(a['skills'])})"
-        hist_pngs.append((figure_to_png(cluster_histogram_figure(
-            a["clusterer"], motions.vectors[rows], [segments[i].skill for i in rows],
-            title=title)), title))
-    progress("figures", 5, n_fig)
-    sections.append(_motion_section(summary, arcs, fig_traj, hist_pngs))
-    sections.append(_plan_section(result))
-    sections.append(_physics(ds, result, summary))
-    progress("figures", 6, n_fig)
+    progress("figures", 0, len(REPORT_SECTIONS))
+    for i, target in enumerate(REPORT_SECTIONS, start=1):
+        module, _, attr = target.partition(":")
+        section = getattr(importlib.import_module(module), attr)(ctx)
+        if section is not None:
+            sections.append(section)
+        progress("figures", i, len(REPORT_SECTIONS))
     return write_report(
-        out, f"nonprehensile: {poly.name}",
+        out, f"nonprehensile: {ds.poly.name}",
         "The whole pipeline of the paper (Integrated Object, Skill, and Motion Models for "
         "Nonprehensile Manipulation) on the bundled demonstrations: the object model, the "
         "state-transition graph expanded by inference, the skill graphs, the clustered finger "
         "motions, and a plan between two states that were never demonstrated.",
-        sections,
+        sections, meta=meta,
     )
 
 
-def _physics(ds: Dataset, result: Plan, summary: dict[str, Any]) -> Section:
+def physics_section(ctx: ReportContext) -> Section:
     """The plan executed in MuJoCo (issue 9); a note instead where that cannot be done."""
     from nonprehensile.errors import NonprehensileError
-    from nonprehensile.viz.physics import physics_section
+    from nonprehensile.viz.physics import physics_section as draw
 
+    ds, result, summary = ctx.ds, ctx.result, ctx.summary
     try:
-        section, records = physics_section(ds.poly, result, scale=ds.scale,
-                                           fingers=ds.fingers)
+        section, records = draw(ds.poly, result, scale=ds.scale, fingers=ds.fingers)
     except NonprehensileError as exc:
         summary["physics"] = {"error": str(exc)}
         return Section("Physics: the plan executed in MuJoCo", [f"Not simulated: {exc}"])
@@ -388,41 +522,84 @@ def _physics(ds: Dataset, result: Plan, summary: dict[str, Any]) -> Section:
     return section
 
 
-def _object_section(poly: Any, summary: dict[str, Any], png: bytes) -> Section:
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``1 demonstration``, ``2 demonstrations``."""
+    return f"{n} {word if n == 1 else many or word + 's'}"
+
+
+def object_section(ctx: ReportContext) -> Section:
+    """The object model: two labeled views, and ``A`` and ``Delta`` as HTML tables."""
+    from nonprehensile.viz import object_figure
+
+    poly, summary = ctx.ds.poly, ctx.summary
+    png = figure_to_png(object_figure(poly, tables=False))
+    labels, a = poly.adjacency_matrix()
+    tables: list[tuple[list[str], list[list[str]]]] = []
+    if len(labels) <= 40:
+        tables.append((["A", *labels], [[f, *[str(k) if k else "-" for k in a[i]]]
+                                         for i, f in enumerate(labels)]))
+    tables.append((["face", "Delta (deg)", "edges"],
+                   [[f, ", ".join(f"{d:g}" for d in poly.delta[f]), str(poly.n_edges(f))]
+                    for f in list(poly.faces)[:200]]))
     return Section(
         "Object model (paper Section III, Fig. 3)",
-        [f"{poly.name}: {len(poly.faces)} faces labeled {', '.join(poly.faces)}; edge numbers "
-         "run clockwise seen from outside; the adjacency matrix holds, for each pair of "
-         "adjacent faces, the number of their shared edge on the row face. Rotation symmetry "
-         f"group of order {summary['object']['symmetry_order']}; "
-         f"{summary['states']['count']} states at a {summary['states']['step']:g}-degree step "
-         f"form {summary['states']['classes']} geometric-equivalence class(es)."],
-        [(png, "The labeled object, its adjacency matrix of edge numbers and face shapes")],
+        [f"{poly.name}: {plural(len(poly.faces), 'face')} labeled "
+         f"{', '.join(list(poly.faces)[:40])}{' ...' if len(poly.faces) > 40 else ''}; edge "
+         "numbers run clockwise seen from outside; the adjacency matrix A holds, for each pair "
+         "of adjacent faces, the number of their shared edge on the row face. Rotation "
+         f"symmetry group of order {summary['object']['symmetry_order']}; "
+         f"{plural(summary['states']['count'], 'state')} at a "
+         f"{summary['states']['step']:g}-degree step form "
+         f"{plural(summary['states']['classes'], 'geometric-equivalence class', 'geometric-equivalence classes')}."],  # noqa: E501
+        [(png, "The labeled object from two opposite sides")],
+        tables,
     )
 
 
-def _inference_section(exp: Expansion, summary: dict[str, Any], graph_png: bytes,
-                       skills_png: bytes) -> Section:
+def inference_section(ctx: ReportContext) -> Section:
+    """The expanded state-transition graph (every skill) and the skill graphs."""
+    from nonprehensile.viz import skill_graphs_figure, state_graph_figure
+
+    exp, summary = ctx.exp, ctx.summary
+    graph_png = figure_to_png(state_graph_figure(exp))
+    skills_png = figure_to_png(skill_graphs_figure(list(ctx.graphs.graphs)))
     inf = summary["inference"]
     rows = [[str(t.start), str(t.end), t.skill.name, t.skill.maneuver,
              "demonstrated" if t.demonstrated else "inferred"]
             for t in exp.transitions if t.demonstrated]
     return Section(
         "Skills and inference (Sections IV and V, Fig. 5, 7)",
-        [f"{len(summary['skills'])} demonstrated skills expand to {inf['transitions']} "
-         f"transitions over the state set, {inf['demonstrated']} of them demonstrated. The "
-         "paper's edge-index method and the exact symmetry method disagree on "
-         f"{inf['paper_method_disagreements']} of them."],
+        [f"{plural(len(summary['skills']), 'demonstrated skill')} expand to "
+         f"{plural(inf['transitions'], 'transition')} over the state set, "
+         f"{inf['demonstrated']} of them demonstrated. The paper's edge-index method and the "
+         f"exact symmetry method disagree on {inf['paper_method_disagreements']} of them."],
         [(graph_png, "State-transition graph: demonstrated arcs bold, inferred arcs thin "
-                     "(two skills drawn), beside the full transition matrix"),
+                     "(every skill drawn), beside the full transition matrix"),
          (skills_png, "Skill graphs: contact events as nodes, finger motions as arcs")],
         [(["from", "to", "skill", "maneuver", "shown"], rows)],
     )
 
 
-def _motion_section(summary: dict[str, Any], arcs: list[dict[str, Any]], traj_png: bytes,
-                    hists: list[tuple[bytes, str]]) -> Section:
-    ds = summary["dataset"]
+def motion_section(ctx: ReportContext) -> Section:
+    """Fingertip trajectories and the Hilbert-key histograms of the shared arcs."""
+    from nonprehensile.viz.clusters import cluster_histogram_figure
+    from nonprehensile.viz.trajectories import trajectory_figure
+
+    arcs, motions, segments = ctx.arcs, ctx.motions, ctx.segments
+    # the arcs where skills with the same contact events move differently: the paper's Fig. 12
+    shared = [a for a in arcs
+              if len(a["skills"]) > 1 and len(a["labels"]) > 1 and a["clusterer"] is not None]
+    tumbling = next((a for a in shared if a["group"] == 1), shared[0] if shared else None)
+    traj_png = figure_to_png(trajectory_figure(ctx.ds, tumbling["skills"] if tumbling else None))
+    hists = []
+    for a in shared:
+        rows = a["rows"]
+        title = f"{a['from']} -> {a['to']} ({', '.join(a['skills'])})"
+        hists.append((figure_to_png(cluster_histogram_figure(
+            a["clusterer"], motions.vectors[rows], [segments[i].skill for i in rows],
+            title=title, labels=motions.labels[rows])), title))
+    ds = ctx.summary["dataset"]
+
     def score(a: dict[str, Any], key: str) -> str:
         return f"{a[key]:.2f}" if key in a else "-"
 
@@ -432,16 +609,18 @@ def _motion_section(summary: dict[str, Any], arcs: list[dict[str, Any]], traj_pn
             for a in arcs]
     return Section(
         "Demonstrations and motion clusters (Section VI, Fig. 12)",
-        [f"{ds['demonstrations']} demonstrations by {len(ds['mentors'])} mentors, cut at their "
-         f"contact events into {ds['segments']} segments registered to the skill graphs' "
-         "arcs, then streamed, 10 at a time and skill after skill, into an incremental "
+        [f"{plural(ds['demonstrations'], 'demonstration')} by "
+         f"{plural(len(ds['mentors']), 'mentor')}, cut at their "
+         f"contact events into {plural(ds['segments'], 'segment')} registered to the skill "
+         "graphs' arcs, then streamed, 10 at a time and skill after skill, into an incremental "
          "clusterer on a Hilbert-curve index, arc by arc; a recalibration closes each stream. "
          "Where two skills share their contact events, the clusterer is asked for two clusters "
          "and the adjusted Rand index (ARI, 1 is perfect) says how well they separate the "
          "skills: on the arcs where the skills move differently (quarter circle or straight "
          "pull, lift-over or twist-over) they should, on the others (the same approach) they "
          "cannot. Where one skill has an arc, the clusterer picks the number of clusters: the "
-         "mentors' styles (last column)."],
+         "mentors' styles (last column). Clusters are numbered from 1 on each arc, in the "
+         "order of their first segment, here, in the histograms and in the plan."],
         [(traj_png, "Fingertip trajectories of two skills with the same contact events"),
          *[(png, f"Hilbert keys of {title}, coloured by cluster") for png, title in hists]],
         [(["arc", "skills", "motions", "segments", "clusters", "ARI vs skill",
@@ -449,28 +628,44 @@ def _motion_section(summary: dict[str, Any], arcs: list[dict[str, Any]], traj_pn
     )
 
 
-def _plan_section(result: Plan) -> Section:
+def plan_section(ctx: ReportContext) -> Section:
+    """The plan: a filmstrip of the object's poses, and its steps as a table."""
+    from nonprehensile.viz.plan_figure import plan_filmstrip_figure
+
+    result = ctx.result
     off = result.offset
     rows = []
     for i, step in enumerate(result.steps, start=1):
         t = step.transition
+        agent = step.agent or off
         for j, ev in enumerate(t.skill.events):
             motion = step.motions[j] if j < len(step.motions) else None
             ref = motion[3] if motion else None
             rows.append([
                 str(i) if j == 0 else "",
                 f"{step.start_world} -> {step.end_world} by {t.skill.name}" if j == 0 else "",
+                (f"{agent.rotate_deg:g} deg at ({agent.translate[0]:.3g}, "
+                 f"{agent.translate[1]:.3g})" + (" (relocated)" if step.relocated and i > 1
+                                                 else "")) if j == 0 else "",
                 ev.id, format_event(ev, "paper"), motion[2] if motion else "",
-                (f"cluster {ref.cluster} medoid ({ref.n_demonstrations} demos, "
+                (f"cluster {ref.cluster} medoid ({plural(ref.n_demonstrations, 'demo')}, "
                  f"{ref.positions.shape[0]} frames)") if ref else "",
             ])
+    relocs = (f" and {plural(result.relocations, 'relocation')}" if result.relocations
+              else "")
+    film = figure_to_png(plan_filmstrip_figure(ctx.ds.poly, result, scale=ctx.ds.scale,
+                                               markers=list(ctx.ds.fingers.values())))
     return Section(
         "Plan (Section VII)",
-        [f"From {result.start} to {result.goal}, neither of them demonstrated: relocate the "
-         f"agent by {off.rotate_deg:g} degrees and ({off.translate[0]:g}, "
-         f"{off.translate[1]:g}) m, then {len(result.steps)} transition(s). Each step lists "
-         "its contact events and, for each motion, the reference finger trajectory: the "
-         "medoid of the skill's main cluster, in the world frame."],
-        [],
-        [(["step", "transition", "event", "contacts", "then", "reference motion"], rows)],
+        [f"From {result.start} to {result.goal}, neither of them demonstrated: place the "
+         f"agent turned by {off.rotate_deg:g} degrees at ({off.translate[0]:g}, "
+         f"{off.translate[1]:g}) m, then {plural(len(result.steps), 'transition')}"
+         f"{relocs}"
+         ". Each step lists where the agent stands, its contact events and, for each motion, "
+         "the reference finger trajectory: the medoid of the skill's main cluster, in the "
+         "world frame."],
+        [(film, "Plan filmstrip: the object's pose at each step in 3-D, the reference finger "
+                "paths and the agent's position")],
+        [(["step", "transition", "agent", "event", "contacts", "then", "reference motion"],
+          rows)],
     )

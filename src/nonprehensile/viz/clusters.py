@@ -82,7 +82,8 @@ def plot_key_histogram(
                 edgecolor="white", linewidth=0.3)
         ax.legend(title=legend_title, fontsize="small")
     ax.set_xlim(0.0, top)
-    ax.set_xlabel("Hilbert index" if raw else f"position along the curve (key / 2^{n_bits})")
+    # one scale for every key width, so that histograms of different arcs compare
+    ax.set_xlabel("Hilbert index" if raw else "position along the Hilbert curve (0 to 1)")
     ax.set_ylabel("trajectories")
 
 
@@ -93,6 +94,7 @@ def cluster_histogram_figure(
     *,
     title: str | None = None,
     bins: int = 64,
+    labels: ArrayLike | None = None,
 ) -> Figure:
     """The paper's Fig. 12(b): histogram of the Hilbert keys coloured by cluster.
 
@@ -108,6 +110,9 @@ def cluster_histogram_figure(
         The true class of each sample (the demonstrated skill): adds a panel coloured by it.
     title : str, optional
     bins : int
+    labels : array_like of int, shape (n_samples,), optional
+        The clusters to colour by (e.g. a library's numbering), instead of
+        ``clusterer.predict(X)``.
 
     Returns
     -------
@@ -122,10 +127,10 @@ def cluster_histogram_figure(
         raise InputError("the clusterer is not fitted yet: fit it before drawing its keys")
     if X is None:
         keys: list[int] | NDArray[np.uint64] = clusterer.store.keys()
-        labels = clusterer.labels_
+        labels = clusterer.labels_ if labels is None else np.asarray(labels)
     else:
         keys = clusterer.transform(X)
-        labels = clusterer.predict(X)
+        labels = clusterer.predict(X) if labels is None else np.asarray(labels)
     if truth is not None and len(truth) != len(labels):
         raise InputError(
             f"truth has {len(truth)} entries for {len(labels)} samples; give one class per "
@@ -133,11 +138,11 @@ def cluster_histogram_figure(
         )
     n_bits = clusterer.components_.shape[0] * clusterer.order_
     rows = 1 if truth is None else 2
-    fig = new_figure(figsize=(7.0, 2.6 * rows + 0.4), layout="constrained")
+    fig = new_figure(figsize=(8.0, 2.8 * rows + 0.5), layout="constrained")
     axes = fig.subplots(rows, 1, squeeze=False)[:, 0]
     plot_key_histogram(axes[0], keys, labels.tolist(), n_bits=n_bits, bins=bins)
-    axes[0].set_title(f"clusters ({clusterer.method} method, {clusterer.n_clusters_} clusters)",
-                      fontsize="medium")
+    axes[0].set_title(f"clusters ({clusterer.method} method, "
+                      f"{len(set(np.asarray(labels).tolist()))} clusters)", fontsize="medium")
     if truth is not None:
         plot_key_histogram(axes[1], keys, list(truth), n_bits=n_bits, bins=bins,
                            legend_title="class")

@@ -555,8 +555,13 @@ def object_figure(
     view: tuple[float, float] | None = None,
     show_vertices: bool = False,
     figsize: tuple[float, float] | None = None,
+    tables: bool = True,
 ) -> Figure:
     """The whole object model on one figure: two opposite labeled views, ``A`` and ``Delta``.
+
+    A model of more than :data:`DETAIL_LIMIT` faces is drawn simplified: both views shaded,
+    without labels or tables (thousands of labels are unreadable and take minutes to draw;
+    ``object show --json`` lists them).
 
     Top: the object from ``view`` and from exactly the opposite side; each face is labeled in
     the view it faces (its ID and its edge numbers), so every face ID and every edge number
@@ -575,6 +580,8 @@ def object_figure(
         Also write vertex indices (see :func:`plot_object`).
     figsize : tuple of float, optional
         Width and height in inches; default sized to the number of faces.
+    tables : bool
+        Draw ``A`` and ``Delta`` below the views (a report shows them as HTML tables).
 
     Returns
     -------
@@ -591,6 +598,9 @@ def object_figure(
     poly = _check_poly(poly)
     first = default_view(poly) if view is None else _check_view(view)
     second = _opposite(first)
+    if len(poly.faces) > DETAIL_LIMIT or not tables:
+        return _plain_figure(poly, first, second, figsize, labels=len(poly.faces) <= DETAIL_LIMIT,
+                             show_vertices=show_vertices)
     v_dir = view_direction(first)
     # every face in exactly one view: the first takes the faces facing it, the second the rest
     front = [f for f in poly.faces if float(poly.normals[f] @ v_dir) > 0.0]
@@ -621,4 +631,52 @@ def object_figure(
         f"outside{virtual}",
         fontsize=13,
     )
+    return fig
+
+
+#: Most faces drawn with labels and tables; larger models are drawn simplified.
+DETAIL_LIMIT = 40
+
+
+def _plain_figure(
+    poly: Polyhedron, first: tuple[float, float], second: tuple[float, float],
+    figsize: tuple[float, float] | None, *, labels: bool, show_vertices: bool,
+) -> Figure:
+    """Two opposite views without tables; shaded, unlabeled, one collection per view when the
+    model is large (a collection per face, or a label per edge, is what takes minutes)."""
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    n = len(poly.faces)
+    fig = new_figure(figsize=figsize or (11.0, 5.4))
+    for col, v in enumerate((first, second)):
+        ax: Any = fig.add_axes((0.01 + 0.5 * col, 0.02, 0.48, 0.84), projection="3d")
+        if labels:
+            v_dir = view_direction(v)
+            faces = [f for f in poly.faces if float(poly.normals[f] @ v_dir) > 0.0]
+            plot_object(poly, ax, view=v, labeled_faces=faces, show_vertices=show_vertices,
+                        legend=col == 0)
+        else:
+            light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+            names = list(poly.faces)
+            shade = np.array([0.35 + 0.55 * max(float(poly.normals[f] @ light), 0.0)
+                              for f in names])
+            coll = Poly3DCollection([poly.vertices[list(poly.faces[f])] for f in names],
+                                    facecolors=np.c_[0.55 * shade, 0.7 * shade, shade],
+                                    edgecolors="none")
+            ax.add_collection3d(coll)
+            ax.set_proj_type("ortho")
+            ax.view_init(elev=v[0], azim=v[1])
+            ax.set_axis_off()
+            lo, hi = poly.vertices.min(axis=0), poly.vertices.max(axis=0)
+            span = np.maximum(hi - lo, 0.05 * poly.diameter)
+            c = 0.5 * (lo + hi)
+            ax.set_xlim(c[0] - span[0] / 2, c[0] + span[0] / 2)
+            ax.set_ylim(c[1] - span[1] / 2, c[1] + span[1] / 2)
+            ax.set_zlim(c[2] - span[2] / 2, c[2] + span[2] / 2)
+            ax.set_box_aspect(tuple(float(x) for x in span))
+        side = "first view" if col == 0 else "opposite view"
+        ax.set_title(f"{side} (elev {v[0]:g}°, azim {v[1]:g}°)", fontsize=12)
+    what = ("labels and tables omitted: `object show --json` lists every face, edge and A"
+            if not labels else "edge numbers run clockwise seen from outside")
+    fig.suptitle(f"Object model of {poly.name!r}: {n} faces; {what}", fontsize=13)
     return fig

@@ -11,6 +11,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,7 +20,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["Section", "figure_to_png", "render_report", "write_report"]
+__all__ = ["MIN_TEXT_PX", "PAGE_WIDTH_PX", "Section", "figure_to_png", "readable",
+           "render_report", "write_report"]
 
 _STYLE = """
 body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 2em auto;
@@ -34,6 +36,7 @@ th, td { border: 1px solid #ccc; padding: .25em .6em; text-align: left; vertical
 th { background: #f0f0f0; }
 code { background: #f4f4f4; padding: 0 .2em; }
 .note { color: #555; font-size: .9em; }
+table.meta { font-size: .85em; } table.meta th { font-weight: normal; color: #555; }
 """
 
 _SCRIPT = """
@@ -66,8 +69,57 @@ class Section:
     tables: list[tuple[list[str], list[list[str]]]] = field(default_factory=list)
 
 
+#: Width of the page's content, px: a wider image is shown scaled down to it.
+PAGE_WIDTH_PX = 1150
+#: Smallest text in a figure as shown at 100 % zoom, px.
+MIN_TEXT_PX = 10.5
+
+
+def readable(fig: Figure, dpi: float, *, min_px: float = MIN_TEXT_PX,
+             page_px: float = PAGE_WIDTH_PX) -> float:
+    """Raise every text of ``fig`` to at least ``min_px`` pixels as the page shows it.
+
+    A figure wider than the page is shown scaled down, so its text must be larger in points;
+    returns the smallest font size (points) the figure now has.
+    """
+    import matplotlib as mpl
+    from matplotlib.text import Text
+
+    shown = min(1.0, page_px / (fig.get_figwidth() * dpi))
+    min_pt = min_px * 72.0 / dpi / shown
+    smallest = math.inf
+    # tick labels are made at draw time: raise the size the axis gives them
+    default = mpl.font_manager.FontProperties(size=mpl.rcParams["xtick.labelsize"]).get_size()
+    for ax in fig.axes:
+        for axis in (ax.xaxis, ax.yaxis, getattr(ax, "zaxis", None)):
+            if axis is None:
+                continue
+            made = [float(t.get_fontsize()) for t in axis.get_ticklabels(which="both")]
+            if min(made, default=float(default)) < min_pt:
+                axis.set_tick_params(which="both", labelsize=min_pt)
+    for t in fig.findobj(Text):
+        if not t.get_visible() or not t.get_text():
+            continue
+        size = float(t.get_fontsize())
+        if size < min_pt:
+            t.set_fontsize(min_pt)
+            size = min_pt
+        smallest = min(smallest, size)
+    return smallest
+
+
 def figure_to_png(fig: Figure, dpi: int = 80) -> bytes:
-    """A matplotlib figure as PNG bytes."""
+    """A matplotlib figure as PNG bytes, every text readable on the page (:func:`readable`).
+
+    The figure's layout engine, if any, runs once here and is then switched off, so that the
+    figure is drawn once (a constrained layout otherwise costs a second full draw).
+    """
+    readable(fig, dpi)
+    engine = fig.get_layout_engine()
+    if engine is not None:
+        fig.set_dpi(dpi)
+        engine.execute(fig)
+        fig.set_layout_engine("none")
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)
     return buf.getvalue()
@@ -81,8 +133,10 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def render_report(title: str, intro: str, sections: Sequence[Section]) -> str:
-    """The report as one HTML document."""
+def render_report(title: str, intro: str, sections: Sequence[Section],
+                  meta: Sequence[tuple[str, str]] = ()) -> str:
+    """The report as one HTML document; ``meta`` (name, value) pairs, such as the version,
+    seed and command that made it, are listed under the title."""
     parts = [
         "<!DOCTYPE html>",
         '<html lang="en"><head><meta charset="utf-8">',
@@ -91,6 +145,10 @@ def render_report(title: str, intro: str, sections: Sequence[Section]) -> str:
         f'<body data-images-loaded="pending"><h1>{html.escape(title)}</h1>',
         f"<p>{html.escape(intro)}</p>",
     ]
+    if meta:
+        parts.append('<table class="meta">' + "".join(
+            f"<tr><th>{html.escape(k)}</th><td><code>{html.escape(v)}</code></td></tr>"
+            for k, v in meta) + "</table>")
     for sec in sections:
         parts.append(f"<h2>{html.escape(sec.title)}</h2>")
         parts += [f"<p>{html.escape(p)}</p>" for p in sec.paragraphs]
@@ -106,10 +164,11 @@ def render_report(title: str, intro: str, sections: Sequence[Section]) -> str:
     return "\n".join(parts)
 
 
-def write_report(path: str | Path, title: str, intro: str, sections: Sequence[Section]) -> Path:
+def write_report(path: str | Path, title: str, intro: str, sections: Sequence[Section],
+                 *, meta: Sequence[tuple[str, str]] = ()) -> Path:
     """Write the report (``path`` is a folder: ``index.html`` goes in it)."""
     folder = Path(path)
     folder.mkdir(parents=True, exist_ok=True)
     out = folder / "index.html"
-    out.write_text(render_report(title, intro, sections), encoding="utf-8")
+    out.write_text(render_report(title, intro, sections, meta), encoding="utf-8")
     return out
