@@ -211,6 +211,10 @@ def test_annotate_then_demo_end_to_end(tmp_path: Path) -> None:
     res = runner.invoke(main, ["dataset", "show", str(takes)])
     assert res.exit_code == 2  # no events yet: not a dataset
     res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o",
+                               str(takes / "thresholds.json"), "--json", "--no-fit"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["n_annotated"] == 6
+    res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o",
                                str(takes / "annotations.json"), "--json"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
