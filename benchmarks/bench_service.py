@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import os
 import queue
+import shutil
 import signal
 import socket
 import subprocess
@@ -42,14 +43,27 @@ KILL_AFTER = 60  # uploads answered before the server is killed
 GOAL_SAMPLES_PER_S = 2000.0
 
 
+_SERVER: dict[str, str] = {}
+
+
 def _server() -> tuple[str, str | None]:
+    """The PostgreSQL URL (``NONPREHENSILE_TEST_PG``, or one server started for the run)."""
     url = os.environ.get("NONPREHENSILE_TEST_PG")
     if url:
         return url, None
-    tmp = tempfile.mkdtemp(prefix="np-bench-pg-")
-    proc = subprocess.run([str(REPO / ".ci" / "start-postgres"), tmp], capture_output=True,
-                          text=True, check=True, timeout=120)
-    return proc.stdout.strip().splitlines()[-1], tmp
+    if not _SERVER:
+        tmp = tempfile.mkdtemp(prefix="np-bench-pg-")
+        proc = subprocess.run([str(REPO / ".ci" / "start-postgres"), tmp], capture_output=True,
+                              text=True, check=True, timeout=120)
+        _SERVER.update(url=proc.stdout.strip().splitlines()[-1], tmp=tmp)
+    return _SERVER["url"], None
+
+
+def _stop_server() -> None:
+    if _SERVER:
+        subprocess.run([str(REPO / ".ci" / "stop-postgres"), _SERVER["tmp"]], check=False)
+        shutil.rmtree(_SERVER["tmp"], ignore_errors=True)
+        _SERVER.clear()
 
 
 def _fresh_db(url: str) -> str:
@@ -96,7 +110,7 @@ def load_test() -> dict[str, Any]:
     from nonprehensile.demonstrations.dataset import dataset_path
     from nonprehensile.service.db import create_token, make_pool
 
-    pg, tmp = _server()
+    pg, _ = _server()
     db = _fresh_db(pg)
     pool = make_pool(db, max_size=2)
     with pool.connection() as conn:
@@ -210,8 +224,6 @@ def load_test() -> dict[str, Any]:
         server["proc"].wait(timeout=30)
     except subprocess.TimeoutExpired:
         server["proc"].kill()
-    if tmp:
-        subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], check=False)
     lat_ms = np.array(lat) * 1000
     return {
         "uploads": len(ann), "answered_2xx": len(ok), "stored": n_uploads,
@@ -233,7 +245,7 @@ def insert_throughput() -> dict[str, Any]:
     from nonprehensile.motion.clustering import HilbertClusterer
     from nonprehensile.motion.pgstore import PostgresStore
 
-    pg, tmp = _server()
+    pg, _ = _server()
     db = _fresh_db(pg)
     rng = np.random.default_rng(0)
     n, d, batch = 10_000, 4800, 500
@@ -266,8 +278,6 @@ def insert_throughput() -> dict[str, Any]:
             out[label] = round((n - 1000) / (time.perf_counter() - t0))
         out["state_mb"] = round(len(c.save_state()) / 1e6, 1)
     out["goal"] = GOAL_SAMPLES_PER_S
-    if tmp:
-        subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], check=False)
     return out
 
 
@@ -280,7 +290,7 @@ def fuzz(examples: int = 60) -> dict[str, Any]:
     from nonprehensile.service import ServiceConfig, create_app, load_template
     from nonprehensile.service.db import create_token, make_pool
 
-    pg, tmp = _server()
+    pg, _ = _server()
     db = _fresh_db(pg)
     pool = make_pool(db, max_size=4)
     with pool.connection() as conn:
@@ -334,13 +344,18 @@ def fuzz(examples: int = 60) -> dict[str, Any]:
             if r.status_code >= 500:
                 errors.append(("POST", f"/demonstrations (mutated take {i})", r.status_code))
     pool.close()
-    if tmp:
-        subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], check=False)
     return {"requests": cases, "server_errors": len(errors), "first_errors": errors[:5],
             "statuses": dict(sorted(statuses.items()))}
 
 
 def main() -> None:
+    try:
+        _main()
+    finally:
+        _stop_server()
+
+
+def _main() -> None:
     fz = fuzz()
     print("   schemathesis over /openapi.json (with and without a token):")
     for k, v in fz.items():

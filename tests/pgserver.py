@@ -5,6 +5,7 @@ why)."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import tempfile
 import uuid
@@ -41,6 +42,7 @@ def server() -> Iterator[str | None]:
         yield f"skip: no PostgreSQL server: {script} failed ({exc}) and {ENV} is not set"
         return
     if proc.returncode != 0:
+        shutil.rmtree(tmp, ignore_errors=True)
         yield (f"skip: no PostgreSQL server: {script} failed ({proc.stderr.strip()}) and {ENV} "
                "is not set")
         return
@@ -49,6 +51,7 @@ def server() -> Iterator[str | None]:
     finally:
         subprocess.run([str(REPO / ".ci" / "stop-postgres"), tmp], capture_output=True,
                        timeout=120, check=False)
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def fresh_database(url: str) -> Iterator[str]:

@@ -353,3 +353,14 @@ def test_real_uvicorn_on_loopback(pg_url: str) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def test_serve_refuses_what_it_cannot_serve(tmp_path: Path) -> None:
+    runner = CliRunner()
+    r = runner.invoke(main, ["serve", "--store", str(tmp_path / "x.db")])
+    assert r.exit_code == 2 and "postgresql:// URL" in r.output
+    r = runner.invoke(main, ["serve"])
+    assert r.exit_code == 2 and "--store" in r.output
+    r = runner.invoke(main, ["serve", "token", "create", " ", "--store",
+                             "postgresql://nobody@/nodb?host=/nonexistent-dir"])
+    assert r.exit_code == 1 and "cannot connect" in r.output and "Traceback" not in r.output

@@ -14,10 +14,10 @@ import secrets
 from typing import Any
 
 import psycopg
-from psycopg_pool import ConnectionPool
+from psycopg_pool import ConnectionPool, PoolTimeout
 
 from nonprehensile.errors import InputError, StoreError
-from nonprehensile.motion.pgstore import ensure_schema
+from nonprehensile.motion.pgstore import connect, ensure_schema
 from nonprehensile.motion.stores import display_name, is_postgres_url
 
 __all__ = ["SERVICE_SCHEMA_VERSION", "create_token", "hash_token", "list_tokens", "make_pool",
@@ -70,11 +70,14 @@ def make_pool(url: str, *, max_size: int = 8, timeout: float = 30.0) -> Connecti
             f"{url}: the service needs a postgresql:// URL (a server database that many "
             "uploaders share); a SQLite file is the embedded store of `nonprehensile cluster`"
         )
+    # one plain connection first: an unreachable server is one clear error at once, not a
+    # pool retrying in the background until its timeout
+    connect(url, timeout=timeout).close()
     pool = ConnectionPool(url, min_size=1, max_size=max_size, timeout=timeout,
                           kwargs={"autocommit": True}, open=False)
     try:
         pool.open(wait=True, timeout=timeout)
-    except psycopg.pool.PoolTimeout as exc:  # type: ignore[attr-defined]
+    except PoolTimeout as exc:
         pool.close()
         raise StoreError(f"{display_name(url)}: cannot connect to PostgreSQL ({exc}); check "
                          "that the server runs and the URL") from None
