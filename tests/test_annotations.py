@@ -102,6 +102,8 @@ def test_every_real_recording_forms_a_one_demonstration_dataset(rel: str, tmp_pa
     assert problems == [] and ds is not None
     (demo,) = ds.demonstrations
     assert demo.trajectory.marker_names == (tip,)
+    res = CliRunner().invoke(dataset_group, ["show", str(root)])
+    assert res.exit_code == 0 and ": 1 demonstration of 6 skills on cube" in res.output
     if raw.n_markers > 1:  # the others are ignored, said once
         (note,) = ds.notes
         assert f"ignored {raw.n_markers - 1} marker(s)" in note

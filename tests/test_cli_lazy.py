@@ -78,3 +78,17 @@ def test_package_names_resolve_on_first_use() -> None:
         _ = nonprehensile.no_such_name
     for name in nonprehensile.__all__:
         assert getattr(nonprehensile, name) is not None
+
+
+def test_long_state_tables_are_streamed_with_the_same_content() -> None:
+    runner = CliRunner()
+    doc = json.loads(runner.invoke(main, ["states", "cube", "--step", "1", "--json"]).output)
+    res = runner.invoke(main, ["states", "cube", "--step", "1"])
+    assert res.exit_code == 0
+    lines = res.output.splitlines()
+    assert lines[0] == f"2160 states of cube, {doc['n_classes']} equivalence classes"
+    rows = [line.split() for line in lines[2:]]
+    assert len(rows) == len(doc["states"]) == 2160
+    for (state, face, theta, cls), want in zip(rows, doc["states"], strict=True):
+        assert state == f"{want['face']}:{theta}" and face == want["face"]
+        assert float(theta) == want["theta"] and int(cls) == want["class"]

@@ -77,8 +77,14 @@ def synth_cmd(
         emit_json({"output": str(Path(out_dir)), "seconds": round(elapsed, 3),
                    **dataset_summary(ds)})
         return
-    err.print(f"wrote {len(ds.demonstrations)} demonstrations of {len(ds.skills)} skills by "
-              f"{len(ds.mentors)} mentors to {out_dir} in {elapsed:.2f} s")
+    err.print(f"wrote {_n(len(ds.demonstrations), 'demonstration')} of "
+              f"{_n(len(ds.skills), 'skill')} by {_n(len(ds.mentors), 'mentor')} to {out_dir} "
+              f"in {elapsed:.2f} s")
+
+
+def _n(count: int, word: str) -> str:
+    """``1 demonstration``, ``2 demonstrations``."""
+    return f"{count} {word}{'' if count == 1 else 's'}"
 
 
 def _show_problems(problems: list[Any], as_json: bool, root: str) -> None:
@@ -140,8 +146,8 @@ def show_cmd(directory: str, arcs: bool, as_json: bool) -> None:
                   "no problems")
         return
     out.print(
-        f"[bold]{root}[/]: {summary['n_demonstrations']} demonstrations of "
-        f"{len(ds.skills)} skills on {summary['object']} (scale {ds.scale:g} m per unit), "
+        f"[bold]{root}[/]: {_n(summary['n_demonstrations'], 'demonstration')} of "
+        f"{_n(len(ds.skills), 'skill')} on {summary['object']} (scale {ds.scale:g} m per unit), "
         f"{summary['rate_hz']:g} Hz, markers {', '.join(summary['markers'])} "
         f"({summary['units']}), {100 * summary['occluded_fraction']:.2f} % of samples "
         f"occluded; loaded in {summary['load_seconds']:.2f} s; no problems"

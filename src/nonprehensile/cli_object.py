@@ -28,7 +28,10 @@ from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
 from nonprehensile.io import write_model
 from nonprehensile.states import is_stable
 
-__all__ = ["adjacency_table", "object_group", "object_summary", "states_cmd"]
+__all__ = ["STREAM_ROWS", "adjacency_table", "object_group", "object_summary", "states_cmd"]
+
+#: Tables longer than this are streamed as plain text rather than drawn as a rich Table.
+STREAM_ROWS = 500
 
 
 @click.group("object")
@@ -187,7 +190,19 @@ def states_cmd(
             "n_classes": n_classes,
         })
         return
-    t = Table(title=f"{len(states)} states of {poly.name}, {n_classes} equivalence classes")
+    title = f"{len(states)} states of {poly.name}, {n_classes} equivalence classes"
+    if len(states) > STREAM_ROWS:
+        # a table of thousands of rows is printed as it goes, in plain aligned columns: a
+        # rich Table measures every cell first (minutes and a GB at 360,000 rows)
+        width = max(len(str(s)) for s in states)
+        lines = [title, f"{'state':<{width}}  face  {'theta (deg)':>11}  class"]
+        click.echo("\n".join(lines))
+        for i in range(0, len(states), 4096):
+            click.echo("\n".join(
+                f"{s!s:<{width}}  {s.face:<4}  {fmt_num(s.theta):>11}  {c:>5}"
+                for s, c in zip(states[i:i + 4096], classes[i:i + 4096], strict=True)))
+        return
+    t = Table(title=title)
     t.add_column("state")
     t.add_column("face")
     t.add_column("theta (deg)", justify="right")

@@ -223,7 +223,8 @@ def motions_from_dataset(
     ds = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n))
     _check_same_model(dataset, ds, skills, poly)
     _, segments = segment_dataset(ds)
-    motions, _ = cluster_segments(segments, seed=seed, progress=progress)
+    with _one_blas_thread():
+        motions, _ = cluster_segments(segments, seed=seed, progress=progress)
     _store_motions(dataset, seed, folder, (ds, motions))
     return ds, motions
 
