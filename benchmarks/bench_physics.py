@@ -21,18 +21,23 @@ from pathlib import Path
 import mujoco
 
 from nonprehensile.demonstrations.dataset import Dataset
+from nonprehensile.demonstrations.segment import segment_dataset
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
 from nonprehensile.pipeline import (
     DEFAULT_GOAL,
     DEFAULT_POSITION,
     DEFAULT_START,
-    cluster_segments,
     motions_from_dataset,
 )
 from nonprehensile.planning import plan, step_for
 from nonprehensile.sim import SimParams, Simulator
-from nonprehensile.sim.execute import replay_demonstration, simulate_plan, simulate_step
+from nonprehensile.sim.execute import (
+    DemonstrationLibrary,
+    replay_demonstration,
+    simulate_plan,
+    simulate_step,
+)
 from nonprehensile.sim.record import record_dataset
 from nonprehensile.states import states_by_step
 
@@ -103,14 +108,12 @@ def main() -> None:
     print(f"   bare mj_step {1e6 * bare:.1f} us: our loop costs {per_step / bare:.2f}x")
 
     print("3. demonstrated and inferred transitions (ended in the predicted state):")
-    ok, n, wall = _infer(ds, motions)
+    # each skill's medoid demonstration, whole (simulate infer's default)
+    ok, n, wall = _infer(ds, DemonstrationLibrary(segment_dataset(ds)[1]))
     print(f"   cube: {ok}/{n} = {100 * ok / n:.0f} %, {1000 * wall:.0f} ms wall per transition")
     hex_ds, stats = record_dataset(ROOT / "examples" / "hexprism_skills.json", n_per_skill=10)
     print(f"   hexprism physics takes: {stats}")
-    _, segments = __import__("nonprehensile.demonstrations.segment",
-                             fromlist=["segment_dataset"]).segment_dataset(hex_ds)
-    hex_motions, _ = cluster_segments(segments)
-    ok, n, wall = _infer(hex_ds, hex_motions)
+    ok, n, wall = _infer(hex_ds, DemonstrationLibrary(segment_dataset(hex_ds)[1]))
     print(f"   hexprism: {ok}/{n} = {100 * ok / n:.0f} %, {1000 * wall:.0f} ms wall per "
           "transition")
 

@@ -25,7 +25,7 @@ from nonprehensile.inference import expand
 from nonprehensile.motion.library import ClusteredMotions, flatten_segments
 from nonprehensile.planning import step_for
 from nonprehensile.sim import Simulator
-from nonprehensile.sim.execute import replay_demonstration, simulate_step
+from nonprehensile.sim.execute import DemonstrationLibrary, replay_demonstration, simulate_step
 from nonprehensile.sim.record import record_dataset
 from nonprehensile.states import states_by_step
 
@@ -38,7 +38,7 @@ def _library(ds: Dataset) -> ClusteredMotions:
                             flatten_segments(segments, n_points=50))
 
 
-def _check(ds: Dataset, skill: str) -> None:
+def _check(ds: Dataset, skill: str, whole: bool = False) -> None:
     sim = Simulator(ds.poly, scale=ds.scale)
     demo = next(d for d in ds.demonstrations if d.skill.name == skill)
     got = replay_demonstration(sim, ds, demo)
@@ -46,7 +46,8 @@ def _check(ds: Dataset, skill: str) -> None:
     exp = expand(ds.poly, list(ds.skills), states_by_step(ds.poly, 90))
     inferred = next(t for t in exp.transitions
                     if t.source.name == skill and not t.demonstrated)
-    library = _library(ds)
+    # a cluster library (as the planner's) or each skill's medoid demonstration whole
+    library = DemonstrationLibrary(segment_dataset(ds)[1]) if whole else _library(ds)
     step = step_for(ds.poly, inferred, position=(0.2, -0.1), motions=library, scale=ds.scale)
     out = simulate_step(sim, step, fingers=ds.fingers)
     assert out.success, out.to_dict()
@@ -68,7 +69,7 @@ def test_hexprism_recorded_from_physics_demonstrated_and_inferred() -> None:
     ds, stats = record_dataset(HEX_SKILLS, n_per_skill=2, seed=5)
     assert all(s["kept"] == 2 for s in stats.values())
     assert ds.object_markers and ds.demonstrations[0].trajectory.rigid_bodies
-    _check(ds, "push-roll")
+    _check(ds, "push-roll", whole=True)
 
 
 def test_report_physics_section_simulates_each_step() -> None:

@@ -157,13 +157,17 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
 @click.argument("skills_file", type=click.Path(dir_okay=False))
 @click.option("--dataset", default="cube", show_default=True,
               help="Demonstrations (a folder, or `cube`) giving the reference motions.")
+@click.option("--reference", type=click.Choice(["demonstration", "cluster"]),
+              default="demonstration", show_default=True,
+              help="Each skill's motion: its medoid demonstration whole, or each arc's "
+                   "cluster medoid (as the planner picks them).")
 @step_option
 @states_option
 @angle_tol_option
 @_physics_options
 @json_option
 @handle_errors
-def simulate_infer(skills_file: str, dataset: str, step: float | None,
+def simulate_infer(skills_file: str, dataset: str, reference: str, step: float | None,
                    states_file: str | None, angle_tol: float, as_json: bool, tol_deg: float,
                    **kw: Any) -> None:
     """Every demonstrated and inferred transition: predicted vs simulated final state."""
@@ -179,7 +183,20 @@ def simulate_infer(skills_file: str, dataset: str, step: float | None,
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
-        ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
+        motions: Any
+        if reference == "cluster":
+            ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly,
+                                               progress=bars)
+        else:
+            from nonprehensile.demonstrations.dataset import load_dataset
+            from nonprehensile.demonstrations.segment import segment_dataset
+            from nonprehensile.sim.execute import DemonstrationLibrary
+
+            ds = load_dataset(dataset, progress=lambda d, n: bars("loading", d, n))
+            if dict(ds.poly.faces) != dict(poly.faces):
+                raise InputError(f"{dataset}: its demonstrations are of object "
+                                 f"{ds.poly.name!r}, not of the skills file's {poly.name!r}")
+            motions = DemonstrationLibrary(segment_dataset(ds)[1])
         n = max(max(fingers_of(t.skill), default=1) for t in exp.transitions)
         simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
         records = []

@@ -14,7 +14,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -22,10 +22,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS, Dataset, Demonstration
+from nonprehensile.demonstrations.segment import Segment
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.motion.library import flatten_segments, medoid
 from nonprehensile.motion.trajectory import fill_gaps
-from nonprehensile.planning import Plan, PlanStep
+from nonprehensile.planning import Plan, PlanStep, ReferenceMotion
 from nonprehensile.sim.compare import (
     DEFAULT_ANGLE_TOL_DEG,
     DEFAULT_POSITION_TOL,
@@ -37,6 +39,7 @@ from nonprehensile.skills.contacts import Finger
 from nonprehensile.skills.skill import Skill
 
 __all__ = [
+    "DemonstrationLibrary",
     "Outcome",
     "fingers_of",
     "replay_demonstration",
@@ -116,6 +119,11 @@ def replay_demonstration(
     return Outcome(label, result, cmp)
 
 
+def _ease(s: FloatArray) -> FloatArray:
+    """Minimum-jerk profile from 0 to 1."""
+    return np.asarray(s**3 * (10.0 - 15.0 * s + 6.0 * s**2))
+
+
 def _smooth(pos: FloatArray, n: int) -> FloatArray:
     """Centred moving average over ``n`` frames along axis 0 (ends padded by repetition)."""
     k = np.ones(n) / n
@@ -128,7 +136,7 @@ def _smooth(pos: FloatArray, n: int) -> FloatArray:
 
 
 def step_targets(
-    step: PlanStep, fingers: Mapping[str, str] = DEFAULT_FINGERS,
+    step: PlanStep, fingers: Mapping[str, str] = DEFAULT_FINGERS, smooth: int = 9,
 ) -> tuple[dict[int, FloatArray], float, list[float]]:
     """The fingertip targets of a step: its reference motions one after the other.
 
@@ -160,12 +168,22 @@ def step_targets(
         rate = ref.rate
         skip = 0 if total == 0 else 1  # arcs share their boundary frame
         for k in wanted:
-            p = ref.positions[:, _marker(fingers, k, ref.marker_names)]
+            p = np.array(ref.positions[:, _marker(fingers, k, ref.marker_names)])
+            if chunks[k]:
+                # consecutive arcs' references may be medoids of different demonstrations,
+                # whose fingers were at slightly different places at the shared event: start
+                # where the previous arc ended and blend into this arc's own path, so the
+                # fingertip never jumps
+                gap = chunks[k][-1][-1] - p[0]
+                w = 1.0 - _ease(np.linspace(0.0, 1.0, len(p)))
+                p = p + np.outer(w, gap)
             chunks[k].append(p[skip:])
         total += len(ref.positions) - skip
         times.append((total - 1) / ref.rate)
     assert rate is not None
-    return {k: np.concatenate(v) for k, v in chunks.items()}, rate, times
+    # the references are measured paths: filtered as a tracking controller would
+    return ({k: _smooth(np.concatenate(v), smooth) if smooth > 1 else np.concatenate(v)
+             for k, v in chunks.items()}, rate, times)
 
 
 def simulate_step(
@@ -208,3 +226,53 @@ def simulate_plan(
         if progress is not None:
             progress(i + 1, len(plan.steps))
     return out
+
+
+class DemonstrationLibrary:
+    """Reference motions taken whole from one demonstration per skill.
+
+    A plan's :class:`~nonprehensile.motion.library.ClusteredMotions` gives each arc the medoid
+    of its own cluster, so a step's arcs may come from different demonstrations: fine for a
+    controller that tracks contacts, but an open-loop replay then runs a motion nobody made.
+    Here every arc of a skill comes from the same demonstration: the medoid of the skill's
+    demonstrations (least total distance between their whole resampled finger paths).
+
+    Parameters
+    ----------
+    segments : sequence of Segment
+        From :func:`~nonprehensile.demonstrations.segment.segment_dataset`.
+    """
+
+    def __init__(self, segments: Sequence[Segment]) -> None:
+        by_demo: dict[str, dict[tuple[str, str], Segment]] = {}
+        skill_of: dict[str, str] = {}
+        for s in segments:
+            key = s.demonstration.file
+            by_demo.setdefault(key, {})[(s.motion.source, s.motion.target)] = s
+            skill_of[key] = s.skill
+        self._chosen: dict[str, dict[tuple[str, str], Segment]] = {}
+        self._count: dict[str, int] = {}
+        for skill in sorted(set(skill_of.values())):
+            demos = [d for d in by_demo if skill_of[d] == skill]
+            arcs = sorted(set.intersection(*(set(by_demo[d]) for d in demos)))
+            if not arcs:
+                continue
+            x = np.hstack([flatten_segments([by_demo[d][a] for d in demos], n_points=50)
+                           for a in arcs])
+            best = demos[medoid(x)]
+            self._chosen[skill] = by_demo[best]
+            self._count[skill] = len(demos)
+
+    def demonstration(self, skill: str) -> str | None:
+        """The file of the demonstration chosen for ``skill``."""
+        arcs = self._chosen.get(skill)
+        return next(iter(arcs.values())).demonstration.file if arcs else None
+
+    def reference(self, skill: str, source: str, target: str) -> ReferenceMotion | None:
+        """The chosen demonstration's segment on the arc ``source -> target``, metres."""
+        seg = self._chosen.get(skill, {}).get((source, target))
+        if seg is None:
+            return None
+        traj = seg.trajectory.to_units("m")
+        return ReferenceMotion(np.asarray(traj.positions), tuple(traj.marker_names),
+                               traj.rate, 0, self._count[skill])
