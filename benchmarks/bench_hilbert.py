@@ -15,7 +15,7 @@ from collections.abc import Callable
 import numpy as np
 from hilbertcurve.hilbertcurve import HilbertCurve
 
-from nonprehensile.motion.hilbert import encode, key_to_int
+from nonprehensile.motion.hilbert import _encode_general, encode, key_to_int, lookup_table
 
 # (label, n_points, n_dims, order, hilbertcurve subsample, goal ratio)
 CASES = [
@@ -57,3 +57,23 @@ def main() -> None:
             f"ratio {ratio:.0f}x (goal >= {goal:.0f}x: {verdict})",
             flush=True,
         )
+    # issue 16: the table path against the bare gather it wraps (goal: within 1.3x)
+    pts = rng.integers(0, 32, size=(10**6, 2))
+    table = lookup_table(2, 5)
+
+    def bare() -> object:
+        return table[(pts[:, 0] << 5) | pts[:, 1]]
+
+    t_bare = _best_of(bare, 7)
+    t_enc = _best_of(functools.partial(encode, pts, 5), 7)
+    print(f"   2-D order 5, 10^6 points: encode {t_enc * 1e3:.1f} ms, bare lookup-table gather "
+          f"{t_bare * 1e3:.1f} ms: x{t_enc / t_bare:.2f} (goal <= 1.3: "
+          f"{'ok' if t_enc <= 1.3 * t_bare else 'BELOW GOAL'})", flush=True)
+    # issue 16: one point (a single registration) on the scalar path and on the vectorised one
+    for n_dims, order in ((6, 10), (3, 16), (8, 10)):
+        one = rng.integers(0, 2**order, size=(1, n_dims))
+        t_one = _best_of(functools.partial(encode, one, order), 200)
+        t_vec = _best_of(functools.partial(_encode_general, one.astype(np.uint64), order), 20)
+        print(f"   one point, {n_dims}-D order {order}: encode {t_one * 1e6:.0f} us (scalar "
+              f"path), vectorised transform {t_vec * 1e6:.0f} us: x{t_vec / t_one:.0f}",
+              flush=True)

@@ -101,26 +101,30 @@ def test_paper_registers_without_reclustering_then_recalibrates() -> None:
 # --------------------------------------------------------------------------- ours
 
 
-def test_runs_clusters_separated_skills_in_batch_and_streams() -> None:
+@pytest.mark.parametrize("method", ["micro", "runs"])
+def test_clusters_separated_skills_in_batch_and_streams(method: str) -> None:
     x, y = _blobs(600, 5, 40, seed=4, sep=1.0)
-    batch = HilbertClusterer(5, random_state=0).fit(x)
+    batch = HilbertClusterer(5, method=method, random_state=0).fit(x)  # type: ignore[arg-type]
     assert adjusted_rand_score(y, batch.labels_) > 0.99
     order = np.argsort(y, kind="stable")
     for idx in (np.random.default_rng(1).permutation(600), order):
-        c = HilbertClusterer(5, init_size=60, random_state=0)
+        c = HilbertClusterer(5, method=method, init_size=60,  # type: ignore[arg-type]
+                             random_state=0)
         for s in range(0, 600, 25):
             c.partial_fit(x[idx[s : s + 25]])
         assert adjusted_rand_score(y[idx], c.labels_) > 0.97
-    assert c.n_clusters_ == 5
+    if method == "runs":
+        assert c.n_clusters_ == 5
 
 
-def test_runs_chooses_the_number_of_clusters() -> None:
+@pytest.mark.parametrize("method", ["micro", "runs"])
+def test_chooses_the_number_of_clusters(method: str) -> None:
     x, y = _blobs(300, 4, 10, seed=5)
-    c = HilbertClusterer(None, random_state=0).fit(x)
+    c = HilbertClusterer(None, method=method, random_state=0).fit(x)  # type: ignore[arg-type]
     assert c.n_clusters_ == 4 and adjusted_rand_score(y, c.labels_) == 1.0
 
 
-@pytest.mark.parametrize("method", ["runs", "paper"])
+@pytest.mark.parametrize("method", ["micro", "runs", "paper"])
 @settings(max_examples=8)
 @given(cuts=st.lists(st.integers(1, 239), max_size=4, unique=True))
 def test_fit_equals_partial_fit_sequence(method: str, cuts: list[int]) -> None:
@@ -139,7 +143,7 @@ def test_fit_equals_partial_fit_sequence(method: str, cuts: list[int]) -> None:
 
 def test_stored_keys_stay_until_a_recalibration_and_ids_are_stable() -> None:
     x, y = _blobs(1000, 4, 8, seed=8)
-    c = HilbertClusterer(4, init_size=100, random_state=0)
+    c = HilbertClusterer(4, method="runs", init_size=100, random_state=0)
     c.partial_fit(x[:100])
     keys, labels = c.store.keys(), c.labels_
     c.partial_fit(x[100:199])  # the next recalibration is due at 200
@@ -153,7 +157,7 @@ def test_stored_keys_stay_until_a_recalibration_and_ids_are_stable() -> None:
 
 def test_recalibrations_grow_geometrically() -> None:
     x, _ = _blobs(4000, 3, 6, seed=9)
-    c = HilbertClusterer(3, init_size=100, random_state=0)
+    c = HilbertClusterer(3, method="runs", init_size=100, random_state=0)
     for s in range(0, 4000, 100):
         c.partial_fit(x[s : s + 100])
     # a stationary stream: one at the first batch, then at 200, 400, ..., 3200
@@ -162,7 +166,7 @@ def test_recalibrations_grow_geometrically() -> None:
 
 def test_outside_samples_are_flagged_and_get_a_new_cluster() -> None:
     x, y = _blobs(200, 2, 5, seed=10)
-    c = HilbertClusterer(2, random_state=0).fit(x)
+    c = HilbertClusterer(2, method="runs", random_state=0).fit(x)
     far = x[y == 0][:3] + 1000.0  # one new skill, far outside
     assert c.outside(far).all()
     c.partial_fit(far)
@@ -232,7 +236,9 @@ def test_bad_arrays_get_clear_errors() -> None:
     with pytest.raises(InputError, match="longer"):
         c.predict(np.hstack([x, x]))
     for kw, msg in [({"method": "kmeans"}, "method must be"),
-                    ({"n_components": 8, "order": 10}, "signed 64-bit"),
+                    ({"method": "runs", "n_components": 8, "order": 10}, "signed 64-bit"),
+                    ({"variance": 1.5}, "variance must be"),
+                    ({"capacity": 1}, "capacity must be >= 2"),
                     ({"growth": 1.0}, "growth must be"),
                     ({"n_clusters": 0}, "n_clusters must be >= 1"),
                     ({"merge": "x"}, "merge must be"),

@@ -11,8 +11,10 @@ from nonprehensile.errors import InputError
 from nonprehensile.motion.hilbert import (
     LUT_MAX_BITS,
     MAX_ORDER,
+    SCALAR_MAX_POINTS,
     decode,
     encode,
+    encode_words,
     grid_dtype,
     key_bits,
     key_to_int,
@@ -257,3 +259,22 @@ def test_quantize_rejects_bad_input(
         quantize(x, lower, upper, 5)  # type: ignore[arg-type]
     for w in words:
         assert w in str(err.value)
+
+
+@settings(max_examples=40)
+@given(st.data())
+def test_fast_paths_equal_hilbertcurve(data: st.DataObject) -> None:
+    """Magic-number spreading (2-D up to order 32, 3-D up to 21), the scalar path of a few
+    points, two-word keys, and unchecked calls all give hilbertcurve's keys."""
+    n_dims, order = data.draw(st.sampled_from([(2, 32), (3, 21), (2, 17), (3, 9), (5, 13),
+                                               (8, 10), (6, 10), (2, 5)]))
+    m = data.draw(st.integers(1, SCALAR_MAX_POINTS + 3))
+    pts = data.draw(st.lists(st.lists(st.integers(0, 2**order - 1), min_size=n_dims,
+                                      max_size=n_dims), min_size=m, max_size=m))
+    ref = [int(k) for k in hc.HilbertCurve(order, n_dims).distances_from_points(pts)]
+    arr = np.array(pts, dtype=np.uint64 if order == 32 else np.int64)
+    assert key_to_int(encode(arr, order)) == ref
+    assert key_to_int(encode(arr, order, validate=False)) == ref
+    words = encode_words(arr, order)
+    assert words.shape == (m, -(-n_dims * order // 64)) and words.dtype == np.uint64
+    assert [int("".join(f"{int(w):064b}" for w in row), 2) for row in words] == ref

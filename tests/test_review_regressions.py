@@ -141,7 +141,7 @@ def test_clusterer_and_store_refuse_bad_data(tmp_path: Path) -> None:
     from nonprehensile.motion.store import SQLiteStore
 
     with pytest.raises(InputError, match="n_components=None"):
-        HilbertClusterer(2, order=20)
+        HilbertClusterer(2, method="runs", order=20)
     with pytest.raises(InputError, match="below"):
         HilbertClusterer(2).fit(np.random.default_rng(0).random((50, 10)) * 1e300)
     strings = tmp_path / "s.npy"

@@ -119,10 +119,13 @@ def _load(db: SampleStore, path: str) -> HilbertClusterer:
 def summary(c: HilbertClusterer, path: str) -> dict[str, Any]:
     """The ``cluster show --json`` document: model and clusters (id, size, key range)."""
     clusters = []
-    for cid in sorted(set(c.labels_.tolist())):
-        _, keys = c.store.cluster(cid)
-        clusters.append({"id": cid, "size": len(keys), "key_min": min(keys),
-                         "key_max": max(keys)})
+    # current labels (method micro: not the stored, as-registered ones) against stored keys
+    labels = c.labels_
+    all_keys = np.array(c.store.keys(), dtype=np.int64)
+    for cid in sorted(set(labels.tolist())):
+        keys = all_keys[labels == cid]
+        clusters.append({"id": cid, "size": int(keys.size), "key_min": int(keys.min()),
+                         "key_max": int(keys.max())})
     return {
         "store": display_name(path),
         "method": c.method,
@@ -183,8 +186,10 @@ def cluster_group() -> None:
 @store_argument
 @dataset_option
 @arrays_option
-@click.option("--method", type=click.Choice(["runs", "paper"]), default="runs",
-              show_default=True, help="runs: ours; paper: the paper's recipe.")
+@click.option("--method", type=click.Choice(["micro", "runs", "paper"]), default="micro",
+              show_default=True,
+              help="micro: ours (micro-cluster summary); runs: our earlier key runs; paper: "
+                   "the paper's recipe.")
 @click.option("--n-clusters", type=int, default=None,
               help="Number of clusters (default: chosen by the silhouette).")
 @click.option("--init-size", type=int, default=None,

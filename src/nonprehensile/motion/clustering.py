@@ -1,6 +1,12 @@
 """Incremental clustering of flattened trajectories on a Hilbert-curve index (paper Section VI).
 
-Two methods share one scikit-learn style class, :class:`HilbertClusterer`:
+Three methods share one scikit-learn style class, :class:`HilbertClusterer`:
+
+``method="micro"`` (the default, ours): the Hilbert keys index a bounded summary of
+micro-clusters, clustered by Gaussian mixtures chosen by BIC; see
+:mod:`nonprehensile.motion.summary` for the design. Stored records (key, label as
+registered, micro-cluster id) are written once; :attr:`HilbertClusterer.labels_` derives the
+current labels from the summary.
 
 ``method="paper"``: the paper's recipe, exactly. PCA with 2 components fitted on a first batch,
 components scaled to the batch's range and cut into ``2**5 = 32`` levels, the 5th-order Hilbert
@@ -9,7 +15,7 @@ the largest gaps. A new sample is registered without reclustering (its key falls
 every ``recalibration_period`` samples the principal components are refitted on a fixed-size
 random sample of the stored ones, every stored sample is re-keyed and the keys re-cut.
 
-``method="runs"`` (the default, ours). It keeps the paper's promise (one sortable key per
+``method="runs"`` (our earlier method). It keeps the paper's promise (one sortable key per
 sample, a per-sample cost that does not grow with the data) and fixes its quality:
 
 * More components (enough for 90 % of the variance, 2..6) and a higher order (``62 // k``
@@ -68,16 +74,18 @@ from scipy.optimize import linear_sum_assignment
 
 from nonprehensile.errors import InputError
 from nonprehensile.motion.hilbert import encode, key_to_int, quantize
+from nonprehensile.motion.microcluster import one_thread, pca, project
 from nonprehensile.motion.store import MemoryStore, SampleStore
+from nonprehensile.motion.summary import MicroSummary
 
-__all__ = ["HilbertClusterer", "Method"]
+__all__ = ["HilbertClusterer", "Method", "project"]
 
-Method = Literal["runs", "paper"]
+Method = Literal["micro", "runs", "paper"]
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 Keys = NDArray[np.uint64]
 
-_METHODS = ("runs", "paper")
+_METHODS = ("micro", "runs", "paper")
 #: Largest key width: SQLite stores signed 64-bit integers.
 _KEY_BITS = 62
 #: Largest magnitude of a sample's value: squared distances must stay finite.
@@ -106,6 +114,14 @@ def _hash_index(seed: int, idx: NDArray[np.uint64]) -> NDArray[np.uint64]:
         return z ^ (z >> np.uint64(31))
 
 
+def _hash_int(seed: int, i: int) -> int:
+    """:func:`_hash_index` of one index, on Python ints (the same value)."""
+    z = (i * _GOLDEN + ((seed * _GOLDEN) & _MASK)) & _MASK
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _MASK
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _MASK
+    return z ^ (z >> 31)
+
+
 def _pca(x: FloatArray, n_components: int | None, *, min_k: int = 2,
          max_k: int = 6, variance: float = 0.9) -> tuple[FloatArray, FloatArray]:
     """Mean and principal directions of ``x``, shape (n, d), by SVD.
@@ -115,25 +131,11 @@ def _pca(x: FloatArray, n_components: int | None, *, min_k: int = 2,
     depend on the SVD routine. ``n_components=None``: the fewest explaining ``variance`` of
     the variance, clipped to ``min_k..max_k``.
     """
-    mean = x.mean(axis=0)
-    _, s, vt = np.linalg.svd(x - mean, full_matrices=False)
-    if n_components is None:
-        var = s**2
-        total = float(var.sum())
-        frac = np.cumsum(var) / total if total > 0 else np.ones_like(var)
-        k = int(np.searchsorted(frac, variance) + 1)
-        k = max(min_k, min(max_k, k))
-    else:
-        k = n_components
-    comp = vt[:k]
-    if comp.shape[0] < k:
-        # fewer samples (or features) than components: pad with zero directions, whose
-        # coordinate is 0 for every sample, so the key stays well defined
-        comp = np.vstack([comp, np.zeros((k - comp.shape[0], x.shape[1]))])
-    idx = np.argmax(np.abs(comp), axis=1)
-    signs = np.sign(comp[np.arange(k), idx])
-    signs[signs == 0] = 1.0
-    return mean, comp * signs[:, None]
+    # fewer samples (or features) than components: zero directions pad the rank, whose
+    # coordinate is 0 for every sample, so the key stays well defined
+    mean, comp, _ = pca(x, variance=variance, min_k=min_k, max_k=max_k,
+                        n_components=n_components)
+    return mean, comp
 
 
 def _bounds(z: FloatArray, margin: float) -> tuple[FloatArray, FloatArray]:
@@ -268,8 +270,9 @@ class HilbertClusterer:
     n_clusters : int or None
         Number of clusters; ``None`` chooses it (2..``max_auto_clusters``) by the silhouette
         score at every recalibration.
-    method : {"runs", "paper"}
-        ``"runs"`` (ours, see the module notes) or ``"paper"`` (the paper's recipe).
+    method : {"micro", "runs", "paper"}
+        ``"micro"`` (ours, the default), ``"runs"`` (our earlier method) or ``"paper"``
+        (the paper's recipe); see the module notes.
     n_components : int or None
         Principal components ``k``. Paper: 2. Runs: ``None`` picks the fewest explaining
         90 % of the variance, 2..6.
@@ -291,9 +294,11 @@ class HilbertClusterer:
     drift_fraction : float
         Runs only: novel samples, as a fraction of the count at the last recalibration, that
         bring the next one forward.
-    novelty : float
-        Runs only: a sample farther than ``novelty`` times the 99th percentile of the
+    novelty : float or None
+        Runs: a sample farther than ``novelty`` times the 99th percentile of the
         within-cluster distances (at the last recalibration) from every run is novel.
+        Micro: farther than ``novelty`` times the 90th percentile of the distances between
+        neighbouring micro-clusters (at the last macro step). ``None``: 1 (runs), 2 (micro).
     margin : float
         Runs only: fraction of the range added on each side of the scale bounds.
     max_runs : int
@@ -309,6 +314,18 @@ class HilbertClusterer:
         Largest number of clusters tried when ``n_clusters=None``.
     merge : {"ward", "kmeans", "auto"}
         Runs only: how runs are merged into clusters (see the module notes).
+    variance : float
+        Micro: fraction of the variance the principal components keep (0.95).
+    max_components : int
+        Micro: most principal components (24).
+    capacity : int
+        Micro: most micro-clusters in the summary (256); a full summary is compacted to half.
+    macro_growth : float
+        Micro: a macro step is due when the count reaches ``macro_growth`` times the count
+        at the last one (> 1).
+    residual_drift : float
+        Micro: the projection is recalibrated when the mean reconstruction residual of the
+        samples since the last calibration exceeds ``residual_drift`` times the reservoir's.
     store : SampleStore or None
         Where samples, keys and cluster ids are kept (default: a new :class:`MemoryStore`).
     random_state : int, numpy Generator or None
@@ -348,7 +365,7 @@ class HilbertClusterer:
         self,
         n_clusters: int | None = None,
         *,
-        method: Method = "runs",
+        method: Method = "micro",
         n_components: int | None = None,
         order: int | None = None,
         init_size: int | None = None,
@@ -356,7 +373,7 @@ class HilbertClusterer:
         recalibration_period: int | None = None,
         growth: float = 2.0,
         drift_fraction: float = 0.05,
-        novelty: float = 1.0,
+        novelty: float | None = None,
         margin: float = 0.1,
         max_runs: int = 256,
         window: int = 4,
@@ -364,6 +381,11 @@ class HilbertClusterer:
         max_new_runs: int = 64,
         max_auto_clusters: int = 10,
         merge: Literal["kmeans", "ward", "auto"] = "ward",
+        variance: float = 0.95,
+        max_components: int = 24,
+        capacity: int = 256,
+        macro_growth: float = 1.25,
+        residual_drift: float = 1.5,
         store: SampleStore | None = None,
         random_state: np.random.Generator | int | None = None,
     ) -> None:
@@ -376,7 +398,7 @@ class HilbertClusterer:
         # the most components the key may have to hold: checked now, not at the first
         # recalibration, where a failure would leave samples half registered
         k_max = self.n_components or (2 if method == "paper" else 6)
-        if self.order is not None and k_max * self.order > _KEY_BITS:
+        if method != "micro" and self.order is not None and k_max * self.order > _KEY_BITS:
             given = (f"{self.n_components}" if self.n_components is not None
                      else f"up to {k_max} (n_components=None)")
             raise InputError(
@@ -390,6 +412,8 @@ class HilbertClusterer:
                                                1, allow_none=True)
         self.growth = _check_float(growth, "growth", 1.0, strict=True)
         self.drift_fraction = _check_float(drift_fraction, "drift_fraction", 0.0, strict=True)
+        if novelty is None:
+            novelty = 2.0 if method == "micro" else 1.0
         self.novelty = _check_float(novelty, "novelty", 0.0, strict=True)
         self.margin = _check_float(margin, "margin", 0.0)
         self.max_runs = int(_check_int(max_runs, "max_runs", 2) or 2)
@@ -400,6 +424,13 @@ class HilbertClusterer:
         if merge not in ("kmeans", "ward", "auto"):
             raise InputError(f"merge must be 'kmeans', 'ward' or 'auto', got {merge!r}")
         self.merge = merge
+        self.variance = _check_float(variance, "variance", 0.0, strict=True)
+        if self.variance > 1.0:
+            raise InputError(f"variance must be a fraction in (0, 1], got {variance!r}")
+        self.max_components = int(_check_int(max_components, "max_components", 1) or 1)
+        self.capacity = int(_check_int(capacity, "capacity", 2) or 2)
+        self.macro_growth = _check_float(macro_growth, "macro_growth", 1.0, strict=True)
+        self.residual_drift = _check_float(residual_drift, "residual_drift", 1.0, strict=True)
         if store is not None and not isinstance(store, SampleStore):
             raise InputError(
                 f"store must implement SampleStore (MemoryStore, SQLiteStore), got "
@@ -456,12 +487,44 @@ class HilbertClusterer:
         self._new_ids: list[int] = []
         self._threshold2 = math.inf
         self._reservoir = np.zeros((0, 0))
+        self._micro = MicroSummary(
+            n_clusters=self.n_clusters, n_components=self.n_components,
+            variance=self.variance, max_components=self.max_components,
+            capacity=self.capacity, window=self.window, n_curves=self.n_curves,
+            growth=self.growth, macro_growth=self.macro_growth,
+            drift_fraction=self.drift_fraction, novelty=self.novelty,
+            residual_drift=self.residual_drift, margin=self.margin,
+            max_auto_clusters=self.max_auto_clusters, seed=self._seed)
         self.store.clear()
 
     @property
     def labels_(self) -> IntArray:
-        """Cluster id of every sample seen, shape (n_samples_seen_,), in the order seen."""
+        """Current cluster id of every sample seen, shape (n_samples_seen_,), in the order seen.
+
+        ``method="micro"``: the id of the cluster the sample's micro-cluster belongs to now
+        (after later compactions and macro steps; no stored row is rewritten for it).
+        ``"runs"`` and ``"paper"``: the stored ids, rewritten at every recalibration.
+        """
+        if self.method == "micro":
+            return self._micro.current_labels(self.store.micro_ids())
         return self.store.labels()
+
+    @property
+    def labels_registered_(self) -> IntArray:
+        """Cluster id of every sample as it was registered, shape (n_samples_seen_,).
+
+        What :meth:`partial_fit` answered for the sample when it arrived (the first batch:
+        the ids of the first macro step). ``"runs"`` and ``"paper"`` rewrite them at a
+        recalibration: there they equal :attr:`labels_`.
+        """
+        return self.store.labels()
+
+    @property
+    def key_bits_(self) -> int:
+        """Bits of a stored key."""
+        if self.method == "micro":
+            return self._micro.key_bits
+        return int(self.components_.shape[0]) * self.order_
 
     @property
     def n_clusters_(self) -> int:
@@ -469,7 +532,7 @@ class HilbertClusterer:
         return int(self.cluster_ids_.size)
 
     def _res_size(self) -> int:
-        if self.method == "runs":
+        if self.method != "paper":
             return self.recalibration_size or 1000
         return self.recalibration_size or self.init_size or max(self._n_last, 2)
 
@@ -556,6 +619,8 @@ class HilbertClusterer:
         while start < x.shape[0]:
             if not self._initialised:
                 start += self._collect(x[start:])
+            elif self.method == "micro":
+                start += self._register_micro(x[start:])
             else:
                 start += self._register(x[start:])
         return self
@@ -567,12 +632,19 @@ class HilbertClusterer:
         :meth:`outside` to find them.
         """
         x = self._require(X)
+        if self.method == "micro":
+            return self._micro.keys(x)
         keys, _ = self._keys(self._project(x))
         return keys
 
     def outside(self, X: ArrayLike) -> NDArray[np.bool_]:
         """Whether each sample falls outside the scale bounds, shape (n_samples,)."""
         x = self._require(X)
+        if self.method == "micro":
+            m = self._micro
+            z = project(x, m.mean, m.comp)
+            u = np.add.reduce(z[:, None, :] * m.rot[None, : m.ki, :], axis=2)
+            return np.asarray(np.any((u < m.lo[: m.ki]) | (u > m.hi[: m.ki]), axis=1))
         return quantize(self._project(x), self.lower_, self.upper_, self.order_)[1]
 
     def predict(self, X: ArrayLike) -> IntArray:
@@ -582,6 +654,8 @@ class HilbertClusterer:
         the neighbours found on the curves (and the provisional runs).
         """
         x = self._require(X)
+        if self.method == "micro":
+            return self._micro.predict(x)
         z = self._project(x)
         if self.method == "paper":
             keys, _ = self._keys(z)
@@ -644,7 +718,7 @@ class HilbertClusterer:
 
     def _update_reservoir(self, x: FloatArray, n0: int) -> None:
         """Reservoir sampling (Vitter's algorithm R) with per-index random numbers."""
-        if self.method != "runs":
+        if self.method == "paper":
             return
         size = self._res_size()
         if self._reservoir.shape[1] != x.shape[1]:
@@ -653,6 +727,13 @@ class HilbertClusterer:
         if fill:
             self._reservoir = np.vstack([self._reservoir, x[:fill]])
         if fill == x.shape[0]:
+            return
+        if x.shape[0] - fill == 1:
+            # one sample: the same hash on a Python int, without array temporaries
+            i = n0 + fill
+            one = _hash_int(self._seed, i) % (i + 1)
+            if one < size:
+                self._reservoir[one] = x[fill]
             return
         idx = np.arange(n0 + fill, n0 + x.shape[0], dtype=np.uint64)
         slot = _hash_index(self._seed, idx) % (idx + np.uint64(1))
@@ -663,12 +744,13 @@ class HilbertClusterer:
     # ------------------------------------------------------------------ projection, keys
 
     def _project(self, x: FloatArray) -> FloatArray:
-        """Principal components of samples, shape (m, k)."""
-        return np.asarray((x - self.mean_) @ self.components_.T, dtype=np.float64)
+        """Principal components of samples, shape (m, k), deterministically (:func:`project`:
+        the same bits whatever the BLAS threads and the chunking)."""
+        return project(x, self.mean_, self.components_)
 
     def _keys(self, z: FloatArray) -> tuple[Keys, NDArray[np.bool_]]:
         grid, out = quantize(z, self.lower_, self.upper_, self.order_)
-        return np.asarray(encode(grid, self.order_), dtype=np.uint64), out
+        return np.asarray(encode(grid, self.order_, validate=False), dtype=np.uint64), out
 
     def _curve_key(self, z: FloatArray, t: int) -> Keys:
         if t == 0:
@@ -678,7 +760,7 @@ class HilbertClusterer:
         # most 24 bits is enough, and costs a fraction of the stored key's encoding
         order = max(2, min(self.order_, 24 // max(1, width.size)))
         grid, _ = quantize(z + self._shifts[t], self.lower_, self.upper_ + width / 2, order)
-        return np.asarray(encode(grid, order), dtype=np.uint64)
+        return np.asarray(encode(grid, order, validate=False), dtype=np.uint64)
 
     # ------------------------------------------------------------------ registration
 
@@ -784,7 +866,60 @@ class HilbertClusterer:
 
     # ------------------------------------------------------------------ recalibration
 
+    # ------------------------------------------------------------------ micro
+
+    def _register_micro(self, x: FloatArray) -> int:
+        """Register a prefix of ``x`` in the summary; recalibrate when due (no re-keying)."""
+        m = self._micro
+        n0 = self.n_samples_seen_
+        steps = m.n_macro_steps
+        done, keys, labels, uids, due = m.register(x)
+        with self.store.transaction():
+            self.store.add(x[:done], keys.tolist(), labels, micro=uids)
+            self._update_reservoir(x[:done], n0)
+            self.n_samples_seen_ = n0 + done
+            if due:
+                with one_thread():
+                    m.calibrate(self._reservoir)
+                    m.macro()
+                self.n_recalibrations_ += 1
+        self.n_novel_ = m.n_novel
+        if due or m.n_macro_steps != steps:
+            self._sync_micro()
+        return done
+
+    def _recalibrate_micro(self) -> None:
+        """Refit the projection on the reservoir and run the macro step; the first time,
+        register the first batch into the summary (its samples get their first keys)."""
+        m = self._micro
+        with one_thread():
+            m.calibrate(self._reservoir)
+            if not self._initialised:
+                n = self.store.n_samples
+                _, keys, _, uids, _ = m.register(self.store.vectors(0, n), triggers=False)
+                m.n_cal = m.n_macro = n
+                m.res_sum, m.res_cnt = 0.0, 0
+                m.macro()
+                self.store.update(0, keys.tolist(), m.current_labels(uids), micro=uids)
+                self._initialised = True
+            else:
+                m.macro()
+        self.n_recalibrations_ += 1
+        self._sync_micro()
+
+    def _sync_micro(self) -> None:
+        """The public attributes from the summary (after a calibration or a macro step)."""
+        m = self._micro
+        self.mean_, self.components_ = m.mean, m.comp
+        self.order_ = m.oi
+        self.lower_, self.upper_ = m.lo[: m.ki].copy(), m.hi[: m.ki].copy()
+        self.cluster_ids_, _, self.cluster_centers_ = m.live_clusters()
+        self.n_novel_ = m.n_novel
+
     def _recalibrate(self) -> None:
+        if self.method == "micro":
+            self._recalibrate_micro()
+            return
         n = self.store.n_samples
         old = self.store.labels()
         if self.method == "runs":
@@ -1000,6 +1135,9 @@ class HilbertClusterer:
             "margin": self.margin, "max_runs": self.max_runs, "window": self.window,
             "n_curves": self.n_curves, "max_new_runs": self.max_new_runs,
             "max_auto_clusters": self.max_auto_clusters, "merge": self.merge,
+            "variance": self.variance, "max_components": self.max_components,
+            "capacity": self.capacity, "macro_growth": self.macro_growth,
+            "residual_drift": self.residual_drift,
         }
 
     def save_state(self) -> bytes:
@@ -1007,9 +1145,15 @@ class HilbertClusterer:
         arrays = {name: getattr(self, name) for name in self._ARRAYS}
         scalars = {name: getattr(self, name) for name in self._SCALARS}
         scalars["_threshold2"] = None if math.isinf(self._threshold2) else self._threshold2
+        micro_arrays, micro_scalars = self._micro.state()
+        arrays.update({f"micro__{k}": v for k, v in micro_arrays.items()})
+        micro_meta = {k: (v.item() if isinstance(v, np.generic) else v)
+                      for k, v in micro_scalars.items()}
+        if math.isinf(micro_meta["nov2"]):
+            micro_meta["nov2"] = None
         meta = {"params": self.params(), "scalars": scalars,
                 "new_centroids": [c.tolist() for c in self._new_centroids],
-                "new_ids": self._new_ids}
+                "new_ids": self._new_ids, "micro": micro_meta}
         buf = io.BytesIO()
         np.savez(buf, __meta__=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
                  **arrays)
@@ -1022,6 +1166,10 @@ class HilbertClusterer:
             npz = np.load(io.BytesIO(data), allow_pickle=False)
             meta = json.loads(bytes(npz["__meta__"]).decode())
             arrays = {name: np.asarray(npz[name]) for name in cls._ARRAYS}
+            # states saved before the micro method have no summary (runs and paper need none)
+            micro_arrays = ({name: np.asarray(npz[f"micro__{name}"])
+                             for name in MicroSummary.ARRAYS} if "micro" in meta else {})
+            micro_scalars = dict(meta.get("micro", {}))
         except (ValueError, KeyError, OSError, zipfile.BadZipFile, UnicodeDecodeError) as exc:
             raise InputError(
                 f"not a saved HilbertClusterer state ({exc}); the store's model is damaged: "
@@ -1045,6 +1193,9 @@ class HilbertClusterer:
             setattr(obj, name, value)
         if obj._threshold2 is None:
             obj._threshold2 = math.inf
+        obj._micro.seed = obj._seed
+        if micro_scalars:
+            obj._micro.restore(micro_arrays, micro_scalars)
         obj._new_centroids = [np.array(c) for c in meta["new_centroids"]]
         obj._new_ids = [int(i) for i in meta["new_ids"]]
         if store.n_samples != obj.n_samples_seen_:

@@ -54,20 +54,31 @@ class SampleStore(Protocol):
     def n_features(self) -> int | None:
         """Length of a stored vector, ``None`` while the store is empty."""
 
-    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray) -> None:
-        """Append samples, shape (m, n_features), with their keys and cluster ids."""
+    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
+            micro: IntArray | None = None) -> None:
+        """Append samples, shape (m, n_features), with their keys and cluster ids.
+
+        ``micro``: each sample's micro-cluster id (``method="micro"``), ``-1`` when absent.
+        The cluster id stored is the label *as registered*; the clusterer derives the
+        current one from the micro-cluster id, so a stored row is written once.
+        """
 
     def vectors(self, start: int, stop: int) -> FloatArray:
         """Stored vectors ``start <= id < stop``, shape (stop - start, n_features)."""
 
-    def update(self, start: int, keys: list[int], labels: IntArray) -> None:
-        """Replace keys and cluster ids of samples ``start, start + 1, ...``."""
+    def update(self, start: int, keys: list[int], labels: IntArray,
+               micro: IntArray | None = None) -> None:
+        """Replace keys and cluster ids (and micro-cluster ids, when given) of samples
+        ``start, start + 1, ...``."""
 
     def keys(self) -> list[int]:
         """Keys of all samples, in the order added."""
 
     def labels(self) -> IntArray:
         """Cluster ids of all samples, shape (n_samples,), in the order added."""
+
+    def micro_ids(self) -> IntArray:
+        """Micro-cluster ids of all samples, shape (n_samples,), in the order added."""
 
     def cluster(self, label: int) -> tuple[IntArray, list[int]]:
         """Ids and keys of the samples of one cluster, in key order."""
@@ -106,6 +117,16 @@ def _check_batch(vectors: ArrayLike, keys: list[int], labels: ArrayLike,
     return v, lab
 
 
+def _check_micro(micro: ArrayLike | None, m: int) -> IntArray:
+    if micro is None:
+        return np.full(m, -1, dtype=np.int64)
+    mic = np.asarray(micro, dtype=np.int64)
+    if mic.shape != (m,):
+        raise InputError(f"store: {m} samples need as many micro-cluster ids, got shape "
+                         f"{mic.shape}")
+    return mic
+
+
 class MemoryStore:
     """Samples, keys and cluster ids in growing numpy arrays (amortised O(1) append).
 
@@ -121,6 +142,7 @@ class MemoryStore:
         self._x: FloatArray = np.zeros((0, 0))
         self._keys: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
         self._labels: IntArray = np.zeros(0, dtype=np.int64)
+        self._micro: IntArray = np.zeros(0, dtype=np.int64)
         self._meta: dict[str, bytes] = {}
 
     @property
@@ -143,30 +165,41 @@ class MemoryStore:
         k[: self._n] = self._keys[: self._n]
         lab = np.empty(new, dtype=np.int64)
         lab[: self._n] = self._labels[: self._n]
-        self._x, self._keys, self._labels = x, k, lab
+        mic = np.empty(new, dtype=np.int64)
+        mic[: self._n] = self._micro[: self._n]
+        self._x, self._keys, self._labels, self._micro = x, k, lab, mic
 
-    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray) -> None:
+    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
+            micro: IntArray | None = None) -> None:
         v, lab = _check_batch(vectors, keys, labels, self.n_features)
         m = v.shape[0]
+        mic = _check_micro(micro, m)
         self._grow(self._n + m, v.shape[1])
         self._x[self._n : self._n + m] = v
         self._keys[self._n : self._n + m] = keys
         self._labels[self._n : self._n + m] = lab
+        self._micro[self._n : self._n + m] = mic
         self._n += m
 
     def vectors(self, start: int, stop: int) -> FloatArray:
         return self._x[start:stop].copy()
 
-    def update(self, start: int, keys: list[int], labels: IntArray) -> None:
+    def update(self, start: int, keys: list[int], labels: IntArray,
+               micro: IntArray | None = None) -> None:
         m = len(keys)
         self._keys[start : start + m] = keys
         self._labels[start : start + m] = labels
+        if micro is not None:
+            self._micro[start : start + m] = _check_micro(micro, m)
 
     def keys(self) -> list[int]:
         return [int(k) for k in self._keys[: self._n].tolist()]
 
     def labels(self) -> IntArray:
         return self._labels[: self._n].copy()
+
+    def micro_ids(self) -> IntArray:
+        return self._micro[: self._n].copy()
 
     def cluster(self, label: int) -> tuple[IntArray, list[int]]:
         ids = np.flatnonzero(self._labels[: self._n] == label)
@@ -198,7 +231,8 @@ CREATE TABLE IF NOT EXISTS samples (
     id INTEGER PRIMARY KEY,
     key INTEGER NOT NULL,
     label INTEGER NOT NULL,
-    vector BLOB NOT NULL
+    vector BLOB NOT NULL,
+    micro INTEGER NOT NULL DEFAULT -1
 );
 CREATE INDEX IF NOT EXISTS samples_key ON samples (key);
 CREATE INDEX IF NOT EXISTS samples_label_key ON samples (label, key);
@@ -249,6 +283,11 @@ class SQLiteStore:
                 for stmt in _SCHEMA.split(";"):
                     if stmt.strip():
                         self._db.execute(stmt)
+                # stores written before the micro-cluster record: add its column (-1: none)
+                cols = {r[1] for r in self._db.execute("PRAGMA table_info(samples)")}
+                if "micro" not in cols:
+                    self._db.execute(
+                        "ALTER TABLE samples ADD COLUMN micro INTEGER NOT NULL DEFAULT -1")
         except sqlite3.DatabaseError as exc:
             # the user named a file that is not a store (or a folder it cannot write): bad input
             raise InputError(
@@ -325,13 +364,16 @@ class SQLiteStore:
                 self._d = len(blob) // 8
         return self._d
 
-    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray) -> None:
+    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
+            micro: IntArray | None = None) -> None:
         v, lab = _check_batch(vectors, keys, labels, self.n_features)
-        rows = [(int(k), int(c), row.tobytes()) for k, c, row in
-                zip(keys, lab.tolist(), v, strict=True)]
+        mic = _check_micro(micro, v.shape[0])
+        rows = [(int(k), int(c), row.tobytes(), u) for k, c, row, u in
+                zip(keys, lab.tolist(), v, mic.tolist(), strict=True)]
+        # one executemany in one transaction: the batch costs one commit
         with self.transaction():
-            self._db.executemany("INSERT INTO samples (key, label, vector) VALUES (?, ?, ?)",
-                                 rows)
+            self._db.executemany(
+                "INSERT INTO samples (key, label, vector, micro) VALUES (?, ?, ?, ?)", rows)
         self._d = v.shape[1]
 
     def vectors(self, start: int, stop: int) -> FloatArray:
@@ -343,17 +385,30 @@ class SQLiteStore:
             return np.zeros((0, d or 0))
         return np.frombuffer(b"".join(r[0] for r in rows), dtype=np.float64).reshape(-1, d)
 
-    def update(self, start: int, keys: list[int], labels: IntArray) -> None:
-        rows = [(int(k), int(c), start + i + 1)
-                for i, (k, c) in enumerate(zip(keys, labels.tolist(), strict=True))]
+    def update(self, start: int, keys: list[int], labels: IntArray,
+               micro: IntArray | None = None) -> None:
+        rows: list[tuple[int, ...]]
+        if micro is None:
+            rows = [(int(k), int(c), start + i + 1)
+                    for i, (k, c) in enumerate(zip(keys, labels.tolist(), strict=True))]
+            sql = "UPDATE samples SET key = ?, label = ? WHERE id = ?"
+        else:
+            mic = _check_micro(micro, len(keys))
+            rows = [(int(k), int(c), int(u), start + i + 1) for i, (k, c, u) in
+                    enumerate(zip(keys, labels.tolist(), mic.tolist(), strict=True))]
+            sql = "UPDATE samples SET key = ?, label = ?, micro = ? WHERE id = ?"
         with self.transaction():
-            self._db.executemany("UPDATE samples SET key = ?, label = ? WHERE id = ?", rows)
+            self._db.executemany(sql, rows)
 
     def keys(self) -> list[int]:
         return [r[0] for r in self._db.execute("SELECT key FROM samples ORDER BY id")]
 
     def labels(self) -> IntArray:
         rows = self._db.execute("SELECT label FROM samples ORDER BY id").fetchall()
+        return np.array([r[0] for r in rows], dtype=np.int64)
+
+    def micro_ids(self) -> IntArray:
+        rows = self._db.execute("SELECT micro FROM samples ORDER BY id").fetchall()
         return np.array([r[0] for r in rows], dtype=np.int64)
 
     def _ids_keys(self, sql: str, args: tuple[Any, ...]) -> tuple[IntArray, list[int]]:

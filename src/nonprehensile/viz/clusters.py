@@ -136,7 +136,7 @@ def cluster_histogram_figure(
             f"truth has {len(truth)} entries for {len(labels)} samples; give one class per "
             "sample"
         )
-    n_bits = clusterer.components_.shape[0] * clusterer.order_
+    n_bits = clusterer.key_bits_
     rows = 1 if truth is None else 2
     fig = new_figure(figsize=(8.0, 2.8 * rows + 0.5), layout="constrained")
     axes = fig.subplots(rows, 1, squeeze=False)[:, 0]
