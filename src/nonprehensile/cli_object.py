@@ -26,7 +26,7 @@ from nonprehensile.geometry.build import MESH_RTOL, from_mesh
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
 from nonprehensile.io import write_model
-from nonprehensile.states import is_stable
+from nonprehensile.states import stable_faces
 
 __all__ = ["STREAM_ROWS", "adjacency_table", "object_group", "object_summary", "states_cmd"]
 
@@ -42,12 +42,13 @@ def object_group() -> None:
 def object_summary(poly: Polyhedron) -> dict[str, Any]:
     """The spec's ``object show --json`` document."""
     faces = {}
+    stable = set(stable_faces(poly))
     for f, loop in poly.faces.items():
         faces[f] = {
             "loop": list(loop),
             "delta": list(poly.delta[f]),
             "normal": [round(float(c), 12) + 0.0 for c in poly.normals[f]],
-            "stable": is_stable(poly, f),
+            "stable": f in stable,
             "virtual": f in poly.virtual_faces,
         }
     return {
@@ -60,6 +61,10 @@ def object_summary(poly: Polyhedron) -> dict[str, Any]:
         "adjacency": poly.adjacency,
         "symmetry_order": len(rotation_group(poly)),
     }
+
+
+#: Models with more faces are shown as plain lines, their adjacency row by row.
+MATRIX_FACES = 40
 
 
 def adjacency_table(poly: Polyhedron) -> Table:
@@ -92,19 +97,34 @@ def object_show(model: str, rtol: float | None, as_json: bool) -> None:
         f"({', '.join(fmt_num(c) for c in poly.com)}), rotation symmetry order "
         f"{summary['symmetry_order']}"
     )
-    faces = Table(title="Faces")
-    for col in ("face", "loop (clockwise from outside)", "Delta (deg)", "outward normal",
-                "stable"):
-        faces.add_column(col)
-    for f, info in summary["faces"].items():
-        name = f + (" (virtual)" if info["virtual"] else "")
-        faces.add_row(
-            name,
+    rows = [
+        (
+            f + (" (virtual)" if info["virtual"] else ""),
             " ".join(map(str, info["loop"])),
             ", ".join(fmt_num(d) for d in info["delta"]),
             "(" + ", ".join(fmt_num(c) for c in info["normal"]) + ")",
             "yes" if info["stable"] else "no",
         )
+        for f, info in summary["faces"].items()
+    ]
+    if len(rows) > MATRIX_FACES:
+        # a big model (a scan, a faceted ball): plain lines, and A row by row (its edges,
+        # not an F x F matrix that no terminal shows and that takes minutes to lay out)
+        out.print("faces: face | loop (clockwise from outside) | Delta (deg) | outward normal "
+                  "| stable", markup=False, highlight=False)
+        out.print("\n".join(" | ".join(r) for r in rows), markup=False, highlight=False)
+        out.print("adjacency A, row by row (neighbour=edge number on the row face):",
+                  markup=False, highlight=False)
+        out.print("\n".join(f"{f}: " + " ".join(f"{g}={k}" for g, k in row.items())
+                            for f, row in poly.adjacency.items()), markup=False,
+                  highlight=False)
+        return
+    faces = Table(title="Faces")
+    for col in ("face", "loop (clockwise from outside)", "Delta (deg)", "outward normal",
+                "stable"):
+        faces.add_column(col)
+    for r in rows:
+        faces.add_row(*r)
     out.print(faces)
     out.print(adjacency_table(poly))
 

@@ -52,6 +52,7 @@ __all__ = [
     "infer",
     "infer_exact",
     "infer_paper",
+    "paper_chains",
     "paper_face_map",
 ]
 
@@ -196,6 +197,7 @@ def paper_face_map(
     faces: Iterable[str],
     *,
     angle_tol: float = DEFAULT_ANGLE_TOL,
+    chains: Mapping[str, Sequence[str]] | None = None,
 ) -> tuple[dict[str, str], dict[str, int]] | None:
     """The paper's Section V steps 1 to 3: equivalent faces through chains of adjacent faces.
 
@@ -210,6 +212,9 @@ def paper_face_map(
         Faces of interest ``F_x``.
     angle_tol : float
         Tolerance for finding ``δ_k = θ̄_i - θ_i`` in ``Δ_{F_i}``.
+    chains : mapping of str to sequence of str, optional
+        The step-1 chains from ``F_i`` to each face of interest (:func:`paper_chains`); they
+        depend only on the demonstration, so a caller trying many candidates passes them once.
 
     Returns
     -------
@@ -231,16 +236,16 @@ def paper_face_map(
     )
     if k is None:
         return None
+    faces = list(faces)
+    if chains is None:
+        chains = paper_chains(poly, f_i, faces)
     mapping = {f_i: fb_i}
     shift = {f_i: k - 1}
-    graph = _face_graph(poly)
     for x in faces:
         if x in mapping:
             continue
-        # step 1: the shortest chain of adjacent faces (an unweighted Dijkstra, i.e. BFS)
-        chain = nx.shortest_path(graph, f_i, x)
         prev, prev_bar, s = f_i, fb_i, k - 1
-        for nxt in chain[1:]:
+        for nxt in chains[x][1:]:
             idx_bar = wrap_index(poly.adjacency[prev][nxt] - s, poly.n_edges(prev_bar))
             nxt_bar = _row_lookup(poly, prev_bar, idx_bar)
             if nxt_bar is None:
@@ -251,6 +256,13 @@ def paper_face_map(
         mapping[x] = prev_bar
         shift[x] = s
     return mapping, shift
+
+
+def paper_chains(poly: Polyhedron, start: str, faces: Iterable[str]) -> dict[str, list[str]]:
+    """Step 1: the shortest chain of adjacent faces (an unweighted Dijkstra, i.e. BFS) from
+    ``start`` to each of ``faces``."""
+    graph = _face_graph(poly)
+    return {x: nx.shortest_path(graph, start, x) for x in faces}
 
 
 def infer_paper(
@@ -264,12 +276,18 @@ def infer_paper(
 
     Each state of the set is a candidate ``{F̄_i, θ̄_i}``; it is accepted when the method's
     steps succeed for every face the skill names. The final orientation follows the paper's
-    formula ``θ̄_f = Δ_{F̄_f}[A(F_f, F_N*) - A(F̄_f, F̄_N*) + 1] + θ_f``.
+    formula ``θ̄_f = Δ_{F̄_f}[A(F_f, F_N*) - A(F̄_f, F̄_N*) + 1] + θ_f``. The chains of step 1
+    are found once per skill, and only the faces the skill names are mapped, so the work per
+    candidate does not grow with the number of faces.
     """
     faces = sorted(skill.faces())
+    chains = paper_chains(poly, skill.initial.face, faces)
+    n_i = poly.n_edges(skill.initial.face)
     out = []
     for s in states:
-        got = paper_face_map(poly, skill.initial, s, faces, angle_tol=angle_tol)
+        if poly.n_edges(s.face) != n_i:
+            continue
+        got = paper_face_map(poly, skill.initial, s, faces, angle_tol=angle_tol, chains=chains)
         if got is None:
             continue
         mapping, shift = got
@@ -277,8 +295,7 @@ def infer_paper(
         fb_f = mapping[f_f]
         theta_f = poly.delta[fb_f][wrap_index(shift[f_f] + 1, poly.n_edges(fb_f)) - 1]
         final = State(fb_f, theta_f + skill.final.theta)
-        full_map = {f: mapping.get(f, f) for f in poly.faces}
-        adapted = skill.mapped(full_map, s, final)
+        adapted = skill.mapped(mapping, s, final)
         demo = _is_demo(skill, s, all(mapping[f] == f for f in faces), angle_tol)
         out.append(InferredTransition(adapted, skill, mapping, demo))
     return out

@@ -29,6 +29,7 @@ __all__ = [
     "check_states",
     "is_stable",
     "stability_margin",
+    "stability_margins",
     "stable_faces",
     "state_of_pose",
     "state_pose",
@@ -37,8 +38,9 @@ __all__ = [
 
 #: Default tolerance on angles, in degrees, for exact models (the spec's default).
 DEFAULT_ANGLE_TOL = 1e-6
-#: Largest state set built from an angle step (a finer step is almost surely a typo).
-MAX_STATES = 1_000_000
+#: Largest state set built from an angle step (a finer step is almost surely a typo); sized so
+#: that the ``states`` command (classes included) stays within seconds and a few hundred MB.
+MAX_STATES = 500_000
 
 FloatArray = NDArray[np.float64]
 
@@ -285,6 +287,23 @@ def stability_margin(poly: Polyhedron, face: str) -> float:
     return float(np.min(np.einsum("ij,ij->i", q - p, inward)))
 
 
+def stability_margins(poly: Polyhedron) -> dict[str, float]:
+    """:func:`stability_margin` of every face at once (vectorised over faces and edges)."""
+    lp = poly._loops
+    v = poly.vertices
+    n_out = poly._normal_array
+    p = v[lp.flat]
+    e = v[lp.flat[lp.nxt]] - p
+    e /= np.linalg.norm(e, axis=1)[:, None]
+    n = n_out[lp.owner]
+    anchor = v[lp.flat[lp.starts]][lp.owner]
+    q = poly.com - np.einsum("ij,ij->i", poly.com - anchor, n)[:, None] * n
+    # the loop is counterclockwise about the inward normal, so the interior is to the left
+    d = np.einsum("ij,ij->i", q - p, np.cross(-n, e))
+    low = -np.maximum.reduceat(-d, lp.starts)
+    return dict(zip(poly.faces, low.tolist(), strict=True))
+
+
 def is_stable(poly: Polyhedron, face: str, margin: float = 0.0) -> bool:
     """Whether the object rests statically on ``face``.
 
@@ -301,7 +320,8 @@ def is_stable(poly: Polyhedron, face: str, margin: float = 0.0) -> bool:
 
 def stable_faces(poly: Polyhedron, margin: float = 0.0) -> list[str]:
     """The faces the object can rest on, in model order."""
-    return [f for f in poly.faces if is_stable(poly, f, margin)]
+    need = max(margin, poly.atol)
+    return [f for f, m in stability_margins(poly).items() if m > need]
 
 
 def states_by_step(
@@ -341,9 +361,11 @@ def states_by_step(
     for f in chosen:
         poly.loop(f)
     if n * len(chosen) > MAX_STATES:
+        finest = 360.0 / (MAX_STATES // max(len(chosen), 1))
         raise StateError(
-            f"a {step:g}-degree step gives {n * len(chosen)} states on {len(chosen)} faces, more "
-            f"than {MAX_STATES}; use a coarser step"
+            f"the angle step (--step) of {step:g} degrees gives {n * len(chosen)} states on "
+            f"{len(chosen)} faces, more than the limit of {MAX_STATES}; use a coarser step "
+            f"(at least {finest:.3g} degrees for this object)"
         )
     return [State(f, i * step) for f in chosen for i in range(n)]
 

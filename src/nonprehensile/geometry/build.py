@@ -147,9 +147,11 @@ def _hull_loops(points: FloatArray, hull: Any) -> tuple[list[list[int]], FloatAr
     """The merged facets of a Qhull hull as loops clockwise from outside, and their normals.
 
     ``scipy`` always triangulates Qhull's output; the triangles of one merged facet share
-    its hyperplane exactly, so they are grouped by their equation, and each group's
-    boundary is chained into a loop. A vertex left on exactly two facets lies on an edge
-    (it is not a corner of the solid) and is dropped from both loops.
+    its hyperplane exactly, so they are grouped by their equation. A merged facet is convex,
+    so its loop is its corners in angular order about its centre. Its corners are the
+    vertices of its triangles that lie on three facets or more: a vertex on only two lies on
+    an edge between them, and one on a single facet lies inside it (Qhull's triangulation
+    may keep such points, in degenerate triangles).
     """
     simplices = np.asarray(hull.simplices, dtype=np.int64)
     eqs = np.asarray(hull.equations, dtype=np.float64)
@@ -159,38 +161,32 @@ def _hull_loops(points: FloatArray, hull: Any) -> tuple[list[list[int]], FloatAr
     normals = np.zeros((n_groups, 3))
     normals[group] = eqs[:, :3]
     normals /= np.linalg.norm(normals, axis=1)[:, None]
-    # orient every triangle counterclockwise seen from outside
-    p = points[simplices]
-    cross = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    flip = np.einsum("ij,ij->i", cross, eqs[:, :3]) < 0
-    simplices[flip] = simplices[flip][:, [0, 2, 1]]
-    tails = simplices.ravel()
-    heads = simplices[:, [1, 2, 0]].ravel()
-    owners = np.repeat(group, 3)
     n = np.int64(len(points))
-    key = tails * n + heads
-    order = np.argsort(key)
-    rev_pos = order[np.searchsorted(key[order], heads * n + tails)]
-    boundary = owners[rev_pos] != owners
-    tails, heads, owners = tails[boundary], heads[boundary], owners[boundary]
-    # corners of the solid: on three or more facets
-    pair = np.unique(owners * n + tails)
-    counts = np.bincount((pair % n).astype(np.int64), minlength=len(points))
-    # chain each facet's boundary (counterclockwise from outside) from its first edge
-    succ = dict(zip((owners * n + tails).tolist(), heads.tolist(), strict=True))
-    first_edge: dict[int, int] = {}
-    for g, t in zip(owners.tolist(), tails.tolist(), strict=True):
-        first_edge.setdefault(g, t)
-    loops: list[list[int]] = []
-    for g in range(n_groups):
-        start = first_edge[g]
-        loop = [start]
-        cur = succ[g * int(n) + start]
-        while cur != start:
-            loop.append(cur)
-            cur = succ[g * int(n) + cur]
-        kept = [i for i in loop if counts[i] >= 3]
-        loops.append(kept[::-1])  # clockwise seen from outside
+    pairs = np.unique(np.repeat(group, 3) * n + simplices.ravel())
+    owner, vertex = pairs // n, pairs % n
+    counts = np.bincount(vertex, minlength=len(points))
+    keep = counts[vertex] >= 3
+    owner, vertex = owner[keep], vertex[keep]
+    # angle of each corner about its facet's centre, counterclockwise seen from outside
+    centre = np.zeros((n_groups, 3))
+    np.add.at(centre, owner, points[vertex])
+    centre /= np.maximum(np.bincount(owner, minlength=n_groups), 1)[:, None]
+    nrm = normals[owner]
+    ref = np.where(np.abs(nrm[:, 0:1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(nrm, ref)
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    w = np.cross(nrm, u)
+    rel = points[vertex] - centre[owner]
+    ang = np.arctan2(np.einsum("ij,ij->i", rel, w), np.einsum("ij,ij->i", rel, u))
+    order = np.lexsort((-ang, owner))  # clockwise from outside: decreasing angle
+    owner, vertex = owner[order], vertex[order]
+    bounds = np.flatnonzero(np.diff(owner)) + 1
+    cuts = [0, *bounds.tolist(), len(vertex)]
+    flat = vertex.tolist()
+    loops = [flat[cuts[k] : cuts[k + 1]] for k in range(len(cuts) - 1)]
+    present = owner[np.r_[0, bounds]] if len(owner) else np.zeros(0, dtype=np.int64)
+    if len(present) != n_groups:  # a facet left with no corner: keep the ones that have
+        normals = normals[present]
     return loops, normals
 
 

@@ -478,19 +478,33 @@ def _diameter_of(p: FloatArray) -> float:
     blocks = _kd_blocks(p, 32)
     bmin = np.nanmin(blocks, axis=1)
     bmax = np.nanmax(blocks, axis=1)
-    span = np.maximum(np.abs(bmax[:, None, :] - bmin[None, :, :]),
-                      np.abs(bmax[None, :, :] - bmin[:, None, :]))
-    bound2 = np.triu(np.einsum("ijk,ijk->ij", span, span))
-    ia, ib = np.nonzero(bound2 >= best2)
-    if len(ia) * 32 * 32 > _EXACT_BUDGET:
-        # nearly round: too many pairs of blocks could hold the diameter; take the widest
-        # pair over many directions, improved by farthest-point steps (within 1.3 %, in
-        # practice exact)
-        return max(float(np.sqrt(best2)), _widest_pair(p))
-    order = np.argsort(-bound2[ia, ib], kind="stable")  # promising pairs first
-    ia, ib = ia[order], ib[order]
+    # bounds on the farthest pair of each pair of blocks, 256 rows at a time (memory linear
+    # in the number of blocks)
+    m = len(blocks)
+    ia_parts, ib_parts, bound_parts = [], [], []
+    kept = 0
+    for a0 in range(0, m, 256):
+        span = np.maximum(np.abs(bmax[a0 : a0 + 256, None, :] - bmin[None, :, :]),
+                          np.abs(bmax[None, :, :] - bmin[a0 : a0 + 256, None, :]))
+        b2 = np.einsum("ijk,ijk->ij", span, span)
+        ra, rb = np.nonzero(b2 >= best2)
+        ra = ra + a0
+        upper = ra <= rb
+        ia_parts.append(ra[upper])
+        ib_parts.append(rb[upper])
+        bound_parts.append(b2[ra[upper] - a0, rb[upper]])
+        kept += int(upper.sum())
+        if kept * 32 * 32 > _EXACT_BUDGET:
+            # nearly round: too many pairs of blocks could hold the diameter; take the
+            # widest pair over many directions, improved by farthest-point steps (within
+            # 1.3 %, in practice exact)
+            return max(float(np.sqrt(best2)), _widest_pair(p))
+    ia, ib = np.concatenate(ia_parts), np.concatenate(ib_parts)
+    bounds = np.concatenate(bound_parts)
+    order = np.argsort(-bounds, kind="stable")  # promising pairs first
+    ia, ib, bounds = ia[order], ib[order], bounds[order]
     for c0 in range(0, len(ia), 256):
-        sel = bound2[ia[c0 : c0 + 256], ib[c0 : c0 + 256]] >= best2
+        sel = bounds[c0 : c0 + 256] >= best2
         if not sel.any():
             break
         x = blocks[ia[c0 : c0 + 256][sel]]

@@ -20,7 +20,7 @@ from scipy.spatial import cKDTree
 
 from nonprehensile.checks import check_tolerance
 from nonprehensile.geometry.polyhedron import Polyhedron, wrap_index
-from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State
 
 __all__ = [
     "Symmetry",
@@ -88,10 +88,13 @@ def _rotation_group_cached(poly: Polyhedron, atol: float) -> tuple[Symmetry, ...
          poly.normals[f0]]
     )
     vertex_set_to_face = {frozenset(loop): f for f, loop in poly.faces.items()}
+    # how far the first guess may be off: the model's own faces are planar only within its
+    # tolerance, so their edge frames are that far from exact
+    gate = 4.0 * max(atol, poly.atol)
     found: list[Symmetry] = []
     for g in poly.face_ids:
         if poly.n_edges(g) != n0 or abs(poly.face_areas[g] - poly.face_areas[f0]) > (
-            atol * poly.diameter * 4
+            gate * poly.diameter
         ):
             continue
         for k in range(1, n0 + 1):
@@ -99,11 +102,18 @@ def _rotation_group_cached(poly: Polyhedron, atol: float) -> tuple[Symmetry, ...
             dst = np.column_stack([u, np.cross(poly.normals[g], u), poly.normals[g]])
             rot = dst @ src.T
             i, _ = poly.edge_vertices(g, k)
-            if np.linalg.norm(rot @ rel[i0] - rel[i]) > atol:
-                continue
-            if np.linalg.norm(rot @ com_rel - com_rel) > atol:
+            # a measured object's edges are a little off: the rotation from one edge is only
+            # a first guess (gated loosely), refined by a least-squares fit (Kabsch) over
+            # every vertex it pairs, and then held to the tolerance
+            if np.linalg.norm(rot @ rel[i0] - rel[i]) > gate:
                 continue
             dist, idx = tree.query(rel @ rot.T)
+            if dist.max() > gate or len(set(idx.tolist())) != len(v):
+                continue
+            rot, shift_t = _fit(rel, rel[idx], atol)
+            if np.linalg.norm(rot @ com_rel + shift_t - com_rel) > atol:
+                continue
+            dist, idx = tree.query(rel @ rot.T + shift_t)
             if dist.max() > atol or len(set(idx.tolist())) != len(v):
                 continue
             vmap = tuple(int(j) for j in idx)
@@ -123,6 +133,32 @@ def _rotation_group_cached(poly: Polyhedron, atol: float) -> tuple[Symmetry, ...
     # identity first, then a stable order
     found.sort(key=lambda s: (not np.allclose(s.rotation, np.eye(3)), s.vertex_map))
     return tuple(found)
+
+
+def _kabsch(a: FloatArray, b: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """The rigid motion ``x -> R x + t`` minimising ``sum w_i |R a_i + t - b_i|^2``."""
+    ca, cb = w @ a, w @ b
+    u, _, vt = np.linalg.svd((a - ca).T @ ((b - cb) * w[:, None]))
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    rot = np.asarray(vt.T @ np.diag([1.0, 1.0, d]) @ u.T, dtype=np.float64)
+    return rot, cb - rot @ ca
+
+
+def _fit(a: FloatArray, b: FloatArray, atol: float) -> tuple[FloatArray, FloatArray]:
+    """The rigid motion taking points ``a`` onto ``b`` (shapes (n, 3)) with the smallest
+    largest miss, as far as it matters: least squares first (Kabsch), then, when a point
+    still misses by more than ``atol``, Lawson's reweighting toward the minimax fit (two
+    measured vertices, each off by up to ``atol / 2``, may miss each other by ``atol``)."""
+    w = np.full(len(a), 1.0 / len(a))
+    rot, t = _kabsch(a, b, w)
+    for _ in range(50):
+        miss = np.linalg.norm(a @ rot.T + t - b, axis=1)
+        if miss.max() <= atol or not miss.any():
+            break
+        w = w * miss
+        w /= w.sum()
+        rot, t = _kabsch(a, b, w)
+    return rot, t
 
 
 def rotation_group(poly: Polyhedron, atol: float | None = None) -> tuple[Symmetry, ...]:
@@ -202,27 +238,64 @@ def equivalence_classes(
         of first appearance.
     """
     group = rotation_group(poly, atol)
-    index = StateIndex(states)
+    angle_tol = float(angle_tol)
+    n = len(states)
+    if n == 0:
+        return []
+    # states by face: sorted angles and their positions in ``states``
+    faces = np.array([s.face for s in states])
+    thetas = np.array([s.theta for s in states], dtype=np.float64)
+    by_face: dict[str, tuple[NDArray[np.float64], NDArray[np.int64]]] = {}
+    for f in np.unique(faces).tolist():
+        pos = np.flatnonzero(faces == f)
+        order = np.argsort(thetas[pos], kind="stable")
+        by_face[f] = (thetas[pos][order], pos[order])
+    # images[g][i]: the first state equal to g . states[i] within the tolerance, or -1. The
+    # identity is in the group, so copies of one state (equal within the tolerance) merge.
+    images = []
+    for g in group:
+        img = np.full(n, -1, dtype=np.int64)
+        for f, (th, pos) in by_face.items():
+            if f not in g.face_map or g.face_map[f] not in by_face:
+                continue
+            h = g.face_map[f]
+            j = wrap_index(1 - g.edge_shift[f], poly.n_edges(f))
+            target = (th + poly.delta[f][j - 1]) % 360.0
+            img[pos] = _match(target, *by_face[h], angle_tol)
+        images.append(img)
+    # a class is an orbit of the group: label each state by the smallest position in its
+    # orbit, repeating until stable (chains of near-copies within the tolerance)
+    label = np.arange(n, dtype=np.int64)
+    for _ in range(n):
+        new = label.copy()
+        for img in images:
+            ok = img >= 0
+            np.minimum.at(new, np.flatnonzero(ok), label[img[ok]])
+            np.minimum.at(new, img[ok], label[ok])
+        new = new[new]
+        if np.array_equal(new, label):
+            break
+        label = new
+    # classes numbered in order of first appearance
+    _, first, inverse = np.unique(label, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first, kind="stable")] = np.arange(len(first))
+    return [int(c) for c in rank[inverse]]
 
-    parent = list(range(len(states)))
 
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i, s in enumerate(states):
-        # the identity too: it merges copies of one state (equal within the tolerance)
-        for g in group:
-            for j in index.find_all(apply_to_state(poly, g, s), angle_tol):
-                ri, rj = find(i), find(j)
-                if ri != rj:
-                    parent[max(ri, rj)] = min(ri, rj)
-    labels: dict[int, int] = {}
-    out = []
-    for i in range(len(states)):
-        r = find(i)
-        out.append(labels.setdefault(r, len(labels)))
+def _match(
+    target: NDArray[np.float64], thetas: NDArray[np.float64], pos: NDArray[np.int64],
+    tol: float,
+) -> NDArray[np.int64]:
+    """For each angle of ``target``, the smallest position among the sorted ``thetas`` within
+    ``tol`` degrees (modulo 360), or -1."""
+    out = np.full(len(target), np.iinfo(np.int64).max, dtype=np.int64)
+    for shift in (-360.0, 0.0, 360.0):
+        lo = np.searchsorted(thetas, target - tol + shift, side="left")
+        hi = np.searchsorted(thetas, target + tol + shift, side="right")
+        one = hi - lo == 1
+        out[one] = np.minimum(out[one], pos[lo[one]])
+        for k in np.flatnonzero(hi - lo > 1).tolist():  # near-copies: rare
+            out[k] = min(int(out[k]), int(pos[lo[k] : hi[k]].min()))
+    out[out == np.iinfo(np.int64).max] = -1
     return out
-
