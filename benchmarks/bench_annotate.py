@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from nonprehensile.demonstrations.annotate import DetectionParams, annotate_dataset
-from nonprehensile.demonstrations.dataset import Demonstration, load_dataset
+from nonprehensile.demonstrations.dataset import Demonstration, load_dataset, save_dataset
 from nonprehensile.demonstrations.synth import synthesize
 from nonprehensile.io import load_document, save_document
 from nonprehensile.states import angle_diff
@@ -55,11 +55,15 @@ def main() -> None:
                       f"{s['skill']:.1f} | {s['median']:.2f} | {s['median_first']:.2f} | "
                       f"{s['median_contact']:.2f} | {s['p90']:.1f} | {s['within2']:.1f} | "
                       f"{s['doubts']} | {s['seconds']:.1f} |", flush=True)
+    physics_rows(max(1, n // 3))
 
 
-def _score(folder: Path, truth: dict[str, Demonstration], refine: bool) -> dict[str, float]:
+def _score(
+    folder: Path, truth: dict[str, Demonstration], refine: bool = True,
+    params: DetectionParams | None = None,
+) -> dict[str, float]:
     t0 = time.perf_counter()
-    report = annotate_dataset(folder, params=DetectionParams(refine=refine))
+    report = annotate_dataset(folder, params=params or DetectionParams(refine=refine))
     seconds = time.perf_counter() - t0
     n = len(truth)
     chain_ok = states_ok = both = skill_ok = 0
@@ -91,6 +95,47 @@ def _score(folder: Path, truth: dict[str, Demonstration], refine: bool) -> dict[
         "within2": 100 * float(np.mean(every < 2)), "seconds": seconds,
         "doubts": len(report.doubts),
     }
+
+
+def physics_rows(n: int = 10) -> None:
+    """The same measures on takes recorded from the MuJoCo simulation (``sim.record``)."""
+    from importlib import resources
+
+    from nonprehensile.sim.record import OBJECT_BODY, record_dataset
+
+    skills = Path(str(resources.files("nonprehensile") / "data" / "cube_skills.json"))
+    t0 = time.perf_counter()
+    # the seed and attempts of the bundled dataset's physics takes (docs/make_cube_demos.py)
+    ds, stats = record_dataset(skills, seed=20190520, n_per_skill=n, max_attempts=100,
+                               only=("push-roll", "roll-arc", "roll-pull", "twist"))
+    kept = sum(v["kept"] for v in stats.values())
+    tried = sum(v["tried"] for v in stats.values())
+    print(f"   physics-recorded: {len(ds.demonstrations)} takes of the 4 skills physics "
+          f"carries out ({kept} kept of {tried} tried, {time.perf_counter() - t0:.0f} s); "
+          "truth: MuJoCo's contact events, matched in order to the skill's")
+    with tempfile.TemporaryDirectory() as tmp:
+        for fmt, label in (("c3d", "object markers (C3D, Kabsch)"),
+                           ("csv", "rigid body (Motive CSV)")):
+            folder = Path(tmp) / fmt
+            save_dataset(ds, folder, trajectory_format=fmt)
+            doc = load_document(folder / "annotations.json")
+            if fmt == "csv":
+                doc["rigid_body"] = OBJECT_BODY
+            save_document(doc, folder / "annotations.json")
+            truth = {d.file: d for d in load_dataset(folder).demonstrations}
+            _strip(folder)
+            for name, params in (
+                ("defaults, onset fit", DetectionParams()),
+                ("6 mm sphere pad, thresholds 0.5/2 mm, no fit",
+                 DetectionParams(pad_radius=0.006, contact_on=0.0005, contact_off=0.002,
+                                 refine=False)),
+            ):
+                sc = _score(folder, truth, params=params)
+                print(f"   | {label} | {name} | {sc['chain']:.1f} | {sc['states']:.1f} | "
+                      f"{sc['both']:.1f} | {sc['skill']:.1f} | {sc['median']:.2f} | "
+                      f"{sc['median_first']:.2f} | {sc['median_contact']:.2f} | "
+                      f"{sc['p90']:.1f} | {sc['within2']:.1f} | {sc['doubts']} | "
+                      f"{sc['seconds']:.1f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -25,10 +25,17 @@ from nonprehensile.demonstrations.synth import DEFAULT_MENTORS, synthesize, synt
 from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup, parse_object_setup
 from nonprehensile.errors import DemonstrationError
 from nonprehensile.io import load_document, load_model, save_document
-from nonprehensile.skills.contacts import Edge, Face, Vertex
+from nonprehensile.skills.contacts import Edge, Face, Vertex, format_event
 from nonprehensile.states import State, state_pose
 
 CUBE = load_model("cube")
+
+
+def load_skills_cube() -> list:  # type: ignore[type-arg]
+    from importlib import resources
+
+    from nonprehensile.io import read_skills
+    return read_skills(Path(str(resources.files("nonprehensile") / "data" / "cube_skills.json")))[1]
 
 
 def _box_truth(p: np.ndarray) -> tuple[float, int]:
@@ -102,6 +109,9 @@ def test_events_states_and_chains_are_found_without_event_times(tracked, source:
         errors += [(t - e.time) * d.trajectory.rate for e, t in pairs]
         if len(a.candidates) > 1:  # same events, different motions: said, never hidden
             assert any("differ in their finger motion only" in x for x in a.doubts)
+        lab = a.labels(d.trajectory.n_frames, d.trajectory.rate)
+        k = round(a.times[1] * d.trajectory.rate) + 1
+        assert lab.to_records()[k]["contacts"] == format_event(a.chain[1])
     # contact changes (every event but the first, which no contact marks) within 2 frames
     assert np.median(np.abs(errors)) < 2.0
 
@@ -120,6 +130,10 @@ def test_flickers_and_unknown_chains_are_reported(tracked) -> None:
         ["(G,a)"], ["(R1,f)", "(G,a)"], ["(R1,f)", "(G,E(a,d))"], ["(R1,f)", "(G,d)"],
         ["(G,d)"]]
     assert any("fits no skill" in x for x in a.doubts)
+    # the proposal is a skills-file entry the project reads back: the same maneuver
+    from nonprehensile.skills.skill import skill_from_dict
+    proposed = skill_from_dict(a.proposal, ds.poly)
+    assert proposed.maneuver == "rolling" and len(proposed.motions) == 4
     # a fingertip that dips into contact for two frames is a flicker, dropped and listed
     pos = np.array(d.trajectory.positions)
     k = d.trajectory.marker_names.index("thumb_tip")
@@ -154,6 +168,13 @@ def test_frame_labels() -> None:
     assert lab.arc.tolist() == [-1, 0, 0, 0, 0, 1, 1, 1, 1, 1, -1, -1, -1]
     rec = lab.to_records()
     assert rec[5] == {"frame": 5, "skill": "twist", "event": "grip", "arc": "grip->done"}
+    twist = next(s for s in load_skills_cube() if s.name == "twist")
+    rec = frame_labels(ev, 13, 10.0, "twist", twist.events).to_records()
+    assert rec[0]["contacts"] == [] and rec[12]["contacts"] == ["(G,a)"]
+    assert rec[6]["contacts"] == format_event(twist.events[1])
+    assert rec[6]["contacts"][0] == "(R1,f)" and rec[6]["contacts"][-1] == "(G,a)"
+    with pytest.raises(DemonstrationError, match="event times for a chain"):
+        frame_labels(ev[:2], 13, 10.0, "twist", twist.events)
 
 
 def test_object_setup_is_checked() -> None:
@@ -190,6 +211,10 @@ def test_annotate_then_demo_end_to_end(tmp_path: Path) -> None:
     res = runner.invoke(main, ["dataset", "show", str(takes)])
     assert res.exit_code == 2  # no events yet: not a dataset
     res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o",
+                               str(takes / "thresholds.json"), "--json", "--no-fit"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["n_annotated"] == 6
+    res = runner.invoke(main, ["dataset", "annotate", str(takes), "-o",
                                str(takes / "annotations.json"), "--json"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
@@ -222,3 +247,58 @@ def test_annotate_bad_input_exits_2(tmp_path: Path) -> None:
     assert res.exit_code == 2
     with pytest.raises(DemonstrationError, match="holds it"):
         annotate_dataset(takes, relative_to=tmp_path / "other")
+
+
+def test_rigid_body_with_its_own_pivot(tmp_path: Path) -> None:
+    """Motive puts a rigid body's pivot at its markers' centroid, axes along the world's:
+    the annotations say where the model is in that frame, and the events come out the same."""
+    from scipy.spatial.transform import Rotation
+
+    from nonprehensile.demonstrations.formats import read_motive_csv, write_motive_csv
+
+    takes = tmp_path / "takes"
+    synthesize(takes, seed=8, n_per_skill=1, mentors=1, trajectory_format="csv",
+               track_object=True)
+    _recordings_only(takes)
+    plain = annotate_dataset(takes)
+    # the model frame in the body frame: x_body = Rb x_model + tb (model units; mm = * 50)
+    rb = Rotation.from_euler("xyz", [20, -35, 110], degrees=True)
+    tb = np.array([-0.5, 0.2, -0.4])
+    for f in takes.glob("*.csv"):
+        traj = read_motive_csv(f)
+        body = traj.rigid_body("cube")
+        r_m = Rotation.from_quat(body.quaternions[body.valid])
+        r_b = r_m * rb.inv()
+        q = np.full_like(body.quaternions, np.nan)
+        p = np.full_like(body.positions, np.nan)
+        q[body.valid] = r_b.as_quat()
+        p[body.valid] = body.positions[body.valid] - r_b.apply(tb * 50.0)
+        moved = PoseTrajectory("cube", p, q, body.rate, body.units)
+        write_motive_csv(MarkerTrajectory(traj.positions, traj.marker_names, traj.rate,
+                                          traj.units, (moved,)), f)
+    doc = load_document(takes / "annotations.json")
+    doc["rigid_body"] = {"name": "cube", "origin": tb.tolist(), "rotation": rb.as_quat().tolist()}
+    save_document(doc, takes / "annotations.json")
+    moved_report = annotate_dataset(takes)
+    for a, b in zip(plain.recordings, moved_report.recordings, strict=True):
+        assert a.result.skill == b.result.skill and a.result.chain == b.result.chain
+        assert np.allclose(a.result.times, b.result.times, atol=1.5 / 120)
+    doc["rigid_body"] = "cube"  # the pivot ignored: the poses are wrong, and it shows
+    save_document(doc, takes / "annotations.json")
+    wrong = annotate_dataset(takes)
+    assert all(r.result.skill is None for r in wrong.recordings)
+    with pytest.raises(DemonstrationError, match="'rotation' must be 4 finite numbers"):
+        object_setup({"name": "cube", "rotation": [0, 0, 1]}, None)
+
+
+def test_skill_events_within_a_longer_chain() -> None:
+    """A finger that lets go while the cube falls over adds states; the skill still fits."""
+    from nonprehensile.demonstrations.annotate import _embed
+
+    a, b, c, x, d = (frozenset({k}) for k in "abcxd")  # stand-ins for contact states
+    assert _embed([a, b, c, d], [a, b, c, d], True) == [0, 1, 2, 3]
+    assert _embed([a, b, c, d], [a, b, x, c, d], True) is None
+    assert _embed([a, b, c, d], [a, b, x, c, x, d], False) == [0, 1, 3, 5]
+    assert _embed([a, b, c, d], [x, a, b, c, d], False) is None  # must start at the start
+    assert _embed([a, b, c, d], [a, b, c, d, x], False) is None  # and end at the end
+    assert _embed([a, b, c, d], [a, c, b, d], False) is None  # in order

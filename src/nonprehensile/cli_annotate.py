@@ -36,11 +36,14 @@ __all__ = ["annotate_cmd"]
               help="Shortest contact state kept, s; shorter ones are flickers.")
 @click.option("--state-tol", type=float, default=5.0, show_default=True,
               help="Tolerance of resting poses against the skills' states, degrees.")
+@click.option("--no-fit", is_flag=True,
+              help="Time events at the threshold crossings, not by the smooth-onset fit.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 @handle_errors
 def annotate_cmd(
     directory: str, output: str, pad_radius: float, contact_mm: tuple[float, float],
-    ground_mm: tuple[float, float], min_duration: float, state_tol: float, as_json: bool,
+    ground_mm: tuple[float, float], min_duration: float, state_tol: float, no_fit: bool,
+    as_json: bool,
 ) -> None:
     """Find the contact events, states and skill of every recording in DIRECTORY.
 
@@ -63,7 +66,7 @@ def annotate_cmd(
             pad_radius=pad_radius / 1000, contact_on=contact_mm[0] / 1000,
             contact_off=contact_mm[1] / 1000, ground_on=ground_mm[0] / 1000,
             ground_off=ground_mm[1] / 1000, min_duration=min_duration, state_tol=state_tol,
-            gap_limit=gap if gap >= 0 else 12,
+            gap_limit=gap if gap >= 0 else 12, refine=not no_fit,
         )
     except InputError as exc:
         raise InputError(f"bad option: {exc}") from None
@@ -97,7 +100,7 @@ def annotate_cmd(
         err.print(f"doubt: {line}", markup=False)
     for prop in report.proposals:
         err.print(f"proposed skill for {', '.join(prop['recordings'])}:", markup=False)
-        err.print_json(data={k: v for k, v in prop.items() if k != "recordings"})
+        err.print_json(data=prop["skill"])
     n_ok = len(report.recordings) - len(report.unmatched)
     err.print(f"wrote {dest}: {n_ok} of {len(report.recordings)} recordings annotated, "
               f"{len(report.unmatched)} fit no skill, {len(report.doubts)} doubtful calls")

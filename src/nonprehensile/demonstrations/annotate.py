@@ -407,6 +407,10 @@ class RecordingAnnotation:
         """The events with their times (the annotations' form)."""
         return tuple(EventTime(e.id, t) for e, t in zip(self.chain, self.times, strict=True))
 
+    def labels(self, n_frames: int, rate: float) -> FrameLabels:
+        """Per-frame labels (skill, event with its contacts, arc) of the recording."""
+        return frame_labels(self.events, n_frames, rate, self.skill, self.chain)
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form (``dataset annotate --json``)."""
         return {
@@ -759,17 +763,25 @@ def annotate_recording(
         chain_ev = [c for c in chain if c is not None]
     norm = [normalize_event(e, poly) for e in chain_ev]
 
-    candidates = []
-    for sk in skills:
-        ev = [normalize_event(e, poly) for e in sk.events]
-        if len(ev) == len(norm) and all(a.pairs == b.pairs for a, b in zip(ev, norm,
-                                                                            strict=True)):
+    # exact: the chain is the skill's; else the skill's events in order within the chain,
+    # from its first state to its last (extra states between them are listed, not used)
+    candidates: list[Skill] = []
+    picks: dict[str, list[int]] = {}
+    for exact in (True, False):
+        for sk in skills:
+            ev = [normalize_event(e, poly) for e in sk.events]
+            idx = _embed([e.pairs for e in ev], [e.pairs for e in norm], exact)
+            if idx is None:
+                continue
             if _states_close(initial, sk.initial, p.state_tol) and _states_close(
                     final, sk.final, p.state_tol):
                 candidates.append(sk)
-            else:
+                picks[sk.name] = idx
+            elif exact:
                 doubts.append(f"the events are those of skill {sk.name!r}, but the states "
                               f"{initial} -> {final} are not its {sk.initial} -> {sk.final}")
+        if candidates:
+            break
     skill = candidates[0] if candidates else None
     proposal = None
     if skill is None:
@@ -781,6 +793,12 @@ def annotate_recording(
             doubts.append(f"skills {[s.name for s in candidates]} have these same events and "
                           f"states (they differ in their finger motion only): chose "
                           f"{skill.name!r}; the motion model tells them apart")
+        idx = picks[skill.name]
+        for j in sorted(set(range(len(norm))) - set(idx)):
+            doubts.append(f"contact state {_fmt_state(norm[j].pairs)} from "
+                          f"{frames_f[j] / rate:.3f} s is not an event of skill "
+                          f"{skill.name!r}, whose events occur around it in order: left out")
+        frames_f = [frames_f[j] for j in idx]
         chain_out = tuple(ContactEvent(e.id, e.pairs) for e in skill.events)
         initial, final = skill.initial, skill.final
     times = tuple(float(f) / rate for f in frames_f)
@@ -789,6 +807,34 @@ def annotate_recording(
         tuple(s.name for s in candidates), proposal, tuple(doubts),
         tuple(round(f) for f in frames_f),
     )
+
+
+def _embed(
+    want: Sequence[frozenset[ContactPair]], got: Sequence[frozenset[ContactPair]], exact: bool
+) -> list[int] | None:
+    """Indices of ``got`` holding ``want`` in order (each at its earliest), or None.
+
+    ``exact``: ``got`` is ``want``. Otherwise ``want`` must be a subsequence of ``got`` that
+    starts at its first state and ends at its last.
+    """
+    if exact:
+        return list(range(len(got))) if list(want) == list(got) else None
+    if not want or not got or want[0] != got[0] or want[-1] != got[-1]:
+        return None
+    idx = [0]
+    j = 1
+    for w in want[1:-1]:
+        while j < len(got) - 1 and got[j] != w:
+            j += 1
+        if j >= len(got) - 1:
+            return None
+        idx.append(j)
+        j += 1
+    if len(want) > 1:
+        if len(got) - 1 in idx:
+            return None
+        idx.append(len(got) - 1)
+    return idx
 
 
 def _approach_onset(
@@ -856,41 +902,54 @@ class FrameLabels:
         before the first event and after the last.
     event_ids : tuple of str
         The events' ids, indexed by ``event``.
+    contacts : tuple of tuple of str
+        Each event's contact pairs (``"(R1,f)"``, ...), indexed by ``event``; empty when not
+        given.
     """
 
     skill: str | None
     event: IntArray
     arc: IntArray
     event_ids: tuple[str, ...]
+    contacts: tuple[tuple[str, ...], ...] = ()
 
     def to_records(self) -> list[dict[str, Any]]:
-        """One dict per frame: ``{"frame", "skill", "event", "arc"}`` (arc as ``from->to``)."""
+        """One dict per frame: ``{"frame", "skill", "event", "arc"}`` (arc as ``from->to``),
+        and ``"contacts"`` (the event's pairs) when known."""
         out = []
         for i, (e, a) in enumerate(zip(self.event.tolist(), self.arc.tolist(), strict=True)):
-            out.append({
+            row: dict[str, Any] = {
                 "frame": i,
                 "skill": self.skill,
                 "event": self.event_ids[e] if e >= 0 else None,
                 "arc": (f"{self.event_ids[a]}->{self.event_ids[a + 1]}" if a >= 0 else None),
-            })
+            }
+            if self.contacts:
+                row["contacts"] = list(self.contacts[e]) if e >= 0 else []
+            out.append(row)
         return out
 
 
 def frame_labels(
-    events: Sequence[EventTime], n_frames: int, rate: float, skill: str | None = None
+    events: Sequence[EventTime], n_frames: int, rate: float, skill: str | None = None,
+    chain: Sequence[ContactEvent] = (),
 ) -> FrameLabels:
     """Label every frame with its event and arc (from detected or annotated event times).
 
     A frame at time ``t`` belongs to event ``j`` when ``t_j <= t < t_{j+1}``, and to arc
     ``j`` (from event ``j`` to ``j + 1``) in the same interval; the last event's frames
-    belong to no arc.
+    belong to no arc. ``chain`` (the skill's events, same order) adds each frame's contacts.
     """
     t = np.arange(n_frames) / rate
     times = np.array([e.time for e in events])
     ev = np.searchsorted(times, t + 1e-9, side="right") - 1
     arc = np.where((ev >= 0) & (ev < len(times) - 1), ev, -1)
+    contacts = tuple(tuple(format_event(c)) for c in chain)
+    if contacts and len(contacts) != len(events):
+        raise DemonstrationError(f"frame_labels: {len(events)} event times for a chain of "
+                                 f"{len(contacts)} events")
     return FrameLabels(skill, ev.astype(np.int64), arc.astype(np.int64),
-                       tuple(e.id for e in events))
+                       tuple(e.id for e in events), contacts)
 
 
 # ------------------------------------------------------------------------------ datasets
@@ -930,8 +989,8 @@ class AnnotationReport:
     recordings : tuple of AnnotatedRecording
         Every recording, in the input's order.
     proposals : tuple of dict
-        Skills-file entries proposed for the chains that fit no skill (one per distinct chain
-        and pair of states), each with ``"recordings"``: the files showing it.
+        One per distinct chain (and pair of states) that fits no skill: ``{"skill": a
+        skills-file entry, "recordings": [the files showing it]}``.
     """
 
     annotations: dict[str, Any]
@@ -1119,7 +1178,7 @@ def annotate_dataset(
             continue
         key = repr({k: v for k, v in prop.items() if k != "name"})
         if key not in proposals:
-            proposals[key] = {**prop, "name": f"proposed-{len(proposals) + 1}",
+            proposals[key] = {"skill": {**prop, "name": f"proposed-{len(proposals) + 1}"},
                               "recordings": []}
         proposals[key]["recordings"].append(r.file)
     return AnnotationReport(doc, tuple(done), tuple(proposals.values()))

@@ -41,7 +41,7 @@ from nonprehensile.demonstrations.formats import (
     write_motive_csv,
 )
 from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
-from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup
+from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup, parse_rigid_body
 from nonprehensile.errors import DemonstrationError, InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.io import load_document, read_skills, save_document, skills_to_dict
@@ -225,9 +225,10 @@ class Dataset:
         (times ``scale``: metres). Empty when the object is not tracked.
     notes : tuple of str
         What the loader noticed without refusing the dataset (markers it ignored).
-    rigid_body : str or None
-        The rigid body (of every recording) that tracks the object, its frame the model's
-        frame scaled; None when the object is not tracked as a rigid body.
+    rigid_body : str, dict or None
+        The annotations' ``rigid_body``: the rigid body (of every recording) that tracks the
+        object (:func:`~nonprehensile.demonstrations.tracking.parse_rigid_body`); None when
+        the object is not tracked as a rigid body.
     """
 
     poly: Polyhedron
@@ -239,7 +240,7 @@ class Dataset:
     root: Path | None = None
     object_markers: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
-    rigid_body: str | None = None
+    rigid_body: str | Mapping[str, Any] | None = None
 
     @property
     def object_setup(self) -> ObjectSetup | None:
@@ -338,7 +339,8 @@ class _Settings:
     axes: tuple[str, str, str] | None  # None: by file suffix (DEFAULT_AXES)
     units: str | None  # None: as the files declare
     tolerance_m: float
-    rigid_body: str | None = None  # the rigid body that tracks the object
+    rigid_body: str | Mapping[str, Any] | None = None  # the annotations' value
+    rigid_body_name: str | None = None
 
 
 def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
@@ -407,12 +409,15 @@ def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
                             f"{data.get('tolerance_mm')!r}")
         tol = DEFAULT_TOLERANCE_MM
     rigid_body = data.get("rigid_body")
-    if rigid_body is not None and (not isinstance(rigid_body, str) or not rigid_body.strip()):
-        out.add(name, None, f"'rigid_body' must name the rigid body that tracks the object (its "
-                            f"frame the model's frame), got {rigid_body!r}")
-        rigid_body = None
+    body_name = None
+    if rigid_body is not None:
+        try:
+            body_name = parse_rigid_body(rigid_body).rigid_body
+        except InputError as exc:
+            out.add(name, None, str(exc))
+            rigid_body = None
     return _Settings(poly, skills, scale, gap, fingers, markers, object_markers, axes, units,
-                     tol / 1000.0, rigid_body)
+                     tol / 1000.0, rigid_body, body_name)
 
 
 def _object_markers(
@@ -710,9 +715,9 @@ def check_dataset(
             out.add(*where, f"marker(s) {missing} are not in the recording, which has "
                             f"{list(traj.marker_names)}; rename them or fix 'markers'/'fingers'/"
                             "'object_markers'")
-        if settings.rigid_body is not None and settings.rigid_body not in [
+        if settings.rigid_body_name is not None and settings.rigid_body_name not in [
                 b.name for b in traj.rigid_bodies]:
-            out.add(*where, f"rigid body {settings.rigid_body!r} ('rigid_body') is not in the "
+            out.add(*where, f"rigid body {settings.rigid_body_name!r} ('rigid_body') is not in the "
                             f"recording, which has {[b.name for b in traj.rigid_bodies] or 'none'}")
         ignored.update(dict.fromkeys(m for m in traj.marker_names if m not in settings.markers))
         traj = _select(traj, settings.markers)

@@ -5,10 +5,14 @@ software solves and exports (OptiTrack Motive CSV), or by markers stuck on it wh
 on the object are known (any C3D or CSV file). The dataset's annotations say which::
 
     "rigid_body": "Box"
+    "rigid_body": {"name": "Box", "origin": [0.5, 0.5, 0.5], "rotation": [0, 0, 0, 1]}
     "object_markers": {"cube:1": [0.5, 0.3, 1.08], "cube:2": [...], "cube:3": [...]}
 
-The rigid body's own frame must be the object model's frame (scaled by the dataset's
-``scale``); object markers are given in the model's frame, in model units. Either way
+A rigid body's own frame is the object model's frame (scaled by the dataset's ``scale``),
+unless ``origin`` (where the model's origin is in the body frame, model units) and
+``rotation`` (the model frame's orientation in the body frame, a quaternion ``x, y, z, w``)
+say otherwise: Motive puts a new rigid body's pivot at its markers' centroid with the
+world's axes. Object markers are given in the model's frame, in model units. Either way
 :meth:`ObjectSetup.pose` gives the pose of the model frame in metres. When both are given
 the rigid body is used.
 """
@@ -21,11 +25,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
 from nonprehensile.errors import DemonstrationError
 
-__all__ = ["ObjectSetup", "object_setup", "parse_object_setup"]
+__all__ = ["ObjectSetup", "object_setup", "parse_object_setup", "parse_rigid_body"]
 
 
 @dataclass(frozen=True)
@@ -38,10 +43,17 @@ class ObjectSetup:
         Name of the rigid body (its frame is the model frame, scaled).
     markers : tuple of (str, (float, float, float)), or None
         Object markers and their positions in the model frame, model units (three or more).
+    origin : (float, float, float) or None
+        The model's origin in the rigid body's frame, model units (default: the body's).
+    rotation : (float, float, float, float) or None
+        The model frame's orientation in the rigid body's frame, quaternion ``x, y, z, w``
+        (default: the body's).
     """
 
     rigid_body: str | None = None
     markers: tuple[tuple[str, tuple[float, float, float]], ...] | None = None
+    origin: tuple[float, float, float] | None = None
+    rotation: tuple[float, float, float, float] | None = None
 
     @property
     def marker_names(self) -> tuple[str, ...]:
@@ -50,8 +62,15 @@ class ObjectSetup:
 
     def to_dict(self) -> dict[str, Any]:
         """The annotations' keys (``rigid_body`` or ``object_markers``)."""
-        if self.rigid_body is not None:
+        if self.rigid_body is not None and self.origin is None and self.rotation is None:
             return {"rigid_body": self.rigid_body}
+        if self.rigid_body is not None:
+            body: dict[str, Any] = {"name": self.rigid_body}
+            if self.origin is not None:
+                body["origin"] = list(self.origin)
+            if self.rotation is not None:
+                body["rotation"] = list(self.rotation)
+            return {"rigid_body": body}
         return {"object_markers": {m: list(x) for m, x in self.markers or ()}}
 
     def pose(self, traj: MarkerTrajectory, scale: float) -> PoseTrajectory:
@@ -66,13 +85,56 @@ class ObjectSetup:
         """
         t = traj.to_units("m")
         if self.rigid_body is not None:
-            return t.rigid_body(self.rigid_body)
+            body = t.rigid_body(self.rigid_body)
+            if self.origin is None and self.rotation is None:
+                return body
+            rot = Rotation.from_quat(self.rotation or (0.0, 0.0, 0.0, 1.0)).as_matrix()
+            return body.with_body_frame(rot, np.asarray(self.origin or (0.0, 0.0, 0.0)) * scale)
         layout = {m: np.asarray(x) * scale for m, x in self.markers or ()}
         return t.pose_from_markers("object", layout)
 
 
+def parse_rigid_body(raw: object) -> ObjectSetup:
+    """Read the annotations' ``rigid_body``: a name, or ``{"name", "origin", "rotation"}``.
+
+    Raises
+    ------
+    DemonstrationError
+        Naming what is wrong.
+    """
+    if isinstance(raw, str) and raw.strip():
+        return ObjectSetup(rigid_body=raw)
+    form = ('a name, or {"name": "<name>", "origin": [x, y, z], "rotation": [x, y, z, w]} '
+            "(the model's origin, model units, and orientation in the body's frame)")
+    if not isinstance(raw, Mapping) or not set(raw) <= {"name", "origin", "rotation"} or not (
+            isinstance(raw.get("name"), str) and raw["name"].strip()):
+        raise DemonstrationError(f"'rigid_body' must be {form}, got {raw!r:.120}")
+
+    def numbers(key: str, n: int) -> tuple[float, ...] | None:
+        v = raw.get(key)
+        if v is None:
+            return None
+        if not (isinstance(v, (list, tuple)) and len(v) == n and all(
+                isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c)
+                for c in v)):
+            raise DemonstrationError(f"'rigid_body': {key!r} must be {n} finite numbers, got "
+                                     f"{v!r}")
+        return tuple(float(c) for c in v)
+
+    origin = numbers("origin", 3)
+    rotation = numbers("rotation", 4)
+    if rotation is not None and math.hypot(*rotation) < 1e-9:
+        raise DemonstrationError("'rigid_body': 'rotation' is a quaternion of zero length")
+    return ObjectSetup(
+        rigid_body=str(raw["name"]),
+        origin=None if origin is None else (origin[0], origin[1], origin[2]),
+        rotation=None if rotation is None else (rotation[0], rotation[1], rotation[2],
+                                                rotation[3]),
+    )
+
+
 def object_setup(
-    rigid_body: str | None, object_markers: Mapping[str, Any] | None
+    rigid_body: str | Mapping[str, Any] | None, object_markers: Mapping[str, Any] | None
 ) -> ObjectSetup | None:
     """The set-up from the annotations' ``rigid_body`` and ``object_markers``; None if neither.
 
@@ -82,7 +144,7 @@ def object_setup(
         Object markers that cannot give a pose (fewer than three, or on one line).
     """
     if rigid_body:
-        return ObjectSetup(rigid_body=rigid_body)
+        return parse_rigid_body(rigid_body)
     if object_markers:
         return parse_object_setup({"markers": dict(object_markers)})
     return None
@@ -102,10 +164,7 @@ def parse_object_setup(raw: object) -> ObjectSetup:
                                                                          "markers"}:
         raise DemonstrationError(f"object tracking: {hint}, got {raw!r:.120}")
     if "rigid_body" in raw:
-        name = raw["rigid_body"]
-        if not isinstance(name, str) or not name.strip():
-            raise DemonstrationError(f"'rigid_body' must be a name, got {name!r}")
-        return ObjectSetup(rigid_body=name)
+        return parse_rigid_body(raw["rigid_body"])
     layout = raw["markers"]
     if not isinstance(layout, Mapping) or len(layout) < 3:
         raise DemonstrationError(
