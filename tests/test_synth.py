@@ -141,12 +141,17 @@ def test_fingers_touch_the_named_elements_at_every_event(small: Dataset) -> None
     assert n == 6 * (3 + 3 + 3 + 2 * 3 + 2 * 3 + 2)
 
 
-@settings(max_examples=6)
+@settings(max_examples=6, deadline=None)
 @given(seed=st.integers(0, 2**32 - 1), n_mentors=st.integers(1, 6))
 def test_contact_consistency_for_any_seed_and_drawn_mentors(seed: int, n_mentors: int) -> None:
-    # beyond three mentors the styles are drawn at random, so this explores other styles too
-    ds = synthesize_dataset(seed=seed, n_per_skill=n_mentors, mentors=n_mentors)
-    assert _check_contacts(ds, tol_mm=4.5) == n_mentors * 23
+    # beyond three mentors the styles are drawn at random, so this explores other styles too.
+    # Without tracker noise and dropouts: the property is the generator's geometry (tip offset
+    # <= 2 mm), which holds for every seed; Gaussian noise has no hard bound, so with it a
+    # random seed eventually lands a tip past any fixed tolerance (seen at 4.62 mm > 4.5 mm).
+    # The noisy data are checked on fixed seeds above.
+    ds = synthesize_dataset(seed=seed, n_per_skill=n_mentors, mentors=n_mentors,
+                            noise_mm=0.0, dropouts=0.0)
+    assert _check_contacts(ds, tol_mm=2.5) == n_mentors * 23
 
 
 def test_bundled_dataset_is_contact_consistent() -> None:
