@@ -216,3 +216,21 @@ def test_measured_cube_on_the_command_line(tmp_path: Path) -> None:
     code, out, err = run("states", str(path), "--step", "90", "--atol", "0.01", "--angle-tol",
                          "1", "--json")
     assert code == 0 and json.loads(out)["n_classes"] == 24
+
+
+@needs_meshes
+def test_from_mesh_says_which_units_it_assumed(tmp_path: Path) -> None:
+    # issue 15: a 20 mm STL cube read at the default metres is 34.6 m across; the command says
+    # what it assumed and how to read millimetres, and says nothing when told mm
+    assert MESHES is not None
+    stl = str(MESHES / "20mm-xyz-cube.stl")
+    code, stdout, stderr = run("object", "from-mesh", stl, "-o", str(tmp_path / "m.json"))
+    assert code == 0, stderr
+    assert "34.64 m across" in stdout
+    assert "--units mm" in stderr
+    code, stdout, stderr = run("object", "from-mesh", stl, "-o", str(tmp_path / "mm.json"),
+                               "--units", "mm")
+    assert code == 0, stderr
+    assert "34.64 mm across" in stdout
+    assert "--units mm" not in stderr
+    assert json.loads((tmp_path / "mm.json").read_text())["units"] == "mm"

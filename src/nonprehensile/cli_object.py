@@ -172,6 +172,11 @@ def object_from_mesh(
     notes: list[str] = []
     poly = from_mesh(mesh, name=name, rtol=rtol, angle=merge_angle, max_faces=max_faces,
                      strict=strict, units=units, notes=notes)
+    if units == "m" and poly.diameter > 2.0:
+        # STL carries no units and CAD exports are usually millimetres: a hand-held object
+        # read as metres is metres across, so say what was assumed and how to change it
+        notes.append(f"the mesh was read in metres (--units m) and is {poly.diameter:.4g} m "
+                     "across; if the file is in millimetres, pass --units mm")
     for note in notes:
         err.print(f"note: {note}", markup=False, highlight=False)
     write_model(poly, output)
@@ -182,7 +187,7 @@ def object_from_mesh(
     out.print(
         f"wrote {output}: {poly.name}, {len(poly.faces)} faces "
         f"({len(virtual)} virtual{': ' + ', '.join(virtual) if virtual else ''}), "
-        f"{len(poly.vertices)} vertices"
+        f"{len(poly.vertices)} vertices, {poly.diameter:.4g} {poly.units} across"
     )
 
 
