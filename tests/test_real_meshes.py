@@ -111,8 +111,9 @@ def test_real_mesh_becomes_a_model_that_loads_and_rests_as_trimesh_says(
 @needs_meshes
 def test_open_scan_gets_its_hull_with_one_note_and_strict_refuses(tmp_path: Path) -> None:
     assert MESHES is not None
-    code, _, err = run("object", "from-mesh", str(MESHES / "reference.obj"), "-o",
-                       str(tmp_path / "m.json"))
+    # the scan is in millimetres (194 units across): read as metres it would add a units note
+    code, _, err = run("object", "from-mesh", str(MESHES / "reference.obj"), "--units", "mm",
+                       "-o", str(tmp_path / "m.json"))
     assert code == 0 and "note:" in err and "convex hull" in err
     assert len(err.strip().splitlines()) == 1
     code, _, err = run("object", "from-mesh", str(MESHES / "reference.obj"), "--strict", "-o",
