@@ -494,12 +494,22 @@ def _limits() -> None:  # pragma: no cover - runs in the child before exec
     resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
 
 
+def _os_arg(arg: str) -> bytes:
+    """An argument as the bytes a shell would pass: a lone surrogate, which no OS argument can
+    hold as text, becomes the invalid UTF-8 bytes that stand for it (the child decodes them
+    back to surrogate escapes, as Python does for any undecodable argument)."""
+    try:
+        return os.fsencode(arg)
+    except UnicodeEncodeError:
+        return arg.encode("utf-8", "surrogatepass")
+
+
 def run_subprocess(case: Case, work: Path) -> Outcome:
     argv = _materialise(case, work)
     t0 = time.perf_counter()
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
     try:
-        r = subprocess.run([sys.executable, "-m", "nonprehensile.cli", *argv],
+        r = subprocess.run([sys.executable, "-m", "nonprehensile.cli", *map(_os_arg, argv)],
                            capture_output=True, timeout=TIME_LIMIT, preexec_fn=_limits, env=env)
     except subprocess.TimeoutExpired:
         return Outcome(case, None, time.perf_counter() - t0, f"ran over {TIME_LIMIT} s")

@@ -382,3 +382,30 @@ def test_real_c3d_two_flipped_bits_and_23_bytes_deleted(tmp_path: Path) -> None:
             read_c3d(path)
     # and the reader still works after them
     assert read_c3d(REAL_C3D / "Vicon.c3d").n_frames > 0
+
+
+# ----------------------------------------------------------- found by `make fuzz` (07:40)
+def _npy_with_header(path: Path, header: str) -> None:
+    body = header.ljust(118) + "\n"
+    path.write_bytes(b"\x93NUMPY\x01\x00" + len(body).to_bytes(2, "little") + body.encode()
+                     + bytes(8 * 80))
+
+
+def test_npy_header_numpy_cannot_tokenize(tmp_path: Path) -> None:
+    # numpy parses the header dict with tokenize: an unclosed bracket raised TokenError
+    bad = tmp_path / "unclosed.npy"
+    _npy_with_header(bad, "{'descr': '<f8', 'fortran_order': False, 'shape': (20, 4")
+    r = run("cluster", "fit", tmp_path / "s.db", "--arrays", bad)
+    assert_clear_error(r, "unclosed.npy", "header")
+
+
+def test_nul_in_an_annotated_file_name(tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    assert run("dataset", "synth", out, "--n-per-skill", "1").exit_code == 0
+    ann = out / "annotations.json"
+    doc = json.loads(ann.read_text())
+    doc["demonstrations"][0]["file"] = "a\x00b.c3d"
+    ann.write_text(json.dumps(doc))
+    r = run("dataset", "show", out)
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "NUL" in r.output

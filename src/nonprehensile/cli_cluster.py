@@ -10,6 +10,7 @@ go to stderr; ``--json`` prints one JSON document on stdout.
 from __future__ import annotations
 
 import math
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -91,7 +92,8 @@ def _read_npy(fh: Any, size: int, what: str) -> NDArray[Any]:
         major, _ = fmt.read_magic(fh)
         read_header = fmt.read_array_header_1_0 if major == 1 else fmt.read_array_header_2_0
         shape, fortran, dtype = read_header(fh)
-    except (ValueError, EOFError, OSError) as exc:
+    except (ValueError, EOFError, OSError, SyntaxError, tokenize.TokenError) as exc:
+        # numpy parses the header's dict literal with tokenize/ast: a damaged one raises these
         raise InputError(f"{what}: not a readable .npy array header ({exc}); save the samples "
                          "with numpy.save") from None
     if dtype.hasobject or dtype.kind not in "biufU":

@@ -698,6 +698,9 @@ def check_dataset(
         traj: MarkerTrajectory | None = None
         if not isinstance(file, str) or not file:
             out.add(ann.name, i, f"'file' must name the trajectory file, got {file!r}")
+        elif "\x00" in file:
+            # no file system holds such a name (and pathlib raises on it)
+            out.add(*where, f"'file' must be a file name, got {file!r} (a NUL character)")
         elif file in seen:
             out.add(*where, f"the file is also demonstration {seen[file]}; one file per "
                             "demonstration")
