@@ -409,3 +409,17 @@ def test_nul_in_an_annotated_file_name(tmp_path: Path) -> None:
     r = run("dataset", "show", out)
     assert r.exit_code == 2 and "Traceback" not in r.output, r.output
     assert "NUL" in r.output
+
+
+def test_full_disk_writing_the_report_names_the_file(tmp_path: Path,
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    # a full disk fails in write(), whose OSError names no file: the report's writer names it
+    from nonprehensile.viz.report import write_report
+
+    def full(self: Path, *args: object, **kwargs: object) -> int:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", full)
+    with pytest.raises(InputError, match=r"index\.html: cannot write it: No space left"):
+        write_report(tmp_path, "t", "i", [])
+    assert not list(tmp_path.iterdir())  # no half-written file left behind

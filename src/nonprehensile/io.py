@@ -117,6 +117,21 @@ def save_document(data: Any, path: str | Path) -> None:
         text = yaml.safe_dump(data, sort_keys=False)
     else:
         text = json.dumps(data, indent=2) + "\n"
+    write_text_file(path, text)
+
+
+def write_text_file(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` through a temporary name and a rename.
+
+    A crash never leaves half a file, and a failure names the file: a full disk fails in
+    ``write``, whose error carries no file name of its own.
+
+    Raises
+    ------
+    InputError
+        The file cannot be written (a full disk, a read-only folder); the message names it.
+    """
+    path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     try:
         tmp.write_text(text, encoding="utf-8")
@@ -126,6 +141,7 @@ def save_document(data: Any, path: str | Path) -> None:
     finally:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
+    return path
 
 
 def model_from_dict(

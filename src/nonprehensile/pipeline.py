@@ -31,6 +31,7 @@ from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
 from nonprehensile.inference import Expansion, cross_check, expand
+from nonprehensile.io import write_text_file
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.library import ClusteredMotions, flatten_segments
 from nonprehensile.planning import Plan, plan
@@ -350,7 +351,7 @@ def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
     # the plan itself, with the object's tracked pose before and after every step, so that a
     # controller knows where each step's reference motion expects the object
     doc = out / "plan.json"
-    doc.write_text(json.dumps(result.to_dict(), indent=1) + "\n", encoding="utf-8")
+    write_text_file(doc, json.dumps(result.to_dict(), indent=1) + "\n")
     written.append(doc)
     return written
 
@@ -449,7 +450,7 @@ def run_demo(
     lap("report")
     summary["seconds"] = times
     summary_path = out / "summary.json"
-    summary_path.write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    write_text_file(summary_path, json.dumps(summary, indent=2) + "\n")
     return DemoResult(summary, report, summary_path)
 
 

@@ -170,5 +170,6 @@ def write_report(path: str | Path, title: str, intro: str, sections: Sequence[Se
     folder = Path(path)
     folder.mkdir(parents=True, exist_ok=True)
     out = folder / "index.html"
-    out.write_text(render_report(title, intro, sections, meta), encoding="utf-8")
-    return out
+    from nonprehensile.io import write_text_file
+
+    return write_text_file(out, render_report(title, intro, sections, meta))
