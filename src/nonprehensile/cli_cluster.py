@@ -70,6 +70,7 @@ def _load_arrays(path: str) -> tuple[NDArray[np.float64], list[str] | None]:
             y = None
             if "y.npy" in names:
                 y = [str(v) for v in _read_member(zf, "y.npy", path).tolist()]
+    # zipfile raises NotImplementedError for a compression method it cannot read: bad input
     except (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError) as exc:
         raise InputError(f"{path}: a damaged .npz file ({exc}); save it again with "
                          "numpy.savez") from None

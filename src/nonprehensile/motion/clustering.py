@@ -70,13 +70,12 @@ from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import linear_sum_assignment
 
 from nonprehensile.errors import InputError
 from nonprehensile.motion.hilbert import encode, key_to_int, quantize
 from nonprehensile.motion.microcluster import one_thread, pca, project
 from nonprehensile.motion.store import MemoryStore, SampleStore
-from nonprehensile.motion.summary import MicroSummary
+from nonprehensile.motion.summary import MicroSummary, match_ids
 
 __all__ = ["HilbertClusterer", "Method", "project"]
 
@@ -161,30 +160,9 @@ def _gap_cuts(sorted_keys: Keys, k: int) -> Keys:
 
 
 def _match_ids(old: IntArray, new: IntArray, next_id: int) -> tuple[IntArray, int]:
-    """Rename new cluster numbers ``0..c-1`` to ids that keep the old ones stable.
-
-    The contingency of new clusters against old ids (``-1``: no id yet) is matched by the
-    Hungarian method, maximising the samples that keep their id; an unmatched new cluster gets
-    a fresh id ``next_id, next_id + 1, ...``.
-
-    Returns the ids of the new clusters, shape (c,), and the next fresh id.
-    """
-    c = int(new.max()) + 1 if new.size else 0
-    known = old >= 0
-    ids = np.full(c, -1, dtype=np.int64)
-    if known.any():
-        old_ids, old_idx = np.unique(old[known], return_inverse=True)
-        table = np.zeros((c, old_ids.size))
-        np.add.at(table, (new[known], old_idx), 1.0)
-        rows, cols = linear_sum_assignment(-table)
-        for r, col in zip(rows, cols, strict=True):
-            if table[r, col] > 0:
-                ids[r] = old_ids[col]
-    for r in range(c):
-        if ids[r] < 0:
-            ids[r] = next_id
-            next_id += 1
-    return ids, next_id
+    """Rename new cluster numbers ``0..c-1`` to ids that keep the old ones stable: the
+    Hungarian matching of :func:`~nonprehensile.motion.summary.match_ids`, one sample each."""
+    return match_ids(old, new, np.ones(new.size), next_id)
 
 
 def _kmeans(points: FloatArray, weights: FloatArray, k: int, seed: int) -> FloatArray:

@@ -32,11 +32,10 @@ from typing import Any
 
 import numpy as np
 import psycopg
-from numpy.typing import ArrayLike
 from psycopg import errors as pg_errors, pq
 
 from nonprehensile.errors import InputError, StoreError
-from nonprehensile.motion.store import FloatArray, IntArray, _check_batch
+from nonprehensile.motion.store import FloatArray, IntArray, _check_batch, _check_micro
 from nonprehensile.motion.stores import display_name, is_postgres_url
 
 __all__ = ["SCHEMA_VERSION", "UPDATE_BATCH", "PostgresStore", "is_postgres_url"]
@@ -81,17 +80,6 @@ def _lock_id(name: str) -> int:
     """A signed 64-bit advisory lock id for a store name (stable across processes)."""
     return int.from_bytes(hashlib.blake2b(name.encode(), digest_size=8).digest(), "little",
                           signed=True)
-
-
-def _check_micro(micro: ArrayLike | None, m: int) -> IntArray:
-    """Micro-cluster ids of a batch of ``m`` samples (``-1`` for each when absent)."""
-    if micro is None:
-        return np.full(m, -1, dtype=np.int64)
-    mic = np.asarray(micro, dtype=np.int64)
-    if mic.shape != (m,):
-        raise InputError(f"store: {m} samples need as many micro-cluster ids, got shape "
-                         f"{mic.shape}")
-    return mic
 
 
 def connect(url: str, *, timeout: float = 30.0) -> psycopg.Connection[Any]:
