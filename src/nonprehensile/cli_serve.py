@@ -55,7 +55,8 @@ store_option = click.option("--store", required=True, metavar="STORE", help=_STO
 @handle_errors
 def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dataset: str,
                 max_bytes: int, recalibrate_every: float, workers: int) -> None:
-    """Run the demonstration service: mentors upload demonstrations into a store.
+    """Run the demonstration service: mentors upload demonstrations into a PostgreSQL
+    or SQLite store.
 
     Without a subcommand, serves http://HOST:PORT until interrupted (OpenAPI at
     /openapi.json). STORE is a PostgreSQL URL or a SQLite file. `serve token create MENTOR
