@@ -121,10 +121,7 @@ def load_test(kind: str = "postgresql") -> dict[str, Any]:
     from nonprehensile.demonstrations.dataset import dataset_path
     from nonprehensile.service.db import create_token, make_pool
 
-    if kind == "postgresql":
-        db = _fresh_db(_server()[0])
-    else:
-        db = _sqlite_file()
+    db = _fresh_db(_server()[0]) if kind == "postgresql" else _sqlite_file()
     pool = make_pool(db, max_size=2)
     with pool.connection() as conn:
         tokens = {m: create_token(conn, m) for m in ("ana", "ben", "chen")}
@@ -382,8 +379,7 @@ def same_results() -> dict[str, Any]:
     template = load_template("cube")
     docs: dict[str, list[Any]] = {}
     for kind in ("postgresql", "sqlite"):
-        db = (_fresh_db(_server()[0]) if kind == "postgresql"
-              else _sqlite_file())
+        db = _fresh_db(_server()[0]) if kind == "postgresql" else _sqlite_file()
         pool = make_pool(db, max_size=4)
         with pool.connection() as conn:
             tokens = {m: create_token(conn, m) for m in sorted({e["mentor"] for e in ann})}
