@@ -299,21 +299,36 @@ def _register_stream(args: tuple[str, str, int, Any]) -> dict[str, float]:
                 "n": REG_N - REG_INIT, "stored": st.n_samples}
 
 
-def _server_cpu() -> float:
-    """CPU seconds (user + system) of every local ``postgres`` process so far, with their
-    children that have exited (a closed connection's backend), 0 if none."""
-    tick = os.sysconf("SC_CLK_TCK")
-    total = 0.0
+def _proc_cpu(pid: int, children: bool) -> float:
+    """CPU seconds (user + system) of a process, with its exited children's if asked."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    ticks = fields[11:15] if children else fields[11:13]
+    return sum(int(t) for t in ticks) / os.sysconf("SC_CLK_TCK")
+
+
+def _server_cpu(db: str) -> float | None:
+    """CPU seconds so far of the PostgreSQL server behind ``db``: its postmaster with its
+    exited children (closed connections' backends) and its live children. None when the
+    server is not on this machine (no /proc entry for it)."""
+    import psycopg
+
+    with psycopg.connect(db, autocommit=True) as conn:
+        backend = conn.execute("SELECT pg_backend_pid()").fetchone()[0]
+        try:
+            stat = Path(f"/proc/{backend}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return None
+    master = int(stat[1])  # the backend's parent
+    total = _proc_cpu(master, children=True)
     for pid in os.listdir("/proc"):
-        if not pid.isdigit():
+        if not pid.isdigit() or int(pid) == backend:
             continue
         try:
-            if Path(f"/proc/{pid}/comm").read_text().strip() != "postgres":
-                continue
-            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            stat = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+            if int(stat[1]) == master:
+                total += _proc_cpu(int(pid), children=False)
         except OSError:
             continue
-        total += sum(int(f) for f in fields[11:15]) / tick
     return total
 
 
@@ -347,17 +362,18 @@ def insert_throughput(workers: int = 2) -> dict[str, Any]:
     with ctx.Manager() as mgr:
         barrier = mgr.Barrier(workers)
         with ctx.Pool(workers) as pool:
-            cpu0 = _server_cpu()
+            cpu0 = _server_cpu(db)
             res = pool.map(_register_stream,
                            [(db, f"arc{i}", 10 + i, barrier) for i in range(workers)])
-            server = _server_cpu() - cpu0
+            cpu1 = _server_cpu(db)
     wall = max(r["t1"] for r in res) - min(r["t0"] for r in res)
     n = sum(r["n"] for r in res)
     out["all_stored"] = all(r["stored"] == REG_N for r in res)
     out["registered_samples_per_s"] = round(n / wall)
     out["registered_wall_s"] = round(wall, 2)
     out["client_cpu_ms_per_sample"] = round(1000 * sum(r["cpu"] for r in res) / n, 3)
-    out["server_cpu_ms_per_sample"] = round(1000 * server / n, 3)
+    out["server_cpu_ms_per_sample"] = (None if cpu0 is None or cpu1 is None
+                                       else round(1000 * (cpu1 - cpu0) / n, 3))
     out["load_average"] = [round(a, 2) for a in os.getloadavg()]
     out["goal"] = GOAL_SAMPLES_PER_S
     out["met"] = out["registered_samples_per_s"] >= GOAL_SAMPLES_PER_S

@@ -30,12 +30,10 @@ import hashlib
 from collections.abc import Iterator
 from typing import Any
 
-import numpy as np
 import psycopg
 from psycopg import errors as pg_errors, pq
 
 from nonprehensile.errors import InputError, StoreError
-from nonprehensile.motion.store import FloatArray, IntArray, _check_batch, _check_micro
 from nonprehensile.motion.stores import display_name, is_postgres_url
 from nonprehensile.motion.tablestore import TableStore, check_store_name
 
@@ -219,11 +217,8 @@ class PostgresStore(TableStore):
         interleaved with another writer's.
         """
         if self._depth:
-            self._depth += 1
-            try:
+            with self._joined():
                 yield
-            finally:
-                self._depth -= 1
             return
         joined = self._conn.info.transaction_status != pq.TransactionStatus.IDLE
         with contextlib.ExitStack() as stack:
@@ -238,45 +233,31 @@ class PostgresStore(TableStore):
 
     # ------------------------------------------------------------------ writes
 
-    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
-            micro: IntArray | None = None) -> None:
-        v, lab = _check_batch(vectors, keys, labels, self.n_features)
-        mic = _check_micro(micro, v.shape[0])
-        le = np.ascontiguousarray(v, dtype="<f8")
-        with self.transaction():
-            n0 = self.n_samples
-            with self._conn.cursor() as cur, cur.copy(
-                "COPY np_samples (store, id, key, label, micro, vector) FROM STDIN "
-                "(FORMAT BINARY)"
-            ) as cp:
-                cp.set_types(["text", "int8", "int8", "int8", "int8", "bytea"])
-                for i, (k, c, u) in enumerate(zip(keys, lab.tolist(), mic.tolist(),
-                                                  strict=True)):
-                    cp.write_row((self.name, n0 + i, int(k), int(c), int(u), le[i].tobytes()))
-        self._d = v.shape[1]
+    def _insert(self, rows: list[tuple[Any, ...]]) -> None:
+        with self._conn.cursor() as cur, cur.copy(
+            "COPY np_samples (store, id, key, label, micro, vector) FROM STDIN (FORMAT BINARY)"
+        ) as cp:
+            cp.set_types(["text", "int8", "int8", "int8", "int8", "bytea"])
+            for row in rows:
+                cp.write_row(row)
 
-    def update(self, start: int, keys: list[int], labels: IntArray,
-               micro: IntArray | None = None) -> None:
-        lab = [int(c) for c in np.asarray(labels).tolist()]
-        if len(lab) != len(keys):
-            raise InputError(f"store: {len(keys)} keys need as many labels, got {len(lab)}")
-        mic = None if micro is None else _check_micro(micro, len(keys)).tolist()
-        with self.transaction():
-            for s in range(0, len(keys), UPDATE_BATCH):
-                ks = [int(k) for k in keys[s : s + UPDATE_BATCH]]
-                ids = list(range(start + s, start + s + len(ks)))
-                if mic is None:
-                    self._conn.execute(
-                        "UPDATE np_samples AS t SET key = u.key, label = u.label FROM "
-                        "unnest(%s::bigint[], %s::bigint[], %s::bigint[]) AS u(id, key, label) "
-                        "WHERE t.store = %s AND t.id = u.id",
-                        (ids, ks, lab[s : s + UPDATE_BATCH], self.name),
-                    )
-                else:
-                    self._conn.execute(
-                        "UPDATE np_samples AS t SET key = u.key, label = u.label, micro = u.micro "
-                        "FROM unnest(%s::bigint[], %s::bigint[], %s::bigint[], %s::bigint[]) "
-                        "AS u(id, key, label, micro) WHERE t.store = %s AND t.id = u.id",
-                        (ids, ks, lab[s : s + UPDATE_BATCH], mic[s : s + UPDATE_BATCH],
-                         self.name),
-                    )
+    def _rekey(self, start: int, keys: list[int], labels: list[int],
+               micro: list[int] | None) -> None:
+        for s in range(0, len(keys), UPDATE_BATCH):
+            ks = keys[s : s + UPDATE_BATCH]
+            ids = list(range(start + s, start + s + len(ks)))
+            if micro is None:
+                self._conn.execute(
+                    "UPDATE np_samples AS t SET key = u.key, label = u.label FROM "
+                    "unnest(%s::bigint[], %s::bigint[], %s::bigint[]) AS u(id, key, label) "
+                    "WHERE t.store = %s AND t.id = u.id",
+                    (ids, ks, labels[s : s + UPDATE_BATCH], self.name),
+                )
+            else:
+                self._conn.execute(
+                    "UPDATE np_samples AS t SET key = u.key, label = u.label, micro = u.micro "
+                    "FROM unnest(%s::bigint[], %s::bigint[], %s::bigint[], %s::bigint[]) "
+                    "AS u(id, key, label, micro) WHERE t.store = %s AND t.id = u.id",
+                    (ids, ks, labels[s : s + UPDATE_BATCH], micro[s : s + UPDATE_BATCH],
+                     self.name),
+                )

@@ -22,14 +22,15 @@ overrides :meth:`TableStore._sql`. Nothing here imports a database driver.
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterator
 from typing import Any, Protocol
 
 import numpy as np
 
 from nonprehensile.errors import InputError
-from nonprehensile.motion.store import FloatArray, IntArray
+from nonprehensile.motion.store import FloatArray, IntArray, _check_batch, _check_micro
 
-__all__ = ["TableStore", "check_store_name"]
+__all__ = ["Nesting", "TableStore", "check_store_name"]
 
 
 class _Connection(Protocol):
@@ -44,10 +45,25 @@ def check_store_name(name: object) -> str:
     return name
 
 
-class TableStore:
+class Nesting:
+    """Transactions that nested uses join: ``if self._depth: with self._joined(): ...``."""
+
+    _depth: int = 0
+
+    @contextlib.contextmanager
+    def _joined(self) -> Iterator[None]:
+        """Inside the open transaction: the outermost one commits (or rolls back) it all."""
+        self._depth += 1
+        try:
+            yield
+        finally:
+            self._depth -= 1
+
+
+class TableStore(Nesting):
     """The portable part of a store of samples, keys and cluster ids in ``np_samples`` and
     ``np_meta`` (see the module notes). Subclasses set ``name``, ``url``, ``_conn`` and
-    ``_d`` and implement ``add``, ``update`` and ``transaction``."""
+    ``_d`` and implement ``_insert``, ``_rekey`` and ``transaction``."""
 
     name: str
     url: str
@@ -71,15 +87,38 @@ class TableStore:
         """Commit everything inside together (the subclass's locking)."""
         raise NotImplementedError
 
+    def _insert(self, rows: list[tuple[Any, ...]]) -> None:
+        """Insert rows ``(store, id, key, label, micro, vector)`` (the subclass's bulk load)."""
+        raise NotImplementedError
+
+    def _rekey(self, start: int, keys: list[int], labels: list[int],
+               micro: list[int] | None) -> None:
+        """Set keys, labels (and micro-cluster ids) of samples ``start, start + 1, ...`` (the
+        subclass's batched update)."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ writes
+
     def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
             micro: IntArray | None = None) -> None:
-        """Append samples (the subclass's bulk insert)."""
-        raise NotImplementedError
+        v, lab = _check_batch(vectors, keys, labels, self.n_features)
+        mic = _check_micro(micro, v.shape[0])
+        le = np.ascontiguousarray(v, dtype="<f8")
+        with self.transaction():
+            n0 = self.n_samples
+            self._insert([(self.name, n0 + i, int(k), int(c), int(u), le[i].tobytes())
+                          for i, (k, c, u) in enumerate(zip(keys, lab.tolist(), mic.tolist(),
+                                                            strict=True))])
+        self._d = v.shape[1]
 
     def update(self, start: int, keys: list[int], labels: IntArray,
                micro: IntArray | None = None) -> None:
-        """Replace keys and cluster ids from ``start`` on (the subclass's batched update)."""
-        raise NotImplementedError
+        lab = [int(c) for c in np.asarray(labels).tolist()]
+        if len(lab) != len(keys):
+            raise InputError(f"store: {len(keys)} keys need as many labels, got {len(lab)}")
+        mic = None if micro is None else _check_micro(micro, len(keys)).tolist()
+        with self.transaction():
+            self._rekey(int(start), [int(k) for k in keys], lab, mic)
 
     # ------------------------------------------------------------------ reads
 

@@ -537,7 +537,7 @@ class Registry:
             rows = conn.execute(
                 "SELECT s.store, max(s.id) + 1, m.value FROM np_samples s "
                 "LEFT JOIN np_meta m ON m.store = s.store AND m.name = %s "
-                "GROUP BY s.store, m.value", (RECAL_N,)).fetchall()
+                "GROUP BY s.store, m.value ORDER BY s.store", (RECAL_N,)).fetchall()
         due = []
         for store, n, last in rows:
             last_n = int(bytes(last).decode()) if last else self.init_size

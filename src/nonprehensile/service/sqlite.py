@@ -26,19 +26,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from nonprehensile.bounds import check_path
 from nonprehensile.errors import InputError
 from nonprehensile.motion.store import (
-    FloatArray,
-    IntArray,
     StoreFileError,
-    _check_batch,
-    _check_micro,
     _explain,
 )
-from nonprehensile.motion.tablestore import TableStore, check_store_name
+from nonprehensile.motion.tablestore import Nesting, TableStore, check_store_name
 
 __all__ = ["SQLiteArcStore", "SQLiteConnection", "SQLitePool"]
 
@@ -96,7 +90,7 @@ CREATE TABLE IF NOT EXISTS np_upload_samples (
 """
 
 
-class SQLiteConnection:
+class SQLiteConnection(Nesting):
     """A SQLite connection that runs the service's SQL (``%s`` placeholders, as psycopg).
 
     ``transaction()`` is a write transaction (``BEGIN IMMEDIATE``, after the process's writer
@@ -156,11 +150,8 @@ class SQLiteConnection:
     def transaction(self) -> Iterator[None]:
         """Commit everything inside together (nested uses join); one writer at a time."""
         if self._depth:
-            self._depth += 1
-            try:
+            with self._joined():
                 yield
-            finally:
-                self._depth -= 1
             return
         with self._writer:
             self.execute("BEGIN IMMEDIATE")
@@ -272,42 +263,21 @@ class SQLiteArcStore(TableStore):
         with self._conn.transaction():
             yield
 
-    def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
-            micro: IntArray | None = None) -> None:
-        v, lab = _check_batch(vectors, keys, labels, self.n_features)
-        mic = _check_micro(micro, v.shape[0])
-        le = np.ascontiguousarray(v, dtype="<f8")
-        with self.transaction():
-            n0 = self.n_samples
+    def _insert(self, rows: list[tuple[Any, ...]]) -> None:
+        self._conn.executemany("INSERT INTO np_samples (store, id, key, label, micro, vector) "
+                               "VALUES (%s, %s, %s, %s, %s, %s)", rows)
+
+    def _rekey(self, start: int, keys: list[int], labels: list[int],
+               micro: list[int] | None) -> None:
+        ids = range(start, start + len(keys))
+        if micro is None:
             self._conn.executemany(
-                "INSERT INTO np_samples (store, id, key, label, micro, vector) "
-                "VALUES (%s, %s, %s, %s, %s, %s)",
-                [(self.name, n0 + i, int(k), int(c), int(u), le[i].tobytes())
-                 for i, (k, c, u) in enumerate(zip(keys, lab.tolist(), mic.tolist(),
-                                                   strict=True))])
-        self._d = v.shape[1]
-
-    def update(self, start: int, keys: list[int], labels: IntArray,
-               micro: IntArray | None = None) -> None:
-        lab = [int(c) for c in np.asarray(labels).tolist()]
-        if len(lab) != len(keys):
-            raise InputError(f"store: {len(keys)} keys need as many labels, got {len(lab)}")
-        with self.transaction():
-            if micro is None:
-                self._conn.executemany(
-                    "UPDATE np_samples SET key = %s, label = %s WHERE store = %s AND id = %s",
-                    [(int(k), c, self.name, start + i)
-                     for i, (k, c) in enumerate(zip(keys, lab, strict=True))])
-            else:
-                mic = _check_micro(micro, len(keys)).tolist()
-                self._conn.executemany(
-                    "UPDATE np_samples SET key = %s, label = %s, micro = %s "
-                    "WHERE store = %s AND id = %s",
-                    [(int(k), c, u, self.name, start + i)
-                     for i, (k, c, u) in enumerate(zip(keys, lab, mic, strict=True))])
-
-
-def is_sqlite_connection(conn: object) -> bool:
-    """Whether a pooled connection is the service's SQLite one."""
-    return isinstance(conn, SQLiteConnection)
+                "UPDATE np_samples SET key = %s, label = %s WHERE store = %s AND id = %s",
+                [(k, c, self.name, i) for k, c, i in zip(keys, labels, ids, strict=True)])
+        else:
+            self._conn.executemany(
+                "UPDATE np_samples SET key = %s, label = %s, micro = %s "
+                "WHERE store = %s AND id = %s",
+                [(k, c, u, self.name, i)
+                 for k, c, u, i in zip(keys, labels, micro, ids, strict=True)])
 
