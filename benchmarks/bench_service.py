@@ -68,13 +68,27 @@ def _stop_server() -> None:
         _SERVER.clear()
 
 
+_DBS: list[tuple[str, str]] = []
+
+
 def _fresh_db(url: str) -> str:
+    """A new database on the server (dropped at the end of the run)."""
     import psycopg
 
     name = f"bench_{uuid.uuid4().hex[:10]}"
     with psycopg.connect(url, autocommit=True) as conn:
         conn.execute(f"CREATE DATABASE {name}")
+    _DBS.append((url, name))
     return urlunsplit(urlsplit(url)._replace(path=f"/{name}"))
+
+
+def _drop_dbs() -> None:
+    import psycopg
+
+    for url, name in _DBS:
+        with psycopg.connect(url, autocommit=True) as conn:
+            conn.execute(f"DROP DATABASE IF EXISTS {name} WITH (FORCE)")
+    _DBS.clear()
 
 
 _TMP: list[str] = []
@@ -284,8 +298,9 @@ def _register_stream(args: tuple[str, str, int, Any]) -> dict[str, float]:
         c.partial_fit(x[:REG_INIT])  # the first batch: a clustering, not timed
         st.put_meta("hilbert_clusterer", c.save_state())
         last = REG_INIT
-        if barrier is not None:
-            barrier.wait()
+        # the first through the barrier reads the server's CPU when all start and end
+        first = barrier is None or barrier.wait() == 0
+        server0 = _server_cpu(db) if first else None
         t0, c0 = time.perf_counter(), time.process_time()
         for s in range(REG_INIT, REG_N, REG_BATCH):
             with st.transaction():
@@ -294,8 +309,12 @@ def _register_stream(args: tuple[str, str, int, Any]) -> dict[str, float]:
                 if c.n_samples_seen_ - last >= REG_CHECKPOINT:
                     st.put_meta("hilbert_clusterer", c.save_state())
                     last = c.n_samples_seen_
-        t1 = time.perf_counter()
-        return {"t0": t0, "t1": t1, "cpu": time.process_time() - c0,
+        t1, cpu = time.perf_counter(), time.process_time() - c0
+        if barrier is not None:
+            barrier.wait()
+        server1 = _server_cpu(db) if first else None
+        server = None if server0 is None or server1 is None else server1 - server0
+        return {"t0": t0, "t1": t1, "cpu": cpu, "server_cpu": server,
                 "n": REG_N - REG_INIT, "stored": st.n_samples}
 
 
@@ -358,22 +377,23 @@ def insert_throughput(workers: int = 2) -> dict[str, Any]:
     one = _register_stream((db, "single", 1, None))
     out["one_stream_samples_per_s"] = round(one["n"] / (one["t1"] - one["t0"]))
     out["one_stream_client_cpu_ms_per_sample"] = round(1000 * one["cpu"] / one["n"], 3)
+    if one["server_cpu"] is not None:
+        out["one_stream_server_cpu_ms_per_sample"] = round(1000 * one["server_cpu"] / one["n"],
+                                                           3)
     ctx = get_context("spawn")
     with ctx.Manager() as mgr:
         barrier = mgr.Barrier(workers)
         with ctx.Pool(workers) as pool:
-            cpu0 = _server_cpu(db)
             res = pool.map(_register_stream,
                            [(db, f"arc{i}", 10 + i, barrier) for i in range(workers)])
-            cpu1 = _server_cpu(db)
     wall = max(r["t1"] for r in res) - min(r["t0"] for r in res)
     n = sum(r["n"] for r in res)
     out["all_stored"] = all(r["stored"] == REG_N for r in res)
     out["registered_samples_per_s"] = round(n / wall)
     out["registered_wall_s"] = round(wall, 2)
     out["client_cpu_ms_per_sample"] = round(1000 * sum(r["cpu"] for r in res) / n, 3)
-    out["server_cpu_ms_per_sample"] = (None if cpu0 is None or cpu1 is None
-                                       else round(1000 * (cpu1 - cpu0) / n, 3))
+    server = [r["server_cpu"] for r in res if r["server_cpu"] is not None]
+    out["server_cpu_ms_per_sample"] = round(1000 * server[0] / n, 3) if server else None
     out["load_average"] = [round(a, 2) for a in os.getloadavg()]
     out["goal"] = GOAL_SAMPLES_PER_S
     out["met"] = out["registered_samples_per_s"] >= GOAL_SAMPLES_PER_S
@@ -497,6 +517,7 @@ def main() -> None:
     try:
         _main()
     finally:
+        _drop_dbs()
         _stop_server()
         for tmp in _TMP:
             shutil.rmtree(tmp, ignore_errors=True)

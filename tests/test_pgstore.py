@@ -120,9 +120,11 @@ def test_schema_created_on_first_use_and_versioned(pg_url: str) -> None:
         assert store.info()["schema_version"] == pgstore.SCHEMA_VERSION
         store.add(np.zeros((1, 2)), [0], np.array([0]))
     with psycopg.connect(pg_url, autocommit=True) as conn:
-        assert conn.execute("SELECT version FROM np_schema").fetchall() == [(2,)]
-        # a version-1 database (no micro-cluster column) is migrated when opened
+        assert conn.execute("SELECT version FROM np_schema").fetchall() == [(3,)]
+        # a version-1 database (no micro-cluster column, inserts vacuum the vectors' TOAST
+        # table) is migrated when opened
         conn.execute("ALTER TABLE np_samples DROP COLUMN micro")
+        conn.execute("ALTER TABLE np_samples RESET (toast.autovacuum_vacuum_insert_threshold)")
         conn.execute("UPDATE np_schema SET version = 1")
     with PostgresStore(pg_url) as store:
         assert store.micro_ids().tolist() == [-1]
@@ -132,7 +134,11 @@ def test_schema_created_on_first_use_and_versioned(pg_url: str) -> None:
         with pytest.raises(InputError, match="micro-cluster"):
             store.add(np.ones((2, 2)), [1, 2], np.array([0, 0]), micro=np.array([5]))
     with psycopg.connect(pg_url, autocommit=True) as conn:
-        assert conn.execute("SELECT version FROM np_schema").fetchall() == [(2,)]
+        assert conn.execute("SELECT version FROM np_schema").fetchall() == [(3,)]
+        assert conn.execute(
+            "SELECT t.reloptions FROM pg_class c JOIN pg_class t ON t.oid = c.reltoastrelid "
+            "WHERE c.relname = 'np_samples'").fetchone() == (
+                ["autovacuum_vacuum_insert_threshold=-1"],)
         conn.execute("UPDATE np_schema SET version = 99")
     with pytest.raises(InputError, match=r"schema version 99.*upgrade"):
         PostgresStore(pg_url)
