@@ -55,6 +55,13 @@ def test_face_names() -> None:
         "a", "b", "z", "aa", "ab", "az", "ba", "zz", "aaa"]
 
 
+def test_face_names_in_bulk_are_the_names_one_by_one() -> None:
+    from nonprehensile.geometry.build import face_names
+
+    assert face_names(0) == []
+    assert face_names(20_000) == [face_name(i) for i in range(20_000)]
+
+
 def test_prism_faces_named_bottom_first_top_last() -> None:
     p = prism(6)
     names = list(p.faces)

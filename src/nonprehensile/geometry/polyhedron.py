@@ -15,9 +15,11 @@ quantity (normals, ``A``, ``Delta``, centre of mass, ...) is computed once, on f
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import itertools
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -409,8 +411,9 @@ class _Loops:
     @classmethod
     def of(cls, loops: Iterable[Sequence[int]]) -> _Loops:
         seqs = list(loops)
-        lengths = np.fromiter((len(t) for t in seqs), dtype=np.int64, count=len(seqs))
-        flat = np.fromiter((i for t in seqs for i in t), dtype=np.int64, count=int(lengths.sum()))
+        lengths = np.fromiter(map(len, seqs), dtype=np.int64, count=len(seqs))
+        flat = np.fromiter(itertools.chain.from_iterable(seqs), dtype=np.int64,
+                           count=int(lengths.sum()))
         starts = np.zeros(len(seqs), dtype=np.int64)
         np.cumsum(lengths[:-1], out=starts[1:])
         owner = np.repeat(np.arange(len(seqs), dtype=np.int64), lengths)
@@ -452,6 +455,48 @@ def point_diameter(points: FloatArray) -> float:
         with contextlib.suppress(QhullError):  # flat or degenerate: every point may matter
             p = p[ConvexHull(p).vertices]
     return _diameter_of(p)
+
+
+class _PointsKey:
+    """A point array as a memo key: hashed and compared by content (a read-only copy)."""
+
+    __slots__ = ("_hash", "array")
+
+    def __init__(self, points: FloatArray) -> None:
+        a = np.array(points, dtype=np.float64, order="C")
+        a.setflags(write=False)
+        self.array = a
+        digest = hashlib.blake2b(a.tobytes(), digest_size=16).digest()
+        self._hash = hash((a.shape, digest))
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other: object) -> bool:
+        return (isinstance(other, _PointsKey) and self._hash == other._hash
+                and self.array.shape == other.array.shape
+                and bool(np.array_equal(self.array, other.array)))
+
+
+@lru_cache(maxsize=8)
+def _hull_facts(key: _PointsKey) -> tuple[float, float]:
+    hull = ConvexHull(key.array)
+    return float(hull.volume), _diameter_of(key.array[hull.vertices])
+
+
+def hull_volume_and_diameter(points: FloatArray) -> tuple[float, float]:
+    """Volume of the convex hull of ``points`` (shape (n, 3)) and their diameter.
+
+    Found once per point set: building a model checks its planarity against the diameter,
+    then validating it needs the same hull again (at 50,000 vertices each costs a Qhull run
+    and a farthest-pair search, 0.45 s), so the last few results are kept by content.
+
+    Raises
+    ------
+    scipy.spatial.QhullError
+        If the points are flat (coplanar, collinear or coincident).
+    """
+    return _hull_facts(_PointsKey(points))
 
 
 def _diameter_of(p: FloatArray) -> float:
@@ -621,18 +666,21 @@ def _fast_loops(
         if type(f) is not str or not f or type(t) not in (list, tuple):
             return None
         out[f] = tuple(t)  # type: ignore[arg-type]
-    flat = [i for t in out.values() for i in t]
-    if not all(type(i) is int for i in flat):
+    flat = list(itertools.chain.from_iterable(out.values()))
+    if not set(map(type, flat)) <= {int}:
         if not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in flat):
             return None
         out = {f: tuple(int(i) for i in t) for f, t in out.items()}
         flat = [int(i) for i in flat]
     if not flat or min(flat) < 0 or max(flat) >= n_vertices:
         return None  # (before numpy: an index beyond int64 would overflow there)
-    idx = np.fromiter(flat, dtype=np.int64, count=len(flat))
-    if not len(idx) or idx.min() < 0 or idx.max() >= n_vertices:
+    lengths = np.fromiter(map(len, out.values()), dtype=np.int64, count=len(out))
+    if lengths.min() < 3:
         return None
-    if any(len(t) < 3 or len(set(t)) != len(t) for t in out.values()):
+    # a loop that repeats a vertex: two equal (loop, vertex) keys, found in one sort
+    idx = np.fromiter(flat, dtype=np.int64, count=len(flat))
+    key = np.sort(np.repeat(np.arange(len(out), dtype=np.int64), lengths) * n_vertices + idx)
+    if (key[1:] == key[:-1]).any():
         return None
     return out
 
@@ -704,13 +752,12 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
         )
 
     try:
-        hull = ConvexHull(v)
+        hull_volume, diameter = hull_volume_and_diameter(v)
     except QhullError:
         raise ModelError(
             "the vertices are flat (all coplanar, collinear or coincident): they bound no "
             "solid"
         ) from None
-    diameter = _diameter_of(v[hull.vertices])
     atol = rtol * diameter
     center = v.mean(axis=0)
 
@@ -843,10 +890,10 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
     # and as a whole: a closed surface convex at every edge bounds its own convex hull
     vol = _signed_volume(v, lp, center)
     area = float(norm.sum()) / 2.0
-    if hull.volume - vol > 2 * atol * area:
+    if hull_volume - vol > 2 * atol * area:
         raise ModelError(
             f"the solid is not convex: its volume {vol:.6g} falls short of its convex hull's "
-            f"{hull.volume:.6g}; use the convex hull (nonprehensile object from-mesh) instead"
+            f"{hull_volume:.6g}; use the convex hull (nonprehensile object from-mesh) instead"
         )
     return _Checked(v, loops, lp, diameter, n_out)
 
