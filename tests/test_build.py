@@ -189,3 +189,14 @@ def test_convex_hull_bad_points() -> None:
         convex_hull(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.inf]]))
     with pytest.raises(MeshError, match="shape"):
         convex_hull(np.zeros((5, 2)))
+
+
+def test_hull_model_checked_without_a_second_hull_agrees_with_the_full_check() -> None:
+    # the builders skip only the whole-solid hull comparison; the diameter (so the tolerance)
+    # is the one a full check of the same vertices and faces finds
+    rng = np.random.default_rng(11)
+    for pts in (rng.standard_normal((40, 3)), rng.standard_normal((3000, 3)) * [1, 2, 3]):
+        built = convex_hull(pts, rtol=1e-6)
+        again = Polyhedron(built.vertices, dict(built.faces), rtol=built.rtol)
+        assert again.diameter == built.diameter and again.atol == built.atol
+        assert again.volume == built.volume

@@ -30,8 +30,7 @@ from nonprehensile.geometry.polyhedron import (
     MAX_COORDINATE,
     Polyhedron,
     _Loops,
-    hull_volume_and_diameter,
-    point_diameter,
+    vertex_diameter,
 )
 
 __all__ = [
@@ -273,11 +272,8 @@ def _planarity_rtol(vertices: FloatArray, faces: dict[str, tuple[int, ...]]) -> 
     n = newell / np.maximum(np.linalg.norm(newell, axis=1), 1e-300)[:, None]
     p = vertices[lp.flat]
     off = np.abs(np.einsum("ij,ij->i", p - lp.means(vertices)[lp.owner], n[lp.owner]))
-    try:
-        diameter = hull_volume_and_diameter(vertices)[1]  # the model's check reuses it
-    except QhullError:
-        diameter = point_diameter(vertices)
-    return float(off.max()) / max(diameter, 1e-300)
+    # every vertex is a corner of the hull; the model's check reuses the diameter
+    return float(off.max()) / max(vertex_diameter(vertices), 1e-300)
 
 
 def _round_up(x: float) -> float:
@@ -328,6 +324,7 @@ def _hull_model(
                 center_of_mass=None if center_of_mass is None else np.asarray(center_of_mass),
                 units=units,
                 rtol=model_rtol,
+                hull_facets=True,
             )
         except ModelError as exc:
             # nearly coplanar or nearly collinear leftovers: merge a little more

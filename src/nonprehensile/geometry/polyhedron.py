@@ -18,7 +18,7 @@ import contextlib
 import hashlib
 import itertools
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import InitVar, dataclass, field
 from functools import cached_property, lru_cache
 
 import numpy as np
@@ -90,6 +90,13 @@ class Polyhedron:
     rtol : float
         Length tolerance relative to the object's diameter, used by validation and by every
         geometric comparison made with this model.
+    hull_facets : bool
+        True when the faces are a convex hull's own facets, as the builders make them
+        (:func:`~nonprehensile.geometry.convex_hull`, ``from_mesh``): the solid is convex by
+        construction, so the last check, of its volume against a second convex hull of its
+        vertices, is skipped (at 50,000 vertices that hull is 15 % of building the model).
+        Every face, edge and the closed surface are checked all the same. Not stored: a copy
+        made with :func:`dataclasses.replace` is checked in full.
 
     Raises
     ------
@@ -106,10 +113,11 @@ class Polyhedron:
     virtual_faces: frozenset[str] = field(default_factory=frozenset)
     units: str = "m"
     rtol: float = DEFAULT_RTOL
+    hull_facets: InitVar[bool] = False
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, hull_facets: bool) -> None:
         object.__setattr__(self, "rtol", _check_rtol(self.rtol))
-        checked = _check(self.vertices, self.faces, self.rtol)
+        checked = _check(self.vertices, self.faces, self.rtol, hull_facets=bool(hull_facets))
         faces = checked.loops
         object.__setattr__(self, "vertices", checked.vertices)
         object.__setattr__(self, "faces", faces)
@@ -499,6 +507,19 @@ def hull_volume_and_diameter(points: FloatArray) -> tuple[float, float]:
     return _hull_facts(_PointsKey(points))
 
 
+@lru_cache(maxsize=8)
+def _vertex_diameter(key: _PointsKey) -> float:
+    return _diameter_of(key.array)
+
+
+def vertex_diameter(vertices: FloatArray) -> float:
+    """The diameter of a convex polyhedron's vertices (shape (n, 3)), all of them corners of
+    its hull: :func:`hull_volume_and_diameter` without the hull. Kept for the last few point
+    sets, by content: a builder measures its faces' planarity against it, then validating
+    the model needs it again."""
+    return _vertex_diameter(_PointsKey(vertices))
+
+
 def _diameter_of(p: FloatArray) -> float:
     n = len(p)
     if n <= 256:
@@ -576,13 +597,22 @@ def _widest_pair(p: FloatArray, n_dirs: int = 200) -> float:
     d = np.column_stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi),
                          np.cos(phi)])
     q = p - p.mean(axis=0)
-    # three broadcast products, not a BLAS call: an inner dimension of 3 gains nothing from
-    # threads, and threads on a busy machine cost a lot
-    proj = d[:, 0:1] * q[:, 0] + d[:, 1:2] * q[:, 1] + d[:, 2:3] * q[:, 2]
-    width = proj.max(axis=1) - proj.min(axis=1)
+
+    def project(rows: slice | list[int]) -> FloatArray:
+        # three broadcast products, not a BLAS call: an inner dimension of 3 gains nothing
+        # from threads, and threads on a busy machine cost a lot
+        e = d[rows]
+        return np.asarray(e[:, 0:1] * q[:, 0] + e[:, 1:2] * q[:, 1] + e[:, 2:3] * q[:, 2])
+
+    # a few directions at a time: the whole (n_dirs, n) matrix would be 80 MB per
+    # temporary at 50,000 points, and memory traffic is what a busy machine lacks
+    width = np.empty(n_dirs)
+    for d0 in range(0, n_dirs, 16):
+        proj = project(slice(d0, d0 + 16))
+        width[d0 : d0 + 16] = proj.max(axis=1) - proj.min(axis=1)
     best2 = 0.0
-    for k in np.argsort(-width)[:8].tolist():
-        a = int(np.argmax(proj[k]))
+    for row in project(np.argsort(-width)[:8].tolist()):
+        a = int(np.argmax(row))
         for _ in range(4):
             diff = q - q[a]
             d2 = np.einsum("ij,ij->i", diff, diff)
@@ -707,7 +737,9 @@ def _slow_loops(faces: Mapping[object, object], n_vertices: int) -> dict[str, tu
     return loops
 
 
-def _check(vertices: object, faces: object, rtol: float) -> _Checked:
+def _check(
+    vertices: object, faces: object, rtol: float, *, hull_facets: bool = False
+) -> _Checked:
     rtol = _check_rtol(rtol)
     try:
         v = np.array(vertices, dtype=float)
@@ -751,8 +783,14 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
             "that meet there"
         )
 
+    hull_volume: float | None = None
     try:
-        hull_volume, diameter = hull_volume_and_diameter(v)
+        if hull_facets:
+            # convex by construction: every vertex is a corner of the hull, so the diameter
+            # of them all is the hull's (and the builder has just found it)
+            diameter = vertex_diameter(v)
+        else:
+            hull_volume, diameter = hull_volume_and_diameter(v)
     except QhullError:
         raise ModelError(
             "the vertices are flat (all coplanar, collinear or coincident): they bound no "
@@ -890,7 +928,7 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
     # and as a whole: a closed surface convex at every edge bounds its own convex hull
     vol = _signed_volume(v, lp, center)
     area = float(norm.sum()) / 2.0
-    if hull_volume - vol > 2 * atol * area:
+    if hull_volume is not None and hull_volume - vol > 2 * atol * area:
         raise ModelError(
             f"the solid is not convex: its volume {vol:.6g} falls short of its convex hull's "
             f"{hull_volume:.6g}; use the convex hull (nonprehensile object from-mesh) instead"
