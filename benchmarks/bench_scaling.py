@@ -120,7 +120,8 @@ def main() -> None:
                 flush=True)
         big = rows[10000]
         ratio = big["from_mesh"]["s"] / big["trimesh"]["s"]
-        print(f"bar from_mesh at 10k <= 0.5x trimesh: x{ratio:.3f}, peak {big['from_mesh']['mb']:.0f} MB (< 400 MB)")
+        print(f"bar from_mesh at 10k <= 0.5x trimesh: x{ratio:.3f}, peak "
+              f"{big['from_mesh']['mb']:.0f} MB (< 400 MB)")
         print(f"bar object show at 10k < 1 s and < 400 MB: {big['show']['s']:.3f} s, "
               f"{big['show']['mb']:.0f} MB")
         for w in ("from_mesh", "read_model", "show", "exact", "paper", "trimesh"):
