@@ -200,3 +200,15 @@ def test_hull_model_checked_without_a_second_hull_agrees_with_the_full_check() -
         again = Polyhedron(built.vertices, dict(built.faces), rtol=built.rtol)
         assert again.diameter == built.diameter and again.atol == built.atol
         assert again.volume == built.volume
+
+
+def test_a_small_face_is_not_a_flat_one() -> None:
+    # a cube with one corner cut 0.3 mm deep (per metre): the cut's area, 7.8e-8, is below
+    # the tolerance times the diameter, but the triangle is 4e-4 wide, far above the
+    # tolerance; simulator meshes of fine CAD parts are full of such faces
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    e = 3e-4
+    cut = [[1 - e, 1, 1], [1, 1 - e, 1], [1, 1, 1 - e]]
+    model = convex_hull(np.vstack([corners[:-1], cut]))
+    assert len(model.faces) == 7
+    assert min(model.face_areas.values()) == pytest.approx(np.sqrt(3) / 4 * 2 * e * e)

@@ -804,15 +804,19 @@ def _check(
 
     newell = lp.newell(v)
     norm = np.linalg.norm(newell, axis=1)
-    flat_face = norm <= atol * diameter
+    p = v[lp.flat]
+    means = lp.means(v)
+    rel = p - means[lp.owner]
+    reach = np.sqrt(lp.face_max(np.einsum("ij,ij->i", rel, rel)))  # farthest corner
+    # no width: twice the area is at most the tolerance times the face's own reach (a small
+    # face of a finely tessellated part is not flat, a sliver within the tolerance is)
+    flat_face = norm <= atol * reach
     if flat_face.any():
         raise ModelError(
             "the face has no area: its vertices are collinear, or its loop crosses itself",
             face=names[first(flat_face)],
         )
     n_loop = newell / norm[:, None]  # right-handed about the loop: inward when clockwise
-    p = v[lp.flat]
-    means = lp.means(v)
     off = np.abs(np.einsum("ij,ij->i", p - means[lp.owner], n_loop[lp.owner]))
     worst = lp.face_max(off)
     if (worst > atol).any():
@@ -912,8 +916,7 @@ def _check(
         )
     # coplanar neighbours: g's vertices all within a small part of the tolerance of f's
     # plane (the normals' angle times g's extent bounds how far they can stray)
-    extent = 2.0 * np.sqrt(lp.face_max(np.einsum("ij,ij->i", p - means[lp.owner],
-                                                   p - means[lp.owner])))
+    extent = 2.0 * reach
     sin_fg = np.linalg.norm(np.cross(n_out[f_of], n_out[g_of]), axis=1)
     same = (sin_fg * np.maximum(extent[f_of], extent[g_of]) <= atol * COPLANAR_FRACTION) & (
         f_of < g_of
