@@ -6,9 +6,11 @@ connected piece, after welding, whose hull has volume) must pass all three, and 
 faces must agree with ``trimesh.poses.compute_stable_poses`` run on the mesh's convex hull with
 the model's centre of mass: every stable pose trimesh finds rests on a stable face of the
 model with the same outward normal (within 1e-3 rad; trimesh merges nearly coplanar facets by
-its own tolerance, so one pose may stand for several of our faces), and every stable face of
-the model is such a pose. Faces whose stability margin is within ten times the model's
-tolerance are reported apart as marginal: there a rounding decides.
+its own tolerance, so one pose may stand for several of our faces) or on a triangle of
+trimesh's hull lying in a stable face of the model (a face planar within the model's
+tolerance can tilt a thin triangle of another triangulation of it by more than the angle),
+and every stable face of the model is such a pose. Faces whose stability margin is within
+ten times the model's tolerance are reported apart as marginal: there a rounding decides.
 
 Run: ``python -m benchmarks meshes`` (the table in docs/meshes.md is its output).
 """

@@ -212,3 +212,16 @@ def test_a_small_face_is_not_a_flat_one() -> None:
     model = convex_hull(np.vstack([corners[:-1], cut]))
     assert len(model.faces) == 7
     assert min(model.face_areas.values()) == pytest.approx(np.sqrt(3) / 4 * 2 * e * e)
+
+
+def test_corners_that_do_not_turn_are_found_for_the_builder_to_leave_out() -> None:
+    from nonprehensile.geometry.build import _unturned_corners
+
+    # a cube's loops, with a point 1e-9 outside the middle of edge 0-1, on both faces there
+    # (a point Qhull may keep as a corner): within the tolerance of the hull of the others
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1],
+                  [1, 1, 1], [0, 1, 1], [0.5, -1e-9, -1e-9]], float)
+    faces = {"a": (3, 2, 1, 8, 0), "b": (6, 2, 1, 5), "c": (4, 7, 6, 5), "d": (7, 3, 2, 6),
+             "e": (0, 3, 7, 4), "f": (0, 8, 1, 5, 4)}
+    assert _unturned_corners(v, faces, 1e-7).tolist() == [8]
+    assert _unturned_corners(v, faces, 1e-10).tolist() == []  # a real corner at that scale

@@ -26,10 +26,12 @@ from nonprehensile.bounds import MAX_COORDINATE as MAX_RECORDED_COORDINATE
 from nonprehensile.checks import check_tolerance
 from nonprehensile.errors import InputError, MeshError, ModelError
 from nonprehensile.geometry.polyhedron import (
+    COLLINEAR_FRACTION,
     DEFAULT_RTOL,
     MAX_COORDINATE,
     Polyhedron,
     _Loops,
+    corner_heights,
     vertex_diameter,
 )
 
@@ -223,8 +225,9 @@ def _assemble(
     lengths: NDArray[np.int64],
     normals: FloatArray,
     atol: float,
-) -> tuple[FloatArray, dict[str, tuple[int, ...]]]:
-    """Renumber vertices and name faces in the builders' deterministic order.
+) -> tuple[NDArray[np.int64], dict[str, tuple[int, ...]]]:
+    """Renumber vertices and name faces in the builders' deterministic order: the model's
+    vertices are ``points[keyed]``; returns ``keyed`` and the faces.
 
     The loops are given as in :func:`_hull_loops`. Vectorised over corners: one gather
     renumbers every loop, puts the faces in order and starts each loop at its smallest new
@@ -262,7 +265,7 @@ def _assemble(
     bounds = [*new_starts.tolist(), len(out)]
     faces = {name: tuple(out[bounds[k] : bounds[k + 1]])
              for k, name in enumerate(face_names(n_loops))}
-    return points[keyed], faces
+    return keyed, faces
 
 
 def _planarity_rtol(vertices: FloatArray, faces: dict[str, tuple[int, ...]]) -> float:
@@ -274,6 +277,21 @@ def _planarity_rtol(vertices: FloatArray, faces: dict[str, tuple[int, ...]]) -> 
     off = np.abs(np.einsum("ij,ij->i", p - lp.means(vertices)[lp.owner], n[lp.owner]))
     # every vertex is a corner of the hull; the model's check reuses the diameter
     return float(off.max()) / max(vertex_diameter(vertices), 1e-300)
+
+
+def _unturned_corners(
+    vertices: FloatArray, faces: dict[str, tuple[int, ...]], rtol: float
+) -> NDArray[np.int64]:
+    """Vertices where some face's loop does not turn: within the tolerance of the line
+    through their neighbours on it (collinear), or turning back (a point Qhull left inside a
+    merged facet, within its thickness, that also touches small facets). The model check
+    refuses both; both lie within the tolerance of the hull of the other points."""
+    lp = _Loops.of(faces.values())
+    newell = lp.newell(vertices)
+    n_loop = newell / np.maximum(np.linalg.norm(newell, axis=1), 1e-300)[:, None]
+    atol = rtol * vertex_diameter(vertices)
+    height = corner_heights(vertices, lp, n_loop)
+    return np.unique(lp.flat[lp.nxt][height <= atol * COLLINEAR_FRACTION])
 
 
 def _round_up(x: float) -> float:
@@ -301,17 +319,23 @@ def _hull_model(
     if max_faces is not None:
         # coarser and coarser merging until the hull has few enough faces
         for _ in range(60):
-            _, lengths, normals = _hull_loops(p, hull)
+            lengths = _hull_loops(p, hull)[1]
             if len(lengths) <= max_faces:
                 break
             radius = max(radius * 2.0, 1e-12 * extent)
             hull = _qhull(p, radius, angle)
         else:
             raise MeshError(f"cannot facet the hull into at most {max_faces} faces")
-    last: ModelError | None = None
-    for _ in range(8):
-        flat, lengths, normals = _hull_loops(p, hull)
-        vertices, faces = _assemble(p, flat, lengths, normals, radius)
+    first_radius = radius
+
+    def attempt(
+        q: FloatArray, radius: float, hull: Any, unturned: bool = False
+    ) -> tuple[Polyhedron | ModelError, NDArray[np.int64]]:
+        """The model of Qhull's facets of ``q``, or why it is not valid, and (if asked) the
+        corners that do not turn, which may be why (indices into ``q``)."""
+        flat, lengths, normals = _hull_loops(q, hull)
+        keyed, faces = _assemble(q, flat, lengths, normals, radius)
+        vertices = q[keyed]
         # the model carries the tolerance it is valid at: at least the one asked for, and
         # enough for the (slightly bent) faces Qhull merged
         model_rtol = max(rtol, _round_up(radius / size),
@@ -325,12 +349,36 @@ def _hull_model(
                 units=units,
                 rtol=model_rtol,
                 hull_facets=True,
-            )
+            ), np.zeros(0, dtype=np.int64)
         except ModelError as exc:
-            # nearly coplanar or nearly collinear leftovers: merge a little more
-            last = exc
-            radius = max(radius * 2.0, 1e-12 * extent)
-            hull = _qhull(p, radius, angle)
+            if not unturned:
+                return exc, np.zeros(0, dtype=np.int64)
+            return exc, keyed[_unturned_corners(vertices, faces, model_rtol)]
+
+    last: ModelError | None = None
+    for _ in range(8):
+        got, _ = attempt(p, radius, hull)
+        if isinstance(got, Polyhedron):
+            return got
+        # nearly coplanar or nearly collinear leftovers: merge a little more
+        last = got
+        radius = max(radius * 2.0, 1e-12 * extent)
+        hull = _qhull(p, radius, angle)
+    # Still none: Qhull keeps corners that are straight within the tolerance (a point a hair
+    # off the line between two others, where the facets that meet there were not merged) or
+    # turn back (a point inside a merged facet's thickness), and a larger merging radius
+    # makes more of them. Such a point is within the tolerance of the hull of the others:
+    # leave it out, at the first radius, until every corner turns.
+    keep = np.ones(len(p), dtype=bool)
+    for _ in range(32):
+        sub = np.flatnonzero(keep)
+        got, unturned = attempt(p[sub], first_radius, _qhull(p[sub], first_radius, angle),
+                                unturned=True)
+        if isinstance(got, Polyhedron):
+            return got
+        if not len(unturned):
+            break
+        keep[sub[unturned]] = False
     raise MeshError(
         f"the hull of the points does not make a valid model at tolerance rtol={rtol:g} "
         f"({last}); try a larger tolerance (--rtol) or fewer faces (--max-faces)"

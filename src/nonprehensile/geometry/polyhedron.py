@@ -831,13 +831,7 @@ def _check(
         )
     # convex polygon: every turn goes the same way as the loop's normal; the height of each
     # corner above the line through its neighbours measures how sharp the turn is
-    e = p[lp.nxt] - p
-    e_next = e[lp.nxt]
-    len_e = np.linalg.norm(e, axis=1)
-    len_next = len_e[lp.nxt]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sin = np.einsum("ij,ij->i", np.cross(e, e_next), n_loop[lp.owner]) / (len_e * len_next)
-    height = np.nan_to_num(sin * np.minimum(len_e, len_next), nan=-np.inf)
+    height = corner_heights(v, lp, n_loop)
     low = -lp.face_max(-height)  # per-face minimum
     bad_turn = low <= atol * COLLINEAR_FRACTION
     if bad_turn.any():
@@ -937,6 +931,22 @@ def _check(
             f"{hull_volume:.6g}; use the convex hull (nonprehensile object from-mesh) instead"
         )
     return _Checked(v, loops, lp, diameter, n_out)
+
+
+def corner_heights(v: FloatArray, lp: _Loops, n_loop: FloatArray) -> FloatArray:
+    """Signed height of every corner above the line through its two neighbours on its loop,
+    shape (n_corners,): corner ``k`` of the flat order is the one between the edges starting
+    at ``k`` and at ``lp.nxt[k]`` (so it is vertex ``lp.flat[lp.nxt[k]]``). Positive where
+    the loop turns the way of ``n_loop`` (the loops' right-handed unit normals, shape
+    (n_faces, 3)); ``-inf`` where an edge has no length."""
+    p = v[lp.flat]
+    e = p[lp.nxt] - p
+    e_next = e[lp.nxt]
+    len_e = np.linalg.norm(e, axis=1)
+    len_next = len_e[lp.nxt]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sin = np.einsum("ij,ij->i", np.cross(e, e_next), n_loop[lp.owner]) / (len_e * len_next)
+    return np.asarray(np.nan_to_num(sin * np.minimum(len_e, len_next), nan=-np.inf))
 
 
 def _fan_mask(lp: _Loops) -> NDArray[np.bool_]:
