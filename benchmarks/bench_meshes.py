@@ -10,7 +10,9 @@ its own tolerance, so one pose may stand for several of our faces) or on a trian
 trimesh's hull lying in a stable face of the model (a face planar within the model's
 tolerance can tilt a thin triangle of another triangulation of it by more than the angle),
 and every stable face of the model is such a pose. Faces whose stability margin is within
-ten times the model's tolerance are reported apart as marginal: there a rounding decides.
+ten times the model's tolerance, or within what the tilt of trimesh's triangles of the face
+moves the centre of mass's projection, are reported apart as marginal: there a rounding
+decides.
 
 Run: ``python -m benchmarks meshes`` (the table in docs/meshes.md is its output).
 """
@@ -77,10 +79,10 @@ def single_solid(path: Path) -> tuple[bool, str]:
     return True, "closed" if mesh.is_watertight else "open"
 
 
-def trimesh_stable_poses(model: Any) -> tuple[list[np.ndarray], list[frozenset[int]]]:
-    """Outward normals (object frame) of the faces trimesh's stable poses rest on, and for
-    each the vertices of the hull triangle it rests on (trimesh's own hull of the model's
-    vertices, which keeps their numbering)."""
+def trimesh_stable_poses(model: Any) -> tuple[list[np.ndarray], list[int], Any]:
+    """Outward normals (object frame) of the faces trimesh's stable poses rest on, for each
+    the hull triangle it rests on, and that hull (trimesh's own hull of the model's vertices,
+    which keeps their numbering)."""
     import trimesh
 
     hull = trimesh.Trimesh(model.vertices, _triangles(model), process=True).convex_hull
@@ -91,8 +93,8 @@ def trimesh_stable_poses(model: Any) -> tuple[list[np.ndarray], list[frozenset[i
             continue
         n = t[:3, :3].T @ np.array([0.0, 0.0, -1.0])
         normals.append(n)
-        triangles.append(frozenset(hull.faces[int(np.argmax(hull.face_normals @ n))].tolist()))
-    return normals, triangles
+        triangles.append(int(np.argmax(hull.face_normals @ n)))
+    return normals, triangles, hull
 
 
 def _triangles(model: Any) -> np.ndarray:
@@ -108,27 +110,41 @@ def compare(model: Any) -> tuple[int, int, int, int]:
 
     A trimesh pose stands for the model's faces within :data:`ANGLE` of its normal, and for
     the face its hull triangle lies in: a face planar within the model's tolerance may tilt
-    a thin triangle of trimesh's triangulation of it by more than the angle."""
+    a thin triangle of trimesh's triangulation of it by more than the angle. Marginal: a
+    face whose stability margin is within ten times the tolerance, or within what that tilt
+    moves the centre of mass's projection (its height above the face times the tilt), where
+    trimesh's triangles and our face may rightly disagree."""
     from nonprehensile.states import stability_margin
 
     names = list(model.faces)
+    position = {f: i for i, f in enumerate(names)}
     normals = np.array([model.normals[f] for f in names])
     margin = np.array([stability_margin(model, f) for f in names])
-    ours = margin > model.atol
-    marginal = np.abs(margin) <= 10 * model.atol
-    position = {f: i for i, f in enumerate(names)}
+    normals_t, pose_triangles, hull = trimesh_stable_poses(model)
+    # the face of the model holding each triangle of trimesh's hull (-1: none), and the tilt
+    face_of = np.full(len(hull.faces), -1)
     loops = {f: frozenset(loop) for f, loop in model.faces.items()}
-    normals_t, triangles = trimesh_stable_poses(model)
+    for t, tri in enumerate(hull.faces.tolist()):
+        for f in model.vertex_faces[tri[0]]:
+            if set(tri) <= loops[f]:
+                face_of[t] = position[f]
+                break
+    tilt = np.zeros(len(names))
+    inside = face_of >= 0
+    cos_t = np.einsum("ij,ij->i", hull.face_normals[inside], normals[face_of[inside]])
+    np.maximum.at(tilt, face_of[inside], np.arccos(np.clip(cos_t, -1.0, 1.0)))
+    anchors = model.vertices[[model.faces[f][0] for f in names]]
+    height = np.einsum("ij,ij->i", anchors - model.com, normals)
+    ours = margin > model.atol
+    marginal = np.abs(margin) <= 10 * model.atol + height * np.tan(tilt)
     matched = np.zeros(len(names), dtype=bool)
     only_theirs = 0
-    for n, tri in zip(normals_t, triangles, strict=True):
+    for n, t in zip(normals_t, pose_triangles, strict=True):
         # trimesh merges facets by its own tolerance: a pose may stand for several of our
         # nearly coplanar faces, all within the angle
         near = normals @ n > np.cos(ANGLE)
-        # the face holding the triangle: one of the faces at its first vertex
-        for f in model.vertex_faces[min(tri)]:
-            if tri <= loops[f]:
-                near[position[f]] = True
+        if face_of[t] >= 0:
+            near[face_of[t]] = True
         matched |= near
         if not np.any(near & (ours | marginal)):
             only_theirs += 1
