@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import math
-import threading
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Literal
@@ -46,12 +46,27 @@ REG_FACTOR = 1e-3
 _BLOCK = 1 << 21
 
 
-class _Depth:
-    """The :func:`one_thread` blocks open in this process and the limits the first one set."""
+#: threadpoolctl's view of the loaded thread pools, and the module count it was taken at.
+_CONTROLLER: list[Any] = [None, -1]
 
-    lock = threading.Lock()
-    open = 0
-    limits: Any = None
+
+def _controller() -> Any:
+    """A cached ``threadpoolctl.ThreadpoolController`` (``None`` without threadpoolctl).
+
+    ``threadpool_limits`` scans every loaded shared library on each call (1 to 20 ms: a
+    macro step or a compaction would pay it on top of its own work); the controller scans
+    once and is rebuilt only when modules were imported since (a new native library comes
+    with an import).
+    """
+    n_modules = len(sys.modules)
+    if _CONTROLLER[1] != n_modules:
+        try:
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - scikit-learn depends on threadpoolctl
+            _CONTROLLER[:] = [None, len(sys.modules)]
+        else:
+            _CONTROLLER[:] = [ThreadpoolController(), len(sys.modules)]
+    return _CONTROLLER[0]
 
 
 @contextlib.contextmanager
@@ -60,29 +75,13 @@ def one_thread() -> Iterator[None]:
 
     One thread makes the results independent of the machine's thread count and, for the
     small matrices here, is faster than two threads fighting over two shared cores.
-
-    Re-entrant: the first block to open sets the limits and the last to close restores them.
-    Setting them scans every loaded library (about 1.4 ms); the demo opens a block around all
-    of its clustering, so the few hundred blocks inside it cost nothing (issue 16). Thread
-    limits are process-wide, so the count is too (other threads' blocks included).
     """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - scikit-learn depends on threadpoolctl
+    ctl = _controller()
+    if ctl is None:  # pragma: no cover - scikit-learn depends on threadpoolctl
         yield
         return
-    with _Depth.lock:
-        if _Depth.open == 0:
-            _Depth.limits = threadpool_limits(limits=1)
-        _Depth.open += 1
-    try:
+    with ctl.limit(limits=1):
         yield
-    finally:
-        with _Depth.lock:
-            _Depth.open -= 1
-            if _Depth.open == 0:
-                _Depth.limits.restore_original_limits()
-                _Depth.limits = None
 
 
 def project(x: FloatArray, mean: FloatArray, components: FloatArray) -> FloatArray:
