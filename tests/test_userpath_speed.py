@@ -9,8 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from nonprehensile.demonstrations.c3d_safe import _pack, _unpack
 from nonprehensile.errors import DemonstrationError
@@ -70,5 +69,5 @@ def test_c3d_answer_round_trip_and_damage() -> None:
     bad_dtype = payload.replace(b'"<f8"', b'"|O8"', 1)
     for broken in (payload[:-1], payload + b"\0", bad_dtype,
                    struct.pack("<Q", head_len + 10**6) + payload[8:]):
-        with pytest.raises(DemonstrationError, match="f.c3d: the C3D reader's answer"):
+        with pytest.raises(DemonstrationError, match=r"f\.c3d: the C3D reader's answer"):
             _unpack(Path("f.c3d"), broken)

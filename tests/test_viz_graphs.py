@@ -13,11 +13,11 @@ from nonprehensile.states import State, states_by_step
 
 pytest.importorskip("matplotlib")
 
-from matplotlib.collections import LineCollection  # noqa: E402
-from matplotlib.patches import ConnectionStyle  # noqa: E402
+from matplotlib.collections import LineCollection
+from matplotlib.patches import ConnectionStyle
 
-from nonprehensile.viz._figures import new_figure  # noqa: E402
-from nonprehensile.viz.graphs import (  # noqa: E402
+from nonprehensile.viz._figures import new_figure
+from nonprehensile.viz.graphs import (
     draw_arcs,
     plot_skill_graph,
     plot_transition_matrix,

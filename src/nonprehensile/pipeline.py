@@ -65,7 +65,8 @@ DEFAULT_GOAL = State("e", 110.0)
 DEFAULT_POSITION = (0.30, 0.10)
 
 
-def adjusted_rand_index(a: Sequence[Any], b: Sequence[Any]) -> float:
+def adjusted_rand_index(a: Sequence[Any] | np.ndarray[Any, Any],
+                        b: Sequence[Any] | np.ndarray[Any, Any]) -> float:
     """Adjusted Rand index of two labelings of the same samples (1: the same partition).
 
     scikit-learn's ``adjusted_rand_score`` by its pair-confusion formula, in exact integers,
@@ -73,8 +74,8 @@ def adjusted_rand_index(a: Sequence[Any], b: Sequence[Any]) -> float:
     """
     if len(a) != len(b):
         raise ValueError(f"labelings of {len(a)} and {len(b)} samples")
-    _, ia = np.unique(np.asarray(a), return_inverse=True)
-    _, ib = np.unique(np.asarray(b), return_inverse=True)
+    _, ia = np.unique(np.asarray(a).ravel(), return_inverse=True)
+    _, ib = np.unique(np.asarray(b).ravel(), return_inverse=True)
     table = np.zeros((int(ia.max(initial=-1)) + 1, int(ib.max(initial=-1)) + 1), dtype=np.int64)
     np.add.at(table, (ia.ravel(), ib.ravel()), 1)
     n = len(a)
