@@ -574,10 +574,14 @@ def _row_major_index(pts: NDArray[np.uint64], order: int) -> NDArray[np.intp]:
     n_dims = pts.shape[1]
     # shift and or straight from each (strided) column into one intp array: no astype copy
     # of a column (two of them were half the cost of a 2-D order-5 encoding)
-    c = np.left_shift(pts[:, 0], order * (n_dims - 1), dtype=np.intp, casting="unsafe")
+    c: NDArray[np.intp] = np.left_shift(pts[:, 0], order * (n_dims - 1), dtype=np.intp,
+                                        casting="unsafe")
+    tmp = np.empty_like(c) if n_dims > 2 else c
     for i in range(1, n_dims):
-        col = np.left_shift(pts[:, i], order * (n_dims - 1 - i), dtype=np.intp,
-                            casting="unsafe") if i < n_dims - 1 else pts[:, i]
+        col = pts[:, i]
+        if i < n_dims - 1:
+            col = np.left_shift(col, order * (n_dims - 1 - i), out=tmp, dtype=np.intp,
+                                casting="unsafe")
         np.bitwise_or(c, col, out=c, dtype=np.intp, casting="unsafe")
     return c
 
