@@ -98,13 +98,13 @@ def object_markers_of(poly: Polyhedron) -> dict[str, tuple[float, float, float]]
 #: the squeeze to a light touch (mm of press left) so that the object settles flat on its
 #: new bottom face between the pads instead of being held on an edge.
 PIVOT_PRESS_MM = 2.0
+SET_DOWN_PRESS_MM = 0.5
+SET_DOWN_SHARE = 0.3
 #: A mentor whose take ends more than this many degrees off the skill's final theta corrects
 #: the aim and does it again (at most ``corrections`` times; the take is kept if it ends
 #: within the 5 degrees a replay is judged by): a careful demonstration leaves a margin for
 #: the tracker noise a replay carries.
 AIM_TOL_DEG = 2.5
-SET_DOWN_PRESS_MM = 0.5
-SET_DOWN_SHARE = 0.3
 
 
 def _ramp(times: FloatArray, start: float, end: float, width: float = 0.1) -> FloatArray:
@@ -179,7 +179,9 @@ def record_demonstration(
     Raises
     ------
     TakeFailed
-        If the object did not end as the skill says, an event is missing, or it slid.
+        If the object did not end as the skill says, an event is missing, or it slid; or
+        (``robust``) the same hand motion with another draw of tracker noise, filtered as a
+        replay filters it, ends elsewhere (``TakeFailed.fragile``).
     """
     poly, scale = sim.poly, sim.scale
     tip_mm = max(0.0, 1000.0 * sim.params.finger_radius - press_mm)
