@@ -15,6 +15,7 @@ from sklearn.mixture import GaussianMixture
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.microcluster import (
     fit_mixture,
+    one_thread,
     pca,
     project,
     ward_merges,
@@ -171,3 +172,13 @@ def test_memory_store_micro_ids_are_checked() -> None:
     np.testing.assert_array_equal(s.micro_ids(), [4, 5, -1])
     with pytest.raises(InputError, match="micro-cluster ids"):
         s.add(np.zeros((2, 3)), [1, 2], np.zeros(2, dtype=np.int64), micro=np.array([1]))
+
+
+def test_one_thread_limits_every_pool_and_restores_it() -> None:
+    from threadpoolctl import threadpool_info
+
+    before = [i["num_threads"] for i in threadpool_info()]
+    for _ in range(2):  # the second use goes through the cached controller
+        with one_thread():
+            assert all(i["num_threads"] == 1 for i in threadpool_info())
+        assert [i["num_threads"] for i in threadpool_info()] == before

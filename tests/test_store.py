@@ -14,6 +14,7 @@ import pytest
 from hypothesis import given, strategies as st
 
 from nonprehensile.errors import InputError
+from nonprehensile.motion import store as store_module
 from nonprehensile.motion.store import MemoryStore, SampleStore, SQLiteStore, StoreError
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
@@ -182,3 +183,35 @@ def test_write_lock_timeout_is_a_store_error(tmp_path: Path) -> None:
             waiter.add(np.ones((1, 2)), [2], np.zeros(1, dtype=np.int64))
     waiter.add(np.ones((1, 2)), [2], np.zeros(1, dtype=np.int64))
     assert waiter.keys() == [1, 2]
+
+
+@given(ops=st.lists(st.tuples(st.integers(0, 9), st.integers(0, 30), st.integers(0, 30)),
+                    min_size=1, max_size=12))
+def test_memory_store_blocks_match_one_array(ops: list[tuple[int, int, int]]) -> None:
+    # tiny blocks (4 samples of 3 features): every read, write and append crosses blocks;
+    # the reference is one plain array
+    old = store_module._BLOCK_BYTES
+    store_module._BLOCK_BYTES = 96
+    try:
+        store = MemoryStore()
+        ref_x = np.zeros((0, 3))
+        ref = np.zeros((0, 3), dtype=np.int64)  # key, label, micro-cluster id
+        for m, a, b in ops:
+            x = np.arange(3 * m, dtype=float).reshape(m, 3) + ref_x.shape[0]
+            ints = np.arange(3 * m).reshape(m, 3) % 7 + ref.shape[0]
+            store.add(x, ints[:, 0].tolist(), ints[:, 1], micro=ints[:, 2])
+            ref_x, ref = np.vstack([ref_x, x]), np.vstack([ref, ints])
+            n = ref.shape[0]
+            lo, hi = min(a, b, n), min(max(a, b), n)
+            np.testing.assert_array_equal(store.vectors(lo, hi), ref_x[lo:hi])
+            new = ref[lo:hi, ::-1] + 1
+            store.update(lo, new[:, 0].tolist(), new[:, 1], micro=new[:, 2])
+            ref[lo:hi] = new
+        assert store.keys() == ref[:, 0].tolist()
+        np.testing.assert_array_equal(store.labels(), ref[:, 1])
+        np.testing.assert_array_equal(store.micro_ids(), ref[:, 2])
+        np.testing.assert_array_equal(store.vectors(0, ref.shape[0]), ref_x)
+        # no block ever holds more than a block's rows: an append copies at most one block
+        assert all(blk.shape[0] <= 4 for blk in store._x.blocks)
+    finally:
+        store_module._BLOCK_BYTES = old

@@ -16,9 +16,10 @@ from __future__ import annotations
 
 import contextlib
 import math
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -45,6 +46,29 @@ REG_FACTOR = 1e-3
 _BLOCK = 1 << 21
 
 
+#: threadpoolctl's view of the loaded thread pools, and the module count it was taken at.
+_CONTROLLER: list[Any] = [None, -1]
+
+
+def _controller() -> Any:
+    """A cached ``threadpoolctl.ThreadpoolController`` (``None`` without threadpoolctl).
+
+    ``threadpool_limits`` scans every loaded shared library on each call (1 to 20 ms: a
+    macro step or a compaction would pay it on top of its own work); the controller scans
+    once and is rebuilt only when modules were imported since (a new native library comes
+    with an import).
+    """
+    n_modules = len(sys.modules)
+    if _CONTROLLER[1] != n_modules:
+        try:
+            from threadpoolctl import ThreadpoolController
+        except ImportError:  # pragma: no cover - scikit-learn depends on threadpoolctl
+            _CONTROLLER[:] = [None, len(sys.modules)]
+        else:
+            _CONTROLLER[:] = [ThreadpoolController(), len(sys.modules)]
+    return _CONTROLLER[0]
+
+
 @contextlib.contextmanager
 def one_thread() -> Iterator[None]:
     """BLAS and OpenMP limited to one thread inside (threadpoolctl, when installed).
@@ -52,12 +76,11 @@ def one_thread() -> Iterator[None]:
     One thread makes the results independent of the machine's thread count and, for the
     small matrices here, is faster than two threads fighting over two shared cores.
     """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - scikit-learn depends on threadpoolctl
+    ctl = _controller()
+    if ctl is None:  # pragma: no cover - scikit-learn depends on threadpoolctl
         yield
         return
-    with threadpool_limits(limits=1):
+    with ctl.limit(limits=1):
         yield
 
 

@@ -110,7 +110,8 @@ def _check_batch(vectors: ArrayLike, keys: list[int], labels: ArrayLike,
                  n_features: int | None) -> tuple[FloatArray, IntArray]:
     v = np.asarray(vectors, dtype=np.float64)
     lab = np.asarray(labels, dtype=np.int64)
-    if v.ndim != 2 or (n_features is not None and v.shape[1] != n_features):
+    if v.ndim != 2 or v.shape[1] == 0 or (n_features is not None
+                                           and v.shape[1] != n_features):
         want = f"(m, {n_features})" if n_features is not None else "(m, n_features)"
         raise InputError(f"store: vectors must have shape {want}, got shape {v.shape}")
     if len(keys) != v.shape[0] or lab.shape != (v.shape[0],):
@@ -134,11 +135,75 @@ def _check_micro(micro: ArrayLike | None, m: int) -> IntArray:
     return mic
 
 
-class MemoryStore:
-    """Samples, keys and cluster ids in growing numpy arrays (amortised O(1) append).
+#: Bytes of one block of :class:`MemoryStore` rows: appending never copies more than this.
+_BLOCK_BYTES = 1 << 20
 
-    Capacity doubles when full, so appending one sample costs O(1) on average whatever the
-    number already stored.
+
+class _Blocks:
+    """Rows of ``width`` values of one dtype in blocks of ``rows`` rows: an append copies at
+    most one block.
+
+    A single growing array would double when full and copy everything stored (256 MB at a
+    million 32-feature samples): a registration then pays hundreds of milliseconds. Blocks
+    of ``rows`` rows are allocated as needed; only the last one grows (by doubling, up to
+    ``rows``), so an append costs O(1) in the worst case, not only on average.
+    """
+
+    def __init__(self, width: int, dtype: type, rows: int) -> None:
+        self.width, self.dtype, self.rows = width, dtype, rows
+        self.blocks: list[NDArray[Any]] = []
+        self.n = 0
+
+    def _shape(self, m: int) -> tuple[int, int]:
+        return (m, self.width)
+
+    def append(self, values: NDArray[Any]) -> None:
+        m, done = values.shape[0], 0
+        while done < m:
+            full = self.rows * (len(self.blocks) - 1) if self.blocks else 0
+            used = self.n - full
+            if not self.blocks or used == self.rows:
+                self.blocks.append(np.empty(self._shape(min(self.rows, max(64, m - done))),
+                                            dtype=self.dtype))
+                used = 0
+            last = self.blocks[-1]
+            if used == last.shape[0]:  # the last block is short: double it (at most a block)
+                grown: NDArray[Any] = np.empty(self._shape(min(self.rows, 2 * used)),
+                                               dtype=self.dtype)
+                grown[:used] = last[:used]
+                self.blocks[-1] = last = grown
+            take = min(m - done, last.shape[0] - used)
+            last[used : used + take] = values[done : done + take]
+            done += take
+            self.n += take
+
+    def _parts(self, start: int, stop: int) -> Iterator[tuple[int, int, int]]:
+        """(block, first row in it, end row in it) covering rows ``start..stop-1``."""
+        stop = min(stop, self.n)
+        while start < stop:
+            b, r = divmod(start, self.rows)
+            e = min(self.rows, r + stop - start)
+            yield b, r, e
+            start += e - r
+
+    def get(self, start: int, stop: int) -> NDArray[Any]:
+        parts = [self.blocks[b][r:e] for b, r, e in self._parts(start, stop)]
+        if not parts:
+            return np.empty(self._shape(0), dtype=self.dtype)
+        return np.concatenate(parts) if len(parts) > 1 else parts[0].copy()
+
+    def set(self, start: int, values: NDArray[Any]) -> None:
+        done = 0
+        for b, r, e in self._parts(start, start + values.shape[0]):
+            self.blocks[b][r:e] = values[done : done + e - r]
+            done += e - r
+
+
+class MemoryStore:
+    """Samples, keys and cluster ids in numpy arrays, kept in fixed-size blocks.
+
+    Appending one sample costs O(1) in the worst case whatever the number already stored:
+    blocks of about 1 MiB are added as needed, and nothing stored is ever copied whole.
     """
 
     def __init__(self) -> None:
@@ -146,10 +211,9 @@ class MemoryStore:
 
     def clear(self) -> None:
         self._n = 0
-        self._x: FloatArray = np.zeros((0, 0))
-        self._keys: NDArray[np.int64] = np.zeros(0, dtype=np.int64)
-        self._labels: IntArray = np.zeros(0, dtype=np.int64)
-        self._micro: IntArray = np.zeros(0, dtype=np.int64)
+        self._x = _Blocks(0, np.float64, 1)
+        # key, label as registered, micro-cluster id: one int64 row per sample
+        self._ints = _Blocks(3, np.int64, max(1, _BLOCK_BYTES // 24))
         self._meta: dict[str, bytes] = {}
 
     @property
@@ -158,68 +222,61 @@ class MemoryStore:
 
     @property
     def n_features(self) -> int | None:
-        return self._x.shape[1] if self._n else None
-
-    def _grow(self, need: int, d: int) -> None:
-        cap = self._x.shape[0]
-        if need <= cap and self._x.shape[1] == d:
-            return
-        new = max(need, 2 * cap, 64)
-        x = np.empty((new, d))
-        if self._n:
-            x[: self._n] = self._x[: self._n]
-        k = np.empty(new, dtype=np.int64)
-        k[: self._n] = self._keys[: self._n]
-        lab = np.empty(new, dtype=np.int64)
-        lab[: self._n] = self._labels[: self._n]
-        mic = np.empty(new, dtype=np.int64)
-        mic[: self._n] = self._micro[: self._n]
-        self._x, self._keys, self._labels, self._micro = x, k, lab, mic
+        return self._x.width if self._n else None
 
     def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
             micro: IntArray | None = None) -> None:
         v, lab = _check_batch(vectors, keys, labels, self.n_features)
         m = v.shape[0]
         mic = _check_micro(micro, m)
-        self._grow(self._n + m, v.shape[1])
-        self._x[self._n : self._n + m] = v
-        self._keys[self._n : self._n + m] = keys
-        self._labels[self._n : self._n + m] = lab
-        self._micro[self._n : self._n + m] = mic
+        if not self._n:
+            d = v.shape[1]
+            self._x = _Blocks(d, np.float64, max(1, _BLOCK_BYTES // (8 * max(d, 1))))
+        ints = np.empty((m, 3), dtype=np.int64)
+        ints[:, 0] = keys
+        ints[:, 1] = lab
+        ints[:, 2] = mic
+        self._x.append(v)
+        self._ints.append(ints)
         self._n += m
 
     def vectors(self, start: int, stop: int) -> FloatArray:
-        return self._x[start:stop].copy()
+        return self._x.get(start, stop)
 
     def update(self, start: int, keys: list[int], labels: IntArray,
                micro: IntArray | None = None) -> None:
         m = len(keys)
-        self._keys[start : start + m] = keys
-        self._labels[start : start + m] = labels
+        ints = self._ints.get(start, start + m)
+        ints[:, 0] = keys
+        ints[:, 1] = labels
         if micro is not None:
-            self._micro[start : start + m] = _check_micro(micro, m)
+            ints[:, 2] = _check_micro(micro, m)
+        self._ints.set(start, ints)
+
+    def _column(self, j: int) -> IntArray:
+        return np.ascontiguousarray(self._ints.get(0, self._n)[:, j])
 
     def keys(self) -> list[int]:
-        return [int(k) for k in self._keys[: self._n].tolist()]
+        return [int(k) for k in self._column(0).tolist()]
 
     def labels(self) -> IntArray:
-        return self._labels[: self._n].copy()
+        return self._column(1)
 
     def micro_ids(self) -> IntArray:
-        return self._micro[: self._n].copy()
+        return self._column(2)
 
     def cluster(self, label: int) -> tuple[IntArray, list[int]]:
-        ids = np.flatnonzero(self._labels[: self._n] == label)
-        return self._sorted(ids)
+        ints = self._ints.get(0, self._n)
+        return self._sorted(ints[:, 0], np.flatnonzero(ints[:, 1] == label))
 
     def key_range(self, low: int, high: int) -> tuple[IntArray, list[int]]:
-        k = self._keys[: self._n]
-        return self._sorted(np.flatnonzero((k >= low) & (k <= high)))
+        k = self._column(0)
+        return self._sorted(k, np.flatnonzero((k >= low) & (k <= high)))
 
-    def _sorted(self, ids: NDArray[np.intp]) -> tuple[IntArray, list[int]]:
-        order = np.argsort(self._keys[ids], kind="stable")
-        ids = ids[order]
-        return ids.astype(np.int64), [int(k) for k in self._keys[ids].tolist()]
+    @staticmethod
+    def _sorted(keys: IntArray, ids: NDArray[np.intp]) -> tuple[IntArray, list[int]]:
+        ids = ids[np.argsort(keys[ids], kind="stable")]
+        return ids.astype(np.int64), [int(k) for k in keys[ids].tolist()]
 
     def get_meta(self, name: str) -> bytes | None:
         return self._meta.get(name)
@@ -566,11 +623,20 @@ class SQLiteStore:
     def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
             micro: IntArray | None = None) -> None:
         v, lab = _check_batch(vectors, keys, labels, self.n_features)
-        mic = _check_micro(micro, v.shape[0])
-        rows = []
-        for k, c, row, u in zip(keys, lab.tolist(), v, mic.tolist(), strict=True):
-            blob = row.tobytes()
-            rows.append((int(k), int(c), blob, int(u), _crc(blob), _kcrc(int(k), int(c))))
+        m = v.shape[0]
+        mic = _check_micro(micro, m)
+        # the batch's bytes built at once, then cut per row: each vector's blob, and each
+        # (key, label) pair as _kcrc packs it (two little-endian int64), for the checksums
+        width = 8 * v.shape[1]
+        raw = np.ascontiguousarray(v, dtype=np.float64).tobytes()
+        kc = np.empty((m, 2), dtype="<i8")
+        kc[:, 0] = keys
+        kc[:, 1] = lab
+        kc_raw = kc.tobytes()
+        blobs = [raw[i : i + width] for i in range(0, m * width, width)]
+        pairs = [kc_raw[i : i + 16] for i in range(0, 16 * m, 16)]
+        rows = list(zip(kc[:, 0].tolist(), kc[:, 1].tolist(), blobs, mic.tolist(),
+                        map(_crc, blobs), map(_crc, pairs), strict=True))
         # one executemany in one transaction: the batch costs one commit
         with self.transaction(), self._errors():
             self._db.executemany(
