@@ -1,18 +1,20 @@
 """The demonstration service under load, on loopback, with a crash in the middle.
 
 8 concurrent uploaders send the bundled dataset's 180 recordings (each with its mentor's
-token) to ``nonprehensile serve`` on 127.0.0.1, backed by PostgreSQL. After a third of them
-the server is killed with SIGKILL and started again; uploaders retry what failed (an upload
-is idempotent). Checked afterwards, in the database: every upload that got a 2xx is stored,
-each of the 180 exactly once, every stored sample belongs to exactly one upload and every
-upload has all its segments (nothing half-written), and each arc's clusterer state agrees
-with its samples. Reported: throughput and p50/p99 latency of the uploads.
+token) to ``nonprehensile serve`` on 127.0.0.1, once backed by PostgreSQL and once by a SQLite
+file. After a third of them the server is killed with SIGKILL and started again; uploaders
+retry what failed (an upload is idempotent). Checked afterwards, in the database: every upload
+that got a 2xx is stored, each of the 180 exactly once, every stored sample belongs to exactly
+one upload and every upload has all its segments (nothing half-written), and each arc's
+clusterer state agrees with its samples. Reported: throughput and p50/p99 latency.
 
-Then the registration throughput into PostgreSQL with batched inserts: flattened segments
-(4 800 floats each) registered by a clusterer on a ``PostgresStore`` in batches of 500
-(keying + COPY, one transaction a batch, the model checkpointed every 4 096 samples as the
-service does), the same with the model saved after every batch, and the bare
-``PostgresStore.add`` (COPY) for comparison.
+Then the registration throughput into PostgreSQL with batched inserts, through the clusterer:
+flattened segments (4 800 floats each, as the cube dataset's) registered by a clusterer on a
+``PostgresStore`` in batches of 500 (keying, clustering, one COPY, one transaction a batch with
+the arc's generation marker, the model checkpointed every 4 096 samples, as the service
+does), by 2 processes at once, one arc each (the service's arcs are independent stores of one
+database): the samples of both over the wall time. Also one stream alone, the client's and
+the server's CPU per sample, and the bare ``PostgresStore.add`` (COPY) for comparison.
 
 The server comes from ``NONPREHENSILE_TEST_PG`` or is started with ``.ci/start-postgres``.
 """
@@ -75,6 +77,15 @@ def _fresh_db(url: str) -> str:
     return urlunsplit(urlsplit(url)._replace(path=f"/{name}"))
 
 
+_TMP: list[str] = []
+
+
+def _sqlite_file() -> str:
+    """A new SQLite file for the service, in a folder removed at the end of the run."""
+    _TMP.append(tempfile.mkdtemp(prefix="np-bench-sqlite-"))
+    return str(Path(_TMP[-1]) / "service.db")
+
+
 def _port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -103,15 +114,14 @@ def _wait_up(base: str, timeout: float = 120.0) -> None:
     raise RuntimeError("the server did not come up")
 
 
-def load_test() -> dict[str, Any]:
+def load_test(kind: str = "postgresql") -> dict[str, Any]:
+    """The load test on a fresh PostgreSQL database (``kind="postgresql"``) or SQLite file."""
     import httpx
-    import psycopg
 
     from nonprehensile.demonstrations.dataset import dataset_path
     from nonprehensile.service.db import create_token, make_pool
 
-    pg, _ = _server()
-    db = _fresh_db(pg)
+    db = _fresh_db(_server()[0]) if kind == "postgresql" else _sqlite_file()
     pool = make_pool(db, max_size=2)
     with pool.connection() as conn:
         tokens = {m: create_token(conn, m) for m in ("ana", "ben", "chen")}
@@ -190,8 +200,12 @@ def load_test() -> dict[str, Any]:
         t.join()
     kt.join()
     wall = time.perf_counter() - t0
-    # what the database holds
-    with psycopg.connect(db, autocommit=True) as conn:
+    # what the database holds (the same SQL on both)
+    from nonprehensile.service.db import arc_store
+    from nonprehensile.service.ingest import CHECKPOINT_N, STATE, _replayed
+
+    pool = make_pool(db, max_size=2)
+    with pool.connection() as conn:
         stored = {h for (h,) in conn.execute("SELECT hash FROM np_uploads").fetchall()}
         n_uploads = len(stored)
         orphans = conn.execute(
@@ -201,21 +215,19 @@ def load_test() -> dict[str, Any]:
             "SELECT p.skill, count(u.step) FROM np_uploads p LEFT JOIN np_upload_samples u "
             "ON u.hash = p.hash GROUP BY p.hash, p.skill").fetchall()
         empty_reply = conn.execute(
-            "SELECT count(*) FROM np_uploads WHERE reply = '{}'::jsonb").fetchone()[0]
+            "SELECT count(*) FROM np_uploads WHERE reply = %s", ("{}",)).fetchone()[0]
         n_samples = conn.execute("SELECT count(*) FROM np_samples").fetchone()[0]
         arcs = [r[0] for r in conn.execute("SELECT DISTINCT store FROM np_samples")]
-    from nonprehensile.motion.pgstore import PostgresStore
-    from nonprehensile.service.ingest import CHECKPOINT_N, STATE, _replayed
-
-    states_ok = 0
-    for arc in arcs:
-        # the checkpointed model, with the samples after it registered again, gives the
-        # stored keys and ids exactly (_replayed raises otherwise)
-        with PostgresStore(db, arc) as st:
+        states_ok = 0
+        for arc in arcs:
+            # the checkpointed model, with the samples after it registered again, gives the
+            # stored keys and ids exactly (_replayed raises otherwise)
+            st = arc_store(conn, arc)
             n_seen = int((st.get_meta(CHECKPOINT_N) or b"0").decode())
             _replayed(arc, st.get_meta(STATE) or b"", n_seen, st.vectors(0, st.n_samples),
                       st.keys(), st.labels())
             states_ok += 1
+    pool.close()
     steps = {}
     for skill, n in per_upload:
         steps.setdefault(skill, set()).add(n)
@@ -226,7 +238,7 @@ def load_test() -> dict[str, Any]:
         server["proc"].kill()
     lat_ms = np.array(lat) * 1000
     return {
-        "uploads": len(ann), "answered_2xx": len(ok), "stored": n_uploads,
+        "store": kind, "uploads": len(ann), "answered_2xx": len(ok), "stored": n_uploads,
         "all_2xx_stored": set(ok.values()) <= stored, "duplicates_answered": duplicates,
         "retries": retries, "killed": killed.is_set(), "orphan_samples": int(orphans),
         "uploads_without_reply": int(empty_reply), "segments_per_skill": {
@@ -239,46 +251,163 @@ def load_test() -> dict[str, Any]:
     }
 
 
-def insert_throughput() -> dict[str, Any]:
+#: Samples each registration stream sends (the first INIT_N make its first clustering, not
+#: timed), features per sample (a flattened segment of the bundled cube dataset: 400 points of
+#: 4 markers), samples per batch (one COPY and one transaction each).
+REG_N, REG_D, REG_BATCH, REG_INIT = 10_000, 4800, 500, 1000
+#: The service checkpoints an arc's model every this many samples (as ingest.CHECKPOINT).
+REG_CHECKPOINT = 4096
+
+
+def _stream(seed: int) -> np.ndarray:
+    """One arc's synthetic stream: 6 Gaussian clusters in REG_D features."""
+    rng = np.random.default_rng(seed)
+    centres = rng.normal(scale=3.0, size=(6, REG_D))
+    return centres[rng.integers(0, 6, REG_N)] + rng.normal(size=(REG_N, REG_D))
+
+
+def _register_stream(args: tuple[str, str, int, Any]) -> dict[str, float]:
+    """Register one arc's stream through a clusterer on a PostgresStore, batch by batch as
+    the service does: each batch keyed, clustered and COPYed in one transaction with the
+    arc's generation marker, the model checkpointed every REG_CHECKPOINT samples. Runs in a
+    worker process; the timed part starts when every worker is ready (``barrier``)."""
+    db, arc, seed, barrier = args
     from threadpoolctl import threadpool_limits
 
     from nonprehensile.motion.clustering import HilbertClusterer
     from nonprehensile.motion.pgstore import PostgresStore
 
+    x = _stream(seed)
+    with PostgresStore(db, arc) as st, threadpool_limits(1):
+        c = HilbertClusterer(6, init_size=REG_INIT, growth=1e12, drift_fraction=1e12,
+                             store=st, random_state=0)
+        c.partial_fit(x[:REG_INIT])  # the first batch: a clustering, not timed
+        st.put_meta("hilbert_clusterer", c.save_state())
+        last = REG_INIT
+        if barrier is not None:
+            barrier.wait()
+        t0, c0 = time.perf_counter(), time.process_time()
+        for s in range(REG_INIT, REG_N, REG_BATCH):
+            with st.transaction():
+                c.partial_fit(x[s : s + REG_BATCH])
+                st.put_meta("generation", str(c.n_samples_seen_).encode())
+                if c.n_samples_seen_ - last >= REG_CHECKPOINT:
+                    st.put_meta("hilbert_clusterer", c.save_state())
+                    last = c.n_samples_seen_
+        t1 = time.perf_counter()
+        return {"t0": t0, "t1": t1, "cpu": time.process_time() - c0,
+                "n": REG_N - REG_INIT, "stored": st.n_samples}
+
+
+def _server_cpu() -> float:
+    """CPU seconds (user + system) of every local ``postgres`` process so far, with their
+    children that have exited (a closed connection's backend), 0 if none."""
+    tick = os.sysconf("SC_CLK_TCK")
+    total = 0.0
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            if Path(f"/proc/{pid}/comm").read_text().strip() != "postgres":
+                continue
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += sum(int(f) for f in fields[11:15]) / tick
+    return total
+
+
+def insert_throughput(workers: int = 2) -> dict[str, Any]:
+    """Registration into PostgreSQL with batched inserts, through the clusterer.
+
+    ``workers`` processes (one an arc, as the service's arcs are independent stores of one
+    database) register REG_N - REG_INIT samples each; the figure is the samples of all of them
+    over the wall time from the first start to the last commit. Also reported: one stream
+    alone, and the bare COPY of the same batches (the store's inserts without the clusterer).
+    """
+    from multiprocessing import get_context
+
+    from nonprehensile.motion.pgstore import PostgresStore
+
     pg, _ = _server()
     db = _fresh_db(pg)
-    rng = np.random.default_rng(0)
-    n, d, batch = 10_000, 4800, 500
-    centres = rng.normal(scale=3.0, size=(6, d))
-    x = centres[rng.integers(0, 6, n)] + rng.normal(size=(n, d))
-    out: dict[str, Any] = {"samples": n, "features": d, "batch": batch}
+    out: dict[str, Any] = {"features": REG_D, "batch": REG_BATCH,
+                           "samples_per_stream": REG_N - REG_INIT, "workers": workers}
+    x = _stream(0)
     with PostgresStore(db, "bare") as st:
         t0 = time.perf_counter()
-        for s in range(0, n, batch):
-            st.add(x[s : s + batch], [0] * batch, np.zeros(batch, dtype=np.int64))
-        out["copy_samples_per_s"] = round(n / (time.perf_counter() - t0))
-    # registration as the service does it: keying + COPY per batch, a checkpoint of the
-    # model every CHECKPOINT samples (the samples after it are its log); and, for
-    # comparison, the model saved with every batch
-    for label, every in (("registered_samples_per_s", 4096), ("registered_state_every_batch",
-                                                                batch)):
-        with PostgresStore(db, label) as st, threadpool_limits(1):
-            c = HilbertClusterer(6, init_size=1000, growth=1e12, drift_fraction=1e12, store=st,
-                                 random_state=0)
-            c.partial_fit(x[:1000])  # the first batch: a clustering, not timed
-            last = 1000
-            t0 = time.perf_counter()
-            for s in range(1000, n, batch):
-                with st.transaction():
-                    c.partial_fit(x[s : s + batch])
-                    st.put_meta("generation", str(c.n_samples_seen_).encode())
-                    if c.n_samples_seen_ - last >= every:
-                        st.put_meta("hilbert_clusterer", c.save_state())
-                        last = c.n_samples_seen_
-            out[label] = round((n - 1000) / (time.perf_counter() - t0))
-        out["state_mb"] = round(len(c.save_state()) / 1e6, 1)
+        for s in range(0, REG_N, REG_BATCH):
+            st.add(x[s : s + REG_BATCH], [0] * REG_BATCH, np.zeros(REG_BATCH, dtype=np.int64))
+        out["copy_only_samples_per_s"] = round(REG_N / (time.perf_counter() - t0))
+    del x
+    one = _register_stream((db, "single", 1, None))
+    out["one_stream_samples_per_s"] = round(one["n"] / (one["t1"] - one["t0"]))
+    out["one_stream_client_cpu_ms_per_sample"] = round(1000 * one["cpu"] / one["n"], 3)
+    ctx = get_context("spawn")
+    with ctx.Manager() as mgr:
+        barrier = mgr.Barrier(workers)
+        with ctx.Pool(workers) as pool:
+            cpu0 = _server_cpu()
+            res = pool.map(_register_stream,
+                           [(db, f"arc{i}", 10 + i, barrier) for i in range(workers)])
+            server = _server_cpu() - cpu0
+    wall = max(r["t1"] for r in res) - min(r["t0"] for r in res)
+    n = sum(r["n"] for r in res)
+    out["all_stored"] = all(r["stored"] == REG_N for r in res)
+    out["registered_samples_per_s"] = round(n / wall)
+    out["registered_wall_s"] = round(wall, 2)
+    out["client_cpu_ms_per_sample"] = round(1000 * sum(r["cpu"] for r in res) / n, 3)
+    out["server_cpu_ms_per_sample"] = round(1000 * server / n, 3)
+    out["load_average"] = [round(a, 2) for a in os.getloadavg()]
     out["goal"] = GOAL_SAMPLES_PER_S
+    out["met"] = out["registered_samples_per_s"] >= GOAL_SAMPLES_PER_S
     return out
+
+
+def same_results() -> dict[str, Any]:
+    """The bundled dataset's 180 recordings uploaded in order to a service on PostgreSQL and
+    to one on a SQLite file, then every due arc recalibrated: the same documents from both."""
+    from fastapi.testclient import TestClient
+
+    from nonprehensile.demonstrations.dataset import dataset_path
+    from nonprehensile.service import ServiceConfig, create_app, load_template
+    from nonprehensile.service.db import create_token, make_pool
+    from nonprehensile.service.ingest import Registry
+
+    cube = dataset_path("cube")
+    ann = json.loads((cube / "annotations.json").read_text())["demonstrations"]
+    template = load_template("cube")
+    docs: dict[str, list[Any]] = {}
+    for kind in ("postgresql", "sqlite"):
+        db = _fresh_db(_server()[0]) if kind == "postgresql" else _sqlite_file()
+        pool = make_pool(db, max_size=4)
+        with pool.connection() as conn:
+            tokens = {m: create_token(conn, m) for m in sorted({e["mentor"] for e in ann})}
+        registry = Registry(pool, template)
+        app = create_app(pool, template, ServiceConfig(kind), registry=registry,
+                         background=False)
+        out: list[Any] = []
+        with TestClient(app) as client:
+            for e in ann:
+                entry = {k: v for k, v in e.items() if k not in ("file", "mentor")}
+                r = client.post("/demonstrations",
+                                files={"file": (e["file"], (cube / e["file"]).read_bytes())},
+                                data={"annotation": json.dumps(entry)},
+                                headers={"Authorization": f"Bearer {tokens[e['mentor']]}"})
+                if r.status_code != 201:
+                    raise RuntimeError(f"{kind}: {e['file']}: {r.status_code} {r.text[:200]}")
+                out.append(r.json())
+            out.extend(registry.recalibrate(arc) for arc in registry.arcs_due())
+            out.append(client.get("/clusters").json())
+            out.append(client.get("/mentors").json())
+            out.extend(client.get(f"/uploads/{d['upload']}").json() for d in out[:len(ann)])
+        pool.close()
+        docs[kind] = out
+    arcs = docs["sqlite"][-len(ann) - 2]["arcs"]
+    return {"uploads": len(ann), "arcs": len(arcs),
+            "clusters": sum(len(a["clusters"]) for a in arcs),
+            "recalibrations": sum(1 for d in docs["sqlite"] if d.get("recalibrated")),
+            "identical": docs["postgresql"] == docs["sqlite"]}
 
 
 def fuzz(examples: int = 60) -> dict[str, Any]:
@@ -353,6 +482,8 @@ def main() -> None:
         _main()
     finally:
         _stop_server()
+        for tmp in _TMP:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _main() -> None:
@@ -360,15 +491,34 @@ def _main() -> None:
     print("   schemathesis over /openapi.json (with and without a token):")
     for k, v in fz.items():
         print(f"     {k}: {v}")
-    res = load_test()
-    print("   load test (8 uploaders, 180 recordings, SIGKILL after "
-          f"{KILL_AFTER} answers, restart):")
-    for k, v in res.items():
+    loads = {}
+    for kind in ("postgresql", "sqlite"):
+        res = loads[kind] = load_test(kind)
+        print(f"   load test on {kind} (8 uploaders, 180 recordings, SIGKILL after "
+              f"{KILL_AFTER} answers, restart):")
+        for k, v in res.items():
+            print(f"     {k}: {v}")
+    same = same_results()
+    print("   the same uploads, in order, to a service on each store:")
+    for k, v in same.items():
         print(f"     {k}: {v}")
     ins = insert_throughput()
-    print("   registration into PostgreSQL, batched:")
+    print("   registration into PostgreSQL through the clusterer, batched:")
     for k, v in ins.items():
         print(f"     {k}: {v}")
+    print("   bars (issue 12):")
+    print(f"     no 5xx in the fuzz: {fz['server_errors'] == 0} ({fz['requests']} requests)")
+    for kind, res in loads.items():
+        whole = (res["answered_2xx"] == res["stored"] == res["uploads"] and res["all_2xx_stored"]
+                 and res["orphan_samples"] == 0 and res["uploads_without_reply"] == 0)
+        print(f"     load test + kill -9 on {kind}: {res['stored']}/{res['uploads']} stored, "
+              f"nothing lost, twice or half-written: {whole}; {res['uploads_per_s']} uploads/s, "
+              f"p50 {res['p50_ms']} ms, p99 {res['p99_ms']} ms")
+    print(f"     same results from SQLite and PostgreSQL: {same['identical']}")
+    print(f"     registration through the clusterer into PostgreSQL: "
+          f"{ins['registered_samples_per_s']} samples/s ({ins['workers']} arcs at once; one "
+          f"stream alone {ins['one_stream_samples_per_s']}), goal >= {GOAL_SAMPLES_PER_S:.0f}: "
+          f"{'met' if ins['met'] else 'MISSED'} (load average {ins['load_average']})")
 
 
 if __name__ == "__main__":

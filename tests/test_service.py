@@ -307,45 +307,80 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def test_real_uvicorn_on_loopback(pg_url: str) -> None:
-    import httpx
-
-    runner = CliRunner()
-    r = runner.invoke(main, ["serve", "token", "create", "dana", "--store", pg_url, "--json"])
-    assert r.exit_code == 0, r.output
-    token = json.loads(r.stdout)["token"]
-    r = runner.invoke(main, ["serve", "token", "list", "--store", pg_url, "--json"])
-    assert json.loads(r.stdout)["mentors"] == [
-        {"mentor": "dana", "tokens": 1, "since": json.loads(r.stdout)["mentors"][0]["since"]}]
-    port = _free_port()
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "nonprehensile.cli", "serve", "--store", pg_url, "--host",
+def _serve(store: str, port: int) -> subprocess.Popen[bytes]:
+    return subprocess.Popen(
+        [sys.executable, "-m", "nonprehensile.cli", "serve", "--store", store, "--host",
          "127.0.0.1", "--port", str(port), "--recalibrate-every", "0"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
         env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
-    try:
-        url = f"http://127.0.0.1:{port}"
-        for _ in range(300):
-            try:
-                if httpx.get(f"{url}/health", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                time.sleep(0.1)
-        else:
-            pytest.fail("the server did not come up: " + proc.stderr.read().decode()[:500]
-                        if proc.stderr else "")
-        e = entries("roll-pull", "chen", 1)[0]
-        f = form(e)
+
+
+def _wait_up(url: str, proc: subprocess.Popen[bytes]) -> None:
+    import httpx
+
+    for _ in range(300):
+        try:
+            if httpx.get(f"{url}/health", timeout=1).status_code == 200:
+                return
+        except httpx.TransportError:
+            time.sleep(0.1)
+    pytest.fail("the server did not come up: " + (proc.stderr.read().decode()[:500]
+                                                  if proc.stderr else ""))
+
+
+@pytest.mark.parametrize("backend", ["postgresql", "sqlite"])
+def test_real_uvicorn_on_loopback(backend: str, request: pytest.FixtureRequest,
+                                  tmp_path: Path) -> None:
+    """A real server on each store: tokens by the CLI, concurrent uploads (the same one
+    twice at once among them), kill -9, restart: every upload answered 2xx is stored once."""
+    import httpx
+
+    store = (request.getfixturevalue("pg_url") if backend == "postgresql"
+             else str(tmp_path / "service.db"))
+    runner = CliRunner()
+    r = runner.invoke(main, ["serve", "token", "create", "dana", "--store", store, "--json"])
+    assert r.exit_code == 0, r.output
+    token = json.loads(r.stdout)["token"]
+    r = runner.invoke(main, ["serve", "token", "list", "--store", store, "--json"])
+    assert json.loads(r.stdout)["mentors"] == [
+        {"mentor": "dana", "tokens": 1, "since": json.loads(r.stdout)["mentors"][0]["since"]}]
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}"
+    auth = {"Authorization": f"Bearer {token}"}
+    takes = entries("roll-pull", "chen", 2)
+    jobs = [takes[0], takes[1], takes[1]]  # takes[1] twice, at the same time
+
+    def send(e: dict[str, Any]) -> httpx.Response:
         ann = {k: v for k, v in e.items() if k not in ("file", "mentor")}
-        r = httpx.post(f"{url}/demonstrations", files=f["files"],
+        return httpx.post(f"{url}/demonstrations", files=form(e)["files"],
+                          data={"annotation": json.dumps(ann)}, headers=auth, timeout=60)
+
+    proc = _serve(store, port)
+    try:
+        _wait_up(url, proc)
+        e = takes[0]
+        ann = {k: v for k, v in e.items() if k not in ("file", "mentor")}
+        r = httpx.post(f"{url}/demonstrations", files=form(e)["files"],
                        data={"annotation": json.dumps({**ann, "mentor": "chen"})},
-                       headers={"Authorization": f"Bearer {token}"}, timeout=60)
+                       headers=auth, timeout=60)
         assert r.status_code == 403  # the entry is chen's, the token dana's
-        r = httpx.post(f"{url}/demonstrations", files=f["files"],
-                       data={"annotation": json.dumps(ann)},
-                       headers={"Authorization": f"Bearer {token}"}, timeout=60)
-        assert r.status_code == 201, r.text
-        assert r.json()["mentor"] == "dana" and len(r.json()["segments"]) >= 2
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(3) as ex:
+            replies = list(ex.map(send, jobs))
+        assert sorted(r.status_code for r in replies) == [200, 201, 201], [
+            r.text for r in replies]
+        assert replies[0].json()["mentor"] == "dana" and len(replies[0].json()["segments"]) >= 2
+        proc.kill()  # SIGKILL: no shutdown of any kind
+        proc.wait()
+        proc = _serve(store, port)
+        _wait_up(url, proc)
+        again = [send(e) for e in takes]
+        assert all(r.status_code == 200 and r.json()["duplicate"] for r in again)
+        assert {r.json()["upload"] for r in again} == {r.json()["upload"] for r in replies}
+        stats = httpx.get(f"{url}/mentors/dana", timeout=30).json()
+        assert stats["uploads"] == 2
+        assert stats["segments"] == sum(len(r.json()["segments"]) for r in again)
     finally:
         proc.send_signal(signal.SIGINT)
         try:
@@ -355,10 +390,54 @@ def test_real_uvicorn_on_loopback(pg_url: str) -> None:
             proc.wait()
 
 
+def test_same_results_from_sqlite_and_postgresql(pg_url: str, tmp_path: Path,
+                                                 template: Any) -> None:
+    """The same uploads to a service on each store: the same replies, clusters, statistics,
+    before and after a background recalibration."""
+
+    def run(store: str) -> list[Any]:
+        pool = make_pool(store, max_size=4)
+        with pool.connection() as conn:
+            tokens = {m: create_token(conn, m) for m in ("ana", "ben")}
+        registry = Registry(pool, template, init_size=INIT, checkpoint=3)
+        app = create_app(pool, template, ServiceConfig("test"), registry=registry,
+                         background=False)
+        docs: list[Any] = []
+        with TestClient(app) as c:
+            for e in entries("twist", "ana", 4) + entries("twist", "ben", 4):
+                r = c.post("/demonstrations", **form(e),
+                           headers={"Authorization": f"Bearer {tokens[e['mentor']]}"})
+                assert r.status_code == 201, r.text
+                docs.append(r.json())
+            docs.append(c.get("/clusters").json())
+            assert registry.arcs_due()
+            docs.extend(registry.recalibrate(arc) for arc in registry.arcs_due())
+            docs.append(c.get("/clusters").json())
+            docs.append(c.get("/mentors").json())
+            docs.extend(c.get(f"/uploads/{d['upload']}").json() for d in docs[:8])
+        pool.close()
+        return docs
+
+    sqlite = run(str(tmp_path / "service.db"))
+    assert run(pg_url) == sqlite
+    assert any(a["clusters"] for a in sqlite[8]["arcs"])  # clustered, not all pending
+
+
 def test_serve_refuses_what_it_cannot_serve(tmp_path: Path) -> None:
     runner = CliRunner()
-    r = runner.invoke(main, ["serve", "--store", str(tmp_path / "x.db")])
-    assert r.exit_code == 2 and "postgresql:// URL" in r.output
+    # a `cluster` store file is not the service's database
+    arrays = tmp_path / "x.npy"
+    import numpy as np
+
+    np.save(arrays, np.random.default_rng(0).normal(size=(30, 4)))
+    r = runner.invoke(main, ["cluster", "fit", str(tmp_path / "c.db"), "--arrays", str(arrays),
+                             "--n-clusters", "2"])
+    assert r.exit_code == 0, r.output
+    r = runner.invoke(main, ["serve", "--store", str(tmp_path / "c.db"), "--port", "0"])
+    assert r.exit_code == 2 and "`nonprehensile cluster` store" in r.output
+    (tmp_path / "notes.txt").write_text("not a database, not at all " * 100)
+    r = runner.invoke(main, ["serve", "token", "list", "--store", str(tmp_path / "notes.txt")])
+    assert r.exit_code == 2 and "notes.txt" in r.output and "Traceback" not in r.output
     r = runner.invoke(main, ["serve"])
     assert r.exit_code == 2 and "--store" in r.output
     r = runner.invoke(main, ["serve", "token", "create", " ", "--store",

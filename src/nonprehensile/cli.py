@@ -53,7 +53,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
              "Plan transitions, contact events and finger motions from --from to --to."),
     "serve": ("nonprehensile.cli_serve:serve_group",
               "Run the demonstration service: mentors upload demonstrations into a PostgreSQL "
-              "store."),
+              "or SQLite store."),
     "simulate": ("nonprehensile.cli_sim:simulate_group",
                  "Execute demonstrations, inferred transitions and plans in the MuJoCo "
                  "simulation."),

@@ -1,8 +1,9 @@
 """``nonprehensile serve``: the demonstration service, and its mentors' tokens.
 
-Registered on the main group by :mod:`nonprehensile.cli`. ``serve --store URL`` runs the HTTP
-service (FastAPI on uvicorn) until interrupted; ``serve token create MENTOR --store URL``
-prints a new bearer token once (the database keeps only its hash).
+Registered on the main group by :mod:`nonprehensile.cli`. ``serve --store STORE`` runs the HTTP
+service (FastAPI on uvicorn) until interrupted; ``serve token create MENTOR --store STORE``
+prints a new bearer token once (the database keeps only its hash). STORE is a
+``postgresql://`` URL or a SQLite file path, as everywhere a store is named.
 """
 
 from __future__ import annotations
@@ -29,13 +30,13 @@ def _pool(store: str) -> Any:
     return make_pool(store, max_size=2)
 
 
-store_option = click.option("--store", required=True, metavar="URL",
-                            help="The PostgreSQL database (postgresql://user@host:port/db).")
+_STORE_HELP = ("The service's database: a postgresql://user@host:port/db URL, or a SQLite "
+               "file path (created if absent).")
+store_option = click.option("--store", required=True, metavar="STORE", help=_STORE_HELP)
 
 
 @click.group("serve", invoke_without_command=True)
-@click.option("--store", default=None, metavar="URL",
-              help="The PostgreSQL database (postgresql://user@host:port/db).")
+@click.option("--store", default=None, metavar="STORE", help=_STORE_HELP)
 @click.option("--host", default="127.0.0.1", show_default=True,
               help="Address to listen on (127.0.0.1: this machine only).")
 @click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True)
@@ -49,19 +50,22 @@ store_option = click.option("--store", required=True, metavar="URL",
               help="Seconds between checks for arcs due a background recalibration (0: only "
                    "on POST /recalibrate).")
 @click.option("--workers", type=click.IntRange(1, 64), default=8, show_default=True,
-              help="Database connections in the pool.")
+              help="Database connections in the pool (PostgreSQL).")
 @click.pass_context
 @handle_errors
 def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dataset: str,
                 max_bytes: int, recalibrate_every: float, workers: int) -> None:
-    """Run the demonstration service: mentors upload demonstrations into a PostgreSQL store.
+    """Run the demonstration service: mentors upload demonstrations into a PostgreSQL
+    or SQLite store.
 
     Without a subcommand, serves http://HOST:PORT until interrupted (OpenAPI at
-    /openapi.json). `serve token create MENTOR --store URL` makes a mentor's token."""
+    /openapi.json). STORE is a PostgreSQL URL or a SQLite file. `serve token create MENTOR
+    --store STORE` makes a mentor's token."""
     if ctx.invoked_subcommand is not None:
         return
     if store is None:
-        raise InputError("give --store postgresql://user@host:port/db (the service's database)")
+        raise InputError("give --store postgresql://user@host:port/db or --store FILE.db (the "
+                         "service's database)")
     try:
         import uvicorn
 

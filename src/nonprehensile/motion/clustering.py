@@ -536,8 +536,9 @@ class HilbertClusterer:
                 "into one row"
             )
         # squared distances of values beyond ~1e150 overflow to inf: refuse them as non-finite
-        bad = ~np.isfinite(x) | (np.abs(x) > _MAX_ABS)
-        if bad.any():
+        # (one pass first: the largest magnitude is NaN when any value is NaN)
+        if x.size and not float(np.abs(x).max()) <= _MAX_ABS:
+            bad = ~np.isfinite(x) | (np.abs(x) > _MAX_ABS)
             r, c = (int(v) for v in np.argwhere(bad)[0])
             raise InputError(
                 f"{what}: sample {r}, feature {c} is {x[r, c]}; every value must be finite and "

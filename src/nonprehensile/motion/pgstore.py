@@ -37,6 +37,7 @@ from psycopg import errors as pg_errors, pq
 from nonprehensile.errors import InputError, StoreError
 from nonprehensile.motion.store import FloatArray, IntArray, _check_batch, _check_micro
 from nonprehensile.motion.stores import display_name, is_postgres_url
+from nonprehensile.motion.tablestore import TableStore, check_store_name
 
 __all__ = ["SCHEMA_VERSION", "UPDATE_BATCH", "PostgresStore", "is_postgres_url"]
 
@@ -129,7 +130,7 @@ def ensure_schema(conn: psycopg.Connection[Any]) -> None:
             )
 
 
-class PostgresStore:
+class PostgresStore(TableStore):
     """Samples, keys and cluster ids in a PostgreSQL database.
 
     Parameters
@@ -152,11 +153,11 @@ class PostgresStore:
     change together or not at all.
     """
 
+    schema_version = SCHEMA_VERSION
+
     def __init__(self, url: str | psycopg.Connection[Any], name: str = "default", *,
                  timeout: float = 30.0) -> None:
-        if not isinstance(name, str) or not name or len(name) > 200:
-            raise InputError(f"store name must be a non-empty string of at most 200 "
-                             f"characters, got {name!r}")
+        check_store_name(name)
         if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or timeout <= 0:
             raise InputError(f"timeout must be a positive number of seconds, got {timeout!r}")
         self.name = name
@@ -175,18 +176,13 @@ class PostgresStore:
         try:
             self._conn.execute(f"SET lock_timeout = {int(timeout * 1000)}")
             ensure_schema(self._conn)
-            count, top = self._conn.execute(
-                "SELECT count(*), max(id) FROM np_samples WHERE store = %s", (name,)
-            ).fetchone() or (0, None)
+            self._check_ids()
         except psycopg.Error as exc:
             self.close()
             raise StoreError(f"{self.url}: cannot open store {name!r} ({exc})") from None
-        if count != (-1 if top is None else top) + 1:
+        except InputError:
             self.close()
-            raise InputError(
-                f"{self.url}: store {name!r} holds {count} samples but its ids run to {top}: "
-                "rows were deleted outside nonprehensile; fit the store again"
-            )
+            raise
 
     # ------------------------------------------------------------------ connection
 
@@ -240,77 +236,6 @@ class PostgresStore:
             finally:
                 self._depth = 0
 
-    # ------------------------------------------------------------------ reads
-
-    def _one(self, sql: str, args: tuple[Any, ...]) -> Any:
-        row = self._conn.execute(sql, args).fetchone()
-        return None if row is None else row[0]
-
-    @property
-    def n_samples(self) -> int:
-        top = self._one("SELECT max(id) FROM np_samples WHERE store = %s", (self.name,))
-        return 0 if top is None else int(top) + 1
-
-    @property
-    def n_features(self) -> int | None:
-        if self._d is None:
-            blob = self._one("SELECT vector FROM np_samples WHERE store = %s AND id = 0",
-                             (self.name,))
-            if blob is not None:
-                self._d = len(blob) // 8
-        return self._d
-
-    def vectors(self, start: int, stop: int) -> FloatArray:
-        d = self.n_features
-        rows = self._conn.execute(
-            "SELECT vector FROM np_samples WHERE store = %s AND id >= %s AND id < %s "
-            "ORDER BY id", (self.name, int(start), int(stop))
-        ).fetchall()
-        if not rows or d is None:
-            return np.zeros((0, d or 0))
-        return np.frombuffer(b"".join(bytes(r[0]) for r in rows), dtype="<f8").reshape(-1, d)
-
-    def keys(self) -> list[int]:
-        rows = self._conn.execute(
-            "SELECT key FROM np_samples WHERE store = %s ORDER BY id", (self.name,)
-        ).fetchall()
-        return [int(r[0]) for r in rows]
-
-    def labels(self) -> IntArray:
-        rows = self._conn.execute(
-            "SELECT label FROM np_samples WHERE store = %s ORDER BY id", (self.name,)
-        ).fetchall()
-        return np.array([r[0] for r in rows], dtype=np.int64)
-
-    def micro_ids(self) -> IntArray:
-        """Micro-cluster ids of all samples, shape (n_samples,), in the order added."""
-        rows = self._conn.execute(
-            "SELECT micro FROM np_samples WHERE store = %s ORDER BY id", (self.name,)
-        ).fetchall()
-        return np.array([r[0] for r in rows], dtype=np.int64)
-
-    def _ids_keys(self, sql: str, args: tuple[Any, ...]) -> tuple[IntArray, list[int]]:
-        rows = self._conn.execute(sql, args).fetchall()
-        return np.array([r[0] for r in rows], dtype=np.int64), [int(r[1]) for r in rows]
-
-    def cluster(self, label: int) -> tuple[IntArray, list[int]]:
-        # a range scan of the (store, label, key, id) index, already in key order
-        return self._ids_keys(
-            "SELECT id, key FROM np_samples WHERE store = %s AND label = %s ORDER BY key, id",
-            (self.name, int(label)),
-        )
-
-    def key_range(self, low: int, high: int) -> tuple[IntArray, list[int]]:
-        return self._ids_keys(
-            "SELECT id, key FROM np_samples WHERE store = %s AND key BETWEEN %s AND %s "
-            "ORDER BY key, id", (self.name, int(low), int(high)),
-        )
-
-    def get_meta(self, name: str) -> bytes | None:
-        value = self._one("SELECT value FROM np_meta WHERE store = %s AND name = %s",
-                          (self.name, name))
-        return None if value is None else bytes(value)
-
     # ------------------------------------------------------------------ writes
 
     def add(self, vectors: FloatArray, keys: list[int], labels: IntArray,
@@ -355,36 +280,3 @@ class PostgresStore:
                         (ids, ks, lab[s : s + UPDATE_BATCH], mic[s : s + UPDATE_BATCH],
                          self.name),
                     )
-
-    def put_meta(self, name: str, value: bytes) -> None:
-        with self.transaction():
-            self._conn.execute(
-                "INSERT INTO np_meta (store, name, value) VALUES (%s, %s, %s) "
-                "ON CONFLICT (store, name) DO UPDATE SET value = EXCLUDED.value",
-                (self.name, name, bytes(value)),
-            )
-
-    def clear(self) -> None:
-        with self.transaction():
-            self._conn.execute("DELETE FROM np_samples WHERE store = %s", (self.name,))
-            self._conn.execute("DELETE FROM np_meta WHERE store = %s", (self.name,))
-        self._d = None
-
-    # ------------------------------------------------------------------ inspection
-
-    def info(self) -> dict[str, Any]:
-        """URL (without password), store name and counts, for the command line."""
-        names = self._conn.execute(
-            "SELECT name FROM np_meta WHERE store = %s ORDER BY name", (self.name,)
-        ).fetchall()
-        return {"path": self.url, "store": self.name, "n_samples": self.n_samples,
-                "n_features": self.n_features, "schema_version": SCHEMA_VERSION,
-                "meta": [r[0] for r in names]}
-
-    def stores(self) -> list[str]:
-        """Names of every store in the database that holds samples or blobs."""
-        rows = self._conn.execute(
-            "SELECT DISTINCT store FROM np_meta UNION SELECT DISTINCT store FROM np_samples "
-            "ORDER BY 1"
-        ).fetchall()
-        return [r[0] for r in rows]

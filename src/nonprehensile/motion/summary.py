@@ -263,7 +263,7 @@ class MicroSummary:
         # per-call dtype checks (a tenth of a single registration)
         frac = np.minimum(np.maximum((u - self.lo) / (self.hi - self.lo), 0.0), _TOP)
         cell = np.floor(frac * float(1 << self.oi)).astype(np.int64)
-        rm = (cell.reshape(m, c, ki) * self._weights).sum(axis=2)
+        rm = np.add.reduce(cell.reshape(m, c, ki) * self._weights, axis=2)
         return np.asarray(self._table[rm], dtype=np.uint64)
 
     def keys(self, x: FloatArray) -> NDArray[np.uint64]:
@@ -380,8 +380,8 @@ class MicroSummary:
         m = x.shape[0]
         z = project(x, self.mean, self.comp)
         ck = self.curve_keys(z)
-        xn = np.einsum("ij,ij->i", x - self.mean, x - self.mean)
-        res = np.maximum(xn - np.einsum("ij,ij->i", z, z), 0.0)
+        xc = x - self.mean
+        res = np.maximum(_einsum("ij,ij->i", xc, xc) - _einsum("ij,ij->i", z, z), 0.0)
         cand = self._candidates(ck)
         base = 0
         labels = np.empty(m, dtype=np.int64)

@@ -1,4 +1,5 @@
-"""The HTTP service: FastAPI application over a :class:`~nonprehensile.service.ingest.Registry`.
+"""The HTTP service: FastAPI application over a :class:`~nonprehensile.service.ingest.Registry`
+(on PostgreSQL or one SQLite file).
 
 Every POST and DELETE needs a mentor's bearer token (``Authorization: Bearer np_...``, made by
 ``nonprehensile serve token create MENTOR``); GETs are open. Errors answer
@@ -18,11 +19,10 @@ from typing import Annotated, Any
 from fastapi import Depends, FastAPI, File, Form, Header, Request, UploadFile
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
-from psycopg_pool import ConnectionPool
 
 import nonprehensile
 from nonprehensile.errors import InputError, NonprehensileError
-from nonprehensile.service.db import mentor_of
+from nonprehensile.service.db import Pool, mentor_of
 from nonprehensile.service.ingest import (
     Forbidden,
     Registry,
@@ -54,7 +54,7 @@ class ServiceConfig:
     Attributes
     ----------
     store : str
-        The PostgreSQL URL (shown without its password).
+        The database: a PostgreSQL URL (shown without its password) or a SQLite file.
     max_bytes : int
         Largest request body.
     recalibrate_every : float
@@ -188,7 +188,7 @@ class Recalibrator:
                 log.exception("background recalibration failed")
 
 
-def create_app(pool: ConnectionPool, template: Template, config: ServiceConfig, *,
+def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
                registry: Registry | None = None, background: bool = True) -> FastAPI:
     """The FastAPI application (``background=False``: no recalibration thread, for tests)."""
     reg = registry or Registry(pool, template)

@@ -1,4 +1,9 @@
-"""The service's own tables on PostgreSQL: mentors' tokens, uploads and their samples.
+"""The service's own tables: mentors' tokens, uploads and their samples, on PostgreSQL (a
+``postgresql://`` URL) or in one SQLite file (a path; :mod:`nonprehensile.service.sqlite`).
+
+The service talks to either through a pool (:func:`make_pool`) of connections that run the
+same SQL (psycopg's ``%s`` placeholders); :func:`arc_store` opens an arc's store on a pooled
+connection and :func:`snapshot` a consistent read of it.
 
 Tokens are stored as SHA-256 hashes: a token is 32 random bytes (``secrets.token_urlsafe``),
 far beyond guessing, so a slow password hash adds nothing; the database never holds one a
@@ -9,19 +14,31 @@ answers the same reply.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import secrets
-from typing import Any
+from collections.abc import Iterator
+from contextlib import AbstractContextManager
+from typing import Any, Protocol
 
-import psycopg
 from psycopg_pool import ConnectionPool, PoolTimeout
 
 from nonprehensile.errors import InputError, StoreError
-from nonprehensile.motion.pgstore import connect, ensure_schema
+from nonprehensile.motion.pgstore import PostgresStore, connect, ensure_schema
 from nonprehensile.motion.stores import display_name, is_postgres_url
+from nonprehensile.motion.tablestore import TableStore
+from nonprehensile.service.sqlite import SQLiteArcStore, SQLiteConnection, SQLitePool
 
-__all__ = ["SERVICE_SCHEMA_VERSION", "create_token", "hash_token", "list_tokens", "make_pool",
-           "mentor_of", "service_schema"]
+__all__ = ["SERVICE_SCHEMA_VERSION", "Pool", "arc_store", "create_token", "hash_token",
+           "list_tokens", "make_pool", "mentor_of", "service_schema", "snapshot"]
+
+
+class Pool(Protocol):
+    """What the service needs of a pool: a connection for a block, and closing."""
+
+    def connection(self) -> AbstractContextManager[Any]: ...
+
+    def close(self) -> None: ...
 
 #: Version of the service tables' layout.
 SERVICE_SCHEMA_VERSION = 1
@@ -63,13 +80,11 @@ def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
 
-def make_pool(url: str, *, max_size: int = 8, timeout: float = 30.0) -> ConnectionPool:
-    """A psycopg connection pool on ``url`` (autocommit connections), tables created."""
+def make_pool(url: str, *, max_size: int = 8, timeout: float = 30.0) -> Pool:
+    """A pool on the service's database, tables created: a psycopg pool of autocommit
+    connections for a ``postgresql://`` URL, a :class:`SQLitePool` for a file path."""
     if not is_postgres_url(url):
-        raise InputError(
-            f"{url}: the service needs a postgresql:// URL (a server database that many "
-            "uploaders share); a SQLite file is the embedded store of `nonprehensile cluster`"
-        )
+        return SQLitePool(url, timeout=timeout)
     # one plain connection first: an unreachable server is one clear error at once, not a
     # pool retrying in the background until its timeout
     connect(url, timeout=timeout).close()
@@ -87,7 +102,27 @@ def make_pool(url: str, *, max_size: int = 8, timeout: float = 30.0) -> Connecti
     return pool
 
 
-def service_schema(conn: psycopg.Connection[Any]) -> None:
+def arc_store(conn: Any, arc: str) -> TableStore:
+    """An arc's store on a pooled connection (its transactions join the connection's)."""
+    if isinstance(conn, SQLiteConnection):
+        return SQLiteArcStore(conn, arc)
+    return PostgresStore(conn, arc)
+
+
+@contextlib.contextmanager
+def snapshot(conn: Any) -> Iterator[None]:
+    """A read of one consistent state, taking no lock (PostgreSQL: REPEATABLE READ; SQLite:
+    a WAL read transaction)."""
+    if isinstance(conn, SQLiteConnection):
+        with conn.snapshot():
+            yield
+        return
+    with conn.transaction():
+        conn.execute("SET TRANSACTION ISOLATION LEVEL REPEATABLE READ")
+        yield
+
+
+def service_schema(conn: Any) -> None:
     """Create the service's tables on first use; refuse a newer layout."""
     with conn.transaction():
         conn.execute("SELECT pg_advisory_xact_lock(%s)", (_DDL_LOCK,))
@@ -111,7 +146,7 @@ def _check_mentor(mentor: str) -> str:
     return name
 
 
-def create_token(conn: psycopg.Connection[Any], mentor: str) -> str:
+def create_token(conn: Any, mentor: str) -> str:
     """A new bearer token for ``mentor`` (shown once; only its hash is stored)."""
     name = _check_mentor(mentor)
     token = "np_" + secrets.token_urlsafe(32)
@@ -120,23 +155,25 @@ def create_token(conn: psycopg.Connection[Any], mentor: str) -> str:
     return token
 
 
-def revoke_tokens(conn: psycopg.Connection[Any], mentor: str) -> int:
+def revoke_tokens(conn: Any, mentor: str) -> int:
     """Revoke every token of ``mentor``; returns how many."""
     cur = conn.execute("UPDATE np_tokens SET revoked = true WHERE mentor = %s AND NOT revoked",
                        (_check_mentor(mentor),))
-    return cur.rowcount
+    return int(cur.rowcount)
 
 
-def list_tokens(conn: psycopg.Connection[Any]) -> list[dict[str, Any]]:
+def list_tokens(conn: Any) -> list[dict[str, Any]]:
     """Mentors with their number of live tokens (never the tokens)."""
     rows = conn.execute(
         "SELECT mentor, count(*) FILTER (WHERE NOT revoked), min(created) FROM np_tokens "
         "GROUP BY mentor ORDER BY mentor"
     ).fetchall()
-    return [{"mentor": m, "tokens": int(n), "since": t.isoformat()} for m, n, t in rows]
+    # PostgreSQL gives a datetime, SQLite the ISO text it stored
+    return [{"mentor": m, "tokens": int(n), "since": t if isinstance(t, str) else t.isoformat()}
+            for m, n, t in rows]
 
 
-def mentor_of(conn: psycopg.Connection[Any], token: str) -> str | None:
+def mentor_of(conn: Any, token: str) -> str | None:
     """The mentor a live token belongs to, or None."""
     row = conn.execute("SELECT mentor FROM np_tokens WHERE token_hash = %s AND NOT revoked",
                        (hash_token(token),)).fetchone()

@@ -6,8 +6,9 @@ service's own skills file and dataset-wide settings, the upload's entries and fi
 :func:`~nonprehensile.demonstrations.dataset.check_dataset` on it: the problems are those the
 CLI lists, line for line. Each accepted demonstration is cut at its events
 (:func:`~nonprehensile.demonstrations.segment.segment_demonstration`), each piece flattened
-and registered to the clusterer of its arc (one :class:`~nonprehensile.motion.pgstore.
-PostgresStore` per pair of contact events, as the pipeline clusters them), all in one database
+and registered to the clusterer of its arc (one store per pair of contact events, as the
+pipeline clusters them: a :class:`~nonprehensile.motion.pgstore.PostgresStore` or, in a SQLite
+file, a :class:`~nonprehensile.service.sqlite.SQLiteArcStore`), all in one database
 transaction together with the upload's row: a killed server leaves an upload whole or absent.
 
 Recalibration runs in the background (:meth:`Registry.recalibrate`): the heavy part (principal
@@ -33,8 +34,6 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
-import psycopg
-from psycopg_pool import ConnectionPool
 
 from nonprehensile.demonstrations.dataset import (
     ANNOTATION_FILES,
@@ -50,8 +49,9 @@ from nonprehensile.errors import InputError, NonprehensileError
 from nonprehensile.io import load_document, read_skills
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.library import flatten_segments
-from nonprehensile.motion.pgstore import PostgresStore
 from nonprehensile.motion.store import MemoryStore
+from nonprehensile.motion.tablestore import TableStore
+from nonprehensile.service.db import Pool, arc_store, snapshot
 
 __all__ = ["Forbidden", "Registry", "Rejected", "Template", "content_hash", "extract_archive",
            "load_template"]
@@ -303,11 +303,11 @@ def archive_upload(template: Template, mentor: str, data: bytes,
 
 
 class Registry:
-    """Registers demonstrations to their arcs' clusterers in PostgreSQL.
+    """Registers demonstrations to their arcs' clusterers in the service's database.
 
     Parameters
     ----------
-    pool : ConnectionPool
+    pool : Pool
         Autocommit connections to the database (tables created).
     template : Template
     init_size : int
@@ -319,7 +319,7 @@ class Registry:
         Random seed of the arcs' clusterers.
     """
 
-    def __init__(self, pool: ConnectionPool, template: Template, *,
+    def __init__(self, pool: Pool, template: Template, *,
                  init_size: int = DEFAULT_INIT_SIZE, growth: float = 2.0,
                  checkpoint: int = DEFAULT_CHECKPOINT, seed: int = 0) -> None:
         self.pool = pool
@@ -333,14 +333,14 @@ class Registry:
 
     # ------------------------------------------------------------------ clusterers
 
-    def _new_clusterer(self, arc: str, store: PostgresStore) -> HilbertClusterer:
+    def _new_clusterer(self, arc: str, store: TableStore) -> HilbertClusterer:
         k = self.template.arc_skills.get(arc, 1)
         # recalibrations are the background job's: the clusterer never runs one inline
         # (beyond completing its first batch), so an upload never waits for one
         return HilbertClusterer(k if k > 1 else None, init_size=self.init_size, growth=1e12,
                                 drift_fraction=1e12, store=store, random_state=self.seed)
 
-    def _clusterer(self, arc: str, store: PostgresStore) -> HilbertClusterer:
+    def _clusterer(self, arc: str, store: TableStore) -> HilbertClusterer:
         """The arc's clusterer, bound to ``store`` (whose lock the caller holds).
 
         The one this process left the arc in is reused when the arc's generation says nobody
@@ -367,7 +367,7 @@ class Registry:
         c.store = store
         return c
 
-    def _save(self, store: PostgresStore, c: HilbertClusterer, checkpoint: bool,
+    def _save(self, store: TableStore, c: HilbertClusterer, checkpoint: bool,
               pending: dict[str, tuple[bytes, HilbertClusterer]]) -> None:
         """Record the arc's new generation, and a checkpoint of the model when asked."""
         if checkpoint:
@@ -377,7 +377,7 @@ class Registry:
         store.put_meta(GENERATION, gen)
         pending[store.name] = (gen, c)
 
-    def _checkpoint_due(self, store: PostgresStore, c: HilbertClusterer) -> bool:
+    def _checkpoint_due(self, store: TableStore, c: HilbertClusterer) -> bool:
         # the first batch's model is saved as soon as it exists; later ones every
         # `checkpoint` samples (the samples after a checkpoint are its log)
         if c.n_samples_seen_ <= self.init_size:
@@ -418,15 +418,15 @@ class Registry:
             # claims the hash; an identical upload in flight waits here for this one's commit
             claimed = conn.execute(
                 "INSERT INTO np_uploads (hash, mentor, file, skill, kind, reply) "
-                "VALUES (%s, %s, %s, %s, %s, '{}'::jsonb) ON CONFLICT (hash) DO NOTHING "
-                "RETURNING hash", (digest, mentor, demo.file, demo.skill.name, kind)
+                "VALUES (%s, %s, %s, %s, %s, %s) ON CONFLICT (hash) DO NOTHING "
+                "RETURNING hash", (digest, mentor, demo.file, demo.skill.name, kind, "{}")
             ).fetchone()
             if claimed is None:
                 return {**self.upload(conn, digest), "duplicate": True}
             with contextlib.ExitStack() as stack:
                 stores = {}
                 for arc in sorted(set(arcs)):  # one lock order: no deadlock between uploads
-                    stores[arc] = PostgresStore(conn, arc)
+                    stores[arc] = arc_store(conn, arc)
                     stack.enter_context(stores[arc].transaction())
                 for step, (seg, arc) in enumerate(zip(segments, arcs, strict=True)):
                     store = stores[arc]
@@ -441,7 +441,7 @@ class Registry:
                          (json.dumps(reply), digest))
         return {**reply, "duplicate": False}
 
-    def upload(self, conn: psycopg.Connection[Any], digest: str) -> dict[str, Any]:
+    def upload(self, conn: Any, digest: str) -> dict[str, Any]:
         """An upload's document: who, what, and each segment's arc, sample and cluster now."""
         row = conn.execute("SELECT mentor, file, skill, kind, withdrawn FROM np_uploads "
                            "WHERE hash = %s", (digest,)).fetchone()
@@ -463,7 +463,8 @@ class Registry:
     def withdraw(self, mentor: str, digest: str) -> dict[str, Any]:
         """Withdraw an upload of ``mentor``'s (another's: :class:`Forbidden`)."""
         with self.pool.connection() as conn, conn.transaction():
-            row = conn.execute("SELECT mentor FROM np_uploads WHERE hash = %s FOR UPDATE",
+            # (the mentor of an upload never changes: no row lock needed)
+            row = conn.execute("SELECT mentor FROM np_uploads WHERE hash = %s",
                                (digest,)).fetchone()
             if row is None:
                 raise Rejected(f"no upload {digest}", status=404)
@@ -485,9 +486,8 @@ class Registry:
                 "WHERE p.withdrawn IS NOT TRUE "
                 "GROUP BY s.store, s.label ORDER BY s.store, s.label"
             ).fetchall()
-            recal: dict[str, str] = dict(conn.execute(
-                "SELECT store, convert_from(value, 'UTF8') FROM np_meta WHERE name = %s",
-                (RECAL_N,)).fetchall())
+            recal = {store: bytes(value).decode() for store, value in conn.execute(
+                "SELECT store, value FROM np_meta WHERE name = %s", (RECAL_N,)).fetchall()}
         out: dict[str, dict[str, Any]] = {}
         for store, label, n in rows:
             arc = out.setdefault(store, {"arc": store, "samples": 0, "pending": 0,
@@ -535,12 +535,12 @@ class Registry:
         """Arcs whose count reached ``growth`` times the count at their last recalibration."""
         with self.pool.connection() as conn:
             rows = conn.execute(
-                "SELECT s.store, max(s.id) + 1, convert_from(m.value, 'UTF8') FROM np_samples s "
+                "SELECT s.store, max(s.id) + 1, m.value FROM np_samples s "
                 "LEFT JOIN np_meta m ON m.store = s.store AND m.name = %s "
                 "GROUP BY s.store, m.value", (RECAL_N,)).fetchall()
         due = []
         for store, n, last in rows:
-            last_n = int(last) if last else self.init_size
+            last_n = int(bytes(last).decode()) if last else self.init_size
             if n >= self.init_size and n >= self.growth * last_n:
                 due.append(store)
         return due
@@ -549,9 +549,8 @@ class Registry:
         """Recalibrate one arc without blocking uploads (see the module notes)."""
         with self.pool.connection() as conn:
             # a consistent snapshot, read without the arc's lock (MVCC)
-            with conn.transaction():
-                conn.execute("SET TRANSACTION ISOLATION LEVEL REPEATABLE READ")
-                store = PostgresStore(conn, arc)
+            with snapshot(conn):
+                store = arc_store(conn, arc)
                 state = store.get_meta(STATE)
                 n0 = store.n_samples
                 if state is None or n0 < self.init_size:
