@@ -64,11 +64,21 @@ def main() -> None:
     def bare() -> object:
         return table[(pts[:, 0] << 5) | pts[:, 1]]
 
-    t_bare = _best_of(bare, 7)
-    t_enc = _best_of(functools.partial(encode, pts, 5), 7)
+    # interleaved, in alternating order, best of 15 each: on a shared machine a burst of load
+    # then hits both alike, and neither always runs first after the other's allocations
+    # (timed one after the other, the ratio swung from 0.6 to 2.4 at a load average of 13)
+    t_bare = t_enc = float("inf")
+    enc = functools.partial(encode, pts, 5)
+    for r in range(15):
+        for fn in ((bare, enc) if r % 2 else (enc, bare)):
+            t = _best_of(fn, 1)
+            if fn is bare:
+                t_bare = min(t_bare, t)
+            else:
+                t_enc = min(t_enc, t)
     print(f"   2-D order 5, 10^6 points: encode {t_enc * 1e3:.1f} ms, bare lookup-table gather "
-          f"{t_bare * 1e3:.1f} ms: x{t_enc / t_bare:.2f} (goal <= 1.3: "
-          f"{'ok' if t_enc <= 1.3 * t_bare else 'BELOW GOAL'})", flush=True)
+          f"{t_bare * 1e3:.1f} ms (interleaved, best of 15 each): x{t_enc / t_bare:.2f} "
+          f"(goal <= 1.3: {'ok' if t_enc <= 1.3 * t_bare else 'BELOW GOAL'})", flush=True)
     # issue 16: one point (a single registration) on the scalar path and on the vectorised one
     for n_dims, order in ((6, 10), (3, 16), (8, 10)):
         one = rng.integers(0, 2**order, size=(1, n_dims))

@@ -304,13 +304,13 @@ def test_histogram_counts_match_the_clusters() -> None:
     c = HilbertClusterer(2, method="paper", random_state=0).fit(x)
     fig = cluster_histogram_figure(c, truth=y.tolist(), title="Fig. 12(b)")
     ax = fig.axes[0]
-    # one stacked bar series per cluster; the bars of a cluster add up to its size
+    # one stacked step patch per cluster; its bins add up to the cluster's size
     heights: dict[str, float] = {}
-    for container in ax.containers:
-        label = str(container.get_label())
-        heights[label] = sum(p.get_height() for p in container.patches)
+    for patch in ax.patches:
+        values, _, baseline = patch.get_data()
+        heights[str(patch.get_label())] = float(np.sum(values - baseline))
     sizes = np.bincount(c.labels_)
-    # stacked bars sit on those below (their bottoms), their heights are their own counts
+    # stacked steps sit on those below (their baselines), their heights are their own counts
     assert sorted(heights.values()) == sorted(sizes.tolist())
     legend = ax.get_legend()
     assert legend is not None

@@ -378,15 +378,17 @@ def test_trajectory_figure_draws_one_line_per_demonstration(pristine: Path) -> N
     fig = trajectory_figure(ds)  # default: the tumbling pair of Fig. 12
     ax = fig.axes[0]
     n_demos = len(ds.of_skill("tumble-lift")) + len(ds.of_skill("tumble-twist"))
-    assert len(ax.lines) == n_demos + 12  # and the cube's 12 edges
+    # one collection of paths (a line each), one of the cube's 12 edges
+    paths, edges = (c._segments3d for c in ax.collections)  # type: ignore[attr-defined]
+    assert (len(paths), len(edges)) == (n_demos, 12)
     legend = ax.get_legend()
     assert legend is not None
     assert sorted(t.get_text() for t in legend.get_texts()) == ["tumble-lift", "tumble-twist"]
     # the drawn index-tip path is the recording between the first and last events
     d = ds.of_skill("tumble-lift")[0]
     a, b = (round(d.events[k].time * 120) for k in (0, -1))
-    x, _, _ = ax.lines[0].get_data_3d()  # type: ignore[attr-defined]
-    np.testing.assert_array_equal(x, d.trajectory.marker("index_tip")[a:b + 1, 0])
+    np.testing.assert_array_equal(np.asarray(paths[0])[:, 0],
+                                  d.trajectory.marker("index_tip")[a:b + 1, 0])
     fig = trajectory_figure(ds, ["twist"], color_by="mentor", marker="thumb_tip")
     legend = fig.axes[0].get_legend()
     assert legend is not None

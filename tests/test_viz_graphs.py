@@ -13,7 +13,12 @@ from nonprehensile.states import State, states_by_step
 
 pytest.importorskip("matplotlib")
 
+from matplotlib.collections import LineCollection
+from matplotlib.patches import ConnectionStyle
+
+from nonprehensile.viz._figures import new_figure
 from nonprehensile.viz.graphs import (
+    draw_arcs,
     plot_skill_graph,
     plot_transition_matrix,
     state_graph_figure,
@@ -30,10 +35,14 @@ def test_state_graph_figure(tmp_path: Path) -> None:
     # every state is labelled in the graph; every transition is a cell stripe in the matrix
     labels = {t.get_text() for t in graph_ax.texts}
     assert {str(s) for s in exp.graph.states} <= labels
-    n_stripes = sum(1 for p in matrix_ax.patches if p.get_facecolor()[3] > 0)
-    assert n_stripes == len(exp.transitions)
-    demonstrated = [p for p in matrix_ax.patches if p.get_facecolor()[3] == 0]
-    assert len(demonstrated) == len({(t.start, t.end) for t in exp.transitions if t.demonstrated})
+    stripes, outlines = matrix_ax.collections[:2]
+    assert len(stripes.get_paths()) == len(exp.transitions)
+    assert len(outlines.get_paths()) == len({(t.start, t.end) for t in exp.transitions
+                                             if t.demonstrated})
+    # every transition is an arc (bodies: one collection per layer, inferred then shown)
+    bodies = [c for c in graph_ax.collections if isinstance(c, LineCollection)]
+    assert sum(len(c.get_paths()) for c in bodies) == len(exp.transitions)
+    assert [len(c.get_paths()) for c in bodies][1] == sum(t.demonstrated for t in exp.transitions)
     path = tmp_path / "g.png"
     fig.savefig(path)
     assert path.stat().st_size > 10_000
@@ -46,7 +55,8 @@ def test_skill_graph_figure_shows_events_and_motions() -> None:
     texts = [t.get_text() for t in ax.texts]
     assert sum("∧" in t or "(G," in t for t in texts) == g.number_of_nodes()
     assert {"quarter-circle", "straight-pull", "push"} <= set(texts)
-    assert len(ax.patches) == g.number_of_edges()
+    (bodies,) = [c for c in ax.collections if isinstance(c, LineCollection)]
+    assert len(bodies.get_paths()) == g.number_of_edges()
     # an adapted skill (Fig. 8) draws with its mapped faces
     (t,) = infer_exact(poly, skills[0], [State("a", 90)])
     ax = plot_skill_graph(skill_graph(poly, [t.skill]))
@@ -59,3 +69,29 @@ def test_large_state_sets_draw_only_the_matrix() -> None:
     fig = state_graph_figure(exp)
     assert len(fig.axes) == 1
     plot_transition_matrix(exp)
+
+
+@pytest.mark.parametrize("rad", [-0.4, 0.0, 0.15, 0.3])
+def test_arcs_follow_matplotlibs_arc3(rad: float) -> None:
+    """The collection's curve is matplotlib's own arc3 connection (an independent truth): its
+    points lie on the Bezier that ConnectionStyle.Arc3 makes, shrunk at both ends."""
+    import numpy as np
+
+    ax = new_figure(figsize=(4, 3), dpi=100).add_axes((0.1, 0.1, 0.8, 0.8))
+    ax.set_xlim(0, 4)
+    ax.set_ylim(-1, 2)
+    a, b = (0.5, 0.0), (3.0, 1.5)
+    draw_arcs(ax, [(a, b, rad, "C0", 1.0, 1.0)], shrink=9, head=4)
+    (body,) = ax.collections[0].get_paths()
+    ours = ax.transData.transform(body.vertices)
+    ref = ConnectionStyle.Arc3(rad=rad)(ax.transData.transform(a), ax.transData.transform(b),
+                                        shrinkA=9 * 100 / 72, shrinkB=9 * 100 / 72)
+    curve = np.vstack([seg(np.linspace(0.0, 1.0, 200)) for seg, _ in ref.iter_bezier()])
+    # every drawn point is on matplotlib's curve (within a pixel)
+    dist = np.min(np.hypot(*(ours[:, None, :] - curve[None, :, :]).transpose(2, 0, 1)), axis=1)
+    assert dist.max() < 1.0
+    # it starts where matplotlib's shrunk curve starts; the head's tip is where it ends
+    assert np.hypot(*(ours[0] - curve[0])) < 2.0
+    (head,) = ax.collections[1].get_paths()
+    tip = ax.transData.transform(head.vertices[:1])[0]
+    assert np.hypot(*(tip - curve[-1])) < 2.0

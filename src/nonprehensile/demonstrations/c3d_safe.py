@@ -11,9 +11,10 @@ deleted can send it into a loop for minutes. So a C3D file passes two guards:
    and a memory limit (``RLIMIT_AS``). If ezc3d crashes, hangs or runs out of memory there,
    the worker is killed and replaced and the caller gets a :class:`DemonstrationError`.
 
-The worker is started once per process (about half a second: Python, numpy and ezc3d) and
-reused for every file; it is stopped when the process exits. Its answers come back as numpy
-arrays and JSON (``allow_pickle=False``), in the shape ezc3d's own Python object has:
+The worker is started once per process (about 0.15 s: Python, numpy and ezc3d; this file runs
+as a script there, without the package's imports) and reused for every file; it is stopped when
+the process exits. Its answers come back as raw numpy arrays and JSON (never a pickle; every
+length and dtype checked), in the shape ezc3d's own Python object has:
 ``{"header": ..., "parameters": {GROUP: {PARAM: {"value": ...}}}, "data": {"points": ...,
 "meta_points": {"residuals": ...}}}``. Analog data is not transferred.
 """
@@ -21,8 +22,8 @@ arrays and JSON (``allow_pickle=False``), in the shape ezc3d's own Python object
 from __future__ import annotations
 
 import atexit
-import io
 import json
+import math
 import os
 import select
 import signal
@@ -32,7 +33,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -159,7 +160,7 @@ def _walk_parameters(path: Path, params: bytes, pstart: int, end: str) -> None:
 
 
 def _encode(obj: Any, arrays: dict[str, np.ndarray[Any, Any]]) -> Any:
-    """ezc3d's nested dicts as JSON, numpy arrays set aside (by name) for an ``.npz``."""
+    """ezc3d's nested dicts as JSON, numpy arrays set aside (by name) for :func:`_pack`."""
     if isinstance(obj, dict) or hasattr(obj, "keys"):  # ezc3d's Header, Data: dict-like
         return {str(k): _encode(obj[k], arrays) for k in obj.keys()}  # noqa: SIM118
     if isinstance(obj, (list, tuple)):
@@ -177,6 +178,49 @@ def _encode(obj: Any, arrays: dict[str, np.ndarray[Any, Any]]) -> Any:
     return str(obj)
 
 
+#: Kinds of array the worker may send: numbers and fixed-width text, never objects.
+_KINDS = frozenset("biufcUS")
+
+
+def _pack(doc: Any, arrays: dict[str, np.ndarray[Any, Any]]) -> bytes:
+    """``doc`` (JSON) and the arrays it names, framed: the JSON's length (8 bytes), the JSON
+    (the document and each array's dtype and shape), then the arrays' bytes in order.
+
+    A raw framing rather than an ``.npz``: a zip archive of two dozen arrays per file cost
+    more to write and to read than ezc3d takes to parse the file (issue 16).
+    """
+    names = list(arrays)
+    head = json.dumps({"doc": doc, "arrays": [
+        [n, arrays[n].dtype.str, list(arrays[n].shape)] for n in names]}).encode()
+    return b"".join([struct.pack("<Q", len(head)), head,
+                     *(np.ascontiguousarray(arrays[n]).tobytes() for n in names)])
+
+
+def _unpack(path: Path, payload: bytes) -> tuple[Any, dict[str, np.ndarray[Any, Any]]]:
+    """The inverse of :func:`_pack`, checking every length and dtype (the worker parsed an
+    untrusted file: its answer is checked, never trusted)."""
+    try:
+        (n,) = struct.unpack("<Q", payload[:8])
+        head = json.loads(payload[8:8 + n].decode())
+        at = 8 + n
+        arrays = {}
+        for name, dt, shape in head["arrays"]:
+            dtype = np.dtype(dt)
+            count = math.prod(int(v) for v in shape)
+            if dtype.kind not in _KINDS or min(shape, default=0) < 0 or (
+                    at + count * dtype.itemsize > len(payload)):
+                raise ValueError(f"array {name!r} of {dt} {shape}")
+            arrays[str(name)] = np.frombuffer(payload, dtype, count, at).reshape(shape).copy()
+            at += count * dtype.itemsize
+        if at != len(payload):
+            raise ValueError(f"{len(payload) - at} bytes left over")
+        return head["doc"], arrays
+    except (ValueError, TypeError, KeyError, struct.error) as exc:
+        raise DemonstrationError(
+            f"{path}: the C3D reader's answer is malformed ({exc}); the file is damaged"
+        ) from None
+
+
 def _decode(obj: Any, arrays: Any) -> Any:
     if isinstance(obj, dict):
         if set(obj) == {"__array__"}:
@@ -188,7 +232,7 @@ def _decode(obj: Any, arrays: Any) -> Any:
 
 
 def _worker_main() -> None:  # pragma: no cover - runs in the worker process
-    """The worker: read a JSON file name per line, answer with a framed ``.npz``."""
+    """The worker: read a JSON file name per line, answer with a framed :func:`_pack`."""
     import resource
 
     limit = int(os.environ.get("NONPREHENSILE_C3D_MEMORY", PARSE_MEMORY_LIMIT))
@@ -210,10 +254,7 @@ def _worker_main() -> None:  # pragma: no cover - runs in the worker process
                                 {k: v for k, v in dict(c3d["data"].get("meta_points", {})
                                                        ).items() if k == "residuals"},
                                 arrays)}}
-            buf = io.BytesIO()
-            arrays["__meta__"] = np.frombuffer(json.dumps(doc).encode(), dtype=np.uint8)
-            np.savez(buf, **cast(dict[str, Any], arrays))
-            status, payload = b"K", buf.getvalue()
+            status, payload = b"K", _pack(doc, arrays)
         except MemoryError:
             status, payload = b"E", b"out of memory reading it (its counts are wrong)"
         except Exception as exc:  # ezc3d raises bare RuntimeError/IOError on corrupt files
@@ -245,8 +286,10 @@ class C3DWorker:
         env = dict(os.environ, NONPREHENSILE_C3D_MEMORY=str(self.memory),
                    OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1")
         proc = subprocess.Popen(
-            [sys.executable, "-c",
-             "from nonprehensile.demonstrations.c3d_safe import _worker_main; _worker_main()"],
+            # this file run as a script, not imported as nonprehensile.demonstrations.c3d_safe:
+            # the package's __init__ would import scipy and more (0.4 s a start: issue 16)
+            [sys.executable, "-c", "import runpy, sys; "
+             "runpy.run_path(sys.argv[1], run_name='c3d_worker')['_worker_main']()", __file__],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env,
             close_fds=True,
         )
@@ -357,9 +400,7 @@ class C3DWorker:
         if status != b"K":
             text = payload.decode("utf-8", "replace").replace("\n", " ").strip()
             raise DemonstrationError(f"{path}: ezc3d cannot read it as a C3D file: {text}")
-        with np.load(io.BytesIO(payload), allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
-        doc = json.loads(bytes(arrays.pop("__meta__")).decode())
+        doc, arrays = _unpack(path, payload)
         result: dict[str, Any] = _decode(doc, arrays)
         return result
 

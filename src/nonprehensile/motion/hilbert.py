@@ -572,11 +572,40 @@ def _row_major_cells(c: NDArray[np.uint64], n_dims: int, order: int) -> NDArray[
 
 def _row_major_index(pts: NDArray[np.uint64], order: int) -> NDArray[np.intp]:
     n_dims = pts.shape[1]
-    c = pts[:, 0].astype(np.intp)
+    # shift and or straight from each (strided) column into one intp array: no astype copy
+    # of a column (two of them were half the cost of a 2-D order-5 encoding)
+    c: NDArray[np.intp] = np.left_shift(pts[:, 0], order * (n_dims - 1), dtype=np.intp,
+                                        casting="unsafe")
+    tmp = np.empty_like(c) if n_dims > 2 else c
     for i in range(1, n_dims):
-        c <<= order
-        c |= pts[:, i].astype(np.intp)
+        col = pts[:, i]
+        if i < n_dims - 1:
+            col = np.left_shift(col, order * (n_dims - 1 - i), out=tmp, dtype=np.intp,
+                                casting="unsafe")
+        np.bitwise_or(c, col, out=c, dtype=np.intp, casting="unsafe")
     return c
+
+
+def _gather(table: NDArray[np.uint64], cells: NDArray[np.intp]) -> NDArray[np.uint64]:
+    """``table[cells]``, written over ``cells`` (both 8-byte words): one array allocated per
+    encoding, not two (a fresh 8 MB array costs its page faults: with two, the encoding of
+    10^6 points swung between 2.5 and 7 ms)."""
+    out = cells.view(np.uint64)
+    # elementwise, each index is read before its own slot is written; "clip" (indices are in
+    # range) lets numpy write into out directly instead of through a buffer
+    np.take(table, cells, out=out, mode="clip")
+    return out
+
+
+def _in_range(points: NDArray[np.integer], order: int) -> bool:
+    """Whether every coordinate of an integer array is in ``[0, 2**order)``, in one pass.
+
+    The bitwise or of all values, read as unsigned integers of the same width, is below
+    ``2**order`` exactly when they all are (a negative value sets the top bit).
+    """
+    flat = np.ascontiguousarray(points).reshape(-1)
+    unsigned = flat.view(np.dtype(f"u{flat.dtype.itemsize}"))
+    return int(np.bitwise_or.reduce(unsigned)) >> order == 0
 
 
 # --------------------------------------------------------------------------- public API
@@ -616,19 +645,18 @@ def encode(points: ArrayLike, order: int, *, validate: bool = True) -> Keys:
         order = _check_order(order)
     if (isinstance(points, np.ndarray) and points.dtype.kind in "iu" and points.ndim == 2
             and points.shape[0] and 0 < points.shape[1] * order <= LUT_MAX_BITS
-            and (not validate or (int(points.min()) >= 0
-                                  and int(points.max()) < (1 << order)))):
+            and (not validate or _in_range(points, order))):
         # the table path on an integer array already in range: one pass for the bounds,
         # the row-major cell number, one gather (no copy to uint64)
         enc, _ = _tables(points.shape[1], order)
-        return enc[_row_major_index(points, order)]
+        return _gather(enc, _row_major_index(points, order))
     pts = _as_points(points, order) if validate else np.asarray(points, dtype=np.uint64)
     n_dims = pts.shape[1]
     if pts.shape[0] == 0:
         return np.zeros(0, dtype=np.uint64 if n_dims * order <= _WORD else object)
     if n_dims * order <= LUT_MAX_BITS:
         enc, _ = _tables(n_dims, order)
-        return enc[_row_major_index(pts, order)]
+        return _gather(enc, _row_major_index(pts, order))
     if pts.shape[0] <= SCALAR_MAX_POINTS:
         ints = [_encode_int(row, order) for row in pts.tolist()]
         if n_dims * order <= _WORD:

@@ -582,6 +582,10 @@ class MicroSummary:
             if int(previous.max()) + 1 == c:
                 starts.append(previous.astype(np.int64))  # the last macro step's clusters
             starts += _kmeans_starts(z, w, c, self.n_starts, self.seed + self.n_macro_steps)
+            # a start equal to an earlier one gives the same fit, which can never be chosen
+            # before the earlier one (max keeps the first): fit it once (a fifth of the demo's
+            # short fits were repeats: issue 16)
+            starts = list({s.tobytes(): s for s in starts}.values())  # first-seen order
             for cov in COVARIANCE_TYPES:
                 # a few EM steps from every start, the _CONVERGE most likely run on to
                 # convergence, the most likely kept; then the best model by BIC

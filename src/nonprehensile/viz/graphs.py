@@ -62,6 +62,75 @@ def _grid_positions(states: Sequence[State]) -> dict[State, tuple[float, float]]
     return pos
 
 
+def draw_arcs(
+    ax: Axes,
+    arcs: Sequence[tuple[tuple[float, float], tuple[float, float], float, Any, float, float]],
+    *,
+    shrink: float,
+    head: float,
+    zorder: float = 2,
+) -> None:
+    """Curved arrows drawn as two collections: one of bodies, one of heads.
+
+    Each arc is ``(start, end, rad, color, linewidth, alpha)``: matplotlib's ``arc3``
+    connection (a quadratic Bezier whose control point sits ``rad`` times the chord, turned
+    clockwise, from its midpoint; computed on screen as matplotlib does), cut ``shrink``
+    points from both ends, with a filled head ``head`` points long. A hundred
+    ``FancyArrowPatch`` objects cost a second to lay out and draw (issue 16); two
+    collections cost milliseconds. The shapes are computed for the axes' limits and position
+    as they are at the call: set them first (a fixed layout).
+    """
+    import numpy as np
+    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.colors import to_rgba
+
+    if not arcs:
+        return
+    to_px = ax.figure.dpi / 72.0
+    data = ax.transData
+    p0 = data.transform(np.array([a[0] for a in arcs], dtype=float))
+    p1 = data.transform(np.array([a[1] for a in arcs], dtype=float))
+    rad = np.array([a[2] for a in arcs], dtype=float)[:, None]
+    chord = p1 - p0
+    ctrl = (p0 + p1) / 2 + rad * np.stack([chord[:, 1], -chord[:, 0]], axis=1)
+    t = np.linspace(0.0, 1.0, 64)[None, :, None]
+    curve = ((1 - t) ** 2 * p0[:, None] + 2 * (1 - t) * t * ctrl[:, None]
+             + t**2 * p1[:, None])  # (arcs, 64, 2) in pixels
+    cut = shrink * to_px
+    bodies, heads = [], []
+    for i, arc in enumerate(arcs):
+        c = curve[i]
+        d0, d1 = np.hypot(*(c - p0[i]).T), np.hypot(*(c - p1[i]).T)
+        keep = np.flatnonzero((d0 >= cut) & (d1 >= cut))
+        if len(keep) < 2:
+            continue
+        a, b = int(keep[0]), int(keep[-1])
+        # the ends exactly ``cut`` from the nodes (between the samples either side)
+        ends = []
+        if a > 0:
+            f = (cut - d0[a - 1]) / max(float(d0[a] - d0[a - 1]), 1e-12)
+            ends.append(c[a - 1] + f * (c[a] - c[a - 1]))
+        ends.append(c[a:b + 1])
+        if b < len(c) - 1:
+            f = (d1[b] - cut) / max(float(d1[b] - d1[b + 1]), 1e-12)
+            ends.append(c[b] + f * (c[b + 1] - c[b]))
+        c = np.vstack(ends)
+        tip = c[-1]
+        u = tip - c[-2]
+        u /= max(float(np.hypot(*u)), 1e-12)
+        length = (head + arc[4]) * to_px
+        base = tip - length * u
+        normal = np.array([-u[1], u[0]]) * 0.45 * length
+        body = np.vstack([c[np.hypot(*(c - tip).T) > length], base])
+        bodies.append(data.inverted().transform(body))
+        heads.append(data.inverted().transform(np.array([tip, base + normal, base - normal])))
+    colors = [to_rgba(a[3], a[5]) for a in arcs]
+    ax.add_collection(LineCollection(bodies, colors=colors, linewidths=[a[4] for a in arcs],
+                                     capstyle="butt", zorder=zorder), autolim=False)
+    ax.add_collection(PolyCollection(heads, facecolors=colors, edgecolors="none",
+                                     zorder=zorder), autolim=False)
+
+
 def plot_state_graph(
     exp: Expansion, ax: Axes | None = None, *, skills: Sequence[str] | None = None
 ) -> Axes:
@@ -80,10 +149,9 @@ def plot_state_graph(
     Axes
     """
     from matplotlib.lines import Line2D
-    from matplotlib.patches import FancyArrowPatch
 
     if ax is None:
-        ax = new_figure(figsize=(8, 6)).add_subplot()
+        ax = new_figure(figsize=(8, 6)).add_axes((0.02, 0.02, 0.78, 0.9))
     states = list(exp.graph.states)
     if len(states) > MAX_DRAWN_STATES:
         raise InputError(
@@ -94,23 +162,21 @@ def plot_state_graph(
     names = _skill_names(exp)
     colors = _skill_colors(names)
     wanted = set(skills) if skills is not None else set(names)
-    for t in exp.transitions:
-        if t.skill.name not in wanted or t.start not in pos or t.end not in pos:
-            continue
-        rad = 0.15 + 0.08 * names.index(t.skill.name)
-        ax.add_patch(FancyArrowPatch(
-            pos[t.start], pos[t.end], connectionstyle=f"arc3,rad={rad}",
-            arrowstyle="-|>", mutation_scale=9, shrinkA=9, shrinkB=9,
-            color=colors[t.skill.name], lw=2.4 if t.demonstrated else 0.6,
-            alpha=1.0 if t.demonstrated else 0.55, zorder=3 if t.demonstrated else 2,
-        ))
-    for s, (x, y) in pos.items():
-        ax.text(x, y, str(s), ha="center", va="center", fontsize=7, zorder=4,
-                bbox={"boxstyle": "round,pad=0.25", "fc": "white", "ec": "0.3", "lw": 0.6})
     xs = [p[0] for p in pos.values()]
     ys = [p[1] for p in pos.values()]
     ax.set_xlim(min(xs) - 0.8, max(xs) + 0.8)
     ax.set_ylim(min(ys) - 0.8, max(ys) + 0.8)
+    for demonstrated in (False, True):
+        draw_arcs(ax, [(pos[t.start], pos[t.end], 0.15 + 0.08 * names.index(t.skill.name),
+                        colors[t.skill.name], 2.4 if demonstrated else 0.6,
+                        1.0 if demonstrated else 0.55)
+                       for t in exp.transitions
+                       if t.demonstrated == demonstrated and t.skill.name in wanted
+                       and t.start in pos and t.end in pos],
+                  shrink=9, head=3.6, zorder=3 if demonstrated else 2)
+    for s, (x, y) in pos.items():
+        ax.text(x, y, str(s), ha="center", va="center", fontsize=7, zorder=4,
+                bbox={"boxstyle": "round,pad=0.25", "fc": "white", "ec": "0.3", "lw": 0.6})
     ax.set_axis_off()
     handles = [Line2D([], [], color=colors[n], lw=1.5, label=n) for n in names if n in wanted]
     handles += [Line2D([], [], color="0.2", lw=2.4, label="demonstrated"),
@@ -127,10 +193,11 @@ def plot_transition_matrix(exp: Expansion, ax: Axes | None = None) -> Axes:
     Demonstrated transitions are outlined in black.
     """
     import numpy as np
-    from matplotlib.patches import Patch, Rectangle
+    from matplotlib.collections import PolyCollection
+    from matplotlib.patches import Patch
 
     if ax is None:
-        ax = new_figure(figsize=(7, 7)).add_subplot()
+        ax = new_figure(figsize=(7, 7)).add_axes((0.15, 0.12, 0.6, 0.8))
     states = exp.graph.states
     idx = {s: i for i, s in enumerate(states)}
     names = _skill_names(exp)
@@ -141,14 +208,24 @@ def plot_transition_matrix(exp: Expansion, ax: Axes | None = None) -> Axes:
     for t in exp.transitions:
         if t.start in idx and t.end in idx:
             cells.setdefault((idx[t.start], idx[t.end]), []).append(t)
+
+    def box(x: float, y: float, w: float) -> list[tuple[float, float]]:
+        return [(x, y), (x + w, y), (x + w, y + 1), (x, y + 1)]
+
+    stripes, fills, outlined = [], [], []
     for (i, j), ts in cells.items():
         # several skills realising one transition share the cell as vertical stripes
         w = 1.0 / len(ts)
         for k, t in enumerate(ts):
-            ax.add_patch(Rectangle((j - 0.5 + k * w, i - 0.5), w, 1, fc=colors[t.skill.name],
-                                   ec="none"))
+            stripes.append(box(j - 0.5 + k * w, i - 0.5, w))
+            fills.append(colors[t.skill.name])
         if any(t.demonstrated for t in ts):
-            ax.add_patch(Rectangle((j - 0.5, i - 0.5), 1, 1, fc="none", ec="black", lw=1.2))
+            outlined.append(box(j - 0.5, i - 0.5, 1.0))
+    # two collections, not a patch per cell: hundreds of patches cost a second (issue 16)
+    ax.add_collection(PolyCollection(stripes, facecolors=fills, edgecolors="none"),
+                      autolim=False)
+    ax.add_collection(PolyCollection(outlined, facecolors="none", edgecolors="black",
+                                     linewidths=1.2), autolim=False)
     if n <= MAX_DRAWN_STATES:
         labels = [str(s) for s in states]
         ax.set_xticks(range(n), labels, rotation=90, fontsize=6)
@@ -163,14 +240,17 @@ def plot_transition_matrix(exp: Expansion, ax: Axes | None = None) -> Axes:
 
 
 def state_graph_figure(exp: Expansion, *, skills: Sequence[str] | None = None) -> Figure:
-    """The state graph beside its transition matrix (the paper's Fig. 7)."""
-    fig = new_figure(figsize=(15, 6.5), layout="constrained")
+    """The state graph beside its transition matrix (the paper's Fig. 7).
+
+    A fixed layout (each axes placed by hand, room left for the legends and the matrix's
+    labels): a layout engine would cost a second full draw (issue 16).
+    """
+    fig = new_figure(figsize=(15, 6.5))
     if len(exp.graph.states) <= MAX_DRAWN_STATES:
-        a, b = fig.subplots(1, 2, width_ratios=[1.25, 1])
-        plot_state_graph(exp, a, skills=skills)
-        plot_transition_matrix(exp, b)
+        plot_state_graph(exp, fig.add_axes((0.005, 0.02, 0.41, 0.92)), skills=skills)
+        plot_transition_matrix(exp, fig.add_axes((0.555, 0.12, 0.345, 0.82)))
     else:
-        plot_transition_matrix(exp, fig.add_subplot())
+        plot_transition_matrix(exp, fig.add_axes((0.3, 0.1, 0.5, 0.84)))
     return fig
 
 
@@ -187,10 +267,8 @@ def plot_skill_graph(graph: nx.MultiDiGraph, ax: Axes | None = None) -> Axes:
     -------
     Axes
     """
-    from matplotlib.patches import FancyArrowPatch
-
     if ax is None:
-        ax = new_figure(figsize=(11, 4.5)).add_subplot()
+        ax = new_figure(figsize=(11, 4.5)).add_axes((0.01, 0.01, 0.98, 0.9))
     # columns by longest path from the start, rows spread the branches of each column
     layers: dict[Any, int] = {}
     for node in nx.topological_sort(graph):
@@ -205,16 +283,18 @@ def plot_skill_graph(graph: nx.MultiDiGraph, ax: Axes | None = None) -> Axes:
             pos[node] = (2.2 * layer, (len(nodes) - 1) / 2 - i)
     skills = sorted({d["skill"] for _, _, d in graph.edges(data=True)})
     colors = _skill_colors(skills)
+    xs = [p[0] for p in pos.values()]
+    ys = [p[1] for p in pos.values()]
+    ax.set_xlim(min(xs) - 1.2, max(xs) + 1.2)
+    ax.set_ylim(min(ys) - 0.8, max(ys) + 0.8)
     seen: dict[tuple[Any, Any], int] = {}
+    arcs = []
     for a, b, d in graph.edges(data=True):
         k = seen.get((a, b), 0)
         seen[(a, b)] = k + 1
         rad = (-1) ** k * 0.25 * ((k + 1) // 2)
         (x0, y0), (x1, y1) = pos[a], pos[b]
-        ax.add_patch(FancyArrowPatch(
-            (x0, y0), (x1, y1), connectionstyle=f"arc3,rad={rad}", arrowstyle="-|>",
-            mutation_scale=10, shrinkA=32, shrinkB=32, color=colors[d["skill"]], lw=1.3,
-        ))
+        arcs.append(((x0, y0), (x1, y1), rad, colors[d["skill"]], 1.3, 1.0))
         label = d["motion"].label or d["skill"]
         # matplotlib's arc3 is a quadratic Bezier whose control point sits rad x (dy, -dx)
         # from the chord's midpoint; the curve's own midpoint is half way there
@@ -223,16 +303,13 @@ def plot_skill_graph(graph: nx.MultiDiGraph, ax: Axes | None = None) -> Axes:
         ax.text(mx, my, label, fontsize=6.5, ha="center", va="center", zorder=3,
                 color=colors[d["skill"]],
                 bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": "none", "alpha": 0.85})
+    draw_arcs(ax, arcs, shrink=32, head=4.0)
     for node, (x, y) in pos.items():
         event = graph.nodes[node]["event"]
         text = format_event(event, "paper").replace(" ∧ ", " ∧\n")
         ids = "/".join(sorted(graph.nodes[node]["ids"]))
         ax.text(x, y, f"{ids}\n{text}", ha="center", va="center", fontsize=7, zorder=4,
                 bbox={"boxstyle": "round,pad=0.35", "fc": "#f4f4f4", "ec": "0.3", "lw": 0.7})
-    xs = [p[0] for p in pos.values()]
-    ys = [p[1] for p in pos.values()]
-    ax.set_xlim(min(xs) - 1.2, max(xs) + 1.2)
-    ax.set_ylim(min(ys) - 0.8, max(ys) + 0.8)
     ax.set_axis_off()
     from matplotlib.lines import Line2D
 
@@ -246,9 +323,9 @@ def plot_skill_graph(graph: nx.MultiDiGraph, ax: Axes | None = None) -> Axes:
 
 
 def skill_graphs_figure(graphs: Sequence[nx.MultiDiGraph]) -> Figure:
-    """Several skill graphs stacked, one per maneuver."""
-    fig = new_figure(figsize=(12, 3.6 * len(graphs)), layout="constrained")
-    axes = fig.subplots(len(graphs), 1, squeeze=False)[:, 0]
-    for g, ax in zip(graphs, axes, strict=True):
-        plot_skill_graph(g, ax)
+    """Several skill graphs stacked, one per maneuver (a fixed layout: issue 16)."""
+    n = len(graphs)
+    fig = new_figure(figsize=(12, 3.6 * n))
+    for r, g in enumerate(graphs):
+        plot_skill_graph(g, fig.add_axes((0.01, (n - 1 - r + 0.02) / n, 0.98, 0.9 / n)))
     return fig

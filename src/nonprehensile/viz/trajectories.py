@@ -87,8 +87,13 @@ def plot_trajectories(
     demos, marker = _selection(dataset, skills, marker)
     keys = list(dict.fromkeys(d.skill.name if color_by == "skill" else d.mentor for d in demos))
     colors = {k: f"C{i % 10}" for i, k in enumerate(keys)}
+    from matplotlib.lines import Line2D
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
     units = demos[0].trajectory.units
-    labelled: set[str] = set()
+    # one collection for every path (and one for the object's edges): a line object per
+    # demonstration costs a tenth of a second more to draw (issue 16)
+    paths, path_colors = [], []
     for d in demos:
         traj = d.trajectory.to_units(units)
         p = traj.marker(marker)
@@ -96,18 +101,24 @@ def plot_trajectories(
             a = round(d.events[0].time * traj.rate)
             b = round(d.events[-1].time * traj.rate)
             p = p[a:b + 1]
-        key = d.skill.name if color_by == "skill" else d.mentor
-        ax.plot(p[:, 0], p[:, 1], p[:, 2], color=colors[key], lw=0.8, alpha=0.7,
-                label=key if key not in labelled else None)
-        labelled.add(key)
+        paths.append(p)  # a gap (NaN) in the marker is a gap in its line, as with ax.plot
+        path_colors.append(colors[d.skill.name if color_by == "skill" else d.mentor])
+    ax.add_collection3d(Line3DCollection(paths, colors=path_colors, linewidths=0.8,
+                                         alpha=0.7))
+    drawn = list(paths)
     if show_object:
         poly = dataset.poly
         r, t = state_pose(poly, demos[0].initial)
         size = dataset.scale * (1000.0 if units == "mm" else 1.0)
         world = (poly.vertices @ r.T + t) * size
-        for i, j in poly.edges.values():
-            seg = world[[i, j]]
-            ax.plot(seg[:, 0], seg[:, 1], seg[:, 2], color="0.3", lw=1.2)
+        edges = [world[[i, j]] for i, j in poly.edges.values()]
+        ax.add_collection3d(Line3DCollection(edges, colors="0.3", linewidths=1.2))
+        drawn += edges
+    every = np.vstack(drawn)
+    if np.isfinite(every).all(axis=1).any():  # a collection does not set the limits itself
+        ax.set_xlim3d(np.nanmin(every[:, 0]), np.nanmax(every[:, 0]))
+        ax.set_ylim3d(np.nanmin(every[:, 1]), np.nanmax(every[:, 1]))
+        ax.set_zlim3d(np.nanmin(every[:, 2]), np.nanmax(every[:, 2]))
     ax.set_xlabel(f"x ({units})")
     ax.set_ylabel(f"y ({units})")
     ax.set_zlabel(f"z ({units})")
@@ -117,7 +128,8 @@ def plot_trajectories(
     ax.set_xlim3d(mid[0] - half, mid[0] + half)
     ax.set_ylim3d(mid[1] - half, mid[1] + half)
     ax.set_zlim3d(max(mid[2] - half, lims[2, 0]), max(mid[2] - half, lims[2, 0]) + 2 * half)
-    ax.legend(loc="upper left", fontsize="small")
+    ax.legend(handles=[Line2D([], [], color=colors[k], lw=0.8, alpha=0.7, label=k)
+                       for k in keys], loc="upper left", fontsize="small")
     return ax
 
 
@@ -138,8 +150,8 @@ def trajectory_figure(
     matplotlib.figure.Figure
     """
 
-    fig = new_figure(figsize=figsize, layout="constrained")
-    ax = fig.add_subplot(projection="3d")
+    fig = new_figure(figsize=figsize)
+    ax = fig.add_axes((0.0, 0.0, 1.0, 0.93), projection="3d")  # fixed layout (issue 16)
     plot_trajectories(ax, dataset, skills, marker=marker, color_by=color_by)
     demos, m = _selection(dataset, skills, marker)
     names = ", ".join(dict.fromkeys(d.skill.name for d in demos))
