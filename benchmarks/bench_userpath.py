@@ -2,8 +2,8 @@
 figures, and the main job quiet and on a machine this benchmark loads itself (issues 15, 16).
 
 Every command runs as a real process; CPU time is the child's user + system time. The loaded
-run starts one busy process per core first (``os.cpu_count()``), so "under load" means both
-cores busy with other work whatever else the machine does.
+runs start one busy process per core first (``os.cpu_count()``, each in a session of its own),
+so "under load" means both cores busy with other work whatever else the machine does.
 """
 
 from __future__ import annotations
@@ -110,7 +110,12 @@ def main() -> None:
             cold = {**os.environ, "NONPREHENSILE_CACHE": str(Path(tmp) / f"cold{i}")}
             demo = [*CLI, "demo", "--out", str(Path(tmp) / f"demo{i}"), "--json"]
             quiet.append(run(demo, cold))
-            hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+            # each busy loop in a session of its own, as other work would be: with the
+            # kernel's autogroup scheduling (Linux's default) loops started in the demo's
+            # session share that session's CPU with it, so on a machine that others already
+            # load the demo would get a third of its session's share whatever it does
+            hogs = [subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                                     start_new_session=True)
                     for _ in range(os.cpu_count() or 2)]
             try:
                 time.sleep(0.5)
