@@ -55,6 +55,13 @@ def test_face_names() -> None:
         "a", "b", "z", "aa", "ab", "az", "ba", "zz", "aaa"]
 
 
+def test_face_names_in_bulk_are_the_names_one_by_one() -> None:
+    from nonprehensile.geometry.build import face_names
+
+    assert face_names(0) == []
+    assert face_names(20_000) == [face_name(i) for i in range(20_000)]
+
+
 def test_prism_faces_named_bottom_first_top_last() -> None:
     p = prism(6)
     names = list(p.faces)
@@ -182,3 +189,39 @@ def test_convex_hull_bad_points() -> None:
         convex_hull(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.inf]]))
     with pytest.raises(MeshError, match="shape"):
         convex_hull(np.zeros((5, 2)))
+
+
+def test_hull_model_checked_without_a_second_hull_agrees_with_the_full_check() -> None:
+    # the builders skip only the whole-solid hull comparison; the diameter (so the tolerance)
+    # is the one a full check of the same vertices and faces finds
+    rng = np.random.default_rng(11)
+    for pts in (rng.standard_normal((40, 3)), rng.standard_normal((3000, 3)) * [1, 2, 3]):
+        built = convex_hull(pts, rtol=1e-6)
+        again = Polyhedron(built.vertices, dict(built.faces), rtol=built.rtol)
+        assert again.diameter == built.diameter and again.atol == built.atol
+        assert again.volume == built.volume
+
+
+def test_a_small_face_is_not_a_flat_one() -> None:
+    # a cube with one corner cut 0.3 mm deep (per metre): the cut's area, 7.8e-8, is below
+    # the tolerance times the diameter, but the triangle is 4e-4 wide, far above the
+    # tolerance; simulator meshes of fine CAD parts are full of such faces
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
+    e = 3e-4
+    cut = [[1 - e, 1, 1], [1, 1 - e, 1], [1, 1, 1 - e]]
+    model = convex_hull(np.vstack([corners[:-1], cut]))
+    assert len(model.faces) == 7
+    assert min(model.face_areas.values()) == pytest.approx(np.sqrt(3) / 4 * 2 * e * e)
+
+
+def test_corners_that_do_not_turn_are_found_for_the_builder_to_leave_out() -> None:
+    from nonprehensile.geometry.build import _unturned_corners
+
+    # a cube's loops, with a point 1e-9 outside the middle of edge 0-1, on both faces there
+    # (a point Qhull may keep as a corner): within the tolerance of the hull of the others
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1],
+                  [1, 1, 1], [0, 1, 1], [0.5, -1e-9, -1e-9]], float)
+    faces = {"a": (3, 2, 1, 8, 0), "b": (6, 2, 1, 5), "c": (4, 7, 6, 5), "d": (7, 3, 2, 6),
+             "e": (0, 3, 7, 4), "f": (0, 8, 1, 5, 4)}
+    assert _unturned_corners(v, faces, 1e-7).tolist() == [8]
+    assert _unturned_corners(v, faces, 1e-10).tolist() == []  # a real corner at that scale

@@ -143,6 +143,25 @@ def test_paper_fig7_cube_expansion() -> None:
     assert [e.id for e in reverse[0].skill.events] == ["done", "grip", "rest"]
 
 
+@pytest.mark.parametrize("enabled", [True, False])
+def test_expand_leaves_the_garbage_collector_as_it_found_it(enabled: bool) -> None:
+    import gc
+
+    poly, skills = read_skills(EXAMPLES / "cube_skills.json")
+    states = states_by_step(poly, 90)
+    was = gc.isenabled()
+    try:
+        gc.enable() if enabled else gc.disable()
+        for method in ("exact", "paper"):
+            expand(poly, skills, states, method=method)
+            assert gc.isenabled() is enabled
+        with pytest.raises(Exception, match="inference method"):
+            expand(poly, skills, states, method="nope")  # type: ignore[arg-type]
+        assert gc.isenabled() is enabled
+    finally:
+        gc.enable() if was else gc.disable()
+
+
 def test_paper_method_agrees_on_the_cube_example() -> None:
     poly, skills = read_skills(EXAMPLES / "cube_skills.json")
     assert cross_check(poly, skills, states_by_step(poly, 90)) == []

@@ -162,3 +162,20 @@ def test_unknown_face_and_non_adjacent_faces() -> None:
         c.edge_index("a", "c")
     assert c.shared_vertices(["a", "b", "d"]) == [2]
     assert c.shared_vertices(["a", "c"]) == []
+
+
+def test_hull_volume_and_diameter_are_kept_by_content_not_by_array() -> None:
+    from scipy.spatial import ConvexHull
+    from scipy.spatial.distance import pdist
+
+    from nonprehensile.geometry.polyhedron import hull_volume_and_diameter
+
+    pts = np.random.default_rng(3).standard_normal((300, 3))
+    vol, diam = hull_volume_and_diameter(pts)
+    assert vol == pytest.approx(ConvexHull(pts).volume, rel=1e-12)
+    assert diam == pytest.approx(pdist(pts).max(), rel=1e-12)
+    # the same numbers in another array hit the memo; changed numbers in place do not
+    assert hull_volume_and_diameter(pts.copy()) == (vol, diam)
+    pts *= 2.0
+    vol2, diam2 = hull_volume_and_diameter(pts)
+    assert vol2 == pytest.approx(8 * vol) and diam2 == pytest.approx(2 * diam)

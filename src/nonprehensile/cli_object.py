@@ -183,10 +183,13 @@ def object_from_mesh(
     if as_json:
         emit_json({"output": str(Path(output)), **object_summary(poly)})
         return
-    virtual = sorted(poly.virtual_faces)
+    # names in model order; a scanned part can have a thousand virtual faces: name a few
+    virtual = [f for f in poly.faces if f in poly.virtual_faces]
+    shown = ", ".join(virtual[:12]) + (f", ... ({len(virtual) - 12} more)"
+                                       if len(virtual) > 12 else "")
     out.print(
         f"wrote {output}: {poly.name}, {len(poly.faces)} faces "
-        f"({len(virtual)} virtual{': ' + ', '.join(virtual) if virtual else ''}), "
+        f"({len(virtual)} virtual{': ' + shown if virtual else ''}), "
         f"{len(poly.vertices)} vertices, {poly.diameter:.4g} {poly.units} across"
     )
 

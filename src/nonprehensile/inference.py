@@ -26,7 +26,9 @@ Two methods:
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+import gc
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any, Literal
@@ -361,6 +363,27 @@ class Expansion:
         }
 
 
+@contextmanager
+def _collector_paused() -> Iterator[None]:
+    """Pause CPython's cyclic garbage collector while a large expansion is built.
+
+    An expansion allocates millions of small container objects (states, face maps, adapted
+    events, arcs) that all stay alive. Every few thousand allocations the generational
+    collector walks the survivors again, so without the pause building it is super-linear in
+    the state set (at 10,000 faces the collector took 37 % of the paper's method and 37 % of
+    the exact one). Nothing built here needs collecting: the objects form no cycles that
+    become garbage while the expansion is built. The collector is resumed (if it was running)
+    when the block ends, even on an error.
+    """
+    was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_enabled:
+            gc.enable()
+
+
 def expand(
     poly: Polyhedron,
     skills: Sequence[Skill],
@@ -389,15 +412,16 @@ def expand(
     -------
     Expansion
     """
-    graph = TransitionGraph(states)
-    found: list[InferredTransition] = []
-    index = StateIndex(states)
-    for skill in _with_reverses(skills):
-        found.extend(infer(poly, skill, states, method=method, atol=atol, angle_tol=angle_tol,
-                           index=index))
-    for t in found:
-        graph.add(t.transition())
-    return Expansion(graph, found, method)
+    with _collector_paused():
+        graph = TransitionGraph(states)
+        found: list[InferredTransition] = []
+        index = StateIndex(states)
+        for skill in _with_reverses(skills):
+            found.extend(infer(poly, skill, states, method=method, atol=atol,
+                               angle_tol=angle_tol, index=index))
+        for t in found:
+            graph.add(t.transition())
+        return Expansion(graph, found, method)
 
 
 @dataclass(frozen=True)

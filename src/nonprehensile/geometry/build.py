@@ -11,8 +11,10 @@ coordinates. Mesh files are read with trimesh, imported only when needed (the ``
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import logging
 import math
+import string
 from pathlib import Path
 from typing import Any
 
@@ -24,11 +26,13 @@ from nonprehensile.bounds import MAX_COORDINATE as MAX_RECORDED_COORDINATE
 from nonprehensile.checks import check_tolerance
 from nonprehensile.errors import InputError, MeshError, ModelError
 from nonprehensile.geometry.polyhedron import (
+    COLLINEAR_FRACTION,
     DEFAULT_RTOL,
     MAX_COORDINATE,
     Polyhedron,
     _Loops,
-    point_diameter,
+    corner_heights,
+    vertex_diameter,
 )
 
 __all__ = [
@@ -36,6 +40,7 @@ __all__ = [
     "convex_hull",
     "cube",
     "face_name",
+    "face_names",
     "from_mesh",
     "octahedron",
     "prism",
@@ -62,6 +67,18 @@ def face_name(i: int) -> str:
         i, r = divmod(i - 1, 26)
         s = chr(ord("a") + r) + s
     return s
+
+
+def face_names(n: int) -> list[str]:
+    """The first ``n`` face names, ``[face_name(0), ..., face_name(n - 1)]``, made in bulk
+    (names of one letter, then of two, ... in order: what :func:`face_name` gives)."""
+    out: list[str] = []
+    width = 1
+    while len(out) < n:
+        words = itertools.product(string.ascii_lowercase, repeat=width)
+        out.extend(map("".join, itertools.islice(words, n - len(out))))
+        width += 1
+    return out
 
 
 def cube(size: float = 1.0, *, name: str = "cube") -> Polyhedron:
@@ -145,8 +162,13 @@ def _qhull(points: FloatArray, radius: float, angle: float) -> Any:
         ) from None
 
 
-def _hull_loops(points: FloatArray, hull: Any) -> tuple[list[list[int]], FloatArray]:
+def _hull_loops(
+    points: FloatArray, hull: Any
+) -> tuple[NDArray[np.int64], NDArray[np.int64], FloatArray]:
     """The merged facets of a Qhull hull as loops clockwise from outside, and their normals.
+
+    Returns ``(flat, lengths, normals)``: every loop's vertex indices one after the other,
+    each loop's length, and the outward unit normals, shape (n_facets, 3).
 
     ``scipy`` always triangulates Qhull's output; the triangles of one merged facet share
     its hyperplane exactly, so they are grouped by their equation. A merged facet is convex,
@@ -157,21 +179,27 @@ def _hull_loops(points: FloatArray, hull: Any) -> tuple[list[list[int]], FloatAr
     """
     simplices = np.asarray(hull.simplices, dtype=np.int64)
     eqs = np.asarray(hull.equations, dtype=np.float64)
-    _, group = np.unique(eqs, axis=0, return_inverse=True)
-    group = np.asarray(group, dtype=np.int64).ravel()
+    # group the triangles by equation, numbered in the lexicographic order of the equations
+    # (what ``np.unique(eqs, axis=0)`` numbers, at a third of its cost)
+    by_eq = np.lexsort(eqs.T[::-1])
+    change = np.any(eqs[by_eq[1:]] != eqs[by_eq[:-1]], axis=1)
+    group = np.empty(len(eqs), dtype=np.int64)
+    group[by_eq] = np.concatenate([[0], np.cumsum(change)])
     n_groups = int(group.max()) + 1
     normals = np.zeros((n_groups, 3))
     normals[group] = eqs[:, :3]
     normals /= np.linalg.norm(normals, axis=1)[:, None]
     n = np.int64(len(points))
-    pairs = np.unique(np.repeat(group, 3) * n + simplices.ravel())
+    pairs = np.sort(np.repeat(group, 3) * n + simplices.ravel())
+    pairs = pairs[np.concatenate([[True], pairs[1:] != pairs[:-1]])]
     owner, vertex = pairs // n, pairs % n
     counts = np.bincount(vertex, minlength=len(points))
     keep = counts[vertex] >= 3
     owner, vertex = owner[keep], vertex[keep]
     # angle of each corner about its facet's centre, counterclockwise seen from outside
     centre = np.zeros((n_groups, 3))
-    np.add.at(centre, owner, points[vertex])
+    for k in range(3):
+        centre[:, k] = np.bincount(owner, weights=points[vertex, k], minlength=n_groups)
     centre /= np.maximum(np.bincount(owner, minlength=n_groups), 1)[:, None]
     nrm = normals[owner]
     ref = np.where(np.abs(nrm[:, 0:1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
@@ -183,20 +211,29 @@ def _hull_loops(points: FloatArray, hull: Any) -> tuple[list[list[int]], FloatAr
     order = np.lexsort((-ang, owner))  # clockwise from outside: decreasing angle
     owner, vertex = owner[order], vertex[order]
     bounds = np.flatnonzero(np.diff(owner)) + 1
-    cuts = [0, *bounds.tolist(), len(vertex)]
-    flat = vertex.tolist()
-    loops = [flat[cuts[k] : cuts[k + 1]] for k in range(len(cuts) - 1)]
     present = owner[np.r_[0, bounds]] if len(owner) else np.zeros(0, dtype=np.int64)
     if len(present) != n_groups:  # a facet left with no corner: keep the ones that have
         normals = normals[present]
-    return loops, normals
+    lengths = np.diff(np.concatenate([[0], bounds, [len(vertex)]])) if len(owner) else (
+        np.zeros(0, dtype=np.int64))
+    return vertex, lengths.astype(np.int64), normals
 
 
 def _assemble(
-    points: FloatArray, loops: list[list[int]], normals: FloatArray, atol: float
-) -> tuple[FloatArray, dict[str, tuple[int, ...]]]:
-    """Renumber vertices and name faces in the builders' deterministic order."""
-    used = np.unique(np.concatenate([np.asarray(t, dtype=np.int64) for t in loops]))
+    points: FloatArray,
+    flat: NDArray[np.int64],
+    lengths: NDArray[np.int64],
+    normals: FloatArray,
+    atol: float,
+) -> tuple[NDArray[np.int64], dict[str, tuple[int, ...]]]:
+    """Renumber vertices and name faces in the builders' deterministic order: the model's
+    vertices are ``points[keyed]``; returns ``keyed`` and the faces.
+
+    The loops are given as in :func:`_hull_loops`. Vectorised over corners: one gather
+    renumbers every loop, puts the faces in order and starts each loop at its smallest new
+    vertex index."""
+    n_loops = len(lengths)
+    used = np.unique(flat)
     # vertices in lexicographic order of rounded coordinates, so names do not depend on the
     # order the points came in
     digits = max(0, int(-math.floor(math.log10(max(atol, 1e-15)))) - 1)
@@ -209,12 +246,26 @@ def _assemble(
     )
     height = np.round(normals[:, 2], 6)
     order = np.lexsort((az, height))
-    faces: dict[str, tuple[int, ...]] = {}
-    for rank, i in enumerate(order.tolist()):
-        loop = new_index[np.asarray(loops[i], dtype=np.int64)].tolist()
-        start = loop.index(min(loop))
-        faces[face_name(rank)] = tuple(loop[start:] + loop[:start])
-    return points[keyed], faces
+    mapped = new_index[flat]
+    starts = np.zeros(n_loops, dtype=np.int64)
+    np.cumsum(lengths[:-1], out=starts[1:])
+    owner = np.repeat(np.arange(n_loops, dtype=np.int64), lengths)
+    # where each loop's smallest vertex sits (a loop repeats no vertex: one place)
+    low = np.minimum.reduceat(mapped, starts)
+    at_low = np.flatnonzero(mapped == low[owner])
+    shift = np.zeros(n_loops, dtype=np.int64)
+    shift[owner[at_low]] = at_low - starts[owner[at_low]]
+    # corner j of the face of rank r is corner (j + shift) of loop order[r]
+    new_len = lengths[order]
+    new_starts = np.zeros(n_loops, dtype=np.int64)
+    np.cumsum(new_len[:-1], out=new_starts[1:])
+    old = np.repeat(order, new_len)
+    j = np.arange(len(flat), dtype=np.int64) - np.repeat(new_starts, new_len)
+    out = mapped[starts[old] + (j + shift[old]) % lengths[old]].tolist()
+    bounds = [*new_starts.tolist(), len(out)]
+    faces = {name: tuple(out[bounds[k] : bounds[k + 1]])
+             for k, name in enumerate(face_names(n_loops))}
+    return keyed, faces
 
 
 def _planarity_rtol(vertices: FloatArray, faces: dict[str, tuple[int, ...]]) -> float:
@@ -224,7 +275,23 @@ def _planarity_rtol(vertices: FloatArray, faces: dict[str, tuple[int, ...]]) -> 
     n = newell / np.maximum(np.linalg.norm(newell, axis=1), 1e-300)[:, None]
     p = vertices[lp.flat]
     off = np.abs(np.einsum("ij,ij->i", p - lp.means(vertices)[lp.owner], n[lp.owner]))
-    return float(off.max()) / max(point_diameter(vertices), 1e-300)
+    # every vertex is a corner of the hull; the model's check reuses the diameter
+    return float(off.max()) / max(vertex_diameter(vertices), 1e-300)
+
+
+def _unturned_corners(
+    vertices: FloatArray, faces: dict[str, tuple[int, ...]], rtol: float
+) -> NDArray[np.int64]:
+    """Vertices where some face's loop does not turn: within the tolerance of the line
+    through their neighbours on it (collinear), or turning back (a point Qhull left inside a
+    merged facet, within its thickness, that also touches small facets). The model check
+    refuses both; both lie within the tolerance of the hull of the other points."""
+    lp = _Loops.of(faces.values())
+    newell = lp.newell(vertices)
+    n_loop = newell / np.maximum(np.linalg.norm(newell, axis=1), 1e-300)[:, None]
+    atol = rtol * vertex_diameter(vertices)
+    height = corner_heights(vertices, lp, n_loop)
+    return np.unique(lp.flat[lp.nxt][height <= atol * COLLINEAR_FRACTION])
 
 
 def _round_up(x: float) -> float:
@@ -252,17 +319,23 @@ def _hull_model(
     if max_faces is not None:
         # coarser and coarser merging until the hull has few enough faces
         for _ in range(60):
-            loops, normals = _hull_loops(p, hull)
-            if len(loops) <= max_faces:
+            lengths = _hull_loops(p, hull)[1]
+            if len(lengths) <= max_faces:
                 break
             radius = max(radius * 2.0, 1e-12 * extent)
             hull = _qhull(p, radius, angle)
         else:
             raise MeshError(f"cannot facet the hull into at most {max_faces} faces")
-    last: ModelError | None = None
-    for _ in range(8):
-        loops, normals = _hull_loops(p, hull)
-        vertices, faces = _assemble(p, loops, normals, radius)
+    first_radius = radius
+
+    def attempt(
+        q: FloatArray, radius: float, hull: Any, unturned: bool = False
+    ) -> tuple[Polyhedron | ModelError, NDArray[np.int64]]:
+        """The model of Qhull's facets of ``q``, or why it is not valid, and (if asked) the
+        corners that do not turn, which may be why (indices into ``q``)."""
+        flat, lengths, normals = _hull_loops(q, hull)
+        keyed, faces = _assemble(q, flat, lengths, normals, radius)
+        vertices = q[keyed]
         # the model carries the tolerance it is valid at: at least the one asked for, and
         # enough for the (slightly bent) faces Qhull merged
         model_rtol = max(rtol, _round_up(radius / size),
@@ -275,12 +348,37 @@ def _hull_model(
                 center_of_mass=None if center_of_mass is None else np.asarray(center_of_mass),
                 units=units,
                 rtol=model_rtol,
-            )
+                hull_facets=True,
+            ), np.zeros(0, dtype=np.int64)
         except ModelError as exc:
-            # nearly coplanar or nearly collinear leftovers: merge a little more
-            last = exc
-            radius = max(radius * 2.0, 1e-12 * extent)
-            hull = _qhull(p, radius, angle)
+            if not unturned:
+                return exc, np.zeros(0, dtype=np.int64)
+            return exc, keyed[_unturned_corners(vertices, faces, model_rtol)]
+
+    last: ModelError | None = None
+    for _ in range(8):
+        got, _ = attempt(p, radius, hull)
+        if isinstance(got, Polyhedron):
+            return got
+        # nearly coplanar or nearly collinear leftovers: merge a little more
+        last = got
+        radius = max(radius * 2.0, 1e-12 * extent)
+        hull = _qhull(p, radius, angle)
+    # Still none: Qhull keeps corners that are straight within the tolerance (a point a hair
+    # off the line between two others, where the facets that meet there were not merged) or
+    # turn back (a point inside a merged facet's thickness), and a larger merging radius
+    # makes more of them. Such a point is within the tolerance of the hull of the others:
+    # leave it out, at the first radius, until every corner turns.
+    keep = np.ones(len(p), dtype=bool)
+    for _ in range(32):
+        sub = np.flatnonzero(keep)
+        got, unturned = attempt(p[sub], first_radius, _qhull(p[sub], first_radius, angle),
+                                unturned=True)
+        if isinstance(got, Polyhedron):
+            return got
+        if not len(unturned):
+            break
+        keep[sub[unturned]] = False
     raise MeshError(
         f"the hull of the points does not make a valid model at tolerance rtol={rtol:g} "
         f"({last}); try a larger tolerance (--rtol) or fewer faces (--max-faces)"

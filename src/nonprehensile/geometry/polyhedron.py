@@ -15,9 +15,11 @@ quantity (normals, ``A``, ``Delta``, centre of mass, ...) is computed once, on f
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import itertools
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
-from functools import cached_property
+from dataclasses import InitVar, dataclass, field
+from functools import cached_property, lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -88,6 +90,13 @@ class Polyhedron:
     rtol : float
         Length tolerance relative to the object's diameter, used by validation and by every
         geometric comparison made with this model.
+    hull_facets : bool
+        True when the faces are a convex hull's own facets, as the builders make them
+        (:func:`~nonprehensile.geometry.convex_hull`, ``from_mesh``): the solid is convex by
+        construction, so the last check, of its volume against a second convex hull of its
+        vertices, is skipped (at 50,000 vertices that hull is 15 % of building the model).
+        Every face, edge and the closed surface are checked all the same. Not stored: a copy
+        made with :func:`dataclasses.replace` is checked in full.
 
     Raises
     ------
@@ -104,10 +113,11 @@ class Polyhedron:
     virtual_faces: frozenset[str] = field(default_factory=frozenset)
     units: str = "m"
     rtol: float = DEFAULT_RTOL
+    hull_facets: InitVar[bool] = False
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, hull_facets: bool) -> None:
         object.__setattr__(self, "rtol", _check_rtol(self.rtol))
-        checked = _check(self.vertices, self.faces, self.rtol)
+        checked = _check(self.vertices, self.faces, self.rtol, hull_facets=bool(hull_facets))
         faces = checked.loops
         object.__setattr__(self, "vertices", checked.vertices)
         object.__setattr__(self, "faces", faces)
@@ -409,8 +419,9 @@ class _Loops:
     @classmethod
     def of(cls, loops: Iterable[Sequence[int]]) -> _Loops:
         seqs = list(loops)
-        lengths = np.fromiter((len(t) for t in seqs), dtype=np.int64, count=len(seqs))
-        flat = np.fromiter((i for t in seqs for i in t), dtype=np.int64, count=int(lengths.sum()))
+        lengths = np.fromiter(map(len, seqs), dtype=np.int64, count=len(seqs))
+        flat = np.fromiter(itertools.chain.from_iterable(seqs), dtype=np.int64,
+                           count=int(lengths.sum()))
         starts = np.zeros(len(seqs), dtype=np.int64)
         np.cumsum(lengths[:-1], out=starts[1:])
         owner = np.repeat(np.arange(len(seqs), dtype=np.int64), lengths)
@@ -452,6 +463,61 @@ def point_diameter(points: FloatArray) -> float:
         with contextlib.suppress(QhullError):  # flat or degenerate: every point may matter
             p = p[ConvexHull(p).vertices]
     return _diameter_of(p)
+
+
+class _PointsKey:
+    """A point array as a memo key: hashed and compared by content (a read-only copy)."""
+
+    __slots__ = ("_hash", "array")
+
+    def __init__(self, points: FloatArray) -> None:
+        a = np.array(points, dtype=np.float64, order="C")
+        a.setflags(write=False)
+        self.array = a
+        digest = hashlib.blake2b(a.tobytes(), digest_size=16).digest()
+        self._hash = hash((a.shape, digest))
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other: object) -> bool:
+        return (isinstance(other, _PointsKey) and self._hash == other._hash
+                and self.array.shape == other.array.shape
+                and bool(np.array_equal(self.array, other.array)))
+
+
+@lru_cache(maxsize=8)
+def _hull_facts(key: _PointsKey) -> tuple[float, float]:
+    hull = ConvexHull(key.array)
+    return float(hull.volume), _diameter_of(key.array[hull.vertices])
+
+
+def hull_volume_and_diameter(points: FloatArray) -> tuple[float, float]:
+    """Volume of the convex hull of ``points`` (shape (n, 3)) and their diameter.
+
+    Found once per point set: building a model checks its planarity against the diameter,
+    then validating it needs the same hull again (at 50,000 vertices each costs a Qhull run
+    and a farthest-pair search, 0.45 s), so the last few results are kept by content.
+
+    Raises
+    ------
+    scipy.spatial.QhullError
+        If the points are flat (coplanar, collinear or coincident).
+    """
+    return _hull_facts(_PointsKey(points))
+
+
+@lru_cache(maxsize=8)
+def _vertex_diameter(key: _PointsKey) -> float:
+    return _diameter_of(key.array)
+
+
+def vertex_diameter(vertices: FloatArray) -> float:
+    """The diameter of a convex polyhedron's vertices (shape (n, 3)), all of them corners of
+    its hull: :func:`hull_volume_and_diameter` without the hull. Kept for the last few point
+    sets, by content: a builder measures its faces' planarity against it, then validating
+    the model needs it again."""
+    return _vertex_diameter(_PointsKey(vertices))
 
 
 def _diameter_of(p: FloatArray) -> float:
@@ -531,13 +597,22 @@ def _widest_pair(p: FloatArray, n_dirs: int = 200) -> float:
     d = np.column_stack([np.cos(theta) * np.sin(phi), np.sin(theta) * np.sin(phi),
                          np.cos(phi)])
     q = p - p.mean(axis=0)
-    # three broadcast products, not a BLAS call: an inner dimension of 3 gains nothing from
-    # threads, and threads on a busy machine cost a lot
-    proj = d[:, 0:1] * q[:, 0] + d[:, 1:2] * q[:, 1] + d[:, 2:3] * q[:, 2]
-    width = proj.max(axis=1) - proj.min(axis=1)
+
+    def project(rows: slice | list[int]) -> FloatArray:
+        # three broadcast products, not a BLAS call: an inner dimension of 3 gains nothing
+        # from threads, and threads on a busy machine cost a lot
+        e = d[rows]
+        return np.asarray(e[:, 0:1] * q[:, 0] + e[:, 1:2] * q[:, 1] + e[:, 2:3] * q[:, 2])
+
+    # a few directions at a time: the whole (n_dirs, n) matrix would be 80 MB per
+    # temporary at 50,000 points, and memory traffic is what a busy machine lacks
+    width = np.empty(n_dirs)
+    for d0 in range(0, n_dirs, 16):
+        proj = project(slice(d0, d0 + 16))
+        width[d0 : d0 + 16] = proj.max(axis=1) - proj.min(axis=1)
     best2 = 0.0
-    for k in np.argsort(-width)[:8].tolist():
-        a = int(np.argmax(proj[k]))
+    for row in project(np.argsort(-width)[:8].tolist()):
+        a = int(np.argmax(row))
         for _ in range(4):
             diff = q - q[a]
             d2 = np.einsum("ij,ij->i", diff, diff)
@@ -621,18 +696,21 @@ def _fast_loops(
         if type(f) is not str or not f or type(t) not in (list, tuple):
             return None
         out[f] = tuple(t)  # type: ignore[arg-type]
-    flat = [i for t in out.values() for i in t]
-    if not all(type(i) is int for i in flat):
+    flat = list(itertools.chain.from_iterable(out.values()))
+    if not set(map(type, flat)) <= {int}:
         if not all(isinstance(i, (int, np.integer)) and not isinstance(i, bool) for i in flat):
             return None
         out = {f: tuple(int(i) for i in t) for f, t in out.items()}
         flat = [int(i) for i in flat]
     if not flat or min(flat) < 0 or max(flat) >= n_vertices:
         return None  # (before numpy: an index beyond int64 would overflow there)
-    idx = np.fromiter(flat, dtype=np.int64, count=len(flat))
-    if not len(idx) or idx.min() < 0 or idx.max() >= n_vertices:
+    lengths = np.fromiter(map(len, out.values()), dtype=np.int64, count=len(out))
+    if lengths.min() < 3:
         return None
-    if any(len(t) < 3 or len(set(t)) != len(t) for t in out.values()):
+    # a loop that repeats a vertex: two equal (loop, vertex) keys, found in one sort
+    idx = np.fromiter(flat, dtype=np.int64, count=len(flat))
+    key = np.sort(np.repeat(np.arange(len(out), dtype=np.int64), lengths) * n_vertices + idx)
+    if (key[1:] == key[:-1]).any():
         return None
     return out
 
@@ -659,7 +737,9 @@ def _slow_loops(faces: Mapping[object, object], n_vertices: int) -> dict[str, tu
     return loops
 
 
-def _check(vertices: object, faces: object, rtol: float) -> _Checked:
+def _check(
+    vertices: object, faces: object, rtol: float, *, hull_facets: bool = False
+) -> _Checked:
     rtol = _check_rtol(rtol)
     try:
         v = np.array(vertices, dtype=float)
@@ -703,14 +783,19 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
             "that meet there"
         )
 
+    hull_volume: float | None = None
     try:
-        hull = ConvexHull(v)
+        if hull_facets:
+            # convex by construction: every vertex is a corner of the hull, so the diameter
+            # of them all is the hull's (and the builder has just found it)
+            diameter = vertex_diameter(v)
+        else:
+            hull_volume, diameter = hull_volume_and_diameter(v)
     except QhullError:
         raise ModelError(
             "the vertices are flat (all coplanar, collinear or coincident): they bound no "
             "solid"
         ) from None
-    diameter = _diameter_of(v[hull.vertices])
     atol = rtol * diameter
     center = v.mean(axis=0)
 
@@ -719,15 +804,19 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
 
     newell = lp.newell(v)
     norm = np.linalg.norm(newell, axis=1)
-    flat_face = norm <= atol * diameter
+    p = v[lp.flat]
+    means = lp.means(v)
+    rel = p - means[lp.owner]
+    reach = np.sqrt(lp.face_max(np.einsum("ij,ij->i", rel, rel)))  # farthest corner
+    # no width: twice the area is at most the tolerance times the face's own reach (a small
+    # face of a finely tessellated part is not flat, a sliver within the tolerance is)
+    flat_face = norm <= atol * reach
     if flat_face.any():
         raise ModelError(
             "the face has no area: its vertices are collinear, or its loop crosses itself",
             face=names[first(flat_face)],
         )
     n_loop = newell / norm[:, None]  # right-handed about the loop: inward when clockwise
-    p = v[lp.flat]
-    means = lp.means(v)
     off = np.abs(np.einsum("ij,ij->i", p - means[lp.owner], n_loop[lp.owner]))
     worst = lp.face_max(off)
     if (worst > atol).any():
@@ -742,13 +831,7 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
         )
     # convex polygon: every turn goes the same way as the loop's normal; the height of each
     # corner above the line through its neighbours measures how sharp the turn is
-    e = p[lp.nxt] - p
-    e_next = e[lp.nxt]
-    len_e = np.linalg.norm(e, axis=1)
-    len_next = len_e[lp.nxt]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sin = np.einsum("ij,ij->i", np.cross(e, e_next), n_loop[lp.owner]) / (len_e * len_next)
-    height = np.nan_to_num(sin * np.minimum(len_e, len_next), nan=-np.inf)
+    height = corner_heights(v, lp, n_loop)
     low = -lp.face_max(-height)  # per-face minimum
     bad_turn = low <= atol * COLLINEAR_FRACTION
     if bad_turn.any():
@@ -827,8 +910,7 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
         )
     # coplanar neighbours: g's vertices all within a small part of the tolerance of f's
     # plane (the normals' angle times g's extent bounds how far they can stray)
-    extent = 2.0 * np.sqrt(lp.face_max(np.einsum("ij,ij->i", p - means[lp.owner],
-                                                   p - means[lp.owner])))
+    extent = 2.0 * reach
     sin_fg = np.linalg.norm(np.cross(n_out[f_of], n_out[g_of]), axis=1)
     same = (sin_fg * np.maximum(extent[f_of], extent[g_of]) <= atol * COPLANAR_FRACTION) & (
         f_of < g_of
@@ -843,12 +925,28 @@ def _check(vertices: object, faces: object, rtol: float) -> _Checked:
     # and as a whole: a closed surface convex at every edge bounds its own convex hull
     vol = _signed_volume(v, lp, center)
     area = float(norm.sum()) / 2.0
-    if hull.volume - vol > 2 * atol * area:
+    if hull_volume is not None and hull_volume - vol > 2 * atol * area:
         raise ModelError(
             f"the solid is not convex: its volume {vol:.6g} falls short of its convex hull's "
-            f"{hull.volume:.6g}; use the convex hull (nonprehensile object from-mesh) instead"
+            f"{hull_volume:.6g}; use the convex hull (nonprehensile object from-mesh) instead"
         )
     return _Checked(v, loops, lp, diameter, n_out)
+
+
+def corner_heights(v: FloatArray, lp: _Loops, n_loop: FloatArray) -> FloatArray:
+    """Signed height of every corner above the line through its two neighbours on its loop,
+    shape (n_corners,): corner ``k`` of the flat order is the one between the edges starting
+    at ``k`` and at ``lp.nxt[k]`` (so it is vertex ``lp.flat[lp.nxt[k]]``). Positive where
+    the loop turns the way of ``n_loop`` (the loops' right-handed unit normals, shape
+    (n_faces, 3)); ``-inf`` where an edge has no length."""
+    p = v[lp.flat]
+    e = p[lp.nxt] - p
+    e_next = e[lp.nxt]
+    len_e = np.linalg.norm(e, axis=1)
+    len_next = len_e[lp.nxt]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sin = np.einsum("ij,ij->i", np.cross(e, e_next), n_loop[lp.owner]) / (len_e * len_next)
+    return np.asarray(np.nan_to_num(sin * np.minimum(len_e, len_next), nan=-np.inf))
 
 
 def _fan_mask(lp: _Loops) -> NDArray[np.bool_]:
