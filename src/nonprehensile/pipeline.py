@@ -132,9 +132,10 @@ def cluster_segments(
 
     Cost: on the bundled cube (660 segments, 14 arcs) this is over half of the demo's CPU
     time, nearly all of it in the clusterer's macro steps (about 120 of them, each fitting
-    Gaussian mixtures for every number of clusters, covariance type and start: 8,000 short
-    EM runs). The pipeline takes the clusterer's defaults; the macro step's search is the
-    motion model's to tune (issue 16, ``docs/benchmarks.md``, "The user's path").
+    Gaussian mixtures for every number of clusters, covariance type and distinct start:
+    6,600 short EM runs). The pipeline takes the clusterer's defaults; the macro step's
+    search is the motion model's to tune (issue 16, ``docs/benchmarks.md``, "The user's
+    path").
 
     Returns
     -------
