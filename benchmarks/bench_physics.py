@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -72,6 +73,8 @@ def _infer(ds: Dataset, motions: object) -> tuple[int, int, float]:
 
 
 def main() -> None:
+    cpu0 = time.process_time()
+    print(f"   load average at start {os.getloadavg()[0]:.1f} (2 cores)")
     skills = ROOT / "examples" / "cube_skills.json"
     poly, sk = read_skills(skills)
     ds, motions = motions_from_dataset("cube", skills=sk, poly=poly)
@@ -82,8 +85,9 @@ def main() -> None:
     for o in simulate_plan(poly, pl, scale=ds.scale, fingers=ds.fingers):
         r = o.to_dict()
         print(f"   step {r['step']} {r['skill']}: predicted {r['predicted']}, simulated "
-              f"{r['simulated']}, position error {1000 * r['position_error_m']:.1f} mm, "
-              f"success {r['success']}")
+              f"{r['simulated']}, theta error {r['theta_error_deg']} deg, position error "
+              f"{1000 * r['position_error_m']:.1f} mm (bars 5 deg, 10 mm), success "
+              f"{r['success']}")
 
     print("2. bundled demonstrations replayed (ended in the annotated state):")
     sim = Simulator(ds.poly, scale=ds.scale)
@@ -124,6 +128,8 @@ def main() -> None:
         s2 = Simulator(ds.poly, scale=ds.scale, params=SimParams(**kw))  # type: ignore[arg-type]
         got = sum(replay_demonstration(s2, ds, d).success for d in push)
         print(f"   {kw}: {got}/{len(push)}")
+    print(f"   CPU {time.process_time() - cpu0:.0f} s; load average at end "
+          f"{os.getloadavg()[0]:.1f} (2 cores)")
 
 
 if __name__ == "__main__":

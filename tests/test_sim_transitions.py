@@ -57,6 +57,24 @@ def _check(ds: Dataset, skill: str, whole: bool = False) -> None:
     assert out.comparison.position_error < 0.010
 
 
+def test_bundled_tumbling_pinch_replays_in_physics() -> None:
+    # the tumbling skills pinch the opposite faces e and b (a pinch on the adjacent faces f and
+    # b slid the cube off its pivot: 8 and 1 of 30 replays ended in d:90); one take per mentor
+    # and skill replayed from its recorded markers ends in d:90, the pinch holding the cube on
+    # its pivot vertex (the pads' light touch at the landing is not always read: the landed
+    # event is missing in 7 of the 60 bundled tumbling replays, docs/physics.md)
+    ds = load_dataset("cube")
+    sim = Simulator(ds.poly, scale=ds.scale)
+    for skill in ("tumble-lift", "tumble-twist"):
+        for mentor in ("ana", "ben", "chen"):
+            demo = next(d for d in ds.of_skill(skill) if d.mentor == mentor)
+            assert {str(p) for p in demo.skill.events[1].pairs} >= {"(R1,e)", "(R2,b)"}
+            got = replay_demonstration(sim, ds, demo)
+            assert got.success, got.to_dict()
+            found = {eid for eid, t, _ in got.comparison.matched if t is not None}
+            assert {"pinch", "tilt", "done"} <= found, got.to_dict()
+
+
 def test_cube_push_roll_demonstrated_and_inferred() -> None:
     ds = load_dataset("cube")
     small = Dataset(ds.poly, ds.skills, tuple(d for d in ds.demonstrations

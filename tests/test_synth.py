@@ -154,18 +154,6 @@ def test_contact_consistency_for_any_seed_and_drawn_mentors(seed: int, n_mentors
     assert _check_contacts(ds, tol_mm=2.5) == n_mentors * 23
 
 
-def test_bundled_dataset_is_contact_consistent() -> None:
-    # only the bundled skills this generator made: the others are recorded from physics
-    # (nonprehensile.sim.record), where the object's pose at an event is physics' own, not the
-    # exact maneuver's, and the tips are fingertip centres (tests/test_sim*.py check those)
-    ds = load_dataset("cube")
-    kinematic = ("tumble-lift", "tumble-twist")
-    ds = Dataset(ds.poly, ds.skills,
-                 tuple(d for d in ds.demonstrations if d.skill.name in kinematic),
-                 ds.scale, ds.gap_limit, ds.fingers)
-    assert _check_contacts(ds, tol_mm=4.5) > 300
-
-
 def test_the_check_can_fail(small: Dataset) -> None:
     # move one tip 10 mm away from its face at the touch event: the check must notice
     d = small.of_skill("push-roll")[0]

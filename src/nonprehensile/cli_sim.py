@@ -309,5 +309,6 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, scale: flo
         emit_json(doc)
         return
     for name, st in stats.items():
-        out.print(f"{name}: {st['kept']} kept of {st['tried']} takes")
+        out.print(f"{name}: {st['kept']} kept of {st['tried']} takes "
+                  f"({st['fragile']} fragile)")
     out.print(f"wrote {len(ds.demonstrations)} demonstrations to {out_dir}")

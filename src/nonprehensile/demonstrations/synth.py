@@ -20,11 +20,15 @@ Model of a demonstration
   outside: what ``tests/test_synth.py`` checks.
 * How the contact point moves during a motion arc depends on the motion's label:
   ``straight-pull`` (rolling only) slides it so that the finger moves on a straight line (the
-  line where the face's start plane meets its current plane), ``twist-over`` turns it by
-  160 degrees about the face's centre (the fingers twist as the object tumbles), and any
-  other label keeps it fixed on the object, so the finger rides with it (the quarter circle
-  of the paper's Fig. 5 skill 2). Arcs in which the object does not move let the contact
-  creep a little.
+  line where the face's start plane meets its current plane); any other label keeps it
+  fixed on the object, so the finger rides with it (the quarter circle of the paper's Fig. 5
+  skill 2). Arcs in which the object does not move let the contact creep a little.
+* Tumbling skills pinch two opposite faces (a pinch on adjacent faces pushes the object off
+  its pivot vertex, docs/physics.md) at points that put the pinch line above and behind the
+  centre of mass: high for a ``lift-over`` (:data:`TUMBLE_GRIPS`), low at the back with the
+  hand turned sideways for a ``twist-over``, whose wrist then turns by 160 degrees about the
+  pinch as the object tumbles (the knuckle markers sweep round; the pads stay put, as they
+  must to hold the object).
 * Before its first contact a finger approaches from a hover point along a bowed path that
   stays outside the object (it is always on the outer side of the plane of the element it
   will touch); after its last contact it retreats the same way. A finger the skill never
@@ -124,7 +128,18 @@ _UP = np.array([0.0, 0.0, 1.0])
 _BASE = {"free": 0.6, "hold": 0.3, "move": 0.9}
 _LEAD, _TAIL = 0.1, 0.25  # hover before the first event, retreat after the last (s)
 _FACE_MARGIN = 0.08  # keep chosen contact points this far (model units) inside a face
-_TWIST_DEG = 160.0  # how far a twist-over turns the contact about the face's centre
+#: A hook for a straight pull sits this share of the mentor's grip offset from the face's
+#: middle: hooked far from the middle, the drag to the rolling edge loses the cube before its
+#: tipping point (physics: ben's grip, 14 mm off, tipped it in 2 takes of 20; halved, 20 of 20)
+_PULL_GRIP = 0.5
+_TWIST_DEG = 160.0  # how far the wrist turns about the pinch during a twist-over
+#: Where a tumbling skill's pinch holds each face, model units from the face's centre (up the
+#: slope, across: the mirror image on the opposite face), by its moving arc's label: the pinch
+#: line lies above and behind the centre of mass, so that the object hangs from it the way
+#: the tumble turns it and keeps its pivot vertex on the table (found in physics; a pinch
+#: through the centre of mass carries the object without turning it about the pinch). A
+#: mentor's own grip shifts it by a third of the mentor's offset from (0.2, 0).
+TUMBLE_GRIPS = {"lift-over": (0.3, -0.3), "twist-over": (0.0, -0.2)}
 
 
 @dataclass(frozen=True)
@@ -367,10 +382,6 @@ def _in_face_axes(poly: Polyhedron, face: str, r0: FloatArray) -> tuple[FloatArr
     return u, np.cross(n, u)
 
 
-def _rot_in_plane(v: FloatArray, n: FloatArray, deg: float) -> FloatArray:
-    return np.asarray(Rotation.from_rotvec(n * math.radians(deg)).apply(v))
-
-
 def _straight_pull(
     motion: ObjectMotion, n_obj: FloatArray, q_obj: FloatArray, start_world: FloatArray,
     lam: FloatArray,
@@ -451,23 +462,18 @@ def _contacts(
         _, normal = _element_frame(poly, el)
         pts: dict[int, FloatArray] = {}
         labels = [m.label for m in skill.motions]
-        twist = any(labels[i] == "twist-over" for i in range(first, last))
+        grip = _tumble_grip(skill, lam)
         for i in range(first, last + 1):
             if i == first:
-                pts[i] = _first_point(poly, el, motion, mentor, rng, twist, k)
+                pts[i] = _first_point(poly, el, motion, mentor, rng, grip, k)
+                if "straight-pull" in labels[first:last] and isinstance(el, Face):
+                    centre = poly.face_centroids[el.id]
+                    pts[i] = centre + _PULL_GRIP * (pts[i] - centre)
             else:
                 prev, label = pts[i - 1], labels[i - 1]
                 moved = lam[i - 1] != lam[i]
                 if moved and label == "straight-pull":
                     pts[i] = _pull_end(poly, el, motion, prev, skill)
-                elif moved and label == "twist-over" and isinstance(el, Face):
-                    centre = poly.face_centroids[el.id]
-                    pts[i] = centre + _rot_in_plane(prev - centre, normal, _TWIST_DEG)
-                    if not _inside(poly, pts[i], 0.0):
-                        raise InputError(
-                            f"cannot synthesize skill {skill.name!r}: face {el.id!r} is too "
-                            "small for a twist-over of the contact about its centre"
-                        )
                 elif moved or not isinstance(el, Face):
                     pts[i] = prev  # the finger rides with the object (or holds an edge/vertex)
                 else:  # holding a still object: the pad creeps a little
@@ -479,19 +485,33 @@ def _contacts(
     return out
 
 
+def _tumble_grip(skill: Skill, lam: Sequence[float]) -> tuple[float, float] | None:
+    """The base grip of a tumbling skill's pinch (:data:`TUMBLE_GRIPS`), else None."""
+    if skill.maneuver != "tumbling":
+        return None
+    mv = next(i for i in range(len(lam) - 1) if lam[i] != lam[i + 1])
+    return TUMBLE_GRIPS.get(skill.motions[mv].label, TUMBLE_GRIPS["lift-over"])
+
+
 def _first_point(
     poly: Polyhedron, el: ObjectElement, motion: ObjectMotion, mentor: MentorStyle,
-    rng: np.random.Generator, twist: bool, finger: int,
+    rng: np.random.Generator, grip: tuple[float, float] | None, finger: int,
 ) -> FloatArray:
     if not isinstance(el, Face):
         return _element_frame(poly, el)[0]
     u, v = _in_face_axes(poly, el.id, motion.rotation0)
     up, across = mentor.grip
+    if grip is not None:  # a tumbling pinch: the skill's grip, shifted by the mentor's
+        up, across = grip[0] + (up - 0.2) / 3.0, grip[1] + across / 3.0
     off = up * u + across * (1 if finger == 1 else -1) * v + rng.normal(0.0, 0.03, 3)
-    if twist:  # start to one side, so that the half turn sweeps the face over its top
-        off = _rot_in_plane(0.38 * u, poly.normals[el.id], -_TWIST_DEG / 2)
-        off += rng.normal(0.0, 0.02, 3)
     return _place_on_face(poly, el.id, poly.face_centroids[el.id] + off)
+
+
+def _wrist_twist(back: FloatArray, normal: FloatArray, angle: FloatArray) -> FloatArray:
+    """``back`` (n, 3) turned about ``normal`` (n, 3) by ``angle`` (n,) radians (Rodrigues)."""
+    c, s = np.cos(angle)[:, None], np.sin(angle)[:, None]
+    dot = np.sum(normal * back, axis=1, keepdims=True)
+    return np.asarray(back * c + np.cross(normal, back) * s + normal * dot * (1.0 - c))
 
 
 def _pull_start(
@@ -684,8 +704,12 @@ def synthesize_demonstration(
             normals[k] = normals[ref]
     pos = np.empty((n_frames, 4, 3))
     place = np.asarray(mentor.knuckle_offset_mm) / (scale * 1000.0)
+    twist = skill.maneuver == "tumbling" and skill.motions[mv].label == "twist-over"
     for j, k in enumerate((1, 2)):
         back = 0.6 * normals[k] + 0.8 * _UP
+        if twist:  # the hand turned sideways, its wrist turning about the pinch meanwhile
+            wrist = math.radians(90.0) - lam * math.radians(_TWIST_DEG)
+            back = _wrist_twist(back, normals[k], wrist)
         back /= np.linalg.norm(back, axis=1, keepdims=True)
         pos[:, 2 * j] = tips[k]
         pos[:, 2 * j + 1] = tips[k] + 0.45 * back + place
@@ -737,12 +761,6 @@ def _finger_path(
             q = poly.face_centroids[c.element.id] if isinstance(c.element, Face) else a
             xw = _straight_pull(motion, c.normal, q, start_w, lam[sel])
             obj[sel] = np.einsum("nji,nj->ni", r[sel], xw - t[sel])
-        elif skill.motions[i].label == "twist-over" and isinstance(c.element, Face):
-            # the pad turns about the face's centre: a circle, which stays on the face
-            centre = poly.face_centroids[c.element.id]
-            rots = Rotation.from_rotvec(np.outer(_smooth(s) * math.radians(_TWIST_DEG),
-                                                 c.normal))
-            obj[sel] = centre + rots.apply(a - centre)
         else:
             obj[sel] = a + np.outer(_smooth(s), b - a)
     held = ~np.isnan(obj[:, 0])

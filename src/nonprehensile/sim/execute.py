@@ -106,7 +106,7 @@ def replay_demonstration(
                 if ok.any():
                     pos[:, j, a] = np.interp(np.arange(len(col)), np.flatnonzero(ok), col[ok])
     if smooth > 1:
-        pos = _smooth(pos, smooth)
+        pos = smooth_markers(pos, smooth)
     targets = {k: pos[:, _marker(dataset.fingers, k, traj.marker_names)]
                for k in fingers_of(demo.skill)}
     start = pose_of_state(dataset.poly, demo.initial, (0.0, 0.0), sim.scale)
@@ -124,7 +124,7 @@ def _ease(s: FloatArray) -> FloatArray:
     return np.asarray(s**3 * (10.0 - 15.0 * s + 6.0 * s**2))
 
 
-def _smooth(pos: FloatArray, n: int) -> FloatArray:
+def smooth_markers(pos: FloatArray, n: int) -> FloatArray:
     """Centred moving average over ``n`` frames along axis 0 (ends padded by repetition)."""
     k = np.ones(n) / n
     pad = np.concatenate([np.repeat(pos[:1], n // 2, axis=0), pos,
@@ -182,7 +182,7 @@ def step_targets(
         times.append((total - 1) / ref.rate)
     assert rate is not None
     # the references are measured paths: filtered as a tracking controller would
-    return ({k: _smooth(np.concatenate(v), smooth) if smooth > 1 else np.concatenate(v)
+    return ({k: smooth_markers(np.concatenate(v), smooth) if smooth > 1 else np.concatenate(v)
              for k, v in chunks.items()}, rate, times)
 
 
