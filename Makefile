@@ -25,7 +25,7 @@ lint: $(STAMP)
 bench: $(STAMP)
 	# the clustering benchmark reads real motion datasets shipped in these packages' data
 	# files; it never imports them, so their heavy dependencies (numba, pandas) are skipped
-	$(BIN)/python -m pip install --quiet --no-deps sktime==1.2.0 aeon==1.6.0
+	$(BIN)/python -m pip install --quiet --no-deps sktime==1.2.0 aeon==1.6.0 tslearn==0.10.0
 	# river's streaming clusterers are anchors of the clustering benchmark (skipped if absent)
 	$(BIN)/python -m pip install --quiet river==0.26.1 || echo "river not installed: its anchors are skipped"
 	$(BIN)/python -m benchmarks

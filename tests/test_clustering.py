@@ -164,6 +164,17 @@ def test_recalibrations_grow_geometrically() -> None:
     assert c.n_recalibrations_ == 6
 
 
+def test_micro_keeps_at_most_one_component_per_ten_samples() -> None:
+    # isotropic noise: a 95 % cut would keep nearly every direction (capped at 24)
+    x = np.random.default_rng(12).normal(size=(120, 100))
+    c = HilbertClusterer(2, init_size=60, random_state=0)
+    c.partial_fit(x[:60])
+    assert c.components_.shape[0] == 6
+    c.partial_fit(x[60:])  # the count doubles: recalibrated on the 120 samples of the reservoir
+    assert c.n_recalibrations_ == 2 and c.components_.shape[0] == 12
+    assert HilbertClusterer(2, max_components=4, random_state=0).fit(x).components_.shape[0] == 4
+
+
 def test_outside_samples_are_flagged_and_get_a_new_cluster() -> None:
     x, y = _blobs(200, 2, 5, seed=10)
     c = HilbertClusterer(2, method="runs", random_state=0).fit(x)

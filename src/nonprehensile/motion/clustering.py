@@ -362,7 +362,7 @@ class HilbertClusterer:
         variance: float = 0.95,
         max_components: int = 24,
         capacity: int = 256,
-        macro_growth: float = 1.25,
+        macro_growth: float = 1.1,
         residual_drift: float = 1.5,
         store: SampleStore | None = None,
         random_state: np.random.Generator | int | None = None,

@@ -70,6 +70,12 @@ _MIN_NOVEL = 3
 _TOP = math.nextafter(1.0, 0.0)
 #: Samples whose mean residual is compared with the calibration's.
 _MIN_RESIDUAL = 5
+#: Samples per principal component, at least: a mixture's covariances need about ten
+#: samples a dimension (the usual rule of thumb), and with fewer samples than features the
+#: trailing components of a 95 % cut are fitted to noise.
+_PER_COMPONENT = 10
+#: Starts of each covariance type run on to convergence (the most likely after the short EM).
+_CONVERGE = 2
 
 try:  # einsum's C routine: np.einsum without its Python dispatch (same values)
     from numpy._core.multiarray import c_einsum as _einsum
@@ -273,7 +279,8 @@ class MicroSummary:
         old_comp = self.comp
         mean, comp, explained = pca(
             sample, variance=self.variance, min_k=1,
-            max_k=max(1, min(self.max_components, n - 1)), n_components=self.n_components)
+            max_k=max(1, min(self.max_components, n - 1, n // _PER_COMPONENT)),
+            n_components=self.n_components)
         self.d = sample.shape[1]
         k = comp.shape[0]
         if self.cent.shape[1] != self.d:
@@ -580,14 +587,19 @@ class MicroSummary:
             # short fits were repeats: issue 16)
             starts = list({s.tobytes(): s for s in starts}.values())  # first-seen order
             for cov in COVARIANCE_TYPES:
-                # a few EM steps from every start, the most likely run on to convergence,
-                # then the best model by BIC
+                # a few EM steps from every start, the _CONVERGE most likely run on to
+                # convergence, the most likely kept; then the best model by BIC
                 short = [fit_mixture(z, w, scatter, init, cov, max_iter=_SHORT_EM)
                          for init in starts]
-                lead = max(short, key=lambda f: f.log_likelihood)
-                mix = fit_mixture(z, w, scatter, lead.labels, cov)
-                if mix.log_likelihood < lead.log_likelihood:
-                    mix = lead
+                ranked = sorted(short, key=lambda f: -f.log_likelihood)[:_CONVERGE]
+                mix = max((max(fit_mixture(z, w, scatter, lead.labels, cov), lead,
+                               key=lambda f: f.log_likelihood) for lead in ranked),
+                          key=lambda f: f.log_likelihood)
+                # the converged partition starts the next covariance types too: a simpler
+                # type's optimum is often near a richer type's, whose own starts (Ward,
+                # k-means) may all lie in a poorer basin
+                if int(mix.labels.max()) + 1 == c:
+                    starts.append(mix.labels)
                 if best is None or mix.bic < best.bic - 1e-9:
                     best = mix
         assert best is not None
