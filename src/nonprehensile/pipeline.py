@@ -130,6 +130,13 @@ def cluster_segments(
     segments are streamed into a :class:`HilbertClusterer` ``batch`` at a time, in the
     dataset's order (skill after skill: a new skill arrives as new data would).
 
+    Cost: on the bundled cube (660 segments, 14 arcs) this is over half of the demo's CPU
+    time, nearly all of it in the clusterer's macro steps (about 120 of them, each fitting
+    Gaussian mixtures for every number of clusters, covariance type and distinct start:
+    6,600 short EM runs). The pipeline takes the clusterer's defaults; the macro step's
+    search is the motion model's to tune (issue 16, ``docs/benchmarks.md``, "The user's
+    path").
+
     Returns
     -------
     motions : ClusteredMotions
@@ -367,6 +374,7 @@ def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
     return written
 
 
+@one_thread()  # BLAS on one thread for the whole job: steady on a busy machine (issue 16)
 def run_demo(
     out_dir: str | Path = "report",
     *,
@@ -424,8 +432,7 @@ def run_demo(
     lap("inference")
     graphs, segments = segment_dataset(ds)
     lap("segmentation")
-    with one_thread():  # one limit for the whole job: the clusterer's own blocks are free
-        motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
+    motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
     lap("clustering")
     result: Plan = plan(poly, exp, start, goal, position=position, motions=motions,
                         scale=ds.scale)

@@ -18,25 +18,30 @@ from nonprehensile.planning import Plan
 from nonprehensile.viz._figures import new_figure
 from nonprehensile.viz.report import Section, figure_to_png
 
-__all__ = ["filmstrip_figure", "physics_section"]
+__all__ = ["FRAME_SIZE", "filmstrip_figure", "physics_section"]
 
 
-def filmstrip_figure(frames: Sequence[Any], captions: Sequence[str], *, per_row: int = 6
-                     ) -> Any:
+#: Pixels of one filmstrip frame: six to a row fill the report's page at its 80 dpi.
+FRAME_SIZE = (176, 132)
+
+
+def filmstrip_figure(frames: Sequence[Any], captions: Sequence[str], *, per_row: int = 6,
+                     dpi: float = 80.0) -> Any:
     """Frames side by side, with captions, as one matplotlib figure.
 
     The frames (RGB arrays of one size) are tiled into one image drawn by one ``imshow`` on
     one axes that fills the figure, captions above each tile: no per-frame axes and no
-    layout engine to run (a dozen axes and ``tight_layout`` cost 0.3 s: issue 16).
+    layout engine to run (a dozen axes and ``tight_layout`` cost 0.3 s: issue 16). Saved at
+    ``dpi``, the figure is the tiled image pixel for pixel (nothing resampled).
     """
     n = len(frames)
     rows = (n + per_row - 1) // per_row
     cols = min(n, per_row)
     h, w = np.asarray(frames[0]).shape[:2]
-    gap, band = max(2, w // 40), max(12, h // 8)  # between tiles; above each for its caption
+    gap, band = max(2, w // 40), max(16, h // 8)  # between tiles; above each for its caption
     cell_h, cell_w = band + h + gap, w + gap
     mosaic = np.full((rows * cell_h, cols * cell_w, 3), 255, dtype=np.uint8)
-    fig = new_figure(figsize=(2.2 * cols, 2.2 * cols * mosaic.shape[0] / mosaic.shape[1]))
+    fig = new_figure(figsize=(mosaic.shape[1] / dpi, mosaic.shape[0] / dpi))
     ax = fig.add_axes((0.0, 0.0, 1.0, 1.0))
     for i, (img, cap) in enumerate(zip(frames, captions, strict=True)):
         r, c = divmod(i, per_row)
@@ -105,7 +110,8 @@ def physics_section(
          "skill's events in order", "simulated contact events", "as predicted"], rows)])
     shown = [(i, tr, [float(t) for t in np.linspace(0.0, float(tr[-1, 0]), 6)])
              for i, tr in enumerate(traces) if tr is not None]
-    got, note = (render_traces(sim, [(tr, times) for _, tr, times in shown]) if shown
+    got, note = (render_traces(sim, [(tr, times) for _, tr, times in shown],
+                               width=FRAME_SIZE[0], height=FRAME_SIZE[1]) if shown
                  else (None, ""))
     frames: list[Any] = got or []
     captions = [f"step {i + 1}, t = {t:.2f} s" for i, _, times in shown for t in times]
