@@ -308,3 +308,13 @@ def test_table_path_of_every_integer_dtype_and_layout_equals_hilbertcurve(
     big[0, 0] = 2**order
     with pytest.raises(InputError):
         encode(big, order)
+
+
+@pytest.mark.parametrize(("dtype", "order"), [("int8", 8), ("int8", 7), ("int16", 16),
+                                              ("int16", 15), ("int32", 31)])
+def test_negative_coordinates_are_refused_at_the_dtypes_full_width(dtype: str,
+                                                                   order: int) -> None:
+    """A negative signed value sets the top bit, which lies inside [0, 2**order) once the order
+    reaches the dtype's width: it must still be refused, never keyed as 0."""
+    with pytest.raises(InputError):
+        encode(np.array([[-1], [3]], dtype=dtype), order)

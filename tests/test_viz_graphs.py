@@ -95,3 +95,21 @@ def test_arcs_follow_matplotlibs_arc3(rad: float) -> None:
     (head,) = ax.collections[1].get_paths()
     tip = ax.transData.transform(head.vertices[:1])[0]
     assert np.hypot(*(tip - curve[-1])) < 2.0
+
+
+def test_a_skipped_arc_shifts_no_colour() -> None:
+    """An arc too short to draw (its ends within ``shrink`` of each other) is left out with its
+    own colour and width: the arcs after it keep theirs."""
+    from matplotlib.colors import to_rgba
+
+    ax = new_figure(figsize=(4, 3), dpi=100).add_axes((0.1, 0.1, 0.8, 0.8))
+    ax.set_xlim(0, 4)
+    ax.set_ylim(-1, 2)
+    arcs = [((1.0, 1.0), (1.001, 1.0), 0.2, "red", 3.0, 1.0),
+            ((0.5, 0.0), (3.0, 1.5), 0.2, "blue", 1.0, 1.0)]
+    draw_arcs(ax, arcs, shrink=9, head=4)
+    bodies, heads = ax.collections[0], ax.collections[1]
+    assert len(bodies.get_paths()) == 1
+    assert tuple(bodies.get_colors()[0]) == to_rgba("blue")
+    assert list(bodies.get_linewidths()) == [1.0]
+    assert tuple(heads.get_facecolors()[0]) == to_rgba("blue")

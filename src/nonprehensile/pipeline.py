@@ -247,8 +247,10 @@ def motions_from_dataset(
     return ds, motions
 
 
-#: Bumped when what the cache holds changes shape.
-_CACHE_FORMAT = "motions/1"
+#: Bumped when what the cache holds changes shape, or when the clusterer's defaults change the
+#: clusters it builds (2: issue 14's macro-step schedule and components), so that a library
+#: cached by an older clustering is rebuilt even though the dataset's files did not change.
+_CACHE_FORMAT = "motions/2"
 
 
 def cache_dir() -> Path:

@@ -604,6 +604,9 @@ def _in_range(points: NDArray[np.integer], order: int) -> bool:
     ``2**order`` exactly when they all are (a negative value sets the top bit).
     """
     flat = np.ascontiguousarray(points).reshape(-1)
+    if flat.dtype.kind == "i" and order >= 8 * flat.dtype.itemsize - 1 and flat.size:
+        # the top bit a negative value sets is then inside [0, 2**order): ask the sign directly
+        return bool(flat.min() >= 0)
     unsigned = flat.view(np.dtype(f"u{flat.dtype.itemsize}"))
     return int(np.bitwise_or.reduce(unsigned)) >> order == 0
 

@@ -36,7 +36,8 @@ from nonprehensile.motion.tablestore import Nesting, TableStore, check_store_nam
 
 __all__ = ["SQLiteArcStore", "SQLiteConnection", "SQLitePool"]
 
-#: Versions of the layouts (the same numbers as PostgreSQL's).
+#: Versions of the layouts. SQLite stays at layout 2: PostgreSQL's layout 3 only turns off the
+#: autovacuum of its TOAST table, which SQLite does not have; the tables are the same.
 SCHEMA_VERSION = 2
 SERVICE_SCHEMA_VERSION = 1
 
@@ -196,8 +197,12 @@ class SQLitePool:
         self._writer = threading.Lock()
         self._free: list[SQLiteConnection] = []
         self._guard = threading.Lock()
-        with self.connection() as conn:
-            _schema(conn)
+        try:
+            with self.connection() as conn:
+                _schema(conn)
+        except BaseException:
+            self.close()  # a refused file (a `cluster` store, not a database) keeps no handle
+            raise
 
     @contextlib.contextmanager
     def connection(self) -> Iterator[SQLiteConnection]:

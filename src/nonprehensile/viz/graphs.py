@@ -98,6 +98,7 @@ def draw_arcs(
              + t**2 * p1[:, None])  # (arcs, 64, 2) in pixels
     cut = shrink * to_px
     bodies, heads = [], []
+    colors, widths = [], []  # appended with their arc's body: a skipped arc shifts none
     for i, arc in enumerate(arcs):
         c = curve[i]
         d0, d1 = np.hypot(*(c - p0[i]).T), np.hypot(*(c - p1[i]).T)
@@ -124,8 +125,9 @@ def draw_arcs(
         body = np.vstack([c[np.hypot(*(c - tip).T) > length], base])
         bodies.append(data.inverted().transform(body))
         heads.append(data.inverted().transform(np.array([tip, base + normal, base - normal])))
-    colors = [to_rgba(a[3], a[5]) for a in arcs]
-    ax.add_collection(LineCollection(bodies, colors=colors, linewidths=[a[4] for a in arcs],
+        colors.append(to_rgba(arc[3], arc[5]))
+        widths.append(arc[4])
+    ax.add_collection(LineCollection(bodies, colors=colors, linewidths=widths,
                                      capstyle="butt", zorder=zorder), autolim=False)
     ax.add_collection(PolyCollection(heads, facecolors=colors, edgecolors="none",
                                      zorder=zorder), autolim=False)
