@@ -4,6 +4,7 @@ one real uvicorn on 127.0.0.1."""
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -435,6 +436,22 @@ def test_serve_refuses_what_it_cannot_serve(tmp_path: Path) -> None:
     assert r.exit_code == 0, r.output
     r = runner.invoke(main, ["serve", "--store", str(tmp_path / "c.db"), "--port", "0"])
     assert r.exit_code == 2 and "`nonprehensile cluster` store" in r.output
+    # and the other way: `cluster` leaves the service's database as it was
+    svc = tmp_path / "svc.db"
+    r = runner.invoke(main, ["serve", "token", "create", "alice", "--store", str(svc)])
+    assert r.exit_code == 0, r.output
+    import sqlite3
+
+    def tables() -> set[str]:
+        with contextlib.closing(sqlite3.connect(svc)) as db:
+            return {t for (t,) in db.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+
+    before = tables()
+    for cmd in (["cluster", "fit", str(svc), "--arrays", str(arrays), "--n-clusters", "2"],
+                ["cluster", "show", str(svc)]):
+        r = runner.invoke(main, cmd)
+        assert r.exit_code == 2 and "`nonprehensile serve` database" in r.output, r.output
+    assert tables() == before and "samples" not in before
     (tmp_path / "notes.txt").write_text("not a database, not at all " * 100)
     r = runner.invoke(main, ["serve", "token", "list", "--store", str(tmp_path / "notes.txt")])
     assert r.exit_code == 2 and "notes.txt" in r.output and "Traceback" not in r.output

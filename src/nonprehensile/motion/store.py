@@ -439,6 +439,15 @@ class SQLiteStore:
         try:
             if existed and check:
                 self._quick_check()
+            if existed and self._row(
+                    "SELECT COUNT(*) FROM sqlite_master WHERE name = 'np_samples'")[0]:
+                # the service's own database: `cluster` would add its tables beside the
+                # service's and the two would then disagree about the samples
+                raise StoreFileError(
+                    f"{self.path}: is a `nonprehensile serve` database, not a cluster store; "
+                    "give `cluster` another file, or read the service's clusters by GET "
+                    "/clusters"
+                )
             if not readonly:
                 self._migrate()
             # sample ids run 1..n with no gap (n_samples reads MAX(id) in constant time): a
