@@ -155,7 +155,7 @@ def packaged_dataset(name: str, packages: tuple[str, ...], length: int | None = 
 def cube_dataset() -> Dataset | None:
     try:
         from nonprehensile.demonstrations.dataset import dataset_path, load_dataset
-        from nonprehensile.motion.trajectory import preprocess
+        from nonprehensile.motion.library import flatten_demonstrations
 
         root = dataset_path("cube")
         if not root.exists():
@@ -164,14 +164,9 @@ def cube_dataset() -> Dataset | None:
     except Exception as exc:  # the bundled demonstrations may not be generated yet
         print(f"   cube demonstrations: skipped ({type(exc).__name__}: {exc})")
         return None
-    rows, labels = [], []
-    for d in ds.demonstrations:
-        t = d.trajectory
-        rows.append(preprocess(t.positions, t.rate, t_start=d.events[0].time,
-                               t_end=d.events[-1].time, max_gap=ds.gap_limit))
-        labels.append(d.skill.name)
+    rows, labels = flatten_demonstrations(ds)
     _, y = np.unique(labels, return_inverse=True)
-    return "cube demonstrations", np.array(rows), y.astype(np.int64)
+    return "cube demonstrations", rows, y.astype(np.int64)
 
 
 # --------------------------------------------------------------------------- quality

@@ -74,17 +74,23 @@ def load_command(name: str) -> click.Command:
     return cmd
 
 
+def unusable_text(text: str) -> bool:
+    """Whether ``text`` holds what no file name or value may: a NUL, or a lone surrogate that
+    no encoding can write (either fails deep inside a system call with an unrelated error)."""
+    if "\x00" in text:
+        return True
+    try:
+        text.encode("utf-8", "surrogateescape")
+    except UnicodeEncodeError:
+        return True
+    return False
+
+
 def check_arguments(args: list[str]) -> None:
-    """Refuse, before any parsing, an argument no file name or value may hold: a NUL or a
-    lone surrogate would fail deep inside a system call with an unrelated error."""
+    """Refuse, before any parsing, an argument no file name or value may hold
+    (:func:`unusable_text`)."""
     for i, arg in enumerate(args):
-        bad = "\x00" in arg
-        if not bad:
-            try:
-                arg.encode("utf-8", "surrogateescape")
-            except UnicodeEncodeError:
-                bad = True
-        if bad:
+        if unusable_text(arg):
             prev = args[i - 1] if i and args[i - 1].startswith("-") else None
             where = f"the value of {prev}" if prev else f"argument {i + 1}"
             raise click.UsageError(

@@ -130,19 +130,13 @@ def _real(a: NDArray[Any], path: str) -> NDArray[np.float64]:
 def _load_dataset(spec: str, quiet: bool) -> tuple[NDArray[np.float64], list[str]]:
     """Flattened demonstrations of a dataset folder (or bundled name) and their skills."""
     from nonprehensile.demonstrations.dataset import load_dataset
-    from nonprehensile.motion.trajectory import preprocess
+    from nonprehensile.motion.library import flatten_demonstrations
 
     with progress_bar("reading demonstrations", quiet) as tick:
         ds = load_dataset(spec, progress=tick)
-    rows, skills = [], []
-    for d in ds.demonstrations:
-        t = d.trajectory
-        rows.append(preprocess(t.positions, t.rate, t_start=d.events[0].time,
-                               t_end=d.events[-1].time, max_gap=ds.gap_limit))
-        skills.append(d.skill.name)
-    if not rows:
+    if not ds.demonstrations:
         raise InputError(f"{spec}: the dataset has no demonstration")
-    return np.vstack(rows), skills
+    return flatten_demonstrations(ds)
 
 
 def _samples(dataset: str | None, arrays: str | None, quiet: bool

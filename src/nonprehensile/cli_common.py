@@ -26,6 +26,7 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from nonprehensile.cli import unusable_text
 from nonprehensile.errors import InputError, NonprehensileError
 
 __all__ = [
@@ -95,15 +96,7 @@ def _check_text_arguments(kwargs: dict[str, Any]) -> None:
     for name, value in kwargs.items():
         values = value if isinstance(value, tuple) else (value,)
         for v in values:
-            if not isinstance(v, str):
-                continue
-            bad = "\x00" in v
-            if not bad:
-                try:
-                    v.encode("utf-8", "surrogateescape")
-                except UnicodeEncodeError:
-                    bad = True
-            if bad:
+            if isinstance(v, str) and unusable_text(v):
                 where = opts.get(name) or name
                 raise InputError(
                     f"{str(where).upper() if not str(where).startswith('-') else where}: "

@@ -15,12 +15,13 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from nonprehensile.demonstrations.dataset import Dataset
 from nonprehensile.demonstrations.segment import Segment
 from nonprehensile.errors import InputError
 from nonprehensile.motion.trajectory import preprocess
 from nonprehensile.planning import ReferenceMotion
 
-__all__ = ["ClusteredMotions", "flatten_segments", "medoid"]
+__all__ = ["ClusteredMotions", "flatten_demonstrations", "flatten_segments", "medoid"]
 
 FloatArray = NDArray[np.float64]
 
@@ -40,6 +41,28 @@ def flatten_segments(segments: Sequence[Segment], n_points: int = 400) -> FloatA
         rows.append(preprocess(traj.positions, traj.rate, max_gap=traj.n_frames,
                                n_points=n_points))
     return np.vstack(rows)
+
+
+def flatten_demonstrations(ds: Dataset) -> tuple[FloatArray, list[str]]:
+    """The flattened vectors of whole demonstrations, first to last event, and their skills.
+
+    Returns
+    -------
+    rows : array, shape (n_demonstrations, n_features)
+        One row per demonstration (:func:`~nonprehensile.motion.trajectory.preprocess`, with
+        the dataset's gap limit).
+    skills : list of str, length n_demonstrations
+        The skill each demonstration shows.
+    """
+    if not ds.demonstrations:
+        raise InputError("the dataset has no demonstration")
+    rows, skills = [], []
+    for d in ds.demonstrations:
+        t = d.trajectory
+        rows.append(preprocess(t.positions, t.rate, t_start=d.events[0].time,
+                               t_end=d.events[-1].time, max_gap=ds.gap_limit))
+        skills.append(d.skill.name)
+    return np.vstack(rows), skills
 
 
 def medoid(x: FloatArray) -> int:

@@ -341,6 +341,22 @@ class StoreFileError(StoreError, InputError):
     """
 
 
+def _end_transaction(db: sqlite3.Connection, path: str, ok: bool) -> None:
+    """COMMIT (``ok``) or ROLLBACK an explicit transaction of ``db``; a failed COMMIT (a full
+    disk) is rolled back, leaving the file as it was before the transaction, and raised as one
+    line naming ``path``."""
+    if ok:
+        try:
+            db.execute("COMMIT")
+            return
+        except sqlite3.Error as exc:
+            with contextlib.suppress(sqlite3.Error):
+                db.execute("ROLLBACK")
+            raise _explain(path, exc) from None
+    with contextlib.suppress(sqlite3.Error):
+        db.execute("ROLLBACK")
+
+
 def _explain(path: str, exc: sqlite3.Error) -> NonprehensileError:
     """One line for a SQLite error, naming the store file and what to do."""
     text = str(exc)
@@ -612,17 +628,10 @@ class SQLiteStore:
             yield
         except BaseException:
             self._depth = 0
-            with contextlib.suppress(sqlite3.Error):
-                self._db.execute("ROLLBACK")
+            _end_transaction(self._db, self.path, ok=False)
             raise
         self._depth = 0
-        try:
-            self._db.execute("COMMIT")
-        except sqlite3.Error as exc:
-            # a full disk at commit: SQLite keeps the store as it was before the transaction
-            with contextlib.suppress(sqlite3.Error):
-                self._db.execute("ROLLBACK")
-            raise _explain(self.path, exc) from None
+        _end_transaction(self._db, self.path, ok=True)
 
     @property
     def n_samples(self) -> int:

@@ -21,6 +21,7 @@ overrides :meth:`TableStore._sql`. Nothing here imports a database driver.
 
 from __future__ import annotations
 
+import abc
 import contextlib
 from collections.abc import Iterator
 from typing import Any, Protocol
@@ -60,7 +61,7 @@ class Nesting:
             self._depth -= 1
 
 
-class TableStore(Nesting):
+class TableStore(Nesting, abc.ABC):
     """The portable part of a store of samples, keys and cluster ids in ``np_samples`` and
     ``np_meta`` (see the module notes). Subclasses set ``name``, ``url``, ``_conn`` and
     ``_d`` and implement ``_insert``, ``_rekey`` and ``transaction``."""
@@ -83,19 +84,19 @@ class TableStore(Nesting):
         row = self._execute(sql, args).fetchone()
         return None if row is None else row[0]
 
+    @abc.abstractmethod
     def transaction(self) -> contextlib.AbstractContextManager[None]:
         """Commit everything inside together (the subclass's locking)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _insert(self, rows: list[tuple[Any, ...]]) -> None:
         """Insert rows ``(store, id, key, label, micro, vector)`` (the subclass's bulk load)."""
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def _rekey(self, start: int, keys: list[int], labels: list[int],
                micro: list[int] | None) -> None:
         """Set keys, labels (and micro-cluster ids) of samples ``start, start + 1, ...`` (the
         subclass's batched update)."""
-        raise NotImplementedError
 
     # ------------------------------------------------------------------ writes
 

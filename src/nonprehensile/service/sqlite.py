@@ -30,6 +30,7 @@ from nonprehensile.bounds import check_path
 from nonprehensile.errors import InputError
 from nonprehensile.motion.store import (
     StoreFileError,
+    _end_transaction,
     _explain,
 )
 from nonprehensile.motion.tablestore import Nesting, TableStore, check_store_name
@@ -136,16 +137,7 @@ class SQLiteConnection(Nesting):
         self.raw.close()
 
     def _end(self, ok: bool) -> None:
-        if not ok:
-            with contextlib.suppress(sqlite3.Error):
-                self.raw.execute("ROLLBACK")
-            return
-        try:
-            self.raw.execute("COMMIT")
-        except sqlite3.Error as exc:
-            with contextlib.suppress(sqlite3.Error):
-                self.raw.execute("ROLLBACK")
-            raise _explain(self.path, exc) from None
+        _end_transaction(self.raw, self.path, ok)
 
     @contextlib.contextmanager
     def transaction(self) -> Iterator[None]:
