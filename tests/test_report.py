@@ -5,6 +5,7 @@ from __future__ import annotations
 import shutil
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -80,3 +81,92 @@ def test_figures_text_is_readable_at_page_size() -> None:
                  if getattr(a := t, "get_text", lambda: "")() and a.get_visible()]
         assert sizes and min(sizes) * 80 / 72 * shown >= MIN_TEXT_PX - 1e-9
         assert readable(fig, 80) * 80 / 72 * shown >= MIN_TEXT_PX - 1e-9
+
+
+def test_axes_switched_off_make_no_ticks_and_keep_their_texts_readable() -> None:
+    """An axes switched off draws no axis: the report hides its axes, so that neither the
+    readability pass nor the title's placement makes ticks for them (about a millisecond a
+    tick: issue 16); its own texts are still raised to the page's smallest size."""
+    from nonprehensile.viz._figures import new_figure
+    from nonprehensile.viz.report import MIN_TEXT_PX, figure_to_png
+
+    fig = new_figure(figsize=(6.0, 3.0))
+    off = fig.add_axes((0.05, 0.1, 0.4, 0.8))
+    off.set_xlim(0, 100)
+    off.text(50, 0.5, "node", fontsize=4)
+    off.set_title("off", fontsize=5)
+    off.set_axis_off()
+    on = fig.add_axes((0.55, 0.1, 0.4, 0.8))
+    on.set_xticks([0, 1], ["a", "b"], fontsize=4)
+    figure_to_png(fig, dpi=80)
+    for axis in (off.xaxis, off.yaxis):
+        assert not axis.get_visible()
+        # the one tick every axis makes when its axes is made (what later ticks copy), not
+        # the locator's six for 0 .. 100
+        assert len(vars(axis).get("majorTicks", [])) <= 1
+    assert on.xaxis.get_visible() and len(on.xaxis.get_major_ticks()) == 2
+    least = MIN_TEXT_PX * 72 / 80
+    assert min(t.get_fontsize() for t in (*off.texts, off.title)) >= least - 1e-9
+    assert min(t.get_fontsize() for t in on.get_xticklabels()) >= least - 1e-9
+
+
+def test_figure_png_is_the_drawn_figure_in_rgb() -> None:
+    """The report's PNG holds exactly the pixels matplotlib's Agg draws (an opaque figure:
+    RGB, the alpha channel dropped), at the figure's size in pixels."""
+    import io as _io
+
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from PIL import Image
+
+    from nonprehensile.viz._figures import new_figure
+    from nonprehensile.viz.report import figure_to_png
+
+    def figure() -> Any:
+        fig = new_figure(figsize=(3.0, 2.0))
+        ax = fig.add_axes((0.15, 0.15, 0.8, 0.8))
+        ax.plot([0, 1, 2], [2, 0, 1], color="C1")
+        ax.fill_between([0, 1], [0, 1], color="C0", alpha=0.4)
+        ax.set_xticks([0, 1, 2], ["x", "y", "z"], fontsize=12)
+        ax.set_yticks([0, 1, 2], ["p", "q", "r"], fontsize=12)
+        return fig
+
+    png = figure_to_png(figure(), dpi=80)
+    got = Image.open(_io.BytesIO(png))
+    assert got.mode == "RGB" and got.size == (240, 160)
+    import matplotlib as mpl
+
+    from nonprehensile.viz.report import TEXT_HINTING
+
+    fig = figure()
+    fig.set_dpi(80)
+    canvas = FigureCanvasAgg(fig)
+    with mpl.rc_context({"text.hinting": TEXT_HINTING}):
+        canvas.draw()
+    drawn = np.asarray(canvas.buffer_rgba())
+    assert drawn[..., 3].min() == 255
+    np.testing.assert_array_equal(np.asarray(got), drawn[..., :3])
+
+
+def test_filmstrip_is_its_frames_pixel_for_pixel() -> None:
+    """Each frame of the physics filmstrip appears in the report's PNG unchanged (placed,
+    not resampled), with its caption above it."""
+    import io as _io
+
+    import numpy as np
+    from PIL import Image
+
+    from nonprehensile.viz.physics import filmstrip_figure
+    from nonprehensile.viz.report import figure_to_png
+
+    rng = np.random.default_rng(3)
+    frames = [rng.integers(0, 256, size=(40, 60, 3), dtype=np.uint8) for _ in range(8)]
+    fig = filmstrip_figure(frames, [f"frame {i}" for i in range(8)], per_row=3)
+    assert [t.get_text() for t in fig.texts] == [f"frame {i}" for i in range(8)]
+    img = np.asarray(Image.open(_io.BytesIO(figure_to_png(fig, dpi=80))))
+    gap, band = 2, 16
+    assert img.shape == (3 * (band + 40 + gap), 3 * (60 + gap), 3)
+    for i, frame in enumerate(frames):
+        r, c = divmod(i, 3)
+        y, x = r * (band + 40 + gap) + band, c * (60 + gap)
+        np.testing.assert_array_equal(img[y:y + 40, x:x + 60], frame)

@@ -108,3 +108,50 @@ def test_report_physics_section_simulates_each_step() -> None:
     assert len(rows) == 1 and rows[0][-1] == "yes"
     # a filmstrip where OpenGL works, a note saying why not elsewhere: never an error
     assert section.figures or any("No pictures" in p for p in section.paragraphs)
+
+
+def test_filmstrip_renderer_is_small_and_draws_what_a_default_one_does() -> None:
+    """The report's renderer makes its GL buffers only as large as its frames (no 4096^2
+    shadow map: issue 16), leaves the model's settings as they were, and draws the very
+    pixels a renderer with MuJoCo's default buffers draws."""
+    import mujoco
+
+    from nonprehensile.geometry import cube
+    from nonprehensile.sim.render import _small_renderer, render_traces
+
+    sim = Simulator(cube(), scale=0.05, n_fingers=1)
+    m, d = sim.model, sim.data
+    settings = (m.vis.quality.shadowsize, m.vis.global_.offwidth, m.vis.global_.offheight)
+    try:
+        small = _small_renderer(m, 66, 88)
+    except Exception as exc:  # pragma: no cover - a machine without any OpenGL
+        pytest.skip(f"no OpenGL context for offscreen rendering here: {exc}")
+    try:
+        # mujoco.Renderer keeps its MjrContext private; its sizes are what this is about
+        ctx = small._mjr_context
+        assert (ctx.offWidth, ctx.offHeight) == (88, 66) and ctx.shadowSize <= 1
+    finally:
+        small.close()
+    assert (m.vis.quality.shadowsize, m.vis.global_.offwidth,
+            m.vis.global_.offheight) == settings == (4096, 640, 480)
+    trace = np.zeros((2, 8 + 3 * len(sim._finger_qadr)))
+    trace[:, 0] = [0.0, 1.0]
+    trace[:, 3] = 0.025  # the cube (5 cm) resting on the table
+    trace[:, 4] = 1.0  # identity quaternion
+    (frame,), note = render_traces(sim, [(trace, [0.5])], width=88, height=66)
+    assert note == ""
+    full = mujoco.Renderer(m, 66, 88)
+    try:
+        cam = mujoco.MjvCamera()
+        cam.azimuth, cam.elevation = 135.0, -30.0
+        cam.distance = max(0.15, 3.0 * sim.scale * sim.poly.diameter)
+        mujoco.mj_forward(m, d)
+        cam.lookat[:] = d.xpos[sim._body] + np.array([0.0, 0.0, 0.02])
+        full.update_scene(d, cam)
+        full.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+        full.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+        expected = full.render()
+    finally:
+        full.close()
+    assert frame.shape == (66, 88, 3) and frame.std() > 1.0  # a picture, not a blank
+    np.testing.assert_array_equal(frame, expected)

@@ -113,3 +113,19 @@ def test_a_skipped_arc_shifts_no_colour() -> None:
     assert tuple(bodies.get_colors()[0]) == to_rgba("blue")
     assert list(bodies.get_linewidths()) == [1.0]
     assert tuple(heads.get_facecolors()[0]) == to_rgba("blue")
+
+
+def test_one_legend_of_skill_colours_serves_graph_and_matrix() -> None:
+    """Beside the graph, whose legend lists every skill's colour, the matrix has none of its
+    own (the same colours twice cost a legend's layout: issue 16); when the graph leaves
+    skills out, the matrix keeps its own."""
+    poly, skills = read_skills(EXAMPLES / "cube_skills.json")
+    exp = expand(poly, skills, states_by_step(poly, 90))
+    names = {s.name for s in skills}
+    graph_ax, matrix_ax = state_graph_figure(exp).axes[:2]
+    listed = {t.get_text() for t in graph_ax.get_legend().get_texts()}
+    assert names <= listed and matrix_ax.get_legend() is None
+    graph_ax, matrix_ax = state_graph_figure(exp, skills=[skills[0].name]).axes[:2]
+    assert {t.get_text() for t in matrix_ax.get_legend().get_texts()} >= names
+    alone = plot_transition_matrix(exp)
+    assert alone.get_legend() is not None

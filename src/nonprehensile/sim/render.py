@@ -19,6 +19,24 @@ __all__ = ["render_trace", "render_traces"]
 UInt8Array = NDArray[np.uint8]
 
 
+def _small_renderer(m: mujoco.MjModel, height: int, width: int) -> mujoco.Renderer:
+    """A renderer whose GL buffers are only as large as these frames need.
+
+    MuJoCo sizes the context's buffers from the model's visual settings when the context is
+    made: a 4096 x 4096 shadow map (64 MB, cleared and paged in, although these frames draw
+    no shadow) and a 640 x 480 multisampled offscreen buffer. The settings are lowered for
+    the context's creation only and then put back, so the model is left as it came (issue
+    16: about 0.04 s CPU and 60 MB less for the report's filmstrip).
+    """
+    quality, glob = m.vis.quality, m.vis.global_
+    saved = quality.shadowsize, glob.offwidth, glob.offheight
+    quality.shadowsize, glob.offwidth, glob.offheight = 1, width, height
+    try:
+        return mujoco.Renderer(m, height, width, max_geom=4 * m.ngeom + 100)
+    finally:
+        quality.shadowsize, glob.offwidth, glob.offheight = saved
+
+
 def render_trace(
     sim: Simulator,
     trace: NDArray[np.float64],
@@ -63,7 +81,7 @@ def render_traces(
     """
     m, d = sim.model, sim.data
     try:
-        renderer = mujoco.Renderer(m, height, width)
+        renderer = _small_renderer(m, height, width)
     except Exception as exc:
         return None, f"no OpenGL context for offscreen rendering ({type(exc).__name__}: {exc})"
     try:

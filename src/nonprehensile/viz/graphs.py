@@ -189,12 +189,13 @@ def plot_state_graph(
     return ax
 
 
-def plot_transition_matrix(exp: Expansion, ax: Axes | None = None) -> Axes:
+def plot_transition_matrix(exp: Expansion, ax: Axes | None = None, *,
+                           legend: bool = True) -> Axes:
     """The adjacency matrix of the expanded graph (paper Fig. 7(b)), cells coloured by skill.
 
-    Demonstrated transitions are outlined in black.
+    Demonstrated transitions are outlined in black. ``legend=False`` leaves out the legend
+    of the skills' colours (when another panel of the figure already has it).
     """
-    import numpy as np
     from matplotlib.collections import PolyCollection
     from matplotlib.patches import Patch
 
@@ -205,7 +206,11 @@ def plot_transition_matrix(exp: Expansion, ax: Axes | None = None) -> Axes:
     names = _skill_names(exp)
     colors = _skill_colors(names)
     n = len(states)
-    ax.imshow(np.ones((n, n, 3)), extent=(-0.5, n - 0.5, n - 0.5, -0.5))
+    # the matrix's frame: square cells, row 0 at the top (what imshow would set, without
+    # drawing an image)
+    ax.set_xlim(-0.5, n - 0.5)
+    ax.set_ylim(n - 0.5, -0.5)
+    ax.set_aspect("equal")
     cells: dict[tuple[int, int], list[Any]] = {}
     for t in exp.transitions:
         if t.start in idx and t.end in idx:
@@ -235,8 +240,9 @@ def plot_transition_matrix(exp: Expansion, ax: Axes | None = None) -> Axes:
     ax.set_xlabel("to state")
     ax.set_ylabel("from state")
     ax.grid(False)
-    ax.legend(handles=[Patch(color=colors[k], label=k) for k in names], fontsize=6,
-              loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
+    if legend:
+        ax.legend(handles=[Patch(color=colors[k], label=k) for k in names], fontsize=6,
+                  loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
     ax.set_title("Transition matrix (outlined: demonstrated)", fontsize=9)
     return ax
 
@@ -245,12 +251,16 @@ def state_graph_figure(exp: Expansion, *, skills: Sequence[str] | None = None) -
     """The state graph beside its transition matrix (the paper's Fig. 7).
 
     A fixed layout (each axes placed by hand, room left for the legends and the matrix's
-    labels): a layout engine would cost a second full draw (issue 16).
+    labels): a layout engine would cost a second full draw (issue 16). The graph's legend,
+    between the two panels, gives the skills' colours for both; the matrix has its own only
+    when the graph leaves out some skills.
     """
     fig = new_figure(figsize=(15, 6.5))
     if len(exp.graph.states) <= MAX_DRAWN_STATES:
         plot_state_graph(exp, fig.add_axes((0.005, 0.02, 0.41, 0.92)), skills=skills)
-        plot_transition_matrix(exp, fig.add_axes((0.555, 0.12, 0.345, 0.82)))
+        every = skills is None or set(_skill_names(exp)) <= set(skills)
+        plot_transition_matrix(exp, fig.add_axes((0.555, 0.12, 0.345, 0.82)),
+                               legend=not every)
     else:
         plot_transition_matrix(exp, fig.add_axes((0.3, 0.1, 0.5, 0.84)))
     return fig
