@@ -248,7 +248,7 @@ def motions_from_dataset(
 #: Bumped when what the cache holds changes shape, or when the clusterer's defaults change the
 #: clusters it builds (2: issue 14's macro-step schedule and components), so that a library
 #: cached by an older clustering is rebuilt even though the dataset's files did not change.
-_CACHE_FORMAT = "motions/2"
+_CACHE_FORMAT = "motions/3"
 
 
 def cache_dir() -> Path:
