@@ -658,9 +658,9 @@ class MicroSummary:
         # the novelty radius: a high quantile of the distances between neighbouring
         # micro-clusters (a quantile, so a few outliers do not inflate it)
         if n_pts >= 2:
-            sq = np.einsum("ij,ij->i", self.cent[live], self.cent[live])
-            d2 = np.maximum(sq[:, None] + sq[None, :]
-                            - 2.0 * self.cent[live] @ self.cent[live].T, 0.0)
+            cent = self.cent[live]  # one copy (the feature space is wide)
+            sq = _einsum("ij,ij->i", cent, cent)
+            d2 = np.maximum(sq[:, None] + sq[None, :] - 2.0 * cent @ cent.T, 0.0)
             np.fill_diagonal(d2, np.inf)
             nn = d2.min(axis=1) + self.wss[live] / w
             self.nov2 = self.novelty**2 * max(float(np.quantile(nn, 0.9)), self.thr2, 1e-300)
