@@ -200,6 +200,12 @@ def test_batched_sqlite_registration_resumes_exactly(tmp_path: Path) -> None:
     np.testing.assert_array_equal(again.labels_registered_, ref.labels_registered_)
     np.testing.assert_array_equal(store.micro_ids(), ref.store.micro_ids())
     assert store.keys() == ref.store.keys()
+    # the whole summary, its schedule included (when the next search and refit are due)
+    arrays, scalars = again._micro.state()
+    ref_arrays, ref_scalars = ref._micro.state()
+    assert scalars == ref_scalars and ref_scalars["n_refits"] > 0
+    for name, arr in arrays.items():
+        np.testing.assert_array_equal(arr, ref_arrays[name], err_msg=name)
 
 
 def test_memory_store_micro_ids_are_checked() -> None:
