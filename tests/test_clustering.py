@@ -188,6 +188,45 @@ def test_outside_samples_are_flagged_and_get_a_new_cluster() -> None:
     assert c.store.keys()[-3:] == [int(k) for k in c.transform(far)]
 
 
+def test_macro_steps_between_searches_refit_the_chosen_mixture() -> None:
+    x, y = _blobs(800, 3, 10, seed=13, sep=3.0)
+    idx = np.random.default_rng(0).permutation(800)
+    every = HilbertClusterer(3, init_size=100, search_growth=1.0, random_state=0)
+    default = HilbertClusterer(3, init_size=100, random_state=0)
+    for c in (every, default):
+        for s in range(0, 800, 20):
+            c.partial_fit(x[idx[s : s + 20]])
+        assert adjusted_rand_score(y[idx], c.labels_) == 1.0
+    m, m1 = default._micro, every._micro
+    assert m1.n_refits == 0 and m1.n_searches == m1.n_macro_steps
+    # a search on the first step and after each of the recalibrations at 200, 400 and 800;
+    # the others (every 10 % of growth) refit
+    assert m.n_macro_steps == m1.n_macro_steps and m.n_searches == 4
+    assert m.n_refits == m.n_macro_steps - m.n_searches > 10
+    with pytest.raises(InputError, match="search_growth"):
+        HilbertClusterer(3, search_growth=0.5)
+
+
+def test_the_search_for_the_number_of_clusters_stops_past_the_minimum(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from nonprehensile.motion import summary
+
+    x, y = _blobs(300, 3, 6, seed=14)
+    tried: set[int] = set()
+    real = summary.fit_mixtures
+
+    def spy(*args: object, **kw: object) -> object:
+        tried.update(int(s.max()) + 1 for s in args[3])  # type: ignore[attr-defined]
+        return real(*args, **kw)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(summary, "fit_mixtures", spy)
+    c = HilbertClusterer(None, random_state=0).fit(x)
+    assert c.n_clusters_ == 3 and adjusted_rand_score(y, c.labels_) == 1.0
+    # the criterion rose at 4 and 5 clusters: 6 .. max_auto_clusters are never fitted
+    assert max(tried) == 5
+
+
 def test_new_skill_in_an_ordered_stream_becomes_a_cluster() -> None:
     x, y = _blobs(400, 2, 20, seed=11, sep=2.0)
     order = np.argsort(y, kind="stable")

@@ -12,9 +12,12 @@ from sklearn.decomposition import PCA
 from sklearn.metrics import adjusted_rand_score
 from sklearn.mixture import GaussianMixture
 
+from nonprehensile.motion import microcluster
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.microcluster import (
+    COVARIANCE_TYPES,
     fit_mixture,
+    fit_mixtures,
     one_thread,
     pca,
     project,
@@ -81,6 +84,43 @@ def test_mixture_counts_the_scatter_of_a_summarised_point() -> None:
                        reg=0.0)
     np.testing.assert_allclose(summ.covariances, one.covariances, rtol=1e-10)
     np.testing.assert_allclose(summ.log_likelihood, one.log_likelihood, rtol=1e-10)
+
+
+def test_mixtures_side_by_side_equal_one_by_one() -> None:
+    # summarised points (weights and scatter), starts of different cluster counts, each
+    # stopping at its own convergence: the stacked EM gives every start's own fit
+    rng = np.random.default_rng(21)
+    x, y = _blobs(60, 3, 3, seed=21, sep=3.0)
+    w = rng.integers(1, 5, 60).astype(float)
+    dev = rng.normal(size=(60, 4, 3))
+    scatter = np.einsum("pia,pib->pab", dev, dev) * (w / 4.0)[:, None, None]
+    starts = [y.astype(np.int64), rng.integers(0, 3, 60), rng.integers(0, 2, 60),
+              np.zeros(60, dtype=np.int64), rng.integers(0, 4, 60)]
+    for cov in COVARIANCE_TYPES:
+        for max_iter in (3, 100):
+            together = fit_mixtures(x, w, scatter, starts, cov, max_iter=max_iter)
+            for init, fit in zip(starts, together, strict=True):
+                alone = fit_mixture(x, w, scatter, init, cov, max_iter=max_iter)
+                np.testing.assert_array_equal(fit.labels, alone.labels)
+                np.testing.assert_allclose(fit.log_likelihood, alone.log_likelihood,
+                                           rtol=1e-12)
+                np.testing.assert_allclose(fit.covariances, alone.covariances, rtol=1e-10,
+                                           atol=1e-14)
+                assert fit.means.shape == (int(init.max()) + 1, 3)
+
+
+def test_diagonal_densities_equal_the_general_ones() -> None:
+    # the elementwise path for spherical and diagonal covariances against Cholesky + inverse
+    rng = np.random.default_rng(22)
+    z = rng.normal(size=(30, 4))
+    dev = rng.normal(size=(30, 5, 4))
+    inner = np.einsum("pia,pib->pab", dev, dev).reshape(30, 16) / 5.0
+    means = rng.normal(size=(2, 3, 4))
+    covs = rng.uniform(0.5, 2.0, size=(2, 3, 4))[..., None] * np.eye(4)
+    diag = microcluster._log_prob(z, inner, np.ascontiguousarray(inner[:, ::5]), means, covs,
+                                  True)
+    general = microcluster._log_prob(z, inner, inner[:, ::5], means, covs, False)
+    np.testing.assert_allclose(diag, general, rtol=1e-12)
 
 
 def test_gram_pca_equals_the_svd() -> None:
@@ -160,6 +200,12 @@ def test_batched_sqlite_registration_resumes_exactly(tmp_path: Path) -> None:
     np.testing.assert_array_equal(again.labels_registered_, ref.labels_registered_)
     np.testing.assert_array_equal(store.micro_ids(), ref.store.micro_ids())
     assert store.keys() == ref.store.keys()
+    # the whole summary, its schedule included (when the next search and refit are due)
+    arrays, scalars = again._micro.state()
+    ref_arrays, ref_scalars = ref._micro.state()
+    assert scalars == ref_scalars and ref_scalars["n_refits"] > 0
+    for name, arr in arrays.items():
+        np.testing.assert_array_equal(arr, ref_arrays[name], err_msg=name)
 
 
 def test_memory_store_micro_ids_are_checked() -> None:

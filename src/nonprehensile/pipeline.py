@@ -130,12 +130,10 @@ def cluster_segments(
     segments are streamed into a :class:`HilbertClusterer` ``batch`` at a time, in the
     dataset's order (skill after skill: a new skill arrives as new data would).
 
-    Cost: on the bundled cube (660 segments, 14 arcs) this is over half of the demo's CPU
-    time, nearly all of it in the clusterer's macro steps (about 120 of them, each fitting
-    Gaussian mixtures for every number of clusters, covariance type and distinct start:
-    6,600 short EM runs). The pipeline takes the clusterer's defaults; the macro step's
-    search is the motion model's to tune (issue 16, ``docs/benchmarks.md``, "The user's
-    path").
+    Cost: on the bundled cube (660 segments, 14 arcs) about 1.5 s of CPU: the clusterer's
+    207 macro steps, 66 of them searches (the others refit the chosen mixture), and the
+    resampling of every segment. The pipeline takes the clusterer's defaults; the macro
+    step's schedule is the motion model's to tune (``docs/motion-model.md``).
 
     Returns
     -------
@@ -249,8 +247,9 @@ def motions_from_dataset(
 
 #: Bumped when what the cache holds changes shape, or when the clusterer's defaults change the
 #: clusters it builds (2: issue 14's macro-step schedule and components), so that a library
-#: cached by an older clustering is rebuilt even though the dataset's files did not change.
-_CACHE_FORMAT = "motions/2"
+#: cached by an older clustering is rebuilt even though the dataset's files did not change
+#: (3: macro steps between searches refit the chosen mixture).
+_CACHE_FORMAT = "motions/3"
 
 
 def cache_dir() -> Path:

@@ -301,6 +301,12 @@ class HilbertClusterer:
     macro_growth : float
         Micro: a macro step is due when the count reaches ``macro_growth`` times the count
         at the last one (> 1).
+    search_growth : float
+        Micro: a macro step searches the number of clusters, the covariance type and the
+        partition afresh when the count has reached ``search_growth`` times the count at the
+        last search (>= 1), after every recalibration and when novel micro-clusters brought
+        it forward; the steps between refit the chosen mixture from the current partition.
+        ``1.0`` searches at every step.
     residual_drift : float
         Micro: the projection is recalibrated when the mean reconstruction residual of the
         samples since the last calibration exceeds ``residual_drift`` times the reservoir's.
@@ -363,6 +369,7 @@ class HilbertClusterer:
         max_components: int = 24,
         capacity: int = 256,
         macro_growth: float = 1.1,
+        search_growth: float = 2.0,
         residual_drift: float = 1.5,
         store: SampleStore | None = None,
         random_state: np.random.Generator | int | None = None,
@@ -408,6 +415,7 @@ class HilbertClusterer:
         self.max_components = int(_check_int(max_components, "max_components", 1) or 1)
         self.capacity = int(_check_int(capacity, "capacity", 2) or 2)
         self.macro_growth = _check_float(macro_growth, "macro_growth", 1.0, strict=True)
+        self.search_growth = _check_float(search_growth, "search_growth", 1.0)
         self.residual_drift = _check_float(residual_drift, "residual_drift", 1.0, strict=True)
         if store is not None and not isinstance(store, SampleStore):
             raise InputError(
@@ -470,6 +478,7 @@ class HilbertClusterer:
             variance=self.variance, max_components=self.max_components,
             capacity=self.capacity, window=self.window, n_curves=self.n_curves,
             growth=self.growth, macro_growth=self.macro_growth,
+            search_growth=self.search_growth,
             drift_fraction=self.drift_fraction, novelty=self.novelty,
             residual_drift=self.residual_drift, margin=self.margin,
             max_auto_clusters=self.max_auto_clusters, seed=self._seed)
@@ -1116,6 +1125,7 @@ class HilbertClusterer:
             "max_auto_clusters": self.max_auto_clusters, "merge": self.merge,
             "variance": self.variance, "max_components": self.max_components,
             "capacity": self.capacity, "macro_growth": self.macro_growth,
+            "search_growth": self.search_growth,
             "residual_drift": self.residual_drift,
         }
 

@@ -46,6 +46,7 @@ from nonprehensile.motion.microcluster import (
     COVARIANCE_TYPES,
     Mixture,
     fit_mixture,
+    fit_mixtures,
     one_thread,
     pca,
     project,
@@ -74,6 +75,9 @@ _MIN_RESIDUAL = 5
 #: samples a dimension (the usual rule of thumb), and with fewer samples than features the
 #: trailing components of a 95 % cut are fitted to noise.
 _PER_COMPONENT = 10
+#: Numbers of clusters in a row that do not lower the best BIC before the search for the
+#: number of clusters stops (when it is not given).
+_PATIENCE = 2
 #: Starts of each covariance type run on to convergence (the most likely after the short EM).
 _CONVERGE = 2
 
@@ -166,11 +170,13 @@ class MicroSummary:
               "idx_slots", "pending")
     SCALARS = ("d", "k", "ki", "oi", "n_live", "n_seen", "next_uid", "next_id", "thr2", "nov2",
                "n_cal", "res_ref", "res_sum", "res_cnt", "n_macro", "n_novel", "explained",
-               "n_calibrations", "n_macro_steps", "n_compactions", "covariance_type")
+               "n_calibrations", "n_macro_steps", "n_compactions", "covariance_type",
+               "n_refit_clusters", "n_searches", "n_refits", "n_search")
 
     def __init__(self, *, n_clusters: int | None, n_components: int | None, variance: float,
                  max_components: int, capacity: int, window: int, n_curves: int,
-                 growth: float, macro_growth: float, drift_fraction: float, novelty: float,
+                 growth: float, macro_growth: float, search_growth: float,
+                 drift_fraction: float, novelty: float,
                  residual_drift: float, margin: float, max_auto_clusters: int,
                  seed: int, n_starts: int = 4) -> None:
         self.n_clusters = n_clusters
@@ -182,6 +188,7 @@ class MicroSummary:
         self.n_curves = n_curves
         self.growth = growth
         self.macro_growth = macro_growth
+        self.search_growth = search_growth
         self.drift_fraction = drift_fraction
         self.novelty = novelty
         self.residual_drift = residual_drift
@@ -197,6 +204,7 @@ class MicroSummary:
         self.res_ref = self.res_sum = 0.0
         self.explained = 1.0
         self.n_calibrations = self.n_macro_steps = self.n_compactions = 0
+        self.n_refit_clusters = self.n_searches = self.n_refits = self.n_search = 0
         self.covariance_type = ""
         self.mean = np.zeros(0)
         self.comp = np.zeros((0, 0))
@@ -448,7 +456,11 @@ class MicroSummary:
                 due = True
                 break
             if self._macro_due():
-                self.macro()
+                # a search when novel micro-clusters brought the step forward (a new class
+                # may need a cluster of its own) or the count grew by search_growth since
+                # the last one; a refit of the chosen mixture otherwise
+                self.macro(search=self.n_novel >= _MIN_NOVEL
+                           or self.n_seen >= self.search_growth * self.n_search)
                 stale = True
         return i, ck[:i, 0].copy(), labels[:i], uids[:i], due
 
@@ -553,13 +565,21 @@ class MicroSummary:
 
     # ------------------------------------------------------------------ macro step
 
-    def macro(self) -> None:
-        """Cluster the micro-clusters (Ward start, GMMs by BIC), keep ids by the Hungarian
-        method, reset the novelty scale."""
-        with one_thread():
-            self._macro()
+    def macro(self, *, search: bool = True) -> None:
+        """Cluster the micro-clusters, keep ids by the Hungarian method, reset the novelty
+        scale.
 
-    def _macro(self) -> None:
+        ``search=True``: the number of clusters, the covariance type and the partition are
+        chosen afresh (Ward and k-means starts, GMMs by BIC). ``search=False``: the mixture the
+        last search chose is refitted by EM from the current partition (one fit instead of
+        hundreds); it falls back to a search when there is nothing to refit (no search yet,
+        or provisional clusters opened since, so the partition no longer has the chosen
+        number of clusters).
+        """
+        with one_thread():
+            self._macro(search)
+
+    def _macro(self, search: bool) -> None:
         live = np.flatnonzero(self.slot_uid >= 0)
         self.n_macro = self.n_seen
         self.n_novel = 0
@@ -570,14 +590,32 @@ class MicroSummary:
         z = self.zc[live]
         scatter = self.zs[live]
         n_pts = live.size
+        _, previous = np.unique(self.slot_label[live], return_inverse=True)
+        c_prev = int(previous.max()) + 1
+        if (not search and self.covariance_type and c_prev == self.n_refit_clusters
+                and n_pts > c_prev):
+            mix = fit_mixture(z, w, scatter, previous.astype(np.int64),
+                              self.covariance_type)  # type: ignore[arg-type]
+            if int(mix.labels.max()) + 1 == c_prev:
+                self.n_refits += 1
+                self._relabel(live, w, mix)
+                return
+        self.n_searches += 1
+        self.n_search = self.n_seen
         if self.n_clusters is not None:
             options = [min(self.n_clusters, n_pts)]
         else:
             options = list(range(1, min(self.max_auto_clusters, n_pts) + 1))
         merges = ward_merges(z, w)
-        _, previous = np.unique(self.slot_label[live], return_inverse=True)
         best: Mixture | None = None
+        worse = 0
         for c in options:
+            if worse >= _PATIENCE:
+                # the criterion rose at the last _PATIENCE numbers of clusters: past its
+                # minimum (fitting every number up to max_auto_clusters cost a chosen-k
+                # search ten times over: issue 16)
+                break
+            best_before = best.bic if best is not None else math.inf
             starts = [ward_partition(merges, n_pts, c)]
             if int(previous.max()) + 1 == c:
                 starts.append(previous.astype(np.int64))  # the last macro step's clusters
@@ -589,11 +627,11 @@ class MicroSummary:
             for cov in COVARIANCE_TYPES:
                 # a few EM steps from every start, the _CONVERGE most likely run on to
                 # convergence, the most likely kept; then the best model by BIC
-                short = [fit_mixture(z, w, scatter, init, cov, max_iter=_SHORT_EM)
-                         for init in starts]
+                short = fit_mixtures(z, w, scatter, starts, cov, max_iter=_SHORT_EM)
                 ranked = sorted(short, key=lambda f: -f.log_likelihood)[:_CONVERGE]
-                mix = max((max(fit_mixture(z, w, scatter, lead.labels, cov), lead,
-                               key=lambda f: f.log_likelihood) for lead in ranked),
+                long = fit_mixtures(z, w, scatter, [lead.labels for lead in ranked], cov)
+                mix = max((max(full, lead, key=lambda f: f.log_likelihood)
+                           for full, lead in zip(long, ranked, strict=True)),
                           key=lambda f: f.log_likelihood)
                 # the converged partition starts the next covariance types too: a simpler
                 # type's optimum is often near a richer type's, whose own starts (Ward,
@@ -602,9 +640,17 @@ class MicroSummary:
                     starts.append(mix.labels)
                 if best is None or mix.bic < best.bic - 1e-9:
                     best = mix
+            worse = 0 if best is not None and best.bic < best_before else worse + 1
         assert best is not None
         self.covariance_type = best.covariance_type
+        self._relabel(live, w, best)
+
+    def _relabel(self, live: IntArray, w: FloatArray, best: Mixture) -> None:
+        """The chosen mixture's clusters as the live micro-clusters' labels (ids kept by the
+        Hungarian method), and the novelty radius from the micro-clusters' spacing."""
+        n_pts = live.size
         _, new = np.unique(best.labels, return_inverse=True)
+        self.n_refit_clusters = int(new.max()) + 1
         ids, self.next_id = match_ids(self.slot_label[live], new.astype(np.int64), w,
                                       self.next_id)
         self.slot_label[live] = ids[new]
@@ -612,9 +658,9 @@ class MicroSummary:
         # the novelty radius: a high quantile of the distances between neighbouring
         # micro-clusters (a quantile, so a few outliers do not inflate it)
         if n_pts >= 2:
-            sq = np.einsum("ij,ij->i", self.cent[live], self.cent[live])
-            d2 = np.maximum(sq[:, None] + sq[None, :]
-                            - 2.0 * self.cent[live] @ self.cent[live].T, 0.0)
+            cent = self.cent[live]  # one copy (the feature space is wide)
+            sq = _einsum("ij,ij->i", cent, cent)
+            d2 = np.maximum(sq[:, None] + sq[None, :] - 2.0 * cent @ cent.T, 0.0)
             np.fill_diagonal(d2, np.inf)
             nn = d2.min(axis=1) + self.wss[live] / w
             self.nov2 = self.novelty**2 * max(float(np.quantile(nn, 0.9)), self.thr2, 1e-300)
