@@ -356,3 +356,44 @@ def test_histogram_counts_match_the_clusters() -> None:
     assert sorted(t.get_text() for t in legend.get_texts()) == ["0", "1"]
     assert ax.get_xlim() == (0.0, 1024.0)  # 10-bit keys: the paper's indices 0..1023
     assert len(fig.axes) == 2
+
+
+def test_histogram_draws_what_matplotlibs_stairs_draws() -> None:
+    """The key histogram's step patches are added without growing the axes' limits around
+    each (issue 16: the limits are set from the counts): the picture is, pixel for pixel,
+    what matplotlib's own ``stairs`` draws with the same counts."""
+    import io
+
+    from matplotlib.figure import Figure
+    from PIL import Image
+
+    from nonprehensile.viz.clusters import plot_key_histogram
+
+    keys = [5, 9, 9, 200, 700, 701, 1000, 1020, 30, 31]
+    groups = ["a", "b", "a", "b", "c", "a", "c", "c", "b", "a"]
+    ours = Figure(figsize=(4, 3), dpi=80)
+    plot_key_histogram(ours.add_axes((0.15, 0.15, 0.8, 0.8)), keys, groups, n_bits=10,
+                       bins=16)
+    theirs = Figure(figsize=(4, 3), dpi=80)
+    ax = theirs.add_axes((0.15, 0.15, 0.8, 0.8))
+    edges = np.linspace(0.0, 1024.0, 17)
+    below = np.zeros(16)
+    for i, name in enumerate(["a", "b", "c"]):
+        counts = np.histogram([k for k, g in zip(keys, groups, strict=True) if g == name],
+                              bins=edges)[0].astype(float)
+        ax.stairs(below + counts, edges, baseline=below.copy(), fill=True,
+                  color=f"C{i}", label=name)
+        below += counts
+    ax.set_ylim(0.0, float(below.max()) * 1.05)
+    ax.set_xlim(0.0, 1024.0)
+    ax.legend(title="cluster", fontsize="small")
+    ax.set_xlabel("Hilbert index")
+    ax.set_ylabel("trajectories")
+
+    def pixels(fig: Figure) -> np.ndarray:
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png")
+        return np.asarray(Image.open(buf))
+
+    assert [p.get_label() for p in ours.axes[0].patches] == ["a", "b", "c"]
+    np.testing.assert_array_equal(pixels(ours), pixels(theirs))

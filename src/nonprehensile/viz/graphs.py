@@ -97,6 +97,7 @@ def draw_arcs(
     curve = ((1 - t) ** 2 * p0[:, None] + 2 * (1 - t) * t * ctrl[:, None]
              + t**2 * p1[:, None])  # (arcs, 64, 2) in pixels
     cut = shrink * to_px
+    to_data = data.inverted()  # made once: each inverted() builds a new transform
     bodies, heads = [], []
     colors, widths = [], []  # appended with their arc's body: a skipped arc shifts none
     for i, arc in enumerate(arcs):
@@ -123,8 +124,8 @@ def draw_arcs(
         base = tip - length * u
         normal = np.array([-u[1], u[0]]) * 0.45 * length
         body = np.vstack([c[np.hypot(*(c - tip).T) > length], base])
-        bodies.append(data.inverted().transform(body))
-        heads.append(data.inverted().transform(np.array([tip, base + normal, base - normal])))
+        bodies.append(to_data.transform(body))
+        heads.append(to_data.transform(np.array([tip, base + normal, base - normal])))
         colors.append(to_rgba(arc[3], arc[5]))
         widths.append(arc[4])
     ax.add_collection(LineCollection(bodies, colors=colors, linewidths=widths,
@@ -185,7 +186,10 @@ def plot_state_graph(
                 Line2D([], [], color="0.2", lw=0.6, label="inferred")]
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7,
               frameon=False)
-    ax.set_title("State-transition graph: rows are faces, columns orientations", fontsize=9)
+    # y given: the title sits on the axes (nothing is above it), and matplotlib skips its
+    # search for tick labels above the axes (their extents: milliseconds a title, issue 16)
+    ax.set_title("State-transition graph: rows are faces, columns orientations", fontsize=9,
+                 y=1.0)
     return ax
 
 
@@ -243,7 +247,7 @@ def plot_transition_matrix(exp: Expansion, ax: Axes | None = None, *,
     if legend:
         ax.legend(handles=[Patch(color=colors[k], label=k) for k in names], fontsize=6,
                   loc="upper left", bbox_to_anchor=(1.0, 1.0), frameon=False)
-    ax.set_title("Transition matrix (outlined: demonstrated)", fontsize=9)
+    ax.set_title("Transition matrix (outlined: demonstrated)", fontsize=9, y=1.0)  # as above
     return ax
 
 
@@ -330,7 +334,7 @@ def plot_skill_graph(graph: nx.MultiDiGraph, ax: Axes | None = None) -> Axes:
               bbox_to_anchor=(0.5, -0.02))
     title = graph.graph.get("initial"), graph.graph.get("final"), graph.graph.get("maneuver")
     ax.set_title(f"Skill graph of {title[0]} -> {title[1]} ({title[2]}): "
-                 f"skills {', '.join(skills)}", fontsize=9)
+                 f"skills {', '.join(skills)}", fontsize=9, y=1.0)  # y: as above
     return ax
 
 

@@ -51,7 +51,8 @@ def filmstrip_figure(frames: Sequence[Any], captions: Sequence[str], *, per_row:
         # figure fractions from the top left (the mosaic's rows run downwards)
         fig.text((x + w / 2) / width, 1.0 - (y - 2) / height, cap, ha="center", va="bottom",
                  fontsize=7)
-    fig.figimage(mosaic, origin="upper")
+    # interpolation "none": Agg draws the pixels as they are (any other resamples at 1:1)
+    fig.figimage(mosaic, origin="upper", interpolation="none")
     return fig
 
 
