@@ -92,3 +92,33 @@ def test_long_state_tables_are_streamed_with_the_same_content() -> None:
     for (state, face, theta, cls), want in zip(rows, doc["states"], strict=True):
         assert state == f"{want['face']}:{theta}" and face == want["face"]
         assert float(theta) == want["theta"] and int(cls) == want["class"]
+
+
+def test_demo_help_imports_no_library_module() -> None:
+    """``nonprehensile demo --help`` shows its options without importing numpy, scipy or
+    the geometry (0.9 s CPU when it did: issue 16), and the defaults it shows are the
+    pipeline's task."""
+    text, mods = _modules_after(["demo", "--help"])
+    heavy = [h for h in HEAVY if h != "rich"]  # rich draws the command's progress bars
+    loaded = sorted(m for m in mods if any(m == h or m.startswith(h + ".") for h in heavy))
+    assert loaded == [], f"demo --help imported {loaded[:10]}"
+    from nonprehensile.cli_demo import DEMO_GOAL, DEMO_START
+    from nonprehensile.pipeline import DEFAULT_GOAL, DEFAULT_START
+
+    assert (str(DEFAULT_START), str(DEFAULT_GOAL)) == (DEMO_START, DEMO_GOAL)
+    assert f"[default: {DEMO_START}]" in text and f"[default: {DEMO_GOAL}]" in text
+
+
+def test_option_module_imports_no_numpy() -> None:
+    """The options every command shares import click only (their defaults come from
+    :mod:`nonprehensile.checks`, the same values the geometry and states use)."""
+    code = ("import sys, nonprehensile.cli_options as o, nonprehensile.checks as c; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy')))")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=60, check=True)
+    assert proc.stdout.strip() == "[]"
+    from nonprehensile import checks
+    from nonprehensile.geometry.polyhedron import DEFAULT_RTOL
+    from nonprehensile.states import DEFAULT_ANGLE_TOL
+
+    assert (DEFAULT_RTOL, DEFAULT_ANGLE_TOL) == (checks.DEFAULT_RTOL, checks.DEFAULT_ANGLE_TOL)

@@ -1,4 +1,5 @@
-"""Validators of the numbers users pass: tolerances, counts (``check_*``, as pytransform3d).
+"""Validators of the numbers users pass: tolerances, counts (``check_*``, as pytransform3d),
+and the default tolerances.
 
 A NaN or negative tolerance would silently switch checks off (every comparison with NaN is
 false), so every entry point that takes one validates it here.
@@ -10,7 +11,15 @@ import math
 
 from nonprehensile.errors import InputError
 
-__all__ = ["check_tolerance"]
+__all__ = ["DEFAULT_ANGLE_TOL", "DEFAULT_RTOL", "check_tolerance"]
+
+# Defined here, in a module that imports no numpy, so that the command line's options can
+# show them without importing the geometry (``nonprehensile demo --help``: issue 16); the
+# geometry and the states re-export them.
+#: Default length tolerance, relative to the object's diameter.
+DEFAULT_RTOL = 1e-7
+#: Default tolerance on angles, in degrees, for exact models (the spec's default).
+DEFAULT_ANGLE_TOL = 1e-6
 
 
 def check_tolerance(value: object, name: str, *, allow_zero: bool = False) -> float:

@@ -42,7 +42,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
                 "Cluster demonstrated trajectories on a Hilbert-curve index, in a store."),
     "dataset": ("nonprehensile.cli_dataset:dataset_group",
                 "Demonstration datasets: generate a synthetic one, or show one."),
-    "demo": ("nonprehensile.cli_plan:demo",
+    "demo": ("nonprehensile.cli_demo:demo",
              "The main job: the whole pipeline on a dataset, ending in an HTML report."),
     "infer": ("nonprehensile.cli_plan:infer_cmd",
               "Infer undemonstrated transitions of SKILLS_FILE over a state set (paper "

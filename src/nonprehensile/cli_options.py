@@ -1,17 +1,24 @@
 """Options and helpers that several commands share: tolerances, state sets, ``--json``.
 
 Imported by the command modules (``cli_object``, ``cli_plan``, ...), never by
-:mod:`nonprehensile.cli` itself, which stays free of the library's imports.
+:mod:`nonprehensile.cli` itself, which stays free of the library's imports. This module
+imports click and no numpy: a command's ``--help`` (``nonprehensile demo --help``) must not
+pay for the geometry (0.4 s of imports: issue 16); the helpers import what they use when
+they run.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import click
 
+from nonprehensile.checks import DEFAULT_ANGLE_TOL, DEFAULT_RTOL
 from nonprehensile.errors import InputError
-from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
-from nonprehensile.io import load_model, read_states
-from nonprehensile.states import DEFAULT_ANGLE_TOL, State, check_states, states_by_step
+
+if TYPE_CHECKING:
+    from nonprehensile.geometry.polyhedron import Polyhedron
+    from nonprehensile.states import State
 
 __all__ = [
     "angle_tol_option",
@@ -28,6 +35,8 @@ __all__ = [
 
 def load_cli_model(path: str, rtol: float | None) -> Polyhedron:
     """The model a command names (a file, or a bundled name such as ``cube``)."""
+    from nonprehensile.io import load_model
+
     return load_model(path, rtol=rtol)
 
 
@@ -54,6 +63,9 @@ def state_set(
     angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> list[State]:
     """The state set chosen on the command line (``--step`` or ``--states``)."""
+    from nonprehensile.io import read_states
+    from nonprehensile.states import check_states, states_by_step
+
     if (step is None) == (states_file is None):
         raise InputError("give exactly one of --step DEG or --states FILE")
     if step is not None:
@@ -69,6 +81,8 @@ states_option = click.option("--states", "states_file", type=click.Path(dir_okay
 
 
 def parse_state(ctx: click.Context, param: click.Parameter, value: str) -> State:
+    from nonprehensile.states import State
+
     try:
         return State.parse(value)
     except InputError as exc:

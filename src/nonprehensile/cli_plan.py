@@ -1,14 +1,11 @@
-"""``nonprehensile skills``, ``infer``, ``plan`` and ``demo``: from skills to a plan.
+"""``nonprehensile skills``, ``infer`` and ``plan``: from skills to a plan (``demo`` is in
+:mod:`nonprehensile.cli_demo`).
 
 Registered in :data:`nonprehensile.cli.COMMANDS`.
 """
 
 from __future__ import annotations
 
-import shlex
-import sys
-import time
-from pathlib import Path
 from typing import Any
 
 import click
@@ -29,19 +26,13 @@ from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import METHODS, Expansion, cross_check, expand
 from nonprehensile.io import read_skills
-from nonprehensile.pipeline import (
-    DEFAULT_GOAL,
-    DEFAULT_START,
-    motions_from_dataset,
-    run_demo,
-    write_plan_motions,
-)
+from nonprehensile.pipeline import motions_from_dataset, write_plan_motions
 from nonprehensile.planning import DEFAULT_RELOCATION_COST, plan
 from nonprehensile.skills.contacts import format_event
 from nonprehensile.skills.skill import Skill, group_by_maneuver, skill_graph, skill_to_dict
 from nonprehensile.states import State
 
-__all__ = ["demo", "infer_cmd", "plan_cmd", "print_plan", "skills_group"]
+__all__ = ["infer_cmd", "plan_cmd", "print_plan", "skills_group"]
 
 
 @click.group("skills")
@@ -284,47 +275,3 @@ def plan_cmd(
         emit_json(doc)
         return
     print_plan(doc)
-
-
-# ---------------------------------------------------------------------------- demo
-def _command_line() -> str | None:
-    """The command as typed, when the job runs from the ``nonprehensile`` script."""
-    if Path(sys.argv[0]).name != "nonprehensile":
-        return None
-    return shlex.join(["nonprehensile", *sys.argv[1:]])
-
-
-
-@click.command("demo")
-@click.option("--out", "out_dir", default="report", show_default=True,
-              type=click.Path(file_okay=False), help="Folder of the report and summary.")
-@click.option("--dataset", default="cube", show_default=True,
-              help="Dataset folder, or the bundled `cube`.")
-@click.option("--from", "start", default=str(DEFAULT_START), show_default=True,
-              callback=parse_state, help="Start state of the task.")
-@click.option("--to", "goal", default=str(DEFAULT_GOAL), show_default=True,
-              callback=parse_state, help="Goal state of the task.")
-@click.option("--seed", default=0, show_default=True, help="Seed of the clustering.")
-@json_option
-@handle_errors
-def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
-         as_json: bool) -> None:
-    """The main job: the whole pipeline on a dataset, ending in an HTML report."""
-    t0 = time.perf_counter()
-    with stage_bars(as_json) as bars:
-        result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
-                          progress=bars, command=_command_line())
-    elapsed = time.perf_counter() - t0
-    summary = result.summary
-    if as_json:
-        emit_json({**summary, "report": str(result.report), "summary": str(result.summary_path),
-                   "wall_seconds": round(elapsed, 2)})
-        return
-    inf = summary["inference"]
-    out.print(f"object {summary['object']['name']}: {summary['states']['count']} states, "
-              f"{inf['transitions']} transitions ({inf['demonstrated']} demonstrated); "
-              f"{summary['dataset']['demonstrations']} demonstrations, "
-              f"{summary['dataset']['segments']} segments clustered")
-    print_plan(summary["plan"])
-    out.print(f"report: {result.report.resolve()}")
-    out.print(f"summary: {result.summary_path.resolve()}  ({elapsed:.1f} s)")

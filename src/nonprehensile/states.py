@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from nonprehensile.checks import check_tolerance
+from nonprehensile.checks import DEFAULT_ANGLE_TOL, check_tolerance
 from nonprehensile.errors import GeometryError, StateError
 from nonprehensile.geometry.polyhedron import Polyhedron
 
@@ -36,8 +36,6 @@ __all__ = [
     "states_by_step",
 ]
 
-#: Default tolerance on angles, in degrees, for exact models (the spec's default).
-DEFAULT_ANGLE_TOL = 1e-6
 #: Largest state set built from an angle step (a finer step is almost surely a typo); sized so
 #: that the ``states`` command (classes included) stays within seconds and a few hundred MB.
 MAX_STATES = 500_000

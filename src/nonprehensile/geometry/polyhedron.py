@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
-from nonprehensile.checks import check_tolerance
+from nonprehensile.checks import DEFAULT_RTOL, check_tolerance
 from nonprehensile.errors import InputError, ModelError
 
 __all__ = [
@@ -37,8 +37,6 @@ __all__ = [
     "wrap_index",
 ]
 
-#: Default length tolerance, relative to the object's diameter.
-DEFAULT_RTOL = 1e-7
 #: Largest coordinate magnitude accepted: squares and cubes of it stay finite in float64.
 MAX_COORDINATE = 1e100
 #: A corner whose height above the line through its neighbours is at most this fraction of
