@@ -122,3 +122,18 @@ def test_option_module_imports_no_numpy() -> None:
     from nonprehensile.states import DEFAULT_ANGLE_TOL
 
     assert (DEFAULT_RTOL, DEFAULT_ANGLE_TOL) == (checks.DEFAULT_RTOL, checks.DEFAULT_ANGLE_TOL)
+
+
+def test_demo_parses_its_task_in_a_fresh_process() -> None:
+    """The demo parses --from/--to before anything else imports the library, so the states
+    module is the first of it imported: it must not import itself back through the geometry
+    (a circular import that failed `nonprehensile demo` outright)."""
+    probe = ("from nonprehensile.cli import main\n"
+             "main(['demo', '--from', 'a:x'], standalone_mode=True)\n")
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    assert "FACE:THETA" in proc.stderr and "Traceback" not in proc.stderr
+    proc = subprocess.run([sys.executable, "-c", "import nonprehensile.states"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr

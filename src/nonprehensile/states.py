@@ -12,13 +12,19 @@ import math
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
 from nonprehensile.checks import DEFAULT_ANGLE_TOL, check_tolerance
 from nonprehensile.errors import GeometryError, StateError
-from nonprehensile.geometry.polyhedron import Polyhedron
+
+if TYPE_CHECKING:
+    # annotations only: importing the geometry here would make ``import nonprehensile.states``
+    # circular (the geometry's symmetry module imports the states), and it fails when the
+    # states are imported first, as ``nonprehensile demo`` parsing --from does
+    from nonprehensile.geometry.polyhedron import Polyhedron
 
 __all__ = [
     "DEFAULT_ANGLE_TOL",
