@@ -10,18 +10,21 @@ from __future__ import annotations
 
 import base64
 import html
-import io
 import math
+import struct
+import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    import numpy as np
     from matplotlib.figure import Figure
     from matplotlib.text import Text
+    from numpy.typing import NDArray
 
-__all__ = ["MIN_TEXT_PX", "PAGE_WIDTH_PX", "Section", "figure_to_png", "readable",
+__all__ = ["MIN_TEXT_PX", "PAGE_WIDTH_PX", "Section", "figure_to_png", "png_bytes", "readable",
            "render_report", "write_report"]
 
 _STYLE = """
@@ -151,12 +154,11 @@ def figure_to_png(fig: Figure, dpi: int = 80) -> bytes:
     The figure's layout engine, if any, runs once here and is then switched off, so that the
     figure is drawn once (a constrained layout otherwise costs a second full draw). Text is
     laid out and drawn unhinted (:data:`TEXT_HINTING`), and an opaque figure is written as
-    RGB at :data:`PNG_COMPRESS_LEVEL` (issue 16).
+    RGB by :func:`png_bytes` (issue 16).
     """
     import matplotlib as mpl
     import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from PIL import Image
 
     readable(fig, dpi)
     fig.set_dpi(dpi)
@@ -168,13 +170,37 @@ def figure_to_png(fig: Figure, dpi: int = 80) -> bytes:
             fig.set_layout_engine("none")
         canvas.draw()
     rgba = np.asarray(canvas.buffer_rgba())
-    # the page is opaque: RGB without the alpha channel, and zlib's fastest level (a third
-    # of the encoding time of matplotlib's RGBA at level 6, files the same size: issue 16)
-    image = Image.fromarray(np.ascontiguousarray(rgba[..., :3]) if rgba[..., 3].min() == 255
-                            else rgba)
-    buf = io.BytesIO()
-    image.save(buf, format="png", compress_level=PNG_COMPRESS_LEVEL)
-    return buf.getvalue()
+    # the page is opaque: RGB without the alpha channel
+    pixels = rgba[..., :3] if rgba[..., 3].min() == 255 else rgba
+    return png_bytes(pixels)
+
+
+def png_bytes(pixels: NDArray[np.uint8], level: int = PNG_COMPRESS_LEVEL) -> bytes:
+    """An RGB or RGBA image (shape (height, width, 3 or 4), uint8) as PNG bytes.
+
+    Rows unfiltered (PNG filter 0), deflated at zlib's ``level``. Pillow (what matplotlib
+    writes with) tries every PNG filter on every row to pick one, which costs more than the
+    deflate itself and, on the report's flat-coloured figures, gives larger files: unfiltered
+    rows at level 1 take half the time and are 10 % smaller (issue 16). Any PNG reader reads
+    them (the format's own chunks: signature, IHDR, IDAT, IEND).
+    """
+    import numpy as np
+
+    height, width, channels = pixels.shape
+    if pixels.dtype != np.uint8 or channels not in (3, 4):
+        raise ValueError(f"expected uint8 pixels of shape (h, w, 3 or 4), got {pixels.dtype} "
+                         f"{pixels.shape}")
+    rows = np.zeros((height, 1 + width * channels), dtype=np.uint8)  # filter byte 0: none
+    rows[:, 1:] = pixels.reshape(height, width * channels)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return (struct.pack(">I", len(data)) + kind + data
+                + struct.pack(">I", zlib.crc32(kind + data)))
+
+    color_type = 2 if channels == 3 else 6  # truecolour, truecolour with alpha
+    header = struct.pack(">IIBBBBB", width, height, 8, color_type, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header)
+            + chunk(b"IDAT", zlib.compress(rows.tobytes(), level)) + chunk(b"IEND", b""))
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
