@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import click
 import pytest
@@ -137,3 +138,40 @@ def test_demo_parses_its_task_in_a_fresh_process() -> None:
     proc = subprocess.run([sys.executable, "-c", "import nonprehensile.states"],
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
+
+
+_RUN = """
+import atexit, sys, threading, time
+from pathlib import Path
+from nonprehensile.cli import run
+out = Path(sys.argv[1])
+atexit.register(lambda: (out / "atexit").write_text("ran"))
+if sys.argv[2] == "thread":
+    def late() -> None:
+        time.sleep(0.3)
+        (out / "thread").write_text("ran")
+    threading.Thread(target=late).start()
+run(sys.argv[3:])
+"""
+
+
+def test_script_exit_keeps_code_output_exit_handlers_and_threads(tmp_path: Path) -> None:
+    """The script's fast exit (no interpreter teardown: issue 16) keeps the exit code and
+    every byte of the output, runs the exit handlers (the C3D worker is reaped by one), and
+    where another thread still runs it waits for it, as Python's own exit does."""
+    def script(mode: str, *args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-c", _RUN, str(tmp_path), mode, *args],
+                              capture_output=True, text=True, timeout=60)
+
+    done = script("plain", "states", "cube", "--step", "5", "--json")
+    assert done.returncode == 0, done.stderr
+    expected = CliRunner().invoke(main, ["states", "cube", "--step", "5", "--json"]).output
+    assert done.stdout == expected and len(json.loads(done.stdout)["states"]) > 400
+    assert (tmp_path / "atexit").read_text() == "ran"
+    (tmp_path / "atexit").unlink()
+    bad = script("plain", "states", "no-such-model", "--step", "90")
+    assert bad.returncode == 2 and bad.stderr.startswith("error:")
+    assert (tmp_path / "atexit").read_text() == "ran"
+    waited = script("thread", "--version")
+    assert waited.returncode == 0 and "version" in waited.stdout
+    assert (tmp_path / "thread").read_text() == "ran"
