@@ -566,8 +566,8 @@ class MicroSummary:
     # ------------------------------------------------------------------ macro step
 
     def macro(self, *, search: bool = True) -> None:
-        """Cluster the micro-clusters, keep ids by the Hungarian method, reset the novelty
-        scale.
+        """Cluster the micro-clusters, keep ids by the Hungarian method; a search also resets
+        the novelty scale.
 
         ``search=True``: the number of clusters, the covariance type and the partition are
         chosen afresh (Ward and k-means starts, GMMs by BIC). ``search=False``: the mixture the
@@ -598,7 +598,7 @@ class MicroSummary:
                               self.covariance_type)  # type: ignore[arg-type]
             if int(mix.labels.max()) + 1 == c_prev:
                 self.n_refits += 1
-                self._relabel(live, w, mix)
+                self._relabel(live, w, mix, spacing=False)
                 return
         self.n_searches += 1
         self.n_search = self.n_seen
@@ -645,9 +645,12 @@ class MicroSummary:
         self.covariance_type = best.covariance_type
         self._relabel(live, w, best)
 
-    def _relabel(self, live: IntArray, w: FloatArray, best: Mixture) -> None:
+    def _relabel(self, live: IntArray, w: FloatArray, best: Mixture,
+                 spacing: bool = True) -> None:
         """The chosen mixture's clusters as the live micro-clusters' labels (ids kept by the
-        Hungarian method), and the novelty radius from the micro-clusters' spacing."""
+        Hungarian method), and with ``spacing`` the novelty radius from the micro-clusters'
+        spacing (at searches only: its distances in the full feature space were half of a
+        refit's cost, and the scale moves little between searches)."""
         n_pts = live.size
         _, new = np.unique(best.labels, return_inverse=True)
         self.n_refit_clusters = int(new.max()) + 1
@@ -657,6 +660,8 @@ class MicroSummary:
         self.slot_novel[live] = False
         # the novelty radius: a high quantile of the distances between neighbouring
         # micro-clusters (a quantile, so a few outliers do not inflate it)
+        if not spacing:
+            return
         if n_pts >= 2:
             cent = self.cent[live]  # one copy (the feature space is wide)
             sq = _einsum("ij,ij->i", cent, cent)
