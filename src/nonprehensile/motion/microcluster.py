@@ -147,7 +147,8 @@ def pca(x: FloatArray, *, variance: float, min_k: int, max_k: int,
         else:
             _, s, vt = np.linalg.svd(xc, full_matrices=False)
             var = s**2
-    total = float(np.sum(xc * xc))
+    np.square(xc, out=xc)  # xc is not needed any more: no second (n, d) temporary
+    total = float(np.sum(xc))
     if n_components is None:
         frac = np.cumsum(var) / total if total > 0 else np.ones_like(var)
         k = int(np.searchsorted(frac, variance) + 1) if var.size else min_k

@@ -87,6 +87,16 @@ except ImportError:  # pragma: no cover - other numpy layouts
     _einsum = np.einsum
 
 
+def _rows(arr: FloatArray, idx: IntArray) -> FloatArray:
+    """``arr[idx]``, as a view when ``idx`` is a run of consecutive rows (the live slots of a
+    summary that was never compacted): the feature space is wide, and a copy of a few hundred
+    of its rows costs a page fault per 4 KiB."""
+    if idx.size and int(idx[-1]) - int(idx[0]) == idx.size - 1 and bool(
+            (np.diff(idx) == 1).all()):
+        return arr[int(idx[0]) : int(idx[-1]) + 1]
+    return arr[idx]
+
+
 def match_ids(old: IntArray, new: IntArray, weight: FloatArray,
               next_id: int) -> tuple[IntArray, int]:
     """Ids for new clusters ``0..c-1`` that keep the old ids where they overlap most.
@@ -309,7 +319,7 @@ class MicroSummary:
         self.zs = zs
         self.zc = np.zeros((self.capacity + 1, k))
         if live.size:
-            self.zc[live] = project(self.cent[live], mean, comp)
+            self.zc[live] = project(_rows(self.cent, live), mean, comp)
         # index curves: the leading components, then random rotations of all k, shifted
         ki = min(k, _INDEX_DIMS)
         self.ki, self.oi = ki, max(1, LUT_MAX_BITS // ki)
@@ -329,8 +339,9 @@ class MicroSummary:
         self.lo = lo - self.margin * width - shift
         self.hi = hi + self.margin * width + (width * 0.5 - shift) * (shift > 0)
         self._set_table()
-        res = np.maximum(np.einsum("ij,ij->i", sample - mean, sample - mean)
-                         - np.einsum("ij,ij->i", zsample, zsample), 0.0)
+        xc = sample - mean
+        res = np.maximum(_einsum("ij,ij->i", xc, xc) - _einsum("ij,ij->i", zsample, zsample),
+                         0.0)
         self.res_ref = float(res.mean()) if res.size else 0.0
         self.res_sum, self.res_cnt = 0.0, 0
         self.n_cal = self.n_seen
@@ -395,6 +406,7 @@ class MicroSummary:
         labels = np.empty(m, dtype=np.int64)
         uids = np.empty(m, dtype=np.int64)
         res_list = res.tolist()
+        buf = np.empty((0, self.d))
         stale = False
         due = False
         i = 0
@@ -410,7 +422,12 @@ class MicroSummary:
                 c = np.concatenate((c, self.pending))
             xi = x[i]
             if c.size:
-                diff = self.cent.take(c, axis=0)
+                if buf.shape[0] < c.size:
+                    buf = np.empty((2 * c.size, self.d))
+                # the candidates' centroids into one reused buffer: a fresh (c, d) array a
+                # sample costs a page fault per 4 KiB on wide features (issue 16); "clip" as
+                # the indices are valid: take buffers its output in the default mode
+                diff = self.cent.take(c, axis=0, out=buf[: c.size], mode="clip")
                 diff -= xi
                 d2 = _einsum("ij,ij->i", diff, diff)
                 j = int(d2.argmin())
@@ -663,7 +680,7 @@ class MicroSummary:
         if not spacing:
             return
         if n_pts >= 2:
-            cent = self.cent[live]  # one copy (the feature space is wide)
+            cent = _rows(self.cent, live)
             sq = _einsum("ij,ij->i", cent, cent)
             d2 = np.maximum(sq[:, None] + sq[None, :] - 2.0 * cent @ cent.T, 0.0)
             np.fill_diagonal(d2, np.inf)
