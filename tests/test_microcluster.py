@@ -107,6 +107,9 @@ def test_mixtures_side_by_side_equal_one_by_one() -> None:
                 np.testing.assert_allclose(fit.covariances, alone.covariances, rtol=1e-10,
                                            atol=1e-14)
                 assert fit.means.shape == (int(init.max()) + 1, 3)
+                assert fit.converged == alone.converged
+            # a hundred steps stop every start on its tolerance; three leave some running
+            assert all(f.converged for f in together) == (max_iter == 100)
 
 
 def test_diagonal_densities_equal_the_general_ones() -> None:

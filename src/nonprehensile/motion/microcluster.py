@@ -263,6 +263,8 @@ class Mixture:
         Bayesian information criterion, ``-2 log L + p log n`` (lower is better).
     labels : array of int, shape (n_points,)
         Most probable component of each summary point.
+    converged : bool
+        Whether EM stopped on its tolerance (rather than on ``max_iter``).
     """
 
     covariance_type: CovarianceType
@@ -272,6 +274,7 @@ class Mixture:
     log_likelihood: float
     bic: float
     labels: IntArray
+    converged: bool = False
 
 
 def _n_params(c: int, k: int, cov: CovarianceType) -> int:
@@ -395,6 +398,7 @@ def fit_mixtures(z: FloatArray, weights: FloatArray, scatter: FloatArray,
         for r, i in enumerate(members):
             resp[r, np.arange(n), inits[i]] = 1.0
         ll = np.full(len(members), -math.inf)
+        converged = np.zeros(len(members), dtype=bool)
         active = np.arange(len(members))
         pis = np.zeros((len(members), c))
         mus = np.zeros((len(members), c, k))
@@ -410,6 +414,7 @@ def fit_mixtures(z: FloatArray, weights: FloatArray, scatter: FloatArray,
             done = np.abs(new_ll - ll[active]) <= tol * np.maximum(1.0, np.abs(new_ll))
             ll[active] = new_ll
             pis[active], mus[active], sigmas[active] = pi, means, covs
+            converged[active[done]] = True
             active = active[~done]
             if active.size == 0:
                 break
@@ -417,5 +422,5 @@ def fit_mixtures(z: FloatArray, weights: FloatArray, scatter: FloatArray,
         for r, i in enumerate(members):
             out[i] = Mixture(cov, pis[r], mus[r], sigmas[r], float(ll[r]),
                              -2.0 * float(ll[r]) + penalty,
-                             np.argmax(resp[r], axis=1).astype(np.int64))
+                             np.argmax(resp[r], axis=1).astype(np.int64), bool(converged[r]))
     return [m for m in out if m is not None]
