@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -175,3 +176,32 @@ def test_script_exit_keeps_code_output_exit_handlers_and_threads(tmp_path: Path)
     waited = script("thread", "--version")
     assert waited.returncode == 0 and "version" in waited.stdout
     assert (tmp_path / "thread").read_text() == "ran"
+
+
+_BLAS = """
+import json, os, sys
+import nonprehensile.cli as cli
+
+def probe(args=None):
+    import numpy  # noqa: F401  (loads OpenBLAS as a command would)
+    from threadpoolctl import threadpool_info
+    print(json.dumps([p["num_threads"] for p in threadpool_info()
+                      if p["internal_api"] == "openblas"]))
+
+cli.main = probe
+cli.run([])
+"""
+
+
+@pytest.mark.parametrize(("env", "threads"), [({}, {1}), ({"OMP_NUM_THREADS": "2"}, {2}),
+                                              ({"OPENBLAS_NUM_THREADS": "2"}, {2})])
+def test_script_starts_openblas_on_one_thread_unless_the_environment_chooses(
+    env: dict[str, str], threads: set[int],
+) -> None:
+    """Idle OpenBLAS threads spin at start-up (0.2 s of CPU a command: issue 16); the user's
+    own choice of thread count is kept."""
+    clean = {k: v for k, v in os.environ.items()
+             if k not in ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")}
+    proc = subprocess.run([sys.executable, "-c", _BLAS], capture_output=True, text=True,
+                          timeout=60, env={**clean, **env}, check=True)
+    assert set(json.loads(proc.stdout)) == threads

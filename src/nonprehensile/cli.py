@@ -155,7 +155,16 @@ def run(args: Sequence[str] | None = None) -> NoReturn:
     (issue 16; mypy exits the same way). Where a thread other than the main one still runs,
     or a stream cannot be flushed, or a command exits with a message, the exit is Python's
     ordinary one. :func:`main` itself (what tests and programs call) never ends the process.
+
+    OpenBLAS starts with one thread unless the environment chooses (``OPENBLAS_NUM_THREADS``,
+    ``GOTO_NUM_THREADS`` or ``OMP_NUM_THREADS`` set): its threads start when numpy and scipy
+    load and spin a while waiting for work (0.2 s of CPU at every start on a 2-core machine),
+    whereas the library runs its BLAS calls on one thread anyway (``one_thread``: faster for
+    its small matrices, and results independent of the thread count).
     """
+    if not any(v in os.environ
+               for v in ("OPENBLAS_NUM_THREADS", "GOTO_NUM_THREADS", "OMP_NUM_THREADS")):
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"  # before numpy: the commands import it lazily
     try:
         main(args)
         code: str | int | None = 0
