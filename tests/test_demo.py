@@ -36,6 +36,9 @@ def test_demo_writes_report_and_summary(demo_run: tuple[Path, dict[str, object]]
     assert page.stat().st_size > 100_000
     html = page.read_text()
     assert html.count("data:image/png;base64,") >= 5
+    # the transition matrix is a table of the 24 states (issue 16), not drawn in a PNG
+    matrix = html[html.index('<table class="matrix">'):]
+    assert matrix[:matrix.index("</table>")].count("<tr>") == 1 + 24
     summary = json.loads((out / "summary.json").read_text())
     assert summary["states"]["count"] == 24 and summary["inference"]["transitions"] == 168
     assert summary["dataset"]["demonstrations"] == 180

@@ -55,6 +55,21 @@ def test_report_escapes_text_and_embeds_images(tmp_path: Path) -> None:
     assert "&lt;i&gt;" in doc
 
 
+def test_html_figure_goes_in_as_markup_with_its_caption_escaped() -> None:
+    """A figure the page lays out itself (issue 16: the transition matrix as a table) is put
+    in as it is, in a figure with its caption, in the order of the section's figures."""
+    from nonprehensile.viz.report import HtmlFigure
+
+    png = _png()
+    doc = render_report("T", "i", [Section("S", figures=[
+        (png, "first"), (HtmlFigure('<table class="matrix"><tr><td></td></tr></table>'),
+                         "a <b> & c"), (png, "last")])])
+    assert ('<figure><table class="matrix"><tr><td></td></tr></table>'
+            "<figcaption>a &lt;b&gt; &amp; c</figcaption></figure>") in doc
+    assert doc.index("first") < doc.index('class="matrix"') < doc.index("last")
+    assert doc.count("<img ") == 2
+
+
 @pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed")
 def test_report_renders_in_chromium_with_every_image(tmp_path: Path) -> None:
     png = _png()

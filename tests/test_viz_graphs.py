@@ -22,6 +22,7 @@ from nonprehensile.viz.graphs import (
     plot_skill_graph,
     plot_transition_matrix,
     state_graph_figure,
+    transition_matrix_html,
 )
 
 EXAMPLES = Path(__file__).parents[1] / "examples"
@@ -129,3 +130,91 @@ def test_one_legend_of_skill_colours_serves_graph_and_matrix() -> None:
     assert {t.get_text() for t in matrix_ax.get_legend().get_texts()} >= names
     alone = plot_transition_matrix(exp)
     assert alone.get_legend() is not None
+
+
+def _matrix_cells(markup: str) -> tuple[list[str], list[str], list[list[dict[str, str]]]]:
+    """Column headers, row headers and every row's cells (their attributes) of the table."""
+    from html.parser import HTMLParser
+
+    class Cells(HTMLParser):
+        def __init__(self) -> None:
+            super().__init__()
+            self.cols: list[str] = []
+            self.rows: list[str] = []
+            self.cells: list[list[dict[str, str]]] = []
+            self.where: list[str] = []
+            self.text = ""
+
+        def handle_starttag(self, tag: str, attrs: list[tuple[str, str | None]]) -> None:
+            self.where.append(tag)
+            self.text = ""
+            if tag == "tr" and "tbody" in self.where:
+                self.cells.append([])
+            if tag == "td" and "table" in self.where:
+                self.cells[-1].append({k: v or "" for k, v in attrs})
+
+        def handle_data(self, data: str) -> None:
+            self.text += data
+
+        def handle_endtag(self, tag: str) -> None:
+            if tag == "th" and "thead" in self.where:
+                self.cols.append(self.text)
+            elif tag == "th" and "tbody" in self.where:
+                self.rows.append(self.text)
+            while self.where and self.where.pop() != tag:
+                pass
+
+    parser = Cells()
+    parser.feed(markup)
+    return parser.cols[1:], parser.rows, parser.cells
+
+
+def test_transition_matrix_as_html_has_every_transition_in_its_cell() -> None:
+    """The report's matrix as a table (issue 16): a row per start state, a column per end
+    state, one stripe per transition in its skill's colour, outlined where demonstrated; the
+    truth is the expansion's own list of transitions."""
+    import re
+
+    from matplotlib.colors import to_hex
+
+    poly, skills = read_skills(EXAMPLES / "cube_skills.json")
+    exp = expand(poly, skills, states_by_step(poly, 90))
+    markup = transition_matrix_html(exp)
+    cols, rows, cells = _matrix_cells(markup)
+    names = [str(s) for s in exp.graph.states]
+    assert cols == names and rows == names
+    assert all(len(r) == len(names) for r in cells) and len(cells) == len(names)
+    # tab10, the default colour cycle, in the order the skills first appear
+    colour = {k: to_hex(f"C{i}") for i, k in enumerate(
+        dict.fromkeys(t.skill.name for t in exp.transitions))}
+    want: dict[tuple[str, str], list[str]] = {}
+    for t in exp.transitions:
+        want.setdefault((str(t.start), str(t.end)), []).append(t.skill.name)
+    shown = {(str(t.start), str(t.end)) for t in exp.transitions if t.demonstrated}
+    for i, a in enumerate(names):
+        for j, b in enumerate(names):
+            cell = cells[i][j]
+            if (a, b) not in want:
+                assert "style" not in cell
+                continue
+            stripes = re.findall(r"(#[0-9a-f]{6}) ([\d.]+)% ([\d.]+)%", cell["style"])
+            assert [c for c, _, _ in stripes] == [colour[k] for k in want[(a, b)]]
+            assert float(stripes[0][1]) == 0.0 and float(stripes[-1][2]) == 100.0
+            assert cell["title"] == f"{a} -> {b}: {', '.join(want[(a, b)])}"
+            assert (cell.get("class") == "shown") == ((a, b) in shown)
+    # the legend names every skill in its colour
+    for k, c in colour.items():
+        assert f'<i style="background:{c}"></i>{k}' in markup
+
+
+def test_state_graph_alone_for_the_report() -> None:
+    """``matrix=False``: the graph without the matrix (the report shows it as a table);
+    above MAX_DRAWN_STATES only the matrix can be drawn, whatever is asked."""
+    poly, skills = read_skills(EXAMPLES / "cube_skills.json")
+    exp = expand(poly, skills, states_by_step(poly, 90))
+    (ax,) = state_graph_figure(exp, matrix=False).axes
+    assert {str(s) for s in exp.graph.states} <= {t.get_text() for t in ax.texts}
+    assert not ax.axison
+    big = expand(poly, skills[:1], states_by_step(poly, 5))
+    (alone,) = state_graph_figure(big, matrix=False).axes
+    assert len(alone.collections[0].get_paths()) == len(big.transitions)

@@ -39,7 +39,7 @@ from nonprehensile.planning import Plan, plan
 from nonprehensile.skills.contacts import format_event
 from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State, stable_faces, states_by_step
-from nonprehensile.viz.report import Section, figure_to_png, write_report
+from nonprehensile.viz.report import HtmlFigure, Section, figure_to_png, write_report
 
 __all__ = [
     "REPORT_SECTIONS",
@@ -579,9 +579,23 @@ def object_section(ctx: ReportContext) -> Section:
 def inference_section(ctx: ReportContext) -> Section:
     """The expanded state-transition graph (every skill) and the skill graphs."""
     from nonprehensile.viz import skill_graphs_figure, state_graph_figure
+    from nonprehensile.viz.graphs import MAX_DRAWN_STATES, transition_matrix_html
 
     exp, summary = ctx.exp, ctx.summary
-    graph_png = figure_to_png(state_graph_figure(exp))
+    caption = ("State-transition graph: demonstrated arcs bold, inferred arcs thin (every "
+               "skill drawn)")
+    graph: list[tuple[bytes | HtmlFigure, str]]
+    if len(exp.graph.states) <= MAX_DRAWN_STATES:
+        # the matrix as a table the page lays out: drawn, its 48 tick labels and cells cost
+        # matplotlib about 0.09 s (issue 16)
+        graph = [(figure_to_png(state_graph_figure(exp, matrix=False)), caption),
+                 (HtmlFigure(transition_matrix_html(exp)),
+                  "Transition matrix: rows the start states, columns the end states; a cell "
+                  "holds a stripe per skill realising the transition, outlined where it was "
+                  "demonstrated")]
+    else:
+        graph = [(figure_to_png(state_graph_figure(exp)),
+                  "Transition matrix (too many states to draw the graph)")]
     skills_png = figure_to_png(skill_graphs_figure(list(ctx.graphs.graphs)))
     inf = summary["inference"]
     rows = [[str(t.start), str(t.end), t.skill.name, t.skill.maneuver,
@@ -593,8 +607,7 @@ def inference_section(ctx: ReportContext) -> Section:
          f"{plural(inf['transitions'], 'transition')} over the state set, "
          f"{inf['demonstrated']} of them demonstrated. The paper's edge-index method and the "
          f"exact symmetry method disagree on {inf['paper_method_disagreements']} of them."],
-        [(graph_png, "State-transition graph: demonstrated arcs bold, inferred arcs thin "
-                     "(every skill drawn), beside the full transition matrix"),
+        [*graph,
          (skills_png, "Skill graphs: contact events as nodes, finger motions as arcs")],
         [(["from", "to", "skill", "maneuver", "shown"], rows)],
     )
