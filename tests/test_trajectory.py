@@ -19,6 +19,7 @@ from nonprehensile.motion.trajectory import (
     fill_gaps,
     flatten,
     preprocess,
+    preprocess_many,
     resample,
     unflatten,
 )
@@ -325,3 +326,35 @@ def test_preprocess_defaults_and_rate_check() -> None:
     for bad in (float("nan"), float("inf"), -5.0, True):
         with pytest.raises(InputError, match="rate"):
             preprocess(traj, bad)
+
+
+@given(
+    lengths=st.lists(st.integers(2, 12), min_size=1, max_size=8),
+    method=st.sampled_from(["cubic", "linear"]),
+    seed=st.integers(0, 2**16),
+)
+def test_many_preprocessed_at_once_equal_one_by_one(lengths: list[int], method: str,
+                                                     seed: int) -> None:
+    # trajectories of repeated lengths share one spline: each comes out bit for bit as alone
+    rng = np.random.default_rng(seed)
+    trajs = [rng.normal(scale=100.0, size=(n + 4, 2, 3)) for n in lengths]
+    for t in trajs[::2]:
+        t[2, 1] = np.nan  # a gap inside every window
+    windows = [(0.5 if i % 3 else None, (n + 2) / 2) for i, n in enumerate(lengths)]
+    rates = [2.0] * len(trajs)
+    many = preprocess_many(trajs, rates, windows=windows, max_gap=1, n_points=7, method=method)
+    for row, t, (a, b) in zip(many, trajs, windows, strict=True):
+        one = preprocess(t, 2.0, t_start=a, t_end=b, max_gap=1, n_points=7, method=method)
+        np.testing.assert_array_equal(row, one)
+
+
+def test_many_preprocessed_refuse_mismatched_input() -> None:
+    a = linear_traj(np.arange(10.0))
+    with pytest.raises(InputError, match="different numbers of markers"):
+        preprocess_many([a, a[:, :1]], [1.0, 1.0])
+    with pytest.raises(InputError, match="2 trajectories, 1 rates"):
+        preprocess_many([a, a], [1.0])
+    with pytest.raises(InputError, match="marker 0"):  # one trajectory's own error, as alone
+        holed = a.copy()
+        holed[3:6, 0] = np.nan
+        preprocess_many([a, holed], [1.0, 1.0], max_gap=1)

@@ -148,12 +148,13 @@ def cluster_segments(
     for i, s in enumerate(segments):
         by_pair.setdefault((s.arc.group, s.arc.source, s.arc.target), []).append(i)
     labels = np.zeros(len(segments), dtype=np.int64)
-    vectors: list[np.ndarray] = [np.empty(0)] * len(segments)
+    # every segment at once: segments of the same length share one spline
+    vectors = flatten_segments(segments) if segments else np.zeros((0, 0))
     arcs = []
     total = sum(len(v) for v in by_pair.values())
     done = 0
     for (group, _, _), rows in by_pair.items():
-        x = flatten_segments([segments[i] for i in rows])
+        x = vectors[rows]
         n_skills = len({segments[i].skill for i in rows})
         clusterer = None
         if len(rows) >= max(n_skills + 1, MIN_CLUSTERED):
@@ -178,8 +179,7 @@ def cluster_segments(
         first_seen = {c: k for k, c in enumerate(dict.fromkeys(found.tolist()), start=1)}
         found = np.array([first_seen[c] for c in found.tolist()], dtype=np.int64)
         labels[rows] = found
-        for r, v in zip(rows, x, strict=True):
-            vectors[r] = v
+        x = vectors[rows]
         skills = [segments[i].skill for i in rows]
         first = segments[rows[0]]
         entry: dict[str, Any] = {
@@ -200,7 +200,7 @@ def cluster_segments(
         # mentors move in their own styles: clusters that split a skill by mentor are right
         entry["ari_vs_skill_and_mentor"] = float(adjusted_rand_index(styles, found))
         arcs.append(entry)
-    return ClusteredMotions(segments, labels, np.vstack(vectors)), arcs
+    return ClusteredMotions(segments, labels, vectors), arcs
 
 
 def motions_from_dataset(

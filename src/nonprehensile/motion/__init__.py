@@ -16,6 +16,7 @@ from nonprehensile.motion.trajectory import (
     fill_gaps,
     flatten,
     preprocess,
+    preprocess_many,
     resample,
     unflatten,
 )
@@ -35,6 +36,7 @@ __all__ = [
     "flatten",
     "key_to_int",
     "preprocess",
+    "preprocess_many",
     "quantize",
     "resample",
     "sort_keys",

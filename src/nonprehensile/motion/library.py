@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 from nonprehensile.demonstrations.dataset import Dataset
 from nonprehensile.demonstrations.segment import Segment
 from nonprehensile.errors import InputError
-from nonprehensile.motion.trajectory import preprocess
+from nonprehensile.motion.trajectory import preprocess_many
 from nonprehensile.planning import ReferenceMotion
 
 __all__ = ["ClusteredMotions", "flatten_demonstrations", "flatten_segments", "medoid"]
@@ -35,12 +35,9 @@ def flatten_segments(segments: Sequence[Segment], n_points: int = 400) -> FloatA
     """
     if not segments:
         raise InputError("no segment to flatten")
-    rows = []
-    for s in segments:
-        traj = s.trajectory
-        rows.append(preprocess(traj.positions, traj.rate, max_gap=traj.n_frames,
-                               n_points=n_points))
-    return np.vstack(rows)
+    trajs = [s.trajectory for s in segments]
+    return preprocess_many([t.positions for t in trajs], [t.rate for t in trajs],
+                           max_gap=[t.n_frames for t in trajs], n_points=n_points)
 
 
 def flatten_demonstrations(ds: Dataset) -> tuple[FloatArray, list[str]]:
@@ -56,13 +53,12 @@ def flatten_demonstrations(ds: Dataset) -> tuple[FloatArray, list[str]]:
     """
     if not ds.demonstrations:
         raise InputError("the dataset has no demonstration")
-    rows, skills = [], []
-    for d in ds.demonstrations:
-        t = d.trajectory
-        rows.append(preprocess(t.positions, t.rate, t_start=d.events[0].time,
-                               t_end=d.events[-1].time, max_gap=ds.gap_limit))
-        skills.append(d.skill.name)
-    return np.vstack(rows), skills
+    demos = ds.demonstrations
+    rows = preprocess_many([d.trajectory.positions for d in demos],
+                           [d.trajectory.rate for d in demos],
+                           windows=[(d.events[0].time, d.events[-1].time) for d in demos],
+                           max_gap=ds.gap_limit)
+    return rows, [d.skill.name for d in demos]
 
 
 def medoid(x: FloatArray) -> int:

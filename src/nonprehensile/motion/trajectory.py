@@ -19,6 +19,7 @@ for data too noisy for a spline to be trusted between samples.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -34,6 +35,7 @@ __all__ = [
     "fill_gaps",
     "flatten",
     "preprocess",
+    "preprocess_many",
     "resample",
     "unflatten",
 ]
@@ -386,11 +388,82 @@ def preprocess(
         From :func:`crop`, :func:`fill_gaps`, :func:`resample`: bad rate or window, a gap
         longer than ``max_gap`` (naming the marker and frames), fewer than 2 frames.
     """
+    arr = _crop_and_fill(traj, rate, t_start, t_end, max_gap, method)
+    return flatten(resample(arr, n_points, method=method))
+
+
+def _crop_and_fill(traj: ArrayLike, rate: float, t_start: float | None, t_end: float | None,
+                   max_gap: int, method: Method) -> FloatArray:
+    """:func:`preprocess` before the resampling."""
     arr = _as_traj(traj)
     r = _check_rate(rate)
     if t_start is not None or t_end is not None:
         t0 = 0.0 if t_start is None else t_start
         t1 = (arr.shape[0] - 1) / r if t_end is None else t_end
         arr = crop(arr, t0, t1, r)
-    arr = fill_gaps(arr, max_gap, method=method)
-    return flatten(resample(arr, n_points, method=method))
+    return fill_gaps(arr, max_gap, method=method)
+
+
+def preprocess_many(
+    trajs: Sequence[ArrayLike],
+    rates: Sequence[float],
+    *,
+    windows: Sequence[tuple[float | None, float | None]] | None = None,
+    max_gap: int | Sequence[int] = 0,
+    n_points: int = DEFAULT_N_POINTS,
+    method: Method = "cubic",
+) -> FloatArray:
+    """:func:`preprocess` of several demonstrations, the same vectors bit for bit, faster.
+
+    Trajectories with the same number of frames (after cropping) are resampled by one
+    spline through all their markers: a spline's coefficients and values are computed column
+    by column, so each column comes out as alone, and a demonstration set has far fewer
+    distinct lengths than trajectories (the bundled cube's 660 segments have 142), which saves
+    most of the splines' set-up (issue 16).
+
+    Parameters
+    ----------
+    trajs : sequence of array_like, each shape (n_frames_i, n_markers, 3)
+    rates : sequence of float
+        Each trajectory's sample rate in Hz.
+    windows : sequence of (t_start, t_end), optional
+        Each trajectory's window (default: whole recordings).
+    max_gap : int or sequence of int
+        One gap limit for all, or one per trajectory.
+
+    Returns
+    -------
+    array, shape (n_trajectories, n_points * n_markers * 3)
+        Row ``i`` equals ``preprocess(trajs[i], rates[i], ...)``.
+
+    Raises
+    ------
+    InputError
+        As :func:`preprocess`, or if the trajectories do not all have the same number of
+        markers, or the sequences differ in length.
+    """
+    n = len(trajs)
+    gaps = [max_gap] * n if isinstance(max_gap, int) else list(max_gap)
+    spans = list(windows) if windows is not None else [(None, None)] * n
+    if not len(rates) == len(gaps) == len(spans) == n:
+        raise InputError(f"one rate, gap limit and window per trajectory: {n} trajectories, "
+                         f"{len(rates)} rates, {len(gaps)} gap limits, {len(spans)} windows")
+    n_out = _check_count(n_points, "n_points", 2)
+    how = _check_method(method)
+    arrs = [_crop_and_fill(t, r, a, b, g, how)
+            for t, r, (a, b), g in zip(trajs, rates, spans, gaps, strict=True)]
+    markers = {a.shape[1] for a in arrs}
+    if len(markers) > 1:
+        raise InputError(f"the trajectories have different numbers of markers {sorted(markers)}"
+                         "; their vectors would have different lengths")
+    k = markers.pop() if markers else 0
+    out = np.empty((n, n_out * k * 3))
+    by_length: dict[int, list[int]] = {}
+    for i, a in enumerate(arrs):
+        by_length.setdefault(a.shape[0], []).append(i)
+    for rows in by_length.values():
+        together = resample(np.concatenate([arrs[i] for i in rows], axis=1), n_out,
+                            method=how)
+        for j, i in enumerate(rows):
+            out[i] = flatten(together[:, j * k : (j + 1) * k])
+    return out
