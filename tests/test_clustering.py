@@ -358,6 +358,33 @@ def test_histogram_counts_match_the_clusters() -> None:
     assert len(fig.axes) == 2
 
 
+def test_histogram_panels_name_their_shared_scale_once() -> None:
+    """Clusters above, true classes below, on one x scale: its numbers and name are shown
+    under the lower panel only (issue 16); the upper keeps its tick marks at the same places.
+    Alone (no truth), the one panel has both."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from nonprehensile.viz.clusters import cluster_histogram_figure
+
+    x, y = _skill_trajectories(30, seed=15)
+    c = HilbertClusterer(2, method="paper", random_state=0).fit(x)
+    fig = cluster_histogram_figure(c, truth=y.tolist())
+    FigureCanvasAgg(fig).draw()
+    upper, lower = fig.axes
+
+    def shown(ax: object) -> list[str]:
+        return [t.get_text() for t in ax.xaxis.get_ticklabels()  # type: ignore[attr-defined]
+                if t.get_visible() and t.get_text()]
+
+    assert shown(upper) == [] and upper.get_xlabel() == ""
+    assert shown(lower) and lower.get_xlabel() == "Hilbert index"
+    assert list(upper.get_xticks()) == list(lower.get_xticks())
+    assert all(t.tick1line.get_visible() for t in upper.xaxis.get_major_ticks())
+    (alone,) = cluster_histogram_figure(c).axes
+    FigureCanvasAgg(alone.figure).draw()
+    assert shown(alone) and alone.get_xlabel() == "Hilbert index"
+
+
 def test_histogram_draws_what_matplotlibs_stairs_draws() -> None:
     """The key histogram's step patches are added without growing the axes' limits around
     each (issue 16: the limits are set from the counts): the picture is, pixel for pixel,
