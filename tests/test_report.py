@@ -188,6 +188,26 @@ def test_filmstrip_is_its_frames_pixel_for_pixel() -> None:
         np.testing.assert_array_equal(img[y:y + 40, x:x + 60], frame)
 
 
+def test_report_filmstrip_is_matplotlibs_picture_without_its_compositing() -> None:
+    """The report's filmstrip PNG (frames copied into the captions' pixels, issue 16) is, pixel
+    for pixel, the figure matplotlib draws with the frames placed by ``figimage``."""
+    import io as _io
+
+    import numpy as np
+    from PIL import Image
+
+    from nonprehensile.viz.physics import filmstrip_figure, filmstrip_png
+    from nonprehensile.viz.report import figure_to_png
+
+    rng = np.random.default_rng(4)
+    frames = [rng.integers(0, 256, size=(30, 50, 3), dtype=np.uint8) for _ in range(7)]
+    caps = [f"step {i // 3 + 1}, t = {i:.2f} s" for i in range(7)]
+    ours = np.asarray(Image.open(_io.BytesIO(filmstrip_png(frames, caps, per_row=3))))
+    ref = np.asarray(Image.open(_io.BytesIO(
+        figure_to_png(filmstrip_figure(frames, caps, per_row=3), dpi=80))))
+    np.testing.assert_array_equal(ours, ref)
+
+
 @settings(max_examples=40, deadline=None)
 @given(st.integers(1, 40), st.integers(1, 40), st.sampled_from([3, 4]), st.integers(0, 2**31))
 def test_png_bytes_decode_to_the_same_pixels(h: int, w: int, channels: int, seed: int) -> None:

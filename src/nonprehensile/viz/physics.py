@@ -16,13 +16,38 @@ import numpy as np
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import Plan
 from nonprehensile.viz._figures import new_figure
-from nonprehensile.viz.report import Section, figure_to_png
+from nonprehensile.viz.report import Section, figure_pixels, png_bytes
 
-__all__ = ["FRAME_SIZE", "filmstrip_figure", "physics_section"]
+__all__ = ["FRAME_SIZE", "filmstrip_figure", "filmstrip_png", "physics_section"]
 
 
 #: Pixels of one filmstrip frame: six to a row fill the report's page at its 80 dpi.
 FRAME_SIZE = (176, 132)
+
+
+def _filmstrip_layout(frames: Sequence[Any], captions: Sequence[str], *, per_row: int,
+                      dpi: float) -> tuple[Any, Any, list[tuple[int, int]]]:
+    """A figure the mosaic's size holding the captions, the mosaic (RGB, white between the
+    tiles) and each frame's top left corner in it (pixels, rows down)."""
+    n = len(frames)
+    rows = (n + per_row - 1) // per_row
+    cols = min(n, per_row)
+    h, w = np.asarray(frames[0]).shape[:2]
+    gap, band = max(2, w // 40), max(16, h // 8)  # between tiles; above each for its caption
+    cell_h, cell_w = band + h + gap, w + gap
+    mosaic = np.full((rows * cell_h, cols * cell_w, 3), 255, dtype=np.uint8)
+    height, width = mosaic.shape[:2]
+    fig = new_figure(figsize=(width / dpi, height / dpi), dpi=dpi)
+    corners = []
+    for i, (img, cap) in enumerate(zip(frames, captions, strict=True)):
+        r, c = divmod(i, per_row)
+        y, x = r * cell_h + band, c * cell_w
+        mosaic[y:y + h, x:x + w] = np.asarray(img)[..., :3]
+        corners.append((y, x))
+        # figure fractions from the top left (the mosaic's rows run downwards)
+        fig.text((x + w / 2) / width, 1.0 - (y - 2) / height, cap, ha="center", va="bottom",
+                 fontsize=7)
+    return fig, mosaic, corners
 
 
 def filmstrip_figure(frames: Sequence[Any], captions: Sequence[str], *, per_row: int = 6,
@@ -33,27 +58,28 @@ def filmstrip_figure(frames: Sequence[Any], captions: Sequence[str], *, per_row:
     for pixel (``figimage``: no axes, nothing resampled), captions above each tile: no
     per-frame axes and no layout engine to run (a dozen axes and ``tight_layout`` cost 0.3 s,
     one axes and ``imshow`` 30 ms: issue 16). Saved at ``dpi``, the figure is the tiled
-    image.
+    image. The report writes the same pixels with :func:`filmstrip_png`.
     """
-    n = len(frames)
-    rows = (n + per_row - 1) // per_row
-    cols = min(n, per_row)
-    h, w = np.asarray(frames[0]).shape[:2]
-    gap, band = max(2, w // 40), max(16, h // 8)  # between tiles; above each for its caption
-    cell_h, cell_w = band + h + gap, w + gap
-    mosaic = np.full((rows * cell_h, cols * cell_w, 3), 255, dtype=np.uint8)
-    height, width = mosaic.shape[:2]
-    fig = new_figure(figsize=(width / dpi, height / dpi), dpi=dpi)
-    for i, (img, cap) in enumerate(zip(frames, captions, strict=True)):
-        r, c = divmod(i, per_row)
-        y, x = r * cell_h + band, c * cell_w
-        mosaic[y:y + h, x:x + w] = np.asarray(img)[..., :3]
-        # figure fractions from the top left (the mosaic's rows run downwards)
-        fig.text((x + w / 2) / width, 1.0 - (y - 2) / height, cap, ha="center", va="bottom",
-                 fontsize=7)
+    fig, mosaic, _ = _filmstrip_layout(frames, captions, per_row=per_row, dpi=dpi)
     # interpolation "none": Agg draws the pixels as they are (any other resamples at 1:1)
     fig.figimage(mosaic, origin="upper", interpolation="none")
     return fig
+
+
+def filmstrip_png(frames: Sequence[Any], captions: Sequence[str], *, per_row: int = 6,
+                  dpi: int = 80) -> bytes:
+    """:func:`filmstrip_figure` as the report's PNG (:func:`figure_to_png`), the same pixels.
+
+    Matplotlib draws the captions alone; the frames are then copied into its pixels as they
+    are, which is what ``figimage`` without resampling draws, less Agg's compositing of a
+    1080 x 300 image (issue 16).
+    """
+    fig, _, corners = _filmstrip_layout(frames, captions, per_row=per_row, dpi=dpi)
+    pixels = figure_pixels(fig, dpi)
+    for img, (y, x) in zip(frames, corners, strict=True):
+        rgb = np.asarray(img)[..., :3]
+        pixels[y:y + rgb.shape[0], x:x + rgb.shape[1], :3] = rgb
+    return png_bytes(pixels)
 
 
 def physics_section(
@@ -117,7 +143,7 @@ def physics_section(
     frames: list[Any] = got or []
     captions = [f"step {i + 1}, t = {t:.2f} s" for i, _, times in shown for t in times]
     if frames:
-        section.figures.append((figure_to_png(filmstrip_figure(frames, captions)),
+        section.figures.append((filmstrip_png(frames, captions),
                                 "Filmstrip of the simulated plan (offscreen MuJoCo rendering)."))
     else:
         section.paragraphs.append(f"No pictures: {note or 'nothing to draw'}; the physics "

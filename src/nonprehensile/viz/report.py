@@ -24,8 +24,8 @@ if TYPE_CHECKING:
     from matplotlib.text import Text
     from numpy.typing import NDArray
 
-__all__ = ["MIN_TEXT_PX", "PAGE_WIDTH_PX", "HtmlFigure", "Section", "figure_to_png",
-           "png_bytes", "readable", "render_report", "write_report"]
+__all__ = ["MIN_TEXT_PX", "PAGE_WIDTH_PX", "HtmlFigure", "Section", "figure_pixels",
+           "figure_to_png", "png_bytes", "readable", "render_report", "write_report"]
 
 _STYLE = """
 body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 2em auto;
@@ -179,6 +179,12 @@ def figure_to_png(fig: Figure, dpi: int = 80) -> bytes:
     laid out and drawn unhinted (:data:`TEXT_HINTING`), and an opaque figure is written as
     RGB by :func:`png_bytes` (issue 16).
     """
+    return png_bytes(figure_pixels(fig, dpi))
+
+
+def figure_pixels(fig: Figure, dpi: int = 80) -> NDArray[np.uint8]:
+    """The pixels :func:`figure_to_png` writes: shape (height, width, 3), or 4 where the
+    figure is not opaque; a fresh array the caller may write into."""
     import matplotlib as mpl
     import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -194,8 +200,7 @@ def figure_to_png(fig: Figure, dpi: int = 80) -> bytes:
         canvas.draw()
     rgba = np.asarray(canvas.buffer_rgba())
     # the page is opaque: RGB without the alpha channel
-    pixels = rgba[..., :3] if rgba[..., 3].min() == 255 else rgba
-    return png_bytes(pixels)
+    return np.array(rgba[..., :3] if rgba[..., 3].min() == 255 else rgba)
 
 
 def png_bytes(pixels: NDArray[np.uint8], level: int = PNG_COMPRESS_LEVEL) -> bytes:
