@@ -71,3 +71,47 @@ def test_c3d_answer_round_trip_and_damage() -> None:
                    struct.pack("<Q", head_len + 10**6) + payload[8:]):
         with pytest.raises(DemonstrationError, match=r"f\.c3d: the C3D reader's answer"):
             _unpack(Path("f.c3d"), broken)
+
+
+def test_collector_spared_skips_the_objects_alive_and_collects_the_rest() -> None:
+    """The report's block (issue 16): what is alive on entry is frozen (full collections do
+    not walk it), garbage made inside is still collected, and on exit the frozen objects are
+    the collector's again (a cycle that died inside is collected then); where objects were
+    already frozen, the block leaves the freeze as it found it."""
+    import gc
+    import weakref
+
+    from nonprehensile.pipeline import collector_spared
+
+    if gc.get_freeze_count():
+        pytest.skip("this process has frozen objects already")
+
+    class Node:
+        pass
+
+    def cycle() -> tuple[Node, weakref.ref[Node]]:
+        a, b = Node(), Node()
+        a.other, b.other = b, a  # type: ignore[attr-defined]
+        return a, weakref.ref(a)
+
+    old, old_ref = cycle()
+    with collector_spared():
+        assert gc.get_freeze_count() > 0
+        del old  # a frozen cycle that dies is left alone while frozen
+        gc.collect()
+        assert old_ref() is not None
+        new, new_ref = cycle()
+        del new  # one made inside is collected as usual
+        gc.collect()
+        assert new_ref() is None
+    assert gc.get_freeze_count() == 0
+    gc.collect()
+    assert old_ref() is None
+    gc.freeze()
+    try:
+        frozen = gc.get_freeze_count()
+        with collector_spared():
+            assert gc.get_freeze_count() == frozen
+        assert gc.get_freeze_count() == frozen
+    finally:
+        gc.unfreeze()
