@@ -218,3 +218,24 @@ def test_state_graph_alone_for_the_report() -> None:
     big = expand(poly, skills[:1], states_by_step(poly, 5))
     (alone,) = state_graph_figure(big, matrix=False).axes
     assert len(alone.collections[0].get_paths()) == len(big.transitions)
+
+
+def test_transition_matrix_html_escapes_names_once() -> None:
+    """Face labels and skill names are the user's strings: every one in the table is escaped
+    once (the headers and a cell's title, read back, are the plain text)."""
+    import dataclasses
+
+    from nonprehensile.inference import Expansion
+    from nonprehensile.transitions import TransitionGraph
+
+    poly, skills = read_skills(EXAMPLES / "cube_skills.json")
+    exp = expand(poly, skills[:1], states_by_step(poly, 90))
+    t0 = exp.transitions[0]
+    a, b = State('f<&>"1', 0.0), State("g&amp;", 90.0)
+    odd = dataclasses.replace(t0, skill=dataclasses.replace(t0.skill, name='p<&>"q',
+                                                            initial=a, final=b))
+    markup = transition_matrix_html(Expansion(TransitionGraph([a, b]), [odd], exp.method))
+    cols, rows, cells = _matrix_cells(markup)
+    assert cols == rows == [str(a), str(b)]
+    assert cells[0][1]["title"] == f'{a} -> {b}: p<&>"q'
+    assert "&amp;amp;amp;" not in markup

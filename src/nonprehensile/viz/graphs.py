@@ -301,7 +301,8 @@ def transition_matrix_html(exp: Expansion) -> str:
     for t in exp.transitions:
         if t.start in idx and t.end in idx:
             cells.setdefault((idx[t.start], idx[t.end]), []).append(t)
-    labels = [html.escape(str(s)) for s in states]
+    names_of = [str(s) for s in states]
+    labels = [html.escape(n) for n in names_of]
     head = "".join(f"<th><span>{lab}</span></th>" for lab in labels)
     rows = []
     for i, lab in enumerate(labels):
@@ -315,7 +316,7 @@ def transition_matrix_html(exp: Expansion) -> str:
             stops = ",".join(f"{colors[t.skill.name]} {k * w:.4g}% {(k + 1) * w:.4g}%"
                              for k, t in enumerate(ts))
             shown = ' class="shown"' if any(t.demonstrated for t in ts) else ""
-            title = html.escape(f"{lab} -> {labels[j]}: "
+            title = html.escape(f"{names_of[i]} -> {names_of[j]}: "
                                 + ", ".join(t.skill.name for t in ts), quote=True)
             tds.append(f'<td{shown} title="{title}" '
                        f'style="background:linear-gradient(to right,{stops})"></td>')
