@@ -423,3 +423,25 @@ def test_full_disk_writing_the_report_names_the_file(tmp_path: Path,
     with pytest.raises(InputError, match=r"index\.html: cannot write it: No space left"):
         write_report(tmp_path, "t", "i", [])
     assert not list(tmp_path.iterdir())  # no half-written file left behind
+
+
+@pytest.mark.skipif(not REAL_C3D.is_dir(), reason="../shared/realdata is not beside the repo")
+def test_c3d_worker_answers_with_the_point_group_only() -> None:
+    """Vendors' files carry many parameter groups (analog, force plates, subjects...); the
+    worker sends back the one the reader uses (issue 16), and the reader's result is what
+    ezc3d's full object gives."""
+    import ezc3d
+
+    from nonprehensile.demonstrations.c3d_safe import parse_c3d
+    from nonprehensile.demonstrations.formats import read_c3d
+
+    for name in ("Vicon.c3d", "FP_Type1.c3d", "Qualisys.c3d"):
+        full = ezc3d.c3d(str(REAL_C3D / name))
+        assert len(full["parameters"]) > 2
+        doc = parse_c3d(REAL_C3D / name)
+        assert set(doc["parameters"]) == {"POINT"}
+        for key in ("RATE", "UNITS", "LABELS"):
+            assert list(doc["parameters"]["POINT"][key]["value"]) == list(
+                full["parameters"]["POINT"][key]["value"])
+        traj = read_c3d(REAL_C3D / name)
+        assert traj.n_frames == full["data"]["points"].shape[2]

@@ -15,8 +15,10 @@ The worker is started once per process (about 0.15 s: Python, numpy and ezc3d; t
 as a script there, without the package's imports) and reused for every file; it is stopped when
 the process exits. Its answers come back as raw numpy arrays and JSON (never a pickle; every
 length and dtype checked), in the shape ezc3d's own Python object has:
-``{"header": ..., "parameters": {GROUP: {PARAM: {"value": ...}}}, "data": {"points": ...,
-"meta_points": {"residuals": ...}}}``. Analog data is not transferred.
+``{"header": ..., "parameters": {"POINT": {PARAM: {"value": ...}}}, "data": {"points": ...,
+"meta_points": {"residuals": ...}}}``. Only the ``POINT`` group of the parameters (rate,
+units, labels: what the reader uses) and no analog data are transferred: encoding every
+group of a file took 0.04 s of the 0.07 s spent on the bundled cube's 180 answers (issue 16).
 """
 
 from __future__ import annotations
@@ -248,7 +250,9 @@ def _worker_main() -> None:  # pragma: no cover - runs in the worker process
             c3d = ezc3d.c3d(json.loads(line))
             arrays: dict[str, np.ndarray[Any, Any]] = {}
             doc = {"header": _encode(c3d["header"], arrays),
-                   "parameters": _encode(c3d["parameters"], arrays),
+                   "parameters": _encode({k: c3d["parameters"][k]
+                                          for k in c3d["parameters"].keys()  # noqa: SIM118
+                                          if k == "POINT"}, arrays),
                    "data": {"points": _encode(np.asarray(c3d["data"]["points"]), arrays),
                             "meta_points": _encode(
                                 {k: v for k, v in dict(c3d["data"].get("meta_points", {})
