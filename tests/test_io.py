@@ -65,3 +65,15 @@ def test_states_file(tmp_path: Path) -> None:
     assert read_states(path) == [State("a", 90), State("b", 0)]
     with pytest.raises(InputError, match="entry 1"):
         read_states(write(tmp_path, '[{"face": "a", "theta": 90}, {"face": "b"}]'))
+
+
+def test_json_files_are_read_without_pyyaml() -> None:
+    """PyYAML is imported for YAML files only (10-15 ms of every command: issue 16)."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from nonprehensile.io import load_model; load_model('cube'); "
+            "print('yaml' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=60).stdout
+    assert out.strip() == "False"

@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from nonprehensile.bounds import (
     MAX_DOCUMENT_BYTES,
@@ -73,9 +72,14 @@ def load_document(path: str | Path) -> Any:
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read it: {exc}") from None
     kind = "YAML" if path.suffix.lower() in (".yaml", ".yml") else "JSON"
+    yaml_errors: tuple[type[Exception], ...] = ()
+    if kind == "YAML":
+        import yaml  # only for YAML files: PyYAML's import is 10-15 ms of every command
+
+        yaml_errors = (yaml.YAMLError,)
     try:
         data = yaml.safe_load(text) if kind == "YAML" else json.loads(text)
-    except yaml.YAMLError as exc:
+    except yaml_errors as exc:
         raise InputError(f"{path}: malformed YAML{_yaml_error(exc)}") from None
     except json.JSONDecodeError as exc:
         raise InputError(
@@ -93,7 +97,7 @@ def load_document(path: str | Path) -> Any:
     return check_document(data, str(path))
 
 
-def _yaml_error(exc: yaml.YAMLError) -> str:
+def _yaml_error(exc: Exception) -> str:
     """A YAML error on one line: where, and what (PyYAML's own text spans several lines)."""
     mark = getattr(exc, "problem_mark", None)
     where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
@@ -114,6 +118,8 @@ def save_document(data: Any, path: str | Path) -> None:
     """
     path = check_path(path)
     if path.suffix.lower() in (".yaml", ".yml"):
+        import yaml
+
         text = yaml.safe_dump(data, sort_keys=False)
     else:
         text = json.dumps(data, indent=2) + "\n"
