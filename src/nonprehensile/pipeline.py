@@ -131,9 +131,10 @@ def cluster_segments(
     segments are streamed into a :class:`HilbertClusterer` ``batch`` at a time, in the
     dataset's order (skill after skill: a new skill arrives as new data would).
 
-    Cost: on the bundled cube (660 segments, 14 arcs) about 1.5 s of CPU: the clusterer's
-    207 macro steps, 66 of them searches (the others refit the chosen mixture), and the
-    resampling of every segment. The pipeline takes the clusterer's defaults; the macro
+    Cost: on the bundled cube (660 segments, 14 arcs) about 1 s of CPU: the clusterer's
+    207 macro steps, 65 of them searches (the others refit the chosen mixture), the
+    projection's 58 recalibrations, and the resampling of every segment (all at once:
+    segments of one length share a spline). The pipeline takes the clusterer's defaults; the macro
     step's schedule is the motion model's to tune (``docs/motion-model.md``).
 
     Returns
