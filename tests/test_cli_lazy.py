@@ -158,7 +158,8 @@ run(sys.argv[3:])
 
 def test_script_exit_keeps_code_output_exit_handlers_and_threads(tmp_path: Path) -> None:
     """The script's fast exit (no interpreter teardown: issue 16) keeps the exit code and
-    every byte of the output, runs the exit handlers (the C3D worker is reaped by one), and
+    every byte of the output, runs the exit handlers (the one that stops the C3D worker is
+    registered the same way), and
     where another thread still runs it waits for it, as Python's own exit does."""
     def script(mode: str, *args: str) -> subprocess.CompletedProcess[str]:
         return subprocess.run([sys.executable, "-c", _RUN, str(tmp_path), mode, *args],
@@ -205,3 +206,11 @@ def test_script_starts_openblas_on_one_thread_unless_the_environment_chooses(
     proc = subprocess.run([sys.executable, "-c", _BLAS], capture_output=True, text=True,
                           timeout=60, env={**clean, **env}, check=True)
     assert set(json.loads(proc.stdout)) == threads
+
+
+def test_script_started_without_stdout_exits_cleanly() -> None:
+    """A closed standard output (``>&-``) leaves ``sys.stdout`` None: the script's fast exit
+    takes the ordinary exit then, rather than a traceback on flushing it."""
+    proc = subprocess.run(["sh", "-c", f'"{sys.executable}" -m nonprehensile.cli --version >&-'],
+                          capture_output=False, stderr=subprocess.PIPE, text=True, timeout=60)
+    assert proc.returncode == 0 and "Traceback" not in proc.stderr

@@ -207,6 +207,31 @@ def test_macro_steps_between_searches_refit_the_chosen_mixture() -> None:
         HilbertClusterer(3, search_growth=0.5)
 
 
+def test_a_refit_that_empties_a_cluster_becomes_a_search(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from nonprehensile.motion import summary
+
+    x, _ = _blobs(400, 3, 8, seed=15)
+    c = HilbertClusterer(3, init_size=100, random_state=0)
+    c.partial_fit(x[:100])
+    real = summary.fit_mixture
+
+    def emptied(*args: object, **kw: object) -> object:
+        mix = real(*args, **kw)  # type: ignore[arg-type]
+        labels = mix.labels.copy()
+        labels[labels == 1] = 0  # clusters {0, 2}: the middle one left empty
+        return summary.Mixture(mix.covariance_type, mix.weights, mix.means,
+                               mix.covariances, mix.log_likelihood, mix.bic, labels)
+
+    monkeypatch.setattr(summary, "fit_mixture", emptied)
+    m = c._micro
+    searches, refits = m.n_searches, m.n_refits
+    c.partial_fit(x[100:130])  # macro steps due, no recalibration: refits, all refused
+    assert m.n_macro_steps > 1 and m.n_refits == refits and m.n_searches > searches
+    assert c.n_clusters_ == 3
+
+
 def test_the_search_for_the_number_of_clusters_stops_past_the_minimum(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:

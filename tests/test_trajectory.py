@@ -358,3 +358,15 @@ def test_many_preprocessed_refuse_mismatched_input() -> None:
         holed = a.copy()
         holed[3:6, 0] = np.nan
         preprocess_many([a, holed], [1.0, 1.0], max_gap=1)
+
+
+def test_many_preprocessed_take_numpy_gap_limits() -> None:
+    a = linear_traj(np.arange(10.0))
+    holed = a.copy()
+    holed[3, 0] = np.nan
+    np.testing.assert_array_equal(preprocess_many([holed], [1.0], max_gap=np.int64(1))[0],
+                                  preprocess(holed, 1.0, max_gap=1))
+    with pytest.raises(InputError, match="max_gap"):
+        preprocess_many([a], [1.0], max_gap=1.5)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="max_gap"):
+        preprocess_many([a], [1.0], max_gap=True)

@@ -176,6 +176,8 @@ def run(args: Sequence[str] | None = None) -> NoReturn:
             t.is_alive() and not t.daemon for t in threading.enumerate()
             if t is not threading.main_thread()):
         sys.exit(code)  # a message to print, or threads to wait for: the ordinary exit
+    if sys.stdout is None or sys.stderr is None:
+        sys.exit(code)  # started without a standard stream: nothing to flush, the ordinary exit
     try:
         sys.stdout.flush()
         sys.stderr.flush()
@@ -185,7 +187,7 @@ def run(args: Sequence[str] | None = None) -> NoReturn:
     try:
         sys.stdout.flush()
         sys.stderr.flush()
-    except (OSError, ValueError):  # pragma: no cover - an exit handler closed a stream
+    except (OSError, ValueError, AttributeError):  # pragma: no cover - a handler closed one
         pass
     os._exit(code)
 

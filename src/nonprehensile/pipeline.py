@@ -131,6 +131,8 @@ def cluster_segments(
     segments are streamed into a :class:`HilbertClusterer` ``batch`` at a time, in the
     dataset's order (skill after skill: a new skill arrives as new data would).
 
+    Every segment must have the same markers (the vectors of all arcs form one array).
+
     Cost: on the bundled cube (660 segments, 14 arcs) about 1 s of CPU: the clusterer's
     207 macro steps, 65 of them searches (the others refit the chosen mixture), the
     projection's 58 recalibrations, and the resampling of every segment (all at once:
@@ -181,7 +183,6 @@ def cluster_segments(
         first_seen = {c: k for k, c in enumerate(dict.fromkeys(found.tolist()), start=1)}
         found = np.array([first_seen[c] for c in found.tolist()], dtype=np.int64)
         labels[rows] = found
-        x = vectors[rows]
         skills = [segments[i].skill for i in rows]
         first = segments[rows[0]]
         entry: dict[str, Any] = {

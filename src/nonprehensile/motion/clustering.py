@@ -246,8 +246,10 @@ class HilbertClusterer:
     Parameters
     ----------
     n_clusters : int or None
-        Number of clusters; ``None`` chooses it (2..``max_auto_clusters``) by the silhouette
-        score at every recalibration.
+        Number of clusters; ``None`` chooses it: micro, by the lowest BIC at each search of
+        the macro step (1, 2, ... clusters until two numbers in a row do not lower it, at most
+        ``max_auto_clusters``); runs and paper, by the silhouette score (2..
+        ``max_auto_clusters``) at every recalibration.
     method : {"micro", "runs", "paper"}
         ``"micro"`` (ours, the default), ``"runs"`` (our earlier method) or ``"paper"``
         (the paper's recipe); see the module notes.
@@ -289,7 +291,7 @@ class HilbertClusterer:
     max_new_runs : int
         Runs only: most provisional runs opened by novel samples between recalibrations.
     max_auto_clusters : int
-        Largest number of clusters tried when ``n_clusters=None``.
+        Largest number of clusters considered when ``n_clusters=None``.
     merge : {"ward", "kmeans", "auto"}
         Runs only: how runs are merged into clusters (see the module notes).
     variance : float

@@ -374,7 +374,9 @@ def fit_mixtures(z: FloatArray, weights: FloatArray, scatter: FloatArray,
     """:func:`fit_mixture` from each of ``inits``, the mixtures fitted side by side.
 
     Starts with the same number of clusters run their EM steps as one stacked computation,
-    each stopping at its own convergence: the same fits as one by one, at a fraction of the
+    each stopping at its own convergence: the same fits as one by one (to rounding: stacked
+    products may round differently in the last bits, so a start within a rounding error of
+    its tolerance can take one step more or less), at a fraction of the
     per-step overhead that dominates on a summary of a few hundred points (issue 16).
     """
     n, k = z.shape

@@ -23,7 +23,10 @@ merges to half, and the absorb radius grows to the typical radius of what was me
 agglomeration gives the starts, Gaussian mixtures with spherical, diagonal, tied and full
 covariances are fitted by EM (each micro-cluster's scatter counts), the lowest BIC wins, and
 its clusters are matched to the previous ids by the Hungarian method on the samples they
-share. The projection is recalibrated on a reservoir sample when the count has grown by
+share. Only some macro steps search (the first, those after a recalibration, those novel
+micro-clusters bring forward, and one each time the count has grown by ``search_growth``);
+the others refit the chosen mixture by EM from the current partition. The projection is
+recalibrated on a reservoir sample when the count has grown by
 ``growth`` or when the reconstruction residual of recent samples drifts above the one at the
 calibration; micro-clusters are re-projected from their full-space centroids, never sample
 by sample.
@@ -613,7 +616,9 @@ class MicroSummary:
                 and n_pts > c_prev):
             mix = fit_mixture(z, w, scatter, previous.astype(np.int64),
                               self.covariance_type)  # type: ignore[arg-type]
-            if int(mix.labels.max()) + 1 == c_prev:
+            # every cluster must keep a micro-cluster: one left empty would lower the number
+            # of clusters (a given n_clusters included) until the next search
+            if np.unique(mix.labels).size == c_prev:
                 self.n_refits += 1
                 self._relabel(live, w, mix, spacing=False)
                 return

@@ -443,7 +443,12 @@ def preprocess_many(
         markers, or the sequences differ in length.
     """
     n = len(trajs)
-    gaps = [max_gap] * n if isinstance(max_gap, int) else list(max_gap)
+    if isinstance(max_gap, (int, np.integer)):
+        gaps = [max_gap] * n  # each checked by fill_gaps, as preprocess does
+    elif isinstance(max_gap, Sequence) and not isinstance(max_gap, str):
+        gaps = list(max_gap)
+    else:
+        raise InputError(f"max_gap must be an integer or one per trajectory, got {max_gap!r}")
     spans = list(windows) if windows is not None else [(None, None)] * n
     if not len(rates) == len(gaps) == len(spans) == n:
         raise InputError(f"one rate, gap limit and window per trajectory: {n} trajectories, "

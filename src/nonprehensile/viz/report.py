@@ -178,6 +178,11 @@ def figure_to_png(fig: Figure, dpi: int = 80) -> bytes:
     figure is drawn once (a constrained layout otherwise costs a second full draw). Text is
     laid out and drawn unhinted (:data:`TEXT_HINTING`), and an opaque figure is written as
     RGB by :func:`png_bytes` (issue 16).
+
+    The figure is drawn as the report shows it and keeps what that changed: its texts raised
+    to the page's smallest size, its dpi set to ``dpi``, the axes of axes switched off hidden
+    for good (no ticks made for them), and its layout engine off. ``savefig``'s own settings
+    (``facecolor``, ``transparent``) do not apply: draw a copy for other uses.
     """
     return png_bytes(figure_pixels(fig, dpi))
 
