@@ -799,12 +799,9 @@ def _read(
 
 
 def _select(traj: MarkerTrajectory, names: Sequence[str]) -> MarkerTrajectory:
-    """The markers that matter, in the order of ``names`` (the dataset's, whatever order a
-    file exports them in: every demonstration's flattened vector must put the same marker at
-    the same place); the others are dropped. Every name is in the recording (checked before).
-    """
-    keep = [traj.marker_names.index(n) for n in dict.fromkeys(names)]
-    if keep == list(range(traj.n_markers)):
+    """The markers that matter, in the recording's order; the others are dropped."""
+    keep = [k for k, n in enumerate(traj.marker_names) if n in set(names)]
+    if len(keep) == traj.n_markers:
         return traj
     return MarkerTrajectory(traj.positions[:, keep], tuple(traj.marker_names[k] for k in keep),
                             traj.rate, traj.units, traj.rigid_bodies)
