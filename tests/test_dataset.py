@@ -204,6 +204,19 @@ def _rewrite(root: Path, index: int, change: Callable[[np.ndarray], None],
     write_c3d(MarkerTrajectory(pos, names or t.marker_names, t.rate, t.units), path)
 
 
+def test_markers_exported_in_another_order_are_put_in_the_datasets(ds_dir: Path) -> None:
+    before = load_dataset(ds_dir).demonstrations[5].trajectory
+    doc = json.loads((ds_dir / "annotations.json").read_text())
+    path = ds_dir / doc["demonstrations"][5]["file"]
+    t = read_c3d(path)
+    order = list(range(t.n_markers))[::-1]
+    write_c3d(MarkerTrajectory(np.array(t.positions)[:, order],
+                               tuple(t.marker_names[k] for k in order), t.rate, t.units), path)
+    after = load_dataset(ds_dir).demonstrations[5].trajectory
+    assert after.marker_names == before.marker_names
+    np.testing.assert_array_equal(after.positions, before.positions)
+
+
 def test_marker_missing_beyond_the_gap_limit(ds_dir: Path) -> None:
     def gap(p: np.ndarray) -> None:
         p[30:43, 2] = np.nan  # 13 frames > gap limit 12

@@ -673,6 +673,7 @@ def check_dataset(
     items: list[Any] = data["demonstrations"]
     demos: list[Demonstration] = []
     seen: dict[str, int] = {}
+    order: list[str] | None = None  # the dataset's marker order (below)
     for i, item in enumerate(items):
         if progress is not None:
             progress(i, len(items))
@@ -723,7 +724,13 @@ def check_dataset(
             out.add(*where, f"rigid body {settings.rigid_body_name!r} ('rigid_body') is not in the "
                             f"recording, which has {[b.name for b in traj.rigid_bodies] or 'none'}")
         ignored.update(dict.fromkeys(m for m in traj.marker_names if m not in settings.markers))
-        traj = _select(traj, settings.markers)
+        if order is None and not missing:
+            # the dataset's marker order: the first complete recording's. Every other one is
+            # put in it, whatever order its file exports them in, so that the same marker
+            # sits at the same place in every flattened vector
+            order = [m for m in traj.marker_names if m in settings.markers]
+        traj = _select(traj, order if order is not None else
+                       [m for m in traj.marker_names if m in settings.markers])
         if skill is not None:
             used = sorted({f"R{p.x.index}" for e in skill.events for p in e.pairs
                            if isinstance(p.x, Finger)})
@@ -799,9 +806,10 @@ def _read(
 
 
 def _select(traj: MarkerTrajectory, names: Sequence[str]) -> MarkerTrajectory:
-    """The markers that matter, in the recording's order; the others are dropped."""
-    keep = [k for k, n in enumerate(traj.marker_names) if n in set(names)]
-    if len(keep) == traj.n_markers:
+    """The markers of ``names`` the recording has, in the order of ``names``; the others are
+    dropped."""
+    keep = [traj.marker_names.index(n) for n in dict.fromkeys(names) if n in traj.marker_names]
+    if keep == list(range(traj.n_markers)):
         return traj
     return MarkerTrajectory(traj.positions[:, keep], tuple(traj.marker_names[k] for k in keep),
                             traj.rate, traj.units, traj.rigid_bodies)
