@@ -251,8 +251,9 @@ def motions_from_dataset(
 #: Bumped when what the cache holds changes shape, or when the clusterer's defaults change the
 #: clusters it builds (2: issue 14's macro-step schedule and components), so that a library
 #: cached by an older clustering is rebuilt even though the dataset's files did not change
-#: (3: macro steps between searches refit the chosen mixture).
-_CACHE_FORMAT = "motions/3"
+#: (3: macro steps between searches refit the chosen mixture; 4: every recording's markers in
+#: the dataset's one order, so a library built from files of mixed orders is rebuilt).
+_CACHE_FORMAT = "motions/4"
 
 
 def cache_dir() -> Path:
