@@ -136,8 +136,8 @@ def cluster_segments(
     Cost: on the bundled cube (660 segments, 14 arcs) about 1 s of CPU: the clusterer's
     207 macro steps, 65 of them searches (the others refit the chosen mixture), the
     projection's 58 recalibrations, and the resampling of every segment (all at once:
-    segments of one length share a spline). The pipeline takes the clusterer's defaults; the macro
-    step's schedule is the motion model's to tune (``docs/motion-model.md``).
+    segments of one length share a spline). The pipeline takes the clusterer's defaults;
+    the macro step's schedule is the motion model's to tune (``docs/motion-model.md``).
 
     Returns
     -------

@@ -724,13 +724,13 @@ def check_dataset(
             out.add(*where, f"rigid body {settings.rigid_body_name!r} ('rigid_body') is not in the "
                             f"recording, which has {[b.name for b in traj.rigid_bodies] or 'none'}")
         ignored.update(dict.fromkeys(m for m in traj.marker_names if m not in settings.markers))
+        own = [m for m in traj.marker_names if m in settings.markers]
         if order is None and not missing:
             # the dataset's marker order: the first complete recording's. Every other one is
             # put in it, whatever order its file exports them in, so that the same marker
             # sits at the same place in every flattened vector
-            order = [m for m in traj.marker_names if m in settings.markers]
-        traj = _select(traj, order if order is not None else
-                       [m for m in traj.marker_names if m in settings.markers])
+            order = own
+        traj = _select(traj, order if order is not None else own)
         if skill is not None:
             used = sorted({f"R{p.x.index}" for e in skill.events for p in e.pairs
                            if isinstance(p.x, Finger)})

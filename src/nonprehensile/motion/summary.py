@@ -91,11 +91,10 @@ except ImportError:  # pragma: no cover - other numpy layouts
 
 
 def _rows(arr: FloatArray, idx: IntArray) -> FloatArray:
-    """``arr[idx]``, as a view when ``idx`` is a run of consecutive rows (the live slots of a
-    summary that was never compacted): the feature space is wide, and a copy of a few hundred
-    of its rows costs a page fault per 4 KiB."""
-    if idx.size and int(idx[-1]) - int(idx[0]) == idx.size - 1 and bool(
-            (np.diff(idx) == 1).all()):
+    """``arr[idx]`` for strictly increasing ``idx``, as a view when the rows are consecutive
+    (the live slots of a summary that was never compacted): the feature space is wide, and a
+    copy of a few hundred of its rows costs a page fault per 4 KiB."""
+    if idx.size and int(idx[-1]) - int(idx[0]) == idx.size - 1:
         return arr[int(idx[0]) : int(idx[-1]) + 1]
     return arr[idx]
 
@@ -594,7 +593,7 @@ class MicroSummary:
         last search chose is refitted by EM from the current partition (one fit instead of
         hundreds); it falls back to a search when there is nothing to refit (no search yet,
         or provisional clusters opened since, so the partition no longer has the chosen
-        number of clusters).
+        number of clusters) or when the refit leaves a cluster empty.
         """
         with one_thread():
             self._macro(search)
@@ -639,7 +638,7 @@ class MicroSummary:
                 break
             best_before = best.bic if best is not None else math.inf
             starts = [ward_partition(merges, n_pts, c)]
-            if int(previous.max()) + 1 == c:
+            if c_prev == c:
                 starts.append(previous.astype(np.int64))  # the last macro step's clusters
             starts += _kmeans_starts(z, w, c, self.n_starts, self.seed + self.n_macro_steps)
             # a start equal to an earlier one gives the same fit, which can never be chosen
