@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from rich.table import Table
 
 from nonprehensile.bounds import check_path
-from nonprehensile.cli_common import emit_json, handle_errors, out, progress_bar
+from nonprehensile.cli.common import emit_json, handle_errors, out, progress_bar
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.store import SampleStore

@@ -1,5 +1,5 @@
 """``nonprehensile skills``, ``infer`` and ``plan``: from skills to a plan (``demo`` is in
-:mod:`nonprehensile.cli_demo`).
+:mod:`nonprehensile.cli.demo`).
 
 Registered in :data:`nonprehensile.cli.COMMANDS`.
 """
@@ -11,8 +11,8 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out, stage_bars
-from nonprehensile.cli_options import (
+from nonprehensile.cli.common import emit_json, err, fmt_num, handle_errors, out, stage_bars
+from nonprehensile.cli.options import (
     angle_tol_option,
     atol_option,
     json_option,

@@ -11,8 +11,8 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out
-from nonprehensile.cli_options import (
+from nonprehensile.cli.common import emit_json, err, fmt_num, handle_errors, out
+from nonprehensile.cli.options import (
     angle_tol_option,
     atol_option,
     json_option,

@@ -14,8 +14,8 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, handle_errors, out, progress_bar, stage_bars
-from nonprehensile.cli_options import (
+from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar, stage_bars
+from nonprehensile.cli.options import (
     angle_tol_option,
     json_option,
     parse_state,
