@@ -49,7 +49,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
                 "Demonstration datasets: generate a synthetic one, or show one."),
     "demo": ("nonprehensile.cli.demo:demo",
              "The main job: the whole pipeline on a dataset, ending in an HTML report."),
-    "infer": ("nonprehensile.cli.plan:infer_cmd",
+    "infer": ("nonprehensile.cli.infer:infer_cmd",
               "Infer undemonstrated transitions of SKILLS_FILE over a state set (paper "
               "Section V)."),
     "object": ("nonprehensile.cli.object:object_group",
@@ -62,9 +62,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("nonprehensile.cli.sim:simulate_group",
                  "Execute demonstrations, inferred transitions and plans in the MuJoCo "
                  "simulation."),
-    "skills": ("nonprehensile.cli.plan:skills_group",
+    "skills": ("nonprehensile.cli.skills:skills_group",
                "Demonstrated skills: contact events, motions and skill graphs."),
-    "states": ("nonprehensile.cli.object:states_cmd",
+    "states": ("nonprehensile.cli.states:states_cmd",
                "The stable states of MODEL and their geometric-equivalence classes."),
 }
 
