@@ -28,15 +28,16 @@ import numpy as np
 
 from nonprehensile.demonstrations.dataset import Dataset, load_dataset
 from nonprehensile.demonstrations.segment import Segment, segment_dataset
+from nonprehensile.equivalence import equivalence_classes
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
-from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
+from nonprehensile.geometry.symmetry import rotation_group
 from nonprehensile.inference import cross_check, expand
 from nonprehensile.io import write_text_file
 from nonprehensile.motion.clustering import HilbertClusterer
-from nonprehensile.motion.library import ClusteredMotions, flatten_segments
 from nonprehensile.motion.microcluster import one_thread
 from nonprehensile.planning import Plan, plan
+from nonprehensile.references import ClusteredMotions, flatten_segments
 from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State, stable_faces, states_by_step
 
@@ -248,8 +249,9 @@ def motions_from_dataset(
 #: clusters it builds (2: issue 14's macro-step schedule and components), so that a library
 #: cached by an older clustering is rebuilt even though the dataset's files did not change
 #: (3: macro steps between searches refit the chosen mixture; 4: every recording's markers in
-#: the dataset's one order, so a library built from files of mixed orders is rebuilt).
-_CACHE_FORMAT = "motions/4"
+#: the dataset's one order, so a library built from files of mixed orders is rebuilt; 5: the
+#: library's class moved to nonprehensile.references, which old pickles do not name).
+_CACHE_FORMAT = "motions/5"
 
 
 def cache_dir() -> Path:

@@ -20,7 +20,7 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
-from nonprehensile.geometry.symmetry import equivalence_classes
+from nonprehensile.equivalence import equivalence_classes
 
 __all__ = ["states_cmd"]
 

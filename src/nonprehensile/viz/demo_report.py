@@ -17,8 +17,8 @@ from typing import Any
 from nonprehensile.demonstrations.dataset import Dataset
 from nonprehensile.demonstrations.segment import Segment
 from nonprehensile.inference import Expansion
-from nonprehensile.motion.library import ClusteredMotions
 from nonprehensile.planning import Plan
+from nonprehensile.references import ClusteredMotions
 from nonprehensile.skills.contacts import format_event
 from nonprehensile.viz.report import HtmlFigure, Section, figure_to_png, write_report
 
