@@ -23,6 +23,7 @@ from rich.table import Table
 
 from nonprehensile.bounds import check_path
 from nonprehensile.cli.common import emit_json, handle_errors, out, progress_bar
+from nonprehensile.cli.options import SEED, count
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.store import SampleStore
@@ -247,11 +248,11 @@ def cluster_group() -> None:
               show_default=True,
               help="micro: ours (micro-cluster summary); runs: our earlier key runs; paper: "
                    "the paper's recipe.")
-@click.option("--n-clusters", type=int, default=None,
+@click.option("--n-clusters", type=count(1, 10**7), default=None,
               help="Number of clusters (default: chosen by the silhouette).")
-@click.option("--init-size", type=int, default=None,
+@click.option("--init-size", type=count(1, 10**9), default=None,
               help="Samples of the first batch (default: all given here).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed.")
 @json_option
 @handle_errors
 def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str,

@@ -14,7 +14,15 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from nonprehensile.checks import DEFAULT_ANGLE_TOL, DEFAULT_RTOL, Range
+from nonprehensile.checks import (
+    ANGLE_TOL_RANGE,
+    DEFAULT_ANGLE_TOL,
+    DEFAULT_RTOL,
+    LENGTH_RANGE,
+    RTOL_RANGE,
+    STEP_RANGE,
+    Range,
+)
 from nonprehensile.errors import InputError
 
 if TYPE_CHECKING:
@@ -22,6 +30,15 @@ if TYPE_CHECKING:
     from nonprehensile.states import State
 
 __all__ = [
+    "ANGLE",
+    "ANGLE_TOL",
+    "COORDINATE",
+    "LENGTH",
+    "NON_NEGATIVE",
+    "POSITIVE",
+    "RTOL",
+    "SEED",
+    "STEP",
     "Number",
     "angle_tol_option",
     "atol_option",
@@ -87,6 +104,26 @@ def count(low: int, high: int) -> Number:
     return number(low, high, integer=True)
 
 
+#: An angle step of a state set (``--step``), degrees.
+STEP = Number(STEP_RANGE)
+#: A tolerance on angles (``--angle-tol``), degrees.
+ANGLE_TOL = Number(ANGLE_TOL_RANGE)
+#: A length tolerance relative to the object's diameter (``--rtol``).
+RTOL = Number(RTOL_RANGE)
+#: A length tolerance or size in a model's own units (``--atol``).
+LENGTH = Number(LENGTH_RANGE)
+#: A tolerance on a final angle, degrees (above 0, at most half a turn).
+ANGLE = number(0.0, 180.0, low_open=True, unit="degrees")
+#: A position on the table, metres.
+COORDINATE = number(-1e3, 1e3, unit="m")
+#: Any positive finite number (the library checks the physical range: SimParams).
+POSITIVE = number(0.0, low_open=True)
+#: Any finite number >= 0.
+NON_NEGATIVE = number(0.0)
+#: A random seed numpy's generators take (and scikit-learn's ``random_state``).
+SEED = count(0, 2**32 - 1)
+
+
 def load_cli_model(path: str, rtol: float | None) -> Polyhedron:
     """The model a command names (a file, or a bundled name such as ``cube``)."""
     from nonprehensile.io import load_model
@@ -96,18 +133,18 @@ def load_cli_model(path: str, rtol: float | None) -> Polyhedron:
 
 rtol_option = click.option(
     "--rtol",
-    type=float,
+    type=RTOL,
     default=None,
     help="Length tolerance relative to the object's diameter (raise it for measured models; "
     f"default: the model file's own rtol, else {DEFAULT_RTOL:g}).",
 )
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 angle_tol_option = click.option(
-    "--angle-tol", type=float, default=DEFAULT_ANGLE_TOL, show_default=True,
+    "--angle-tol", type=ANGLE_TOL, default=DEFAULT_ANGLE_TOL, show_default=True,
     help="Angle tolerance in degrees for matching states (raise it for measured models).",
 )
 atol_option = click.option(
-    "--atol", type=float, default=None,
+    "--atol", type=LENGTH, default=None,
     help="Length tolerance of the symmetry group (default: the model's own, rtol x diameter).",
 )
 
@@ -128,7 +165,7 @@ def state_set(
     return check_states(poly, read_states(states_file), angle_tol=angle_tol)
 
 
-step_option = click.option("--step", type=float, default=None,
+step_option = click.option("--step", type=STEP, default=None,
                            help="Orientation step in degrees (e.g. 90).")
 states_option = click.option("--states", "states_file", type=click.Path(dir_okay=False),
                              default=None, help="JSON list of {face, theta} states.")

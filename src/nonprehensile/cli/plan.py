@@ -13,9 +13,11 @@ from rich.table import Table
 
 from nonprehensile.cli.common import emit_json, err, fmt_num, handle_errors, out, stage_bars
 from nonprehensile.cli.options import (
+    COORDINATE,
     angle_tol_option,
     atol_option,
     json_option,
+    number,
     parse_state,
     rtol_option,
     state_set,
@@ -93,11 +95,12 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
               help="Goal state FACE:THETA in the same (world) frame.")
 @step_option
 @states_option
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+@click.option("--at", "position", type=(COORDINATE, COORDINATE), default=(0.0, 0.0),
+              show_default=True,
               help="Where the object is on the table (x y), for the agent's offset.")
 @click.option("--cost", "costs", multiple=True, callback=_parse_costs,
               help="Cost of a skill, SKILL=COST (repeatable); default 1 per transition.")
-@click.option("--relocation-cost", type=float, default=DEFAULT_RELOCATION_COST,
+@click.option("--relocation-cost", type=number(0.0, 1e9), default=DEFAULT_RELOCATION_COST,
               show_default=True,
               help="Cost of relocating the agent between steps (its first placement is free).")
 @click.option("--dataset", default=None,

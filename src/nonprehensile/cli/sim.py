@@ -16,13 +16,19 @@ from rich.table import Table
 
 from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar, stage_bars
 from nonprehensile.cli.options import (
+    ANGLE,
+    COORDINATE,
+    POSITIVE,
     angle_tol_option,
+    count,
     json_option,
+    number,
     parse_state,
     state_set,
     states_option,
     step_option,
 )
+from nonprehensile.demonstrations.synth import MAX_N_PER_SKILL, MAX_SEED, SCALE_RANGE
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -40,23 +46,30 @@ def _sim() -> Any:
     return sim
 
 
+#: --start-error's parts: metres, metres, degrees (the ranges _perturbation names).
+_OFFSET = number(-0.05, 0.05, unit="m")
+_YAW = number(-45.0, 45.0, unit="degrees")
+#: A noise standard deviation, metres.
+_NOISE = number(0.0, 0.01, unit="m")
+
+
 def _physics_options(fn: F) -> F:
     for opt in reversed([
-        click.option("--friction", type=float, default=None,
+        click.option("--friction", type=POSITIVE, default=None,
                      help="Object-table friction coefficient (default 0.6)."),
-        click.option("--finger-friction", type=float, default=None,
+        click.option("--finger-friction", type=POSITIVE, default=None,
                      help="Object-fingertip friction coefficient (default 0.8)."),
-        click.option("--mass", type=float, default=None, help="Object mass, kg (default 0.1)."),
-        click.option("--finger-radius", type=float, default=None,
+        click.option("--mass", type=POSITIVE, default=None, help="Object mass, kg (default 0.1)."),
+        click.option("--finger-radius", type=POSITIVE, default=None,
                      help="Fingertip sphere radius, m (default 0.006)."),
-        click.option("--stiffness", type=float, default=None,
+        click.option("--stiffness", type=POSITIVE, default=None,
                      help="Finger position gain, N/m per axis (default 600)."),
-        click.option("--force-limit", type=float, default=None,
+        click.option("--force-limit", type=POSITIVE, default=None,
                      help="Finger force limit, N per axis (default 8)."),
-        click.option("--contact-timeconst", type=float, default=None,
+        click.option("--contact-timeconst", type=POSITIVE, default=None,
                      help="Contact softness: MuJoCo solref time constant, s (default 0.02; "
                           "smaller is stiffer, at least two 1 ms steps)."),
-        click.option("--tol-deg", type=float, default=5.0, show_default=True,
+        click.option("--tol-deg", type=ANGLE, default=5.0, show_default=True,
                      help="A final theta within this many degrees is the predicted state."),
     ]):
         fn = opt(fn)
@@ -65,17 +78,17 @@ def _physics_options(fn: F) -> F:
 
 def _perturbation_options(fn: F) -> F:
     for opt in reversed([
-        click.option("--start-error", type=(float, float, float), default=None,
+        click.option("--start-error", type=(_OFFSET, _OFFSET, _YAW), default=None,
                      metavar="DX DY DYAW",
                      help="The object really starts DX, DY metres and DYAW degrees (about "
                           "the vertical) from where it is believed to be."),
-        click.option("--tracking-noise", type=float, default=None, metavar="M",
+        click.option("--tracking-noise", type=_NOISE, default=None, metavar="M",
                      help="Object tracker noise, m (standard deviation per marker); only "
                           "closed-loop execution observes the object."),
-        click.option("--finger-noise", type=float, default=None, metavar="M",
+        click.option("--finger-noise", type=_NOISE, default=None, metavar="M",
                      help="Fingertip position noise, m (standard deviation per axis, "
                           "50 ms correlation)."),
-        click.option("--seed", type=int, default=0, show_default=True,
+        click.option("--seed", type=count(0, 2**63 - 1), default=0, show_default=True,
                      help="Seed of the noise draws."),
     ]):
         fn = opt(fn)
@@ -277,11 +290,13 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
 @click.option("--from", "start", required=True, callback=parse_state,
               help="Start state FACE:THETA as the object lies.")
 @click.option("--to", "goal", required=True, callback=parse_state, help="Goal state.")
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+@click.option("--at", "position", type=(COORDINATE, COORDINATE), default=(0.0, 0.0),
+              show_default=True,
               help="Where the object is on the table (x y), metres.")
 @click.option("--dataset", default="cube", show_default=True,
               help="Demonstrations (a folder, or `cube`) giving the reference motions.")
-@click.option("--position-tol", type=float, default=0.010, show_default=True,
+@click.option("--position-tol", type=number(0.0, 10.0, low_open=True, unit="m"), default=0.010,
+              show_default=True,
               help="A final position within this many metres of the plan's prediction.")
 @step_option
 @states_option
@@ -343,11 +358,12 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 @simulate_group.command("record")
 @click.argument("skills_file", type=click.Path(dir_okay=False))
 @click.argument("out_dir", type=click.Path(file_okay=False))
-@click.option("--n-per-skill", type=int, default=30, show_default=True)
-@click.option("--scale", type=float, default=0.05, show_default=True,
+@click.option("--n-per-skill", type=count(1, MAX_N_PER_SKILL), default=30, show_default=True)
+@click.option("--scale", type=number(*SCALE_RANGE, unit="m per model unit"), default=0.05,
+              show_default=True,
               help="Metres per model unit.")
-@click.option("--seed", type=int, default=20190520, show_default=True)
-@click.option("--max-attempts", type=int, default=60, show_default=True,
+@click.option("--seed", type=count(0, MAX_SEED), default=20190520, show_default=True)
+@click.option("--max-attempts", type=count(1, 10_000), default=60, show_default=True,
               help="Takes a mentor may try for one demonstration.")
 @click.option("--format", "trajectory_format", type=click.Choice(["c3d", "csv"]),
               default="c3d", show_default=True)
