@@ -22,6 +22,7 @@ __all__ = [
     "DEFAULT_ANGLE_TOL",
     "DEFAULT_RTOL",
     "LENGTH_RANGE",
+    "MARGIN_RANGE",
     "MAX_RTOL",
     "RTOL_RANGE",
     "STEP_RANGE",
@@ -142,10 +143,12 @@ STEP_RANGE = Range(0.0, 360.0, low_open=True, unit="degrees")
 #: A tolerance on angles, degrees: beyond a right angle every state would match its
 #: neighbours.
 ANGLE_TOL_RANGE = Range(0.0, 90.0, unit="degrees")
-#: A length tolerance relative to the object's diameter.
-RTOL_RANGE = Range(0.0, MAX_RTOL, low_open=True)
+#: A length tolerance relative to the object's diameter (from about float64's resolution).
+RTOL_RANGE = Range(1e-15, MAX_RTOL)
 #: A length in a model's or a recording's own units (as ``bounds.MAX_COORDINATE``).
 LENGTH_RANGE = Range(0.0, 1e9, low_open=True)
+#: A distance in a model's own units that may be zero (a stability margin).
+MARGIN_RANGE = Range(0.0, 1e9)
 
 
 def check_number(value: object, name: str, rng: Range,

@@ -101,6 +101,11 @@ def _read_npy(fh: Any, size: int, what: str) -> NDArray[Any]:
     if dtype.hasobject or dtype.kind not in "biufU":
         raise InputError(f"{what}: an array of {dtype} cannot hold samples; save a float "
                          "array, shape (n_samples, n_features)")
+    if not all(type(k) is int and k >= 0 for k in shape):
+        # numpy reads any tuple literal: (-1, 12) would become a read of -12 rows
+        raise InputError(f"{what}: its header declares shape {shape}, not a shape (the sizes "
+                         "must be whole numbers >= 0); the file is damaged, save it again with "
+                         "numpy.save")
     count = math.prod(shape)
     nbytes = count * dtype.itemsize
     if nbytes > MAX_ARRAY_BYTES:

@@ -40,6 +40,7 @@ __all__ = [
     "SEED",
     "STEP",
     "Number",
+    "OptionError",
     "angle_tol_option",
     "atol_option",
     "count",
@@ -57,6 +58,22 @@ if TYPE_CHECKING:
     _ParamBase = click.ParamType[Any, Any]
 else:  # click < 8.2 has no type parameters at run time
     _ParamBase = click.ParamType
+
+
+class OptionError(click.BadParameter):
+    """A bad option value, shown as the library's errors are: one line on stderr,
+    ``error: --step: expected a finite number above 0 and at most 360 (degrees), got 'nan'``
+    (click's usual usage text around it would make four), exit 2."""
+
+    def format_message(self) -> str:
+        p = self.param
+        name = (p.opts[0] if isinstance(p, click.Option) and p.opts
+                else (p.human_readable_name if p is not None else "value"))
+        return f"{name}: {self.message}"
+
+    def show(self, file: Any = None) -> None:
+        click.echo(click.style("error: ", fg="red", bold=True) + self.format_message(),
+                   err=True)
 
 
 class Number(_ParamBase):
@@ -85,7 +102,7 @@ class Number(_ParamBase):
                 ) -> Any:
         v, why = self.range.problem(value)
         if why is not None:
-            self.fail(why, param, ctx)
+            raise OptionError(why, ctx=ctx, param=param)
         return v
 
     def __repr__(self) -> str:

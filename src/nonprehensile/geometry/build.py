@@ -23,12 +23,13 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from nonprehensile.bounds import MAX_COORDINATE as MAX_RECORDED_COORDINATE
-from nonprehensile.checks import check_tolerance
-from nonprehensile.errors import InputError, MeshError, ModelError
+from nonprehensile.checks import RTOL_RANGE, Range, check_number
+from nonprehensile.errors import MeshError, ModelError
 from nonprehensile.geometry.polyhedron import (
     COLLINEAR_FRACTION,
     DEFAULT_RTOL,
     MAX_COORDINATE,
+    MIN_SIZE,
     Polyhedron,
     _Loops,
     corner_heights,
@@ -55,6 +56,13 @@ MESH_RTOL = 1e-6
 
 #: Mesh formats that :func:`from_mesh` is tested on; trimesh reads more.
 MESH_FORMATS = ("stl", "obj", "ply", "off", "glb")
+
+#: Most sides of :func:`prism`'s polygon (its model holds about 6 numbers a side).
+MAX_PRISM_SIDES = 1_000_000
+#: Most faces :func:`convex_hull` may be asked to facet a curved object into.
+MAX_FACES = 10_000_000
+
+_SIZE = Range(MIN_SIZE, MAX_COORDINATE)
 
 
 def face_name(i: int) -> str:
@@ -89,9 +97,7 @@ def cube(size: float = 1.0, *, name: str = "cube") -> Polyhedron:
     Section III text (``A(b, a) = 2``, ``A(a, b) = 3``) and the spec's example skill: pushed
     on ``f``, the cube rolls over ``E(a, d)`` from ``a:0`` to ``d:0``.
     """
-    s = float(size)
-    if not s > 0:
-        raise ModelError(f"cube size must be positive, got {size!r}")
+    s = float(check_number(size, "cube size", _SIZE, ModelError))
     v = s * np.array(
         [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
         dtype=float,
@@ -107,39 +113,109 @@ def cube(size: float = 1.0, *, name: str = "cube") -> Polyhedron:
     return Polyhedron(v, faces, name=name)
 
 
-def box(width: float, depth: float, height: float, *, name: str = "box") -> Polyhedron:
-    """A rectangular box ``width x depth x height`` (along x, y, z), corner at the origin."""
-    dims = np.array([width, depth, height], dtype=float)
-    if not np.all(np.isfinite(dims)) or np.any(dims <= 0):
-        raise ModelError(f"box dimensions must be positive, got {dims.tolist()}")
+def box(width: float, depth: float, height: float, *, name: str = "box",
+        rtol: float = DEFAULT_RTOL) -> Polyhedron:
+    """A rectangular box ``width x depth x height`` (along x, y, z), corner at the origin.
+
+    Built from its six faces (no hull: a thin plate is still a box), named as
+    :func:`convex_hull` names them.
+
+    Raises
+    ------
+    ModelError
+        A side that is not a finite number from :data:`MIN_SIZE` up, or one shorter than the
+        tolerance (``rtol`` times the diagonal): at that tolerance the box is flat.
+    """
+    dims = np.array([check_number(v, f"box {what}", _SIZE, ModelError)
+                     for v, what in zip((width, depth, height), ("width", "depth", "height"),
+                                        strict=True)], dtype=float)
+    rtol = float(check_number(rtol, "rtol", RTOL_RANGE, ModelError))
+    diag = float(np.linalg.norm(dims))
+    k = int(np.argmin(dims))
+    if dims[k] <= rtol * diag:
+        raise ModelError(
+            f"box {('width', 'depth', 'height')[k]} {dims[k]:g} is within the length tolerance "
+            f"{rtol * diag:.3g} (rtol {rtol:g} x the diagonal {diag:.4g}): at that tolerance "
+            f"the box is flat; pass a smaller rtol (below {dims[k] / diag:.2g}) or a thicker box"
+        )
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
-    return convex_hull(corners * dims, name=name)
+    # corner index 4x + 2y + z
+    loops = [(0, 2, 6, 4), (1, 5, 7, 3), (0, 4, 5, 1), (2, 3, 7, 6), (0, 1, 3, 2),
+             (4, 6, 7, 5)]
+    return _explicit_model(corners * dims, loops, name=name, rtol=rtol)
 
 
 def prism(
     n: int, radius: float = 1.0, height: float = 1.0, *, name: str | None = None
 ) -> Polyhedron:
-    """A right prism on a regular ``n``-gon of circumradius ``radius``."""
-    if n < 3:
-        raise ModelError(f"a prism needs a polygon of at least 3 sides, got {n}")
-    if not (radius > 0 and height > 0):
-        raise ModelError(f"prism radius and height must be positive, got {radius}, {height}")
+    """A right prism on a regular ``n``-gon of circumradius ``radius``.
+
+    Built from its ``n + 2`` faces (no hull: the sides of a 100,000-gon are further apart
+    than the tolerance, yet a hull would merge them), named as :func:`convex_hull` names
+    them.
+
+    Raises
+    ------
+    ModelError
+        ``n`` not a whole number from 3 to :data:`MAX_PRISM_SIDES`, a size that is not a
+        finite number from :data:`MIN_SIZE` up, or sides shorter than the model's tolerance.
+    """
+    n = int(check_number(n, "prism sides n", Range(3, MAX_PRISM_SIDES, integer=True),
+                         ModelError))
+    radius = float(check_number(radius, "prism radius", _SIZE, ModelError))
+    height = float(check_number(height, "prism height", _SIZE, ModelError))
+    rtol = DEFAULT_RTOL
+    atol = rtol * math.hypot(2 * radius, height)
+    side = 2 * radius * math.sin(math.pi / n)
+    if side <= atol or height <= atol:
+        what = f"sides {side:.3g}" if side <= atol else f"height {height:g}"
+        raise ModelError(
+            f"a prism of {n} sides, radius {radius:g} and height {height:g}: its {what} long "
+            f"is within the length tolerance {atol:.3g}; use fewer sides or a larger size"
+        )
     ang = 2 * np.pi * np.arange(n) / n
     ring = np.column_stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(n)])
     top = ring + np.array([0.0, 0.0, height])
-    return convex_hull(np.vstack([ring, top]), name=name or f"prism{n}")
+    # ring i = vertex i, top i = vertex n + i; loops clockwise seen from outside
+    i = np.arange(n)
+    j = (i + 1) % n
+    sides = np.column_stack([i, n + i, n + j, j])
+    loops: list[tuple[int, ...]] = [tuple(range(n)), tuple(range(2 * n - 1, n - 1, -1)),
+                                    *map(tuple, sides.tolist())]
+    return _explicit_model(np.vstack([ring, top]), loops, name=name or f"prism{n}",
+                           rtol=rtol)
 
 
 def tetrahedron(edge: float = 1.0, *, name: str = "tetrahedron") -> Polyhedron:
     """A regular tetrahedron with the given edge length."""
+    edge = float(check_number(edge, "tetrahedron edge", _SIZE, ModelError))
     p = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float)
     return convex_hull(p * (edge / (2 * math.sqrt(2))), name=name)
 
 
 def octahedron(edge: float = 1.0, *, name: str = "octahedron") -> Polyhedron:
     """A regular octahedron with the given edge length."""
+    edge = float(check_number(edge, "octahedron edge", _SIZE, ModelError))
     p = np.vstack([np.eye(3), -np.eye(3)]) * (edge / math.sqrt(2))
     return convex_hull(p, name=name)
+
+
+def _explicit_model(points: FloatArray, loops: list[tuple[int, ...]], *, name: str,
+                    rtol: float) -> Polyhedron:
+    """The convex polyhedron of ``points`` with faces ``loops`` (clockwise from outside,
+    every point a corner; a loop given the other way round is reversed), named and numbered
+    as :func:`convex_hull` does."""
+    centre = points.mean(axis=0)
+    newell = _Loops.of(loops).newell(points)
+    # clockwise from outside: Newell's normal of the loop points inward
+    inward = np.einsum("ij,ij->i", newell, points[[lp[0] for lp in loops]] - centre) < 0
+    loops = [lp if ok else lp[::-1] for lp, ok in zip(loops, inward, strict=True)]
+    newell = np.where(inward[:, None], -newell, newell)
+    normals = newell / np.linalg.norm(newell, axis=1)[:, None]
+    lengths = np.array([len(lp) for lp in loops], dtype=np.int64)
+    flat = np.fromiter((i for lp in loops for i in lp), dtype=np.int64, count=int(lengths.sum()))
+    keyed, faces = _assemble(points, flat, lengths, normals, rtol * vertex_diameter(points))
+    return Polyhedron(points[keyed], faces, name=name, rtol=rtol, hull_facets=True)
 
 
 def _qhull(points: FloatArray, radius: float, angle: float) -> Any:
@@ -372,6 +448,8 @@ def _hull_model(
     keep = np.ones(len(p), dtype=bool)
     for _ in range(32):
         sub = np.flatnonzero(keep)
+        if len(sub) < 4:
+            break
         got, unturned = attempt(p[sub], first_radius, _qhull(p[sub], first_radius, angle),
                                 unturned=True)
         if isinstance(got, Polyhedron):
@@ -442,15 +520,19 @@ def convex_hull(
             f"a coordinate of magnitude {big:.3g} is beyond {MAX_COORDINATE:g}: products of "
             "such numbers overflow; express the points in other units"
         )
-    try:
-        rtol = check_tolerance(rtol, "rtol")
-        angle = check_tolerance(angle, "merge angle", allow_zero=True)
-    except InputError as exc:
-        raise MeshError(str(exc)) from None
-    if angle >= 90:
-        raise MeshError(f"the merge angle must be below 90 degrees, got {angle:g}")
-    if max_faces is not None and (isinstance(max_faces, bool) or int(max_faces) < 4):
-        raise MeshError(f"max_faces must be an integer >= 4, got {max_faces!r}")
+    # the largest side of the bounding box (no squares: they underflow near 1e-160)
+    size = float(np.max(p.max(axis=0) - p.min(axis=0)))
+    if size < MIN_SIZE:
+        raise MeshError(
+            f"the points span {size:.3g} (the largest side of their bounding box), below the "
+            f"smallest object size {MIN_SIZE:g}: express them in smaller units (mm, um)"
+        )
+    rtol = float(check_number(rtol, "rtol", RTOL_RANGE, MeshError))
+    angle = float(check_number(angle, "merge angle",
+                               Range(0.0, 90.0, high_open=True, unit="degrees"), MeshError))
+    if max_faces is not None:
+        max_faces = int(check_number(max_faces, "max_faces",
+                                     Range(4, MAX_FACES, integer=True), MeshError))
     return _hull_model(p, name=name, rtol=rtol, angle=angle, max_faces=max_faces,
                        center_of_mass=center_of_mass, units=units)
 
@@ -556,8 +638,23 @@ def from_mesh(
         )
     if len(pts) < 4:
         raise MeshError(f"{path}: a solid needs at least 4 points, the mesh has {len(pts)}")
+    span = float(np.max(pts.max(axis=0) - pts.min(axis=0)))
+    if span < MIN_SIZE:
+        raise MeshError(
+            f"{path}: the mesh spans {span:.3g} (the largest side of its bounding box), below "
+            f"the smallest object size {MIN_SIZE:g}; are its units right? Express it in "
+            "smaller units (mm, um)"
+        )
+    # trimesh welds vertices closer than 1e-8 (an absolute distance): a mesh a millimetre
+    # across in metres would lose its shape. Scale it up by a power of two (exact) while it
+    # is cleaned, and back after.
+    up = 2.0 ** -math.frexp(span)[1] if span < 1e-2 else 1.0
     try:
+        if up != 1.0:
+            mesh.apply_scale(up)
         filled = bool(len(mesh.faces)) and _clean(mesh, trimesh)
+        if up != 1.0:
+            mesh.apply_scale(1.0 / up)
     except (OverflowError, ValueError, IndexError) as exc:
         # trimesh's welding hashes coordinates and indices as int64: a damaged file overflows
         raise MeshError(f"{path}: trimesh cannot process the mesh ({exc}); the file is "
