@@ -190,15 +190,16 @@ def simulate_step(
     sim: Simulator, step: PlanStep, *, fingers: Mapping[str, str] = DEFAULT_FINGERS,
     continue_from_current: bool = False, check_position: bool = True,
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG, position_tol: float = DEFAULT_POSITION_TOL,
-    label: Mapping[str, Any] | None = None, keep_trace: int = 0,
+    label: Mapping[str, Any] | None = None, keep_trace: int = 0, signals: bool = False,
 ) -> Outcome:
     """Simulate one step: the object starts at the step's planned pose (or, with
-    ``continue_from_current``, wherever the previous simulation left it)."""
+    ``continue_from_current``, wherever the previous simulation left it). ``keep_trace`` and
+    ``signals``: as :meth:`Simulator.run`."""
     targets, rate, times = step_targets(step, fingers)
     if step.start_pose is None or step.end_pose is None:
         raise InputError("the step carries no object pose: make it with plan() or step_for()")
     result = sim.run(None if continue_from_current else step.start_pose, targets, rate,
-                     keep_trace=keep_trace)
+                     keep_trace=keep_trace, signals=signals)
     t = step.transition
     cmp = compare(sim.poly, t.skill, result, predicted=step.end_world,
                   predicted_pose=step.end_pose if check_position else None,

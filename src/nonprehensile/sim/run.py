@@ -41,6 +41,7 @@ __all__ = [
     "Simulator",
     "default_scale",
     "pose_of_state",
+    "signal_columns",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -60,6 +61,15 @@ def default_scale(poly: Polyhedron) -> float:
             f"model {poly.name!r} has units {poly.units!r}; the simulation knows "
             f"{sorted(UNIT_METRES)}: give the scale (metres per model unit) explicitly"
         ) from None
+
+
+def signal_columns(n_fingers: int) -> dict[str, slice]:
+    """Where a trace kept with ``signals=True`` holds them: ``"error"`` (m) and ``"force"``
+    (N), one column per finger, and ``"slip"`` (m/s), one column."""
+    first = 8 + 3 * n_fingers
+    return {"error": slice(first, first + n_fingers),
+            "force": slice(first + n_fingers, first + 2 * n_fingers),
+            "slip": slice(first + 2 * n_fingers, first + 2 * n_fingers + 1)}
 
 
 def pose_of_state(poly: Polyhedron, state: State, position: Sequence[float] = (0.0, 0.0),
@@ -278,6 +288,31 @@ class Simulator:
             pairs.add(ContactPair(Ground(), self._ground_element(r, t)))
         return frozenset(pairs), finger_table
 
+    def _contact_signals(self) -> tuple[FloatArray, FloatArray]:
+        """Each finger's normal force on the object (N), and the object's slip on the table
+        (shape (1,), m/s; NaN off the table)."""
+        m, d = self.model, self.data
+        force = np.zeros(self.n_fingers)
+        slip = math.nan
+        f6 = np.zeros(6)
+        r = d.xmat[self._body].reshape(3, 3)
+        v = d.qvel[self._dadr:self._dadr + 3]  # the free joint: world linear velocity ...
+        w = r @ d.qvel[self._dadr + 3:self._dadr + 6]  # ... and body-frame angular velocity
+        origin = d.xpos[self._body]
+        con = d.contact
+        for i in range(d.ncon):
+            a, b = int(con.geom1[i]), int(con.geom2[i])
+            if self._obj_geom not in (a, b) or con.dist[i] > 1e-4:
+                continue
+            other = b if a == self._obj_geom else a
+            if other in self._finger_geoms:
+                mujoco.mj_contactForce(m, d, i, f6)
+                force[self._finger_geoms[other] - 1] += abs(f6[0])
+            elif other == self._table:
+                speed = float(np.hypot(*(v + np.cross(w, con.pos[i] - origin))[:2]))
+                slip = speed if math.isnan(slip) else max(slip, speed)
+        return force, np.array([slip])
+
     # --------------------------------------------------------------------------------- run
     def run(
         self,
@@ -287,6 +322,7 @@ class Simulator:
         *,
         settle: float | None = None,
         keep_trace: int = 0,
+        signals: bool = False,
     ) -> SimResult:
         """Drive the fingertips through ``targets`` with the object starting at ``start``.
 
@@ -307,6 +343,12 @@ class Simulator:
             If > 0, keep the object's and fingers' poses every this many steps in
             ``SimResult.trace`` (for rendering): rows ``[t, x, y, z, qw, qx, qy, qz,
             finger xyz ...]``.
+        signals : bool
+            With ``keep_trace``, each trace row also holds, after the finger positions
+            (columns :func:`signal_columns`): each finger's tracking error (m, from its
+            commanded target), each finger's normal contact force on the object (N), and the
+            object's slip (m/s: the largest horizontal speed of its points touching the
+            table; NaN when it does not touch it).
 
         Raises
         ------
@@ -383,6 +425,10 @@ class Simulator:
         def record(now: float) -> None:
             row = np.concatenate(([now], d.qpos[self._qadr:self._qadr + 7],
                                   d.qpos[self._finger_qadr]))
+            if signals:
+                err = np.linalg.norm((d.qpos[self._finger_qadr] - ctrl_view).reshape(-1, 3),
+                                     axis=1)
+                row = np.concatenate((row, err, *self._contact_signals()))
             trace.append(row)
 
         step = mujoco.mj_step

@@ -378,7 +378,13 @@ def plan_view(poly: Polyhedron, result: Plan, *, scale: float = 1.0,
                     name=f"{source} -> {target}: {marker}", legendgroup=name,
                     showlegend=False, hovertext=f"{name}<br>{source} -> {target}: {marker}",
                     hoverinfo="text"))
-        tri = _agent_triangle(agent, 0.6 * size)
+        tag = "goal" if n == len(frames) - 1 else f"step {n + 1}"
+        top = pts[int(np.argmax(pts[:, 2]))]
+        traces.append(go.Scatter3d(
+            x=[pts[:, 0].mean()], y=[pts[:, 1].mean()], z=[top[2] + 0.25 * size],
+            mode="text", text=[tag], textfont={"size": 15, "color": color}, hovertext=[name],
+            hoverinfo="text", legendgroup=name, showlegend=False, name=f"{name}: tag"))
+        tri = _agent_triangle(agent, 0.3 * size)
         traces.append(go.Mesh3d(
             x=tri[:, 0], y=tri[:, 1], z=tri[:, 2], i=[0], j=[1], k=[2], color="#ff7f0e",
             opacity=1.0, name=f"{name}: agent", legendgroup=name, showlegend=False,
