@@ -7,6 +7,7 @@ Matplotlib (the ``viz`` extra) is imported only inside these functions, which bu
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -492,7 +493,8 @@ def _chain_layout(chains: Sequence[tuple[list[State], bool]], max_width: float
         if x > 0 and x + w > max_width + 1e-9:
             x, y, row_h = 0.0, y - row_h, 0.0
         for s, (px, py) in zip(states, pts, strict=True):
-            pos[s] = (x + (_LABEL_W + _CELL_GAP) / 2 + px - x0, y - (_LABEL_H + 0.12) / 2 - (y1 - py))
+            pos[s] = (x + (_LABEL_W + _CELL_GAP) / 2 + px - x0,
+                      y - (_LABEL_H + 0.12) / 2 - (y1 - py))
         x += w
         width = max(width, x)
         row_h = max(row_h, h)
@@ -515,8 +517,9 @@ def plot_skill_arcs(exp: Expansion, skill: str, ax: Axes, *, color: Any = None,
                     if t.skill.name == skill and t.demonstrated}
     color = color if color is not None else "0.2"
     # equal scales: the axes' own aspect, its limits centred on the drawing
-    x0, y0, w, h = ax.get_position().bounds
-    fw, fh = ax.figure.get_size_inches()
+    _, _, w, h = ax.get_position().bounds
+    fig: Any = ax.get_figure(root=True)
+    fw, fh = fig.get_size_inches()
     aw, ah = w * fw, h * fh
     scale = max(width / aw, height / ah, 1.0)
     cx, cy = width / 2, -height / 2
@@ -524,7 +527,7 @@ def plot_skill_arcs(exp: Expansion, skill: str, ax: Axes, *, color: Any = None,
     ax.set_ylim(cy - scale * ah / 2, cy + scale * ah / 2)
     arcs = []
     for states, closed in chains:
-        pairs = list(zip(states, states[1:], strict=False))
+        pairs = list(itertools.pairwise(states))
         if closed:
             pairs.append((states[-1], states[0]))
         for a, b in pairs:
@@ -677,7 +680,7 @@ def transitions_svg(exp: Expansion, *, skills: Sequence[str] | None = None,
             g.append(f'<rect x="{min(xs) - hw - 4:.1f}" y="{min(ys) - hh - 4:.1f}" '
                      f'width="{max(xs) - min(xs) + 2 * hw + 8:.1f}" '
                      f'height="{max(ys) - min(ys) + 2 * hh + 8:.1f}" rx="8" fill="#f5f5f5"/>')
-            pairs = list(zip(states, states[1:], strict=False))
+            pairs = list(itertools.pairwise(states))
             if closed:
                 pairs.append((states[-1], states[0]))
             rad = 0.45 if len(states) == 2 else 0.18
@@ -697,12 +700,12 @@ def transitions_svg(exp: Expansion, *, skills: Sequence[str] | None = None,
                          f'{s1[0]:.1f},{s1[1]:.1f}" fill="none" stroke="{colour}" '
                          f'stroke-width="{3 if shown else 1.4}" '
                          f'marker-end="url(#nph-head-{head_id})"><title>{title}</title></path>')
-        for s, (x, y) in px.items():
-            dash = "" if s in inside else ' stroke-dasharray="3,2"'
+        for node, (x, y) in px.items():
+            dash = "" if node in inside else ' stroke-dasharray="3,2"'
             g.append(f'<rect x="{x - hw:.1f}" y="{y - hh:.1f}" width="{2 * hw:.1f}" '
                      f'height="{2 * hh:.1f}" rx="4" fill="white" stroke="#555"{dash}/>'
                      f'<text x="{x:.1f}" y="{y + 4.5:.1f}" text-anchor="middle" '
-                     f'font-size="13">{html.escape(str(s))}</text>')
+                     f'font-size="13">{html.escape(str(node))}</text>')
         g.append("</g>")
         parts.append("".join(g))
     total_h = sum(heights) + head * rows

@@ -130,12 +130,12 @@ def plan_filmstrip_figure(
                                              alpha=0.6))
         if len(names) <= 40:
             # the IDs of the faces turned to the viewer, so the pose reads at a glance
-            for f, pts in zip(names, faces, strict=True):
-                centre = pts.mean(axis=0)
-                n = np.cross(pts[1] - pts[0], pts[2] - pts[0])
+            for fid, corners in zip(names, faces, strict=True):
+                centre = corners.mean(axis=0)
+                n = np.cross(corners[1] - corners[0], corners[2] - corners[0])
                 outward = n if n @ (centre - verts.mean(axis=0)) > 0 else -n
-                if f != bottom and outward @ toward_viewer > 0:
-                    ax.text(*centre, f, fontsize=10, fontweight="bold", ha="center",
+                if fid != bottom and outward @ toward_viewer > 0:
+                    ax.text(*centre, fid, fontsize=10, fontweight="bold", ha="center",
                             va="center", color="#08306b", zorder=10)
         for j, (label, p) in enumerate(paths):
             ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_PATH_COLORS[j % len(_PATH_COLORS)],
