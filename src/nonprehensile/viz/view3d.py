@@ -37,13 +37,14 @@ from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose, Offset, Plan
 from nonprehensile.states import State, state_pose
+from nonprehensile.viz.labeled_object import check_faces
 
 if TYPE_CHECKING:
     import plotly.graph_objects as go
 
 __all__ = [
     "EDGE_NUMBER_LIMIT",
-    "check_faces",
+    "figure_json",
     "object_view",
     "plan_view",
     "require_plotly",
@@ -80,30 +81,6 @@ def require_plotly() -> None:
             "the rotatable 3-D view needs plotly, which is not installed; install it with "
             "`pip install 'nonprehensile[view3d]'`"
         ) from None
-
-
-def check_faces(poly: Polyhedron, faces: Iterable[str] | None) -> list[str]:
-    """The faces to label, in the model's order: all of them for None.
-
-    Raises
-    ------
-    InputError
-        A face the model lacks (naming it and a few of the model's faces), or no face.
-    """
-    if faces is None:
-        return list(poly.faces)
-    wanted = [str(f).strip() for f in faces]
-    wanted = [f for f in wanted if f]
-    unknown = [f for f in wanted if f not in poly.faces]
-    if unknown:
-        known = list(poly.faces)
-        shown = ", ".join(known[:12]) + (" ..." if len(known) > 12 else "")
-        raise InputError(f"{poly.name}: no face {', '.join(map(repr, unknown))}; its faces "
-                         f"are {shown} (`nonprehensile object show` lists them)")
-    if not wanted:
-        raise InputError("no face to label: give face IDs separated by commas, e.g. a,b,c")
-    chosen = set(wanted)
-    return [f for f in poly.faces if f in chosen]
 
 
 def _triangles(poly: Polyhedron) -> tuple[list[int], list[int], list[int], list[str]]:
@@ -230,8 +207,9 @@ def object_view(poly: Polyhedron, *, faces: Iterable[str] | None = None,
         Faces to label; default every face. Chosen faces are drawn in colour, the others
         grey.
     edge_numbers : bool, optional
-        Write each labeled face's edge numbers; default when at most
-        :data:`EDGE_NUMBER_LIMIT` faces are labeled (shown or hidden from the legend).
+        Show each labeled face's edge numbers (a legend entry shows or hides them); default
+        shown when at most :data:`EDGE_NUMBER_LIMIT` faces are labeled, else hidden until
+        clicked.
 
     Returns
     -------
@@ -247,13 +225,11 @@ def object_view(poly: Polyhedron, *, faces: Iterable[str] | None = None,
     require_plotly()
     import plotly.graph_objects as go
 
-    labeled = check_faces(poly, faces)
+    labeled = list(poly.faces) if faces is None else check_faces(poly, faces)
     every = faces is None
     chosen = set(labeled)
-    colors = [(_FACE_COLORS[n % len(_FACE_COLORS)] if every or f in chosen else "#d9d9d9")
-              for n, f in enumerate(poly.faces)]
-    if not every:
-        colors = ["#fdbf6f" if f in chosen else "#d9d9d9" for f in poly.faces]
+    colors = ([_FACE_COLORS[n % len(_FACE_COLORS)] for n in range(len(poly.faces))] if every
+              else ["#fdbf6f" if f in chosen else "#d9d9d9" for f in poly.faces])
     pts = np.asarray(poly.vertices, dtype=float)
     size = float(poly.diameter) or 1.0
     traces = _solid(go, poly, pts, name=poly.name, colors=colors, opacity=0.9)
@@ -261,13 +237,12 @@ def object_view(poly: Polyhedron, *, faces: Iterable[str] | None = None,
     traces.append(_text_trace(go, pos, text, hover, name="face IDs", size=18, color="black"))
     if edge_numbers is None:
         edge_numbers = len(labeled) <= EDGE_NUMBER_LIMIT
-    if edge_numbers:
-        epos, etext, ehover = _edge_numbers(poly, pts, labeled)
-        # lifted off the faces like the IDs, so that the solid does not hide them
-        lift = np.array([0.02 * size * poly.normals[f] for f in labeled
-                         for _ in range(poly.n_edges(f))]).reshape(-1, 3)
-        traces.append(_text_trace(go, epos + lift, etext, ehover, name="edge numbers",
-                                  size=12, color="#08306b"))
+    epos, etext, ehover = _edge_numbers(poly, pts, labeled)
+    # lifted off the faces like the IDs, so that the solid does not hide them
+    lift = np.array([0.02 * size * poly.normals[f] for f in labeled
+                     for _ in range(poly.n_edges(f))]).reshape(-1, 3)
+    traces.append(_text_trace(go, epos + lift, etext, ehover, name="edge numbers", size=12,
+                              color="#08306b", visible=True if edge_numbers else "legendonly"))
     com = poly.com
     traces.append(go.Scatter3d(x=[com[0]], y=[com[1]], z=[com[2]], mode="markers",
                                marker={"size": 5, "color": "black", "symbol": "cross"},
