@@ -315,8 +315,10 @@ def plan_section(ctx: ReportContext) -> Section:
          ". Each step lists where the agent stands, its contact events and, for each motion, "
          "the reference finger trajectory: the medoid of the skill's main cluster, in the "
          "world frame."],
-        [(film, "Plan filmstrip: the object's pose at each step in 3-D, the reference finger "
-                "paths and the agent's position")],
+        [(film, "Plan filmstrip: the object where each step starts (its bottom face red, "
+                "the IDs of the faces turned to you), the reference finger paths and the "
+                "agent, on axes in metres. `nonprehensile plan ... --html FILE` draws the same "
+                "as a view you can rotate.")],
         [(["step", "transition", "agent", "event", "contacts", "then", "reference motion"],
           rows)],
     )

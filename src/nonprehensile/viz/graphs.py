@@ -512,7 +512,8 @@ def plot_skill_arcs(exp: Expansion, skill: str, ax: Axes, *, color: Any = None,
     """
     chains = skill_components(exp, skill)
     pos, width, height = _chain_layout(chains, max_width)
-    inside = set(exp.graph.states)
+    # states the graph only reaches (outside the state set): no transition starts there
+    inside = {t.start for t in exp.transitions}
     demonstrated = {(t.start, t.end) for t in exp.transitions
                     if t.skill.name == skill and t.demonstrated}
     color = color if color is not None else "0.2"
@@ -624,7 +625,8 @@ def transitions_svg(exp: Expansion, *, skills: Sequence[str] | None = None,
             raise InputError(f"no skill {s!r} in the graph; its skills are {', '.join(names)}")
     colors = {k: to_hex(c) for k, c in _skill_colors(names).items()}
     maneuver = {t.skill.name: t.skill.maneuver for t in exp.transitions}
-    inside = set(exp.graph.states)
+    # states the graph only reaches (outside the state set): no transition starts there
+    inside = {t.start for t in exp.transitions}
     cols = max(1, min(per_row, len(wanted)))
     ppi = 80.0  # px per layout inch: the report's figures' dpi
     panel_w = page_px / cols

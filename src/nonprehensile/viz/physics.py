@@ -220,6 +220,20 @@ def physics_section(
         outcomes.append(o)
         traces.append(o.result.trace)
     records = [o.to_dict() for o in outcomes]
+    from nonprehensile.sim.run import signal_columns
+
+    cols = signal_columns(n)
+    for r, tr in zip(records, traces, strict=True):
+        if tr is None:
+            continue
+        slip = tr[:, cols["slip"]]
+        # the largest of each signal over the step, for programs (the figure shows them all)
+        r["signals"] = {
+            "max_tracking_error_m": round(float(tr[:, cols["error"]].max()), 6),
+            "max_contact_force_n": round(float(tr[:, cols["force"]].max()), 4),
+            "max_slip_m_per_s": (round(float(np.nanmax(slip)), 6)
+                                 if np.isfinite(slip).any() else None),
+        }
     ok = sum(o.success for o in outcomes)
     paras = [
         f"Each of the {len(plan.steps)} steps was executed in one continuous MuJoCo "

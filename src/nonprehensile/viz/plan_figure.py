@@ -25,10 +25,12 @@ from nonprehensile.viz._figures import new_figure
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["plan_filmstrip_figure"]
+__all__ = ["BOTTOM_COLOR", "plan_filmstrip_figure"]
 
 #: Most panels on one row.
 _PER_ROW = 4
+#: Colour of the bottom face in the panels.
+BOTTOM_COLOR = "#d62728"
 _PATH_COLORS = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b")
 
 
@@ -124,10 +126,14 @@ def plan_filmstrip_figure(
                                 height * 0.8), projection="3d")  # an Axes3D
         ax.computed_zorder = False  # labels drawn over the translucent solid
         faces = [verts[list(loop)] for loop in poly.faces.values()]
-        colors = ["#d62728" if f == bottom else "#c6dbef" for f in names]
-        ax.add_collection3d(Poly3DCollection(faces, facecolors=colors, edgecolors="#4a6a8a",
-                                             linewidths=0.6 if len(faces) < 60 else 0.0,
-                                             alpha=0.6))
+        # the bottom face first, in red, seen through the translucent solid drawn over it
+        ax.add_collection3d(Poly3DCollection([verts[list(poly.faces[bottom])]],
+                                             facecolors=BOTTOM_COLOR, edgecolors="#7f0000",
+                                             linewidths=1.0, gid=f"bottom:{bottom}"))
+        ax.add_collection3d(Poly3DCollection(
+            [p for f, p in zip(names, faces, strict=True) if f != bottom],
+            facecolors="#c6dbef", edgecolors="#4a6a8a",
+            linewidths=0.6 if len(faces) < 60 else 0.0, alpha=0.6))
         if len(names) <= 40:
             # the IDs of the faces turned to the viewer, so the pose reads at a glance
             for fid, corners in zip(names, faces, strict=True):
