@@ -10,6 +10,7 @@ opening these files is ``benchmarks/lerobot_check.py`` (it pulls torch: not in C
 
 from __future__ import annotations
 
+import itertools
 import json
 import subprocess
 import sys
@@ -95,7 +96,7 @@ def test_layout_and_schema_are_lerobots(exported: Path) -> None:
     ep = pq.read_table(exported / "meta/episodes/chunk-000/file-000.parquet").to_pylist()
     assert [r["episode_index"] for r in ep] == list(range(len(ep)))
     assert ep[0]["dataset_from_index"] == 0
-    for a, b in zip(ep, ep[1:], strict=False):
+    for a, b in itertools.pairwise(ep):
         assert b["dataset_from_index"] == a["dataset_to_index"]
     assert ep[-1]["dataset_to_index"] == info["total_frames"]
     assert all(r["data/chunk_index"] == 0 and r["data/file_index"] == 0 for r in ep)

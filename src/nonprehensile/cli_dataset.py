@@ -225,7 +225,6 @@ def figure_cmd(
 
 
 from nonprehensile.cli_annotate import annotate_cmd  # noqa: E402  (it imports this module's deps)
-
 from nonprehensile.cli_export import export_cmd  # noqa: E402
 
 dataset_group.add_command(annotate_cmd)
