@@ -1,13 +1,13 @@
 """``nonprehensile dataset export``: a dataset as a robot-learning dataset (LeRobot v3.0).
 
-Registered on the ``dataset`` group by :mod:`nonprehensile.cli_dataset`.
+Registered on the ``dataset`` group by :mod:`nonprehensile.cli.dataset`.
 """
 
 from __future__ import annotations
 
 import click
 
-from nonprehensile.cli_common import bounded, emit_json, err, handle_errors, progress_bar
+from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, progress_bar
 from nonprehensile.export import FORMATS, export_dataset
 from nonprehensile.export.episodes import summarize
 
