@@ -15,6 +15,7 @@ import itertools
 import logging
 import math
 import string
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -200,7 +201,7 @@ def octahedron(edge: float = 1.0, *, name: str = "octahedron") -> Polyhedron:
     return convex_hull(p, name=name)
 
 
-def _explicit_model(points: FloatArray, loops: list[tuple[int, ...]], *, name: str,
+def _explicit_model(points: FloatArray, loops: Sequence[tuple[int, ...]], *, name: str,
                     rtol: float) -> Polyhedron:
     """The convex polyhedron of ``points`` with faces ``loops`` (clockwise from outside,
     every point a corner; a loop given the other way round is reversed), named and numbered
@@ -651,10 +652,10 @@ def from_mesh(
     up = 2.0 ** -math.frexp(span)[1] if span < 1e-2 else 1.0
     try:
         if up != 1.0:
-            mesh.apply_scale(up)
+            mesh.apply_scale(up)  # type: ignore[no-untyped-call]
         filled = bool(len(mesh.faces)) and _clean(mesh, trimesh)
         if up != 1.0:
-            mesh.apply_scale(1.0 / up)
+            mesh.apply_scale(1.0 / up)  # type: ignore[no-untyped-call]
     except (OverflowError, ValueError, IndexError) as exc:
         # trimesh's welding hashes coordinates and indices as int64: a damaged file overflows
         raise MeshError(f"{path}: trimesh cannot process the mesh ({exc}); the file is "

@@ -26,6 +26,7 @@ from nonprehensile.geometry.polyhedron import Polyhedron, wrap_index
 __all__ = ["Symmetry", "group_arrays", "rotation_group"]
 
 FloatArray = NDArray[np.float64]
+IndexArray = NDArray[np.int32]
 #: Index type of the symmetries' arrays: 4,000 symmetries of a 2,000-sided prism hold 32
 #: million indices.
 _INDEX = np.int32
@@ -73,7 +74,7 @@ class _Ints(Sequence[int]):
 
     __slots__ = ("array",)
 
-    def __init__(self, array: NDArray[np.int64]) -> None:
+    def __init__(self, array: IndexArray) -> None:
         self.array = array
 
     def __len__(self) -> int:
@@ -104,7 +105,7 @@ class _FaceArrayMap(Mapping[str, Any]):
 
     __slots__ = ("array", "index", "names")
 
-    def __init__(self, index: Mapping[str, int], array: NDArray[np.int64],
+    def __init__(self, index: Mapping[str, int], array: IndexArray,
                  names: Sequence[str] | None = None) -> None:
         self.index, self.array, self.names = index, array, names
 
@@ -132,11 +133,11 @@ class _Element:
 
     __slots__ = ("fmap", "rot", "shift", "t", "vmap")
 
-    def __init__(self, rot: FloatArray, t: FloatArray, vmap: NDArray[np.int64],
-                 fmap: NDArray[np.int64], shift: NDArray[np.int64]) -> None:
+    def __init__(self, rot: FloatArray, t: FloatArray, vmap: IndexArray,
+                 fmap: IndexArray, shift: IndexArray) -> None:
         self.rot, self.t, self.vmap, self.fmap, self.shift = rot, t, vmap, fmap, shift
 
-    def after(self, other: _Element, n_edges: NDArray[np.int64]) -> _Element:
+    def after(self, other: _Element, n_edges: IndexArray) -> _Element:
         """``self`` composed after ``other`` (``other`` first)."""
         return _Element(self.rot @ other.rot, self.rot @ other.t + self.t,
                         self.vmap[other.vmap], self.fmap[other.fmap],
@@ -168,8 +169,8 @@ class _GroupSearch:
         self.gate = 4.0 * max(atol, poly.atol)
 
     def faces_of(
-        self, vmap: NDArray[np.int64]
-    ) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
+        self, vmap: IndexArray
+    ) -> tuple[IndexArray, IndexArray] | None:
         """Where the vertex map ``vmap`` sends every face (its number) and each face's edge
         1 (the edge shift), or None when some face does not land on a face."""
         lp = self.lp
@@ -226,7 +227,7 @@ class _GroupSearch:
             np.linalg.norm(e.rot @ self.com_rel + e.t - self.com_rel) <= self.atol)
 
 
-def _closure(gens: list[_Element], identity: _Element, n_edges: NDArray[np.int64]
+def _closure(gens: list[_Element], identity: _Element, n_edges: IndexArray
              ) -> dict[bytes, _Element]:
     """Every product of ``gens``: the group they generate, keyed by vertex map."""
     group = {identity.vmap.tobytes(): identity}
