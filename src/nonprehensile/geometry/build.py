@@ -60,6 +60,9 @@ MESH_FORMATS = ("stl", "obj", "ply", "off", "glb")
 
 #: Most sides of :func:`prism`'s polygon (its model holds about 6 numbers a side).
 MAX_PRISM_SIDES = 1_000_000
+#: Point sets from this size on are large: a Qhull run over them takes seconds, so the
+#: builder retries as few times as it can (:func:`_hull_model`).
+LARGE_HULL = 50_000
 #: Most faces :func:`convex_hull` may be asked to facet a curved object into.
 MAX_FACES = 10_000_000
 
@@ -432,35 +435,57 @@ def _hull_model(
                 return exc, np.zeros(0, dtype=np.int64)
             return exc, keyed[_unturned_corners(vertices, faces, model_rtol)]
 
-    last: ModelError | None = None
-    for _ in range(8):
-        got, _ = attempt(p, radius, hull)
+    def by_merging(radius: float, hull: Any) -> Polyhedron | ModelError:
+        # nearly coplanar or nearly collinear leftovers: merge a little more, each time
+        got: Polyhedron | ModelError | None = None
+        for _ in range(8):
+            got, _ = attempt(p, radius, hull)
+            if isinstance(got, Polyhedron):
+                return got
+            radius = max(radius * 2.0, 1e-12 * extent)
+            hull = _qhull(p, radius, angle)
+        assert got is not None
+        return got
+
+    def by_removal(hull: Any) -> Polyhedron | None:
+        # Qhull keeps corners that are straight within the tolerance (a point a hair off the
+        # line between two others, where the facets that meet there were not merged) or turn
+        # back (a point inside a merged facet's thickness), and a larger merging radius makes
+        # more of them. Such a point is within the tolerance of the hull of the others: leave
+        # it out, at the first radius, until every corner turns.
+        keep = np.ones(len(p), dtype=bool)
+        for _ in range(32):
+            sub = np.flatnonzero(keep)
+            if len(sub) < 4:
+                break
+            got, unturned = attempt(p[sub], first_radius, hull, unturned=True)
+            if isinstance(got, Polyhedron):
+                return got
+            if not len(unturned):
+                break
+            keep[sub[unturned]] = False
+            hull = _qhull(p[np.flatnonzero(keep)], first_radius, angle)
+        return None
+
+    if len(p) < LARGE_HULL:
+        got = by_merging(radius, hull)
         if isinstance(got, Polyhedron):
             return got
-        # nearly coplanar or nearly collinear leftovers: merge a little more
-        last = got
-        radius = max(radius * 2.0, 1e-12 * extent)
-        hull = _qhull(p, radius, angle)
-    # Still none: Qhull keeps corners that are straight within the tolerance (a point a hair
-    # off the line between two others, where the facets that meet there were not merged) or
-    # turn back (a point inside a merged facet's thickness), and a larger merging radius
-    # makes more of them. Such a point is within the tolerance of the hull of the others:
-    # leave it out, at the first radius, until every corner turns.
-    keep = np.ones(len(p), dtype=bool)
-    for _ in range(32):
-        sub = np.flatnonzero(keep)
-        if len(sub) < 4:
-            break
-        got, unturned = attempt(p[sub], first_radius, _qhull(p[sub], first_radius, angle),
-                                unturned=True)
-        if isinstance(got, Polyhedron):
-            return got
-        if not len(unturned):
-            break
-        keep[sub[unturned]] = False
+        model = by_removal(_qhull(p, first_radius, angle))
+    else:
+        # a Qhull run over this many points takes seconds: leaving out the few corners that
+        # do not turn costs one more, merging coarser up to eight (a 1.3-million-triangle
+        # sphere: 2 runs instead of 10)
+        model = by_removal(hull)
+        if model is None:
+            got = by_merging(radius * 2.0, _qhull(p, radius * 2.0, angle))
+            if isinstance(got, Polyhedron):
+                return got
+    if model is not None:
+        return model
     raise MeshError(
         f"the hull of the points does not make a valid model at tolerance rtol={rtol:g} "
-        f"({last}); try a larger tolerance (--rtol) or fewer faces (--max-faces)"
+        f"({got}); try a larger tolerance (--rtol) or fewer faces (--max-faces)"
     )
 
 
@@ -681,6 +706,16 @@ def from_mesh(
             f"{path}: {why}, so its volume and centre of mass are undefined; repair it, or "
             "leave out --strict to use the convex hull of its points"
         )
+    volume, com = 0.0, np.zeros(3)
+    surface = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    if not why:
+        if mesh.volume < 0:
+            mesh.invert()
+        volume, com = float(mesh.volume), np.asarray(mesh.center_mass, dtype=float)
+        surface = (np.array(mesh.vertices, dtype=float), np.array(mesh.faces, dtype=np.int64))
+    # what is left of the mesh is its caches (edges, adjacency): 1 GB for a million
+    # triangles, freed before the hull needs the memory
+    del mesh
     try:
         hull = convex_hull(pts, name=name or path.stem, rtol=rtol, angle=angle,
                            max_faces=max_faces, units=units)
@@ -692,18 +727,12 @@ def from_mesh(
             "centroid as centre of mass"
         )
         return hull
-    if mesh.volume < 0:
-        mesh.invert()
-    volume = float(mesh.volume)
     area = float(sum(hull.face_areas.values()))
     if hull.volume - volume <= 2 * hull.atol * area:
         return hull  # convex: the hull is the object
     try:
-        return dataclasses.replace(
-            hull,
-            center_of_mass=np.asarray(mesh.center_mass, dtype=float),
-            virtual_faces=_virtual_faces(hull, mesh),
-        )
+        return dataclasses.replace(hull, center_of_mass=com,
+                                   virtual_faces=_virtual_faces(hull, *surface))
     except ModelError as exc:
         raise MeshError(f"{path}: {exc}") from None
 
@@ -727,14 +756,17 @@ def _clean(mesh: Any, trimesh: Any) -> bool:
     return filled
 
 
-def _virtual_faces(hull: Polyhedron, mesh: Any) -> frozenset[str]:
+def _virtual_faces(hull: Polyhedron, vertices: FloatArray, triangles: NDArray[np.int64]
+                   ) -> frozenset[str]:
     """Hull faces on which the mesh has no triangle: the object touches them only along
     edges or at vertices (the paper's virtual bottom faces). A hull face partly covered by a
     mesh face (a non-convex face, such as the side of an L) is a real face: the object rests
     on that face, and the hull face is its supporting polygon."""
-    tri = np.asarray(mesh.triangles, dtype=np.float64)
-    tri_n = np.asarray(mesh.face_normals, dtype=np.float64)
-    areas = np.asarray(mesh.area_faces, dtype=np.float64)
+    tri = vertices[triangles]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(cross, axis=1)
+    tri_n = cross / np.maximum(norm, 1e-300)[:, None]
+    areas = 0.5 * norm
     names = hull.face_ids
     normals = np.array([hull.normals[f] for f in names])
     anchors = hull.vertices[[hull.faces[f][0] for f in names]]
