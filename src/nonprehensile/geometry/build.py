@@ -170,12 +170,17 @@ def prism(
     height = float(check_number(height, "prism height", _SIZE, ModelError))
     rtol = DEFAULT_RTOL
     atol = rtol * math.hypot(2 * radius, height)
-    side = 2 * radius * math.sin(math.pi / n)
-    if side <= atol or height <= atol:
-        what = f"sides {side:.3g}" if side <= atol else f"height {height:g}"
+    # a corner of the n-gon stands r (1 - cos(2 pi / n)) off the line through its
+    # neighbours: within the tolerance the polygon has no corner there
+    turn = radius * (1.0 - math.cos(2 * math.pi / n))
+    if turn <= atol or height <= atol:
+        most = int(2 * math.pi / math.acos(1.0 - atol / radius)) if atol < radius else 3
         raise ModelError(
-            f"a prism of {n} sides, radius {radius:g} and height {height:g}: its {what} long "
-            f"is within the length tolerance {atol:.3g}; use fewer sides or a larger size"
+            f"a prism of {n} sides, radius {radius:g} and height {height:g}: "
+            + (f"its corners stand {turn:.3g} off the line through their neighbours, within "
+               f"the length tolerance {atol:.3g}; use at most {most} sides at this size"
+               if turn <= atol else
+               f"its height is within the length tolerance {atol:.3g}; make it taller")
         )
     ang = 2 * np.pi * np.arange(n) / n
     ring = np.column_stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(n)])
