@@ -25,9 +25,9 @@ from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS, Dataset, Demon
 from nonprehensile.demonstrations.segment import Segment
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
-from nonprehensile.motion.library import flatten_segments, medoid
 from nonprehensile.motion.trajectory import fill_gaps
 from nonprehensile.planning import Plan, PlanStep, ReferenceMotion
+from nonprehensile.references import flatten_segments, medoid
 from nonprehensile.sim.compare import (
     DEFAULT_ANGLE_TOL_DEG,
     DEFAULT_POSITION_TOL,
@@ -242,7 +242,7 @@ def simulate_plan(
 class DemonstrationLibrary:
     """Reference motions taken whole from one demonstration per skill.
 
-    A plan's :class:`~nonprehensile.motion.library.ClusteredMotions` gives each arc the medoid
+    A plan's :class:`~nonprehensile.references.ClusteredMotions` gives each arc the medoid
     of its own cluster, so a step's arcs may come from different demonstrations: fine for a
     controller that tracks contacts, but an open-loop replay then runs a motion nobody made.
     Here every arc of a skill comes from the same demonstration: the medoid of the skill's
