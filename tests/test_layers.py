@@ -33,6 +33,7 @@ CORE_RANKS: dict[str, int] = {
     "inference": 7,      # undemonstrated transitions (paper V)
     "io": 7,             # model and skills files
     "demonstrations": 8,  # recordings and datasets
+    "success_rates": 8,  # measured success rates of transitions (physics' verdict as data)
     "planning": 9,       # plans (paper VII)
     "control": 10,       # the controller's decisions while a plan executes
     "references": 11,    # the edge joining motion clusters, demonstrations and the planner

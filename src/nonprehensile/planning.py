@@ -97,8 +97,9 @@ class RobustnessCosts:
     over a plan is ``-ln`` of the probability that every step succeeds, so the planner trades
     steps against the chance of getting there; Laplace's ``(k + 1) / (n + 2)`` keeps a perfect
     count from being free and a failed one from being infinite. An arc whose rate ``k / n`` is
-    below ``threshold`` is avoided; an arc that was not measured is kept at its plain cost,
-    or avoided when ``avoid_unmeasured``.
+    below ``threshold`` is avoided. An arc that was not measured counts as ``0 / 0``: the
+    rule gives it 1/2 (``ln 2`` more than its plain cost: a measured 18/20 beats it, a
+    measured 8/20 does not), or it is avoided when ``avoid_unmeasured``.
 
     Parameters
     ----------
@@ -135,7 +136,8 @@ class RobustnessCosts:
         """The extra cost of an arc (None: avoid it) and its measured rate."""
         r = self.rates.get(TransitionKey.of(skill, start, end), self.loop)
         if r is None or r.n == 0:
-            return (None if self.avoid_unmeasured else 0.0), None
+            # nothing measured: Laplace's rule with no count, 1/2
+            return (None if self.avoid_unmeasured else self.weight * math.log(2.0)), None
         if r.rate < self.threshold:
             return None, r
         return -self.weight * math.log(r.smoothed), r

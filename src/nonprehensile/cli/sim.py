@@ -420,3 +420,12 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, scale: flo
         out.print(f"{name}: {st['kept']} kept of {st['tried']} takes "
                   f"({st['fragile']} fragile)")
     out.print(f"wrote {len(ds.demonstrations)} demonstrations to {out_dir}")
+
+
+def _register() -> None:
+    from nonprehensile.cli.robustness import robustness_cmd
+
+    simulate_group.add_command(robustness_cmd)
+
+
+_register()

@@ -47,6 +47,8 @@ __all__ = [
     "SweepSpec",
     "SweepUnit",
     "available_loops",
+    "check_loops",
+    "plan_unit",
     "run_sweep",
     "transition_units",
 ]
@@ -78,15 +80,35 @@ class SweepUnit:
     source: str
 
 
+class _Memo:
+    """A motion library asked once per arc: the same arc's reference serves every transition
+    of its skill (a cluster medoid costs a distance matrix)."""
+
+    def __init__(self, library: Any) -> None:
+        self.library = library
+        self._got: dict[tuple[str, str, str], Any] = {}
+
+    def reference(self, skill: str, source: str, target: str) -> Any:
+        key = (skill, source, target)
+        if key not in self._got:
+            self._got[key] = self.library.reference(skill, source, target)
+        return self._got[key]
+
+
 def transition_units(poly: Polyhedron, expansion: Any, motions: Any, *, scale: float,
-                     angle_tol: float) -> list[SweepUnit]:
-    """Every transition of ``expansion`` as a one-step plan with the planner's references
-    (per-arc cluster medoids, as :func:`~nonprehensile.planning.plan` attaches them), its
-    object's centre of mass at the origin."""
+                     angle_tol: float, sources: Sequence[str] | None = None
+                     ) -> list[SweepUnit]:
+    """Every transition of ``expansion`` (of the demonstrated skills ``sources`` only, when
+    given: ``NAME:reverse`` for a reversed one) as a one-step plan with the planner's
+    references (per-arc cluster medoids, as :func:`~nonprehensile.planning.plan` attaches
+    them), its object's centre of mass at the origin."""
     from nonprehensile.planning import step_for
 
+    motions = _Memo(motions)
     out = []
     for t in expansion.transitions:
+        if sources is not None and t.source.name not in sources:
+            continue
         st = step_for(poly, t, motions=motions, scale=scale, angle_tol=angle_tol)
         missing = [f"{a} -> {b}" for a, b, _, ref in st.motions if ref is None]
         if missing:
@@ -99,6 +121,18 @@ def transition_units(poly: Polyhedron, expansion: Any, motions: Any, *, scale: f
         out.append(SweepUnit(plan, label, TransitionKey.of(t.skill.name, t.start, t.end),
                              t.source.name))
     return out
+
+
+def plan_unit(plan: Plan) -> SweepUnit:
+    """A whole plan as one unit (its success: the goal reached)."""
+    if not plan.steps:
+        raise InputError("the plan has no step to execute")
+    label = {"skill": " + ".join(s.transition.skill.name for s in plan.steps),
+             "source": "plan", "demonstrated": all(s.transition.demonstrated
+                                                    for s in plan.steps),
+             "from": plan.start.to_dict(), "to": plan.goal.to_dict(),
+             "steps": len(plan.steps)}
+    return SweepUnit(plan, label, None, "plan")
 
 
 # -------------------------------------------------------------------------- the records
@@ -205,8 +239,16 @@ def available_loops() -> list[str]:
     return [lp for lp in ("closed", "open") if lp in EXECUTORS]
 
 
-def _check_loops(loops: Sequence[str]) -> tuple[str, ...]:
-    out = []
+def check_loops(loops: Sequence[str]) -> tuple[str, ...]:
+    """The loops, each known and available, without repeats.
+
+    Raises
+    ------
+    InputError
+        An unknown loop, or one this installation cannot execute (never replaced by
+        another).
+    """
+    out: list[str] = []
     for lp in loops:
         if lp not in ("closed", "open"):
             raise InputError(f"unknown loop {lp!r}: expected closed or open")
@@ -256,7 +298,7 @@ class SweepSpec:
     position_tol: float = DEFAULT_POSITION_TOL
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "loops", _check_loops(self.loops))
+        object.__setattr__(self, "loops", check_loops(self.loops))
         if isinstance(self.n_samples, bool) or not isinstance(self.n_samples, int) or \
                 not 1 <= self.n_samples <= 100_000:
             raise InputError(f"the number of samples must be a whole number in [1, 100000], "
