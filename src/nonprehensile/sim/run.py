@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from nonprehensile.errors import GeometryError, InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose
-from nonprehensile.sim.scene import DEFAULT_PARAMS, UNIT_METRES, SimParams, scene_xml
+from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams, scene_xml
 from nonprehensile.skills.contacts import (
     ContactEvent,
     ContactPair,
@@ -34,6 +34,7 @@ from nonprehensile.skills.contacts import (
     Vertex,
 )
 from nonprehensile.states import State, state_of_pose, state_pose
+from nonprehensile.geometry.units import UNIT_METRES
 
 __all__ = [
     "SimEvent",
