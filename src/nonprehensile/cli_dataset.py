@@ -161,14 +161,15 @@ def show_cmd(directory: str, arcs: bool, as_json: bool) -> None:
         return
     if not ds.demonstrations:
         out.print(f"[bold]{root}[/]: no demonstrations of its {len(ds.skills)} skills; "
-                  "no problems")
+                  "nothing to check")
         return
     out.print(
         f"[bold]{root}[/]: {_n(summary['n_demonstrations'], 'demonstration')} of "
         f"{_n(len(ds.skills), 'skill')} on {summary['object']} (scale {ds.scale:g} m per unit), "
         f"{summary['rate_hz']:g} Hz, markers {', '.join(summary['markers'])} "
         f"({summary['units']}), {100 * summary['occluded_fraction']:.2f} % of samples "
-        f"occluded; loaded in {summary['load_seconds']:.2f} s; no problems"
+        f"occluded; loaded in {summary['load_seconds']:.2f} s; no problems found; not "
+        f"checked: {'; '.join(summary['not_checked'])}"
     )
     t = Table(title="Skills")
     for col in ("skill", "maneuver", "demos", "mentors", "duration s (mean, min-max)"):
