@@ -26,7 +26,8 @@ def _world_normals(poly: Polyhedron, state: State) -> dict[str, np.ndarray]:
 def _sides(poly: Polyhedron, state: State, exclude: set[str]) -> dict[str, np.ndarray]:
     """Faces whose world normal is near horizontal (within 60 degrees), but ``exclude``."""
     n = _world_normals(poly, state)
-    return {f: v for f, v in n.items() if f not in exclude and abs(v[2]) < math.cos(math.radians(30))}
+    flat = math.cos(math.radians(30))
+    return {f: v for f, v in n.items() if f not in exclude and abs(v[2]) < flat}
 
 
 def skill_from_option(poly: Polyhedron, opt: dict[str, Any], name: str) -> dict[str, Any] | None:

@@ -25,9 +25,9 @@ from nonprehensile.bounds import (
 )
 from nonprehensile.errors import InputError, ModelError, SkillError, StateError
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
+from nonprehensile.geometry.units import check_units
 from nonprehensile.skills.skill import Skill, skill_from_dict, skill_to_dict
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State
-from nonprehensile.geometry.units import check_units
 
 __all__ = [
     "BUNDLED_MODELS",

@@ -64,8 +64,8 @@ __all__ = [
     "check_dataset",
     "dataset_path",
     "dataset_summary",
-    "not_checked",
     "load_dataset",
+    "not_checked",
     "save_dataset",
 ]
 
@@ -495,7 +495,7 @@ def _events(
         return None
     # a wrong chain or order is reported, and the times are still checked against the
     # recording, so that one pass lists every problem of the demonstration
-    if want is not None:
+    if skill is not None and want is not None:
         got = [e.id for e in events]
         if got != want:
             out.add(*where, f"events {got} do not match the chain of skill {skill.name!r}, "

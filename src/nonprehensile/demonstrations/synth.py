@@ -492,7 +492,8 @@ def _contacts(
                 elif moved or not isinstance(el, Face):
                     pts[i] = prev  # the finger rides with the object (or holds an edge/vertex)
                 else:  # holding a still object: the pad creeps a little
-                    pts[i] = _place_on_face(poly, el.id, prev + rng.normal(0.0, 0.04 * object_size(poly), 3))
+                    creep = rng.normal(0.0, 0.04 * object_size(poly), 3)
+                    pts[i] = _place_on_face(poly, el.id, prev + creep)
             if i < last and lam[i] != lam[i + 1] and labels[i] == "straight-pull":
                 # the pull must start where the face is nearest the rolling edge
                 pts[i] = _pull_start(poly, el, motion, pts[i], skill)
