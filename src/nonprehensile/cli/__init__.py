@@ -52,6 +52,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "infer": ("nonprehensile.cli.infer:infer_cmd",
               "Infer undemonstrated transitions of SKILLS_FILE over a state set (paper "
               "Section V)."),
+    "maneuvers": ("nonprehensile.cli.maneuvers:maneuvers_cmd",
+                  "Every roll, rotation and tumble of MODEL from a state: what stays on the "
+                  "ground (edge or vertex), the direction the object travels, and the final "
+                  "state to write in a skill."),
     "object": ("nonprehensile.cli.object:object_group",
                "Object models: show one, or make one from a mesh."),
     "plan": ("nonprehensile.cli.plan:plan_cmd",

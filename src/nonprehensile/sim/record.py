@@ -87,7 +87,8 @@ class TakeReason:
     Attributes
     ----------
     kind : str
-        ``"stayed"`` (the object never left its initial face), ``"turned"`` (it ended on the
+        ``"stayed"`` (the object never left its initial face), ``"pushed"`` (it slid on
+        it without tipping), ``"untouched"`` (no finger ever touched it), ``"turned"`` (it ended on the
         right face at another angle), ``"elsewhere"`` (on another face), ``"no-rest"`` (not
         at rest on a face), ``"events"`` (it moved as the skill says but some event never
         happened in order), ``"slid"`` (off its pivot), ``"fragile"`` (it worked, but not with
@@ -118,8 +119,9 @@ class TakeFailed(NonprehensileError):
 
 
 def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
-            max_slip: float) -> TakeReason:
-    """What a failed attempt did, named so that attempts failing alike share a key."""
+            max_slip: float, moved: float) -> TakeReason:
+    """What a failed attempt did, named so that attempts failing alike share a key
+    (``moved``: how far the centre of mass went on the table, metres)."""
     got = res.final_state
     if not cmp.success:
         if got is None:
@@ -127,6 +129,14 @@ def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
                               "did not come to rest on a face")
         text = f"ended in {got}"
         if got.face == skill.initial.face and skill.maneuver != "rotating":
+            if moved > max_slip:
+                return TakeReason("pushed", f"slid on face {got.face} without tipping",
+                                  f"{text}, {1000 * moved:.0f} mm away")
+            first = next((e.id for e in skill.events
+                          if any(isinstance(q.x, Finger) for q in e.pairs)), None)
+            if first is not None and first in cmp.missing:
+                return TakeReason("untouched", f"never left face {got.face}, never touched",
+                                  f"{text}; event {first!r} never happened")
             return TakeReason("stayed", f"never left its initial face {got.face}", text)
         if got.face == skill.final.face:
             return TakeReason("turned", f"ended on face {got.face} at another angle",
@@ -142,10 +152,18 @@ def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
 def what_to_change(skill: Skill, reason: TakeReason) -> str:
     """Advice for the commonest way a skill's takes fail (one sentence)."""
     see = f"`nonprehensile maneuvers MODEL --from {skill.initial}`"
+    if reason.kind == "pushed":
+        return ("the push slid the object along the table instead of tipping it over its "
+                "pivot: a push this low on a flat object slides it; push higher on the face "
+                "(a hook on the far face, as roll-arc does), or more table friction "
+                "(--friction) or less finger friction (--finger-friction) tips it")
     if reason.kind == "stayed":
-        return ("the fingers moved but did not carry the object over its pivot: it is too "
-                "heavy or slippery for this push (try --finger-friction, --mass, "
-                "--stiffness), or the motion is too small for its size")
+        return ("the fingers touched the object but did not tip it (it barely moved): it is "
+                "too heavy for the push (--mass, --stiffness, --force-limit), or the finger "
+                "pushes too close to the pivot's height to turn it")
+    if reason.kind == "untouched":
+        return ("the fingertips never touched the object where the skill says: the face is "
+                "too small or too far for a pad of --finger-radius, or the path misses it")
     if reason.kind == "turned":
         return (f"it reached face {skill.final.face} but turned on the way: more table "
                 f"friction (--friction) holds it; if every take ends at the same angle, the "
@@ -334,7 +352,9 @@ def record_demonstration(
             if best is None or err < best[0]:
                 best = (err, pos, res, cmp)
         elif why is None:
-            why = _reason(skill, cmp, res, slip, max_slip)
+            moved = float(np.hypot(*(np.asarray(res.final_pose.com[:2])
+                                     - np.asarray(start.com[:2]))))
+            why = _reason(skill, cmp, res, slip, max_slip, moved)
         if cmp.theta_error is None or abs(cmp.theta_error) > 30.0 or (
                 best is not None and best[0] <= aim_tol_deg):
             break
