@@ -298,7 +298,7 @@ def read_skills(
     rtol: float | None = None,
     angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> tuple[Polyhedron, list[Skill]]:
-    """Read a skills file (``shared/spec/files-and-cli.md``) and its object model.
+    """Read a skills file (docs/files.md) and its object model.
 
     ``object`` is a path relative to the skills file, a bundled model name, or the model
     inline. Every skill is validated against the model.

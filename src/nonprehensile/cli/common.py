@@ -1,6 +1,6 @@
 """What every command module of the command line shares: consoles, errors, JSON output.
 
-Exit codes (``shared/spec/files-and-cli.md``): 0 success, 2 bad input (the message names the
+Exit codes (docs/files.md): 0 success, 2 bad input (the message names the
 file and the culprit), 1 anything else.
 """
 

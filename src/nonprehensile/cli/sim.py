@@ -15,6 +15,7 @@ import click
 from rich.table import Table
 from rich.text import Text
 
+from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import (
     bounded,
     emit_json,
@@ -176,7 +177,7 @@ def _rate_table(title: str, records: list[dict[str, Any]], keys: Sequence[str]) 
     return t
 
 
-@click.group("simulate")
+@click.group("simulate", cls=HelpGroup)
 def simulate_group() -> None:
     """Execute demonstrations, inferred transitions and plans in the MuJoCo simulation."""
 

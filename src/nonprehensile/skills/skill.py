@@ -269,7 +269,7 @@ def _geometric_kind(skill: Skill, poly: Polyhedron, angle_tol: float) -> Maneuve
 def skill_from_dict(
     data: Any, poly: Polyhedron, *, angle_tol: float = DEFAULT_ANGLE_TOL
 ) -> Skill:
-    """Read one skill of the skills file (``shared/spec/files-and-cli.md``) and validate it.
+    """Read one skill of the skills file (docs/files.md) and validate it.
 
     ``maneuver`` may be omitted (it is then read from the geometry); ``invertible`` defaults
     to false; a motion may carry a ``label``.
