@@ -11,7 +11,9 @@ Model of a demonstration
   a rotation by ``angle`` about ``axis`` through the pivot (a point of the pivot edge for
   rolling, the pivot vertex for tumbling, the centre of mass for rotating), with a
   minimum-jerk profile, during the one arc that carries it (see :func:`event_progress`).
-* Finger ``R1`` is the index finger, ``R2`` the thumb. While a finger is in contact (from the
+* Finger ``R1`` is the index finger, ``R2`` the thumb. The landing event may leave out a
+  finger that held the object as it started to move (a topple that falls ahead of it): the
+  finger rides with the object to the landing and lets go there. While a finger is in contact (from the
   event that first names it to the first event that no longer does) its contact point is a
   point of the named element, in the object's frame; the tip marker is that point moved
   outward along the element's normal by the mentor's marker offset (a marker sits on the
@@ -310,10 +312,13 @@ def event_progress(skill: Skill) -> list[float]:
             f"cannot synthesize skill {skill.name!r}: no finger touches the object when it "
             f"starts to move (event {skill.events[i].id!r})"
         )
-    if skill.maneuver != "rotating" and a != b:
+    # fingers may let go as the object lands (a topple: it falls ahead of the finger), so
+    # the landing event may name fewer of them, never others
+    if skill.maneuver != "rotating" and any(b.get(k, a.get(k)) != a.get(k) for k in {*a, *b}):
         raise InputError(
             f"cannot synthesize skill {skill.name!r}: the fingers holding the object change "
-            f"while it moves ({skill.events[i].id!r} -> {skill.events[i + 1].id!r})"
+            f"while it moves ({skill.events[i].id!r} -> {skill.events[i + 1].id!r}); the "
+            "landing event may leave a finger out (it lets go), not add or move one"
         )
     return lam
 

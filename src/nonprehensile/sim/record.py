@@ -178,8 +178,9 @@ def what_to_change(skill: Skill, reason: TakeReason) -> str:
         named = [e for e in skill.events if e.id in reason.events]
         contacts = "; ".join(f"{e.id!r}: {e}" for e in named)
         return ("physics made the maneuver but not these events in order (" + contacts
-                + "): write them as physics makes them (a finger that lets go before the "
-                "landing leaves the landing event without it), or leave them out")
+                + "): write them as physics makes them; an object that falls ahead of the "
+                "finger lands without it, so end the moving arc on the landing with the "
+                "ground alone (pivot, then e.g. (G,face): a topple), or leave the event out")
     if reason.kind == "slid":
         return ("the pivot slid along the table: more table friction (--friction), or a "
                 "second finger holding the object down on its pivot")
