@@ -69,7 +69,7 @@ def test_unknown_units_are_refused_in_one_line(tmp_path: Path, models: dict[str,
     assert "\n" not in line and "'furlong'" in line and "mm" in line and str(stl) in line
     assert not (tmp_path / "x.json").exists()
     doc = json.loads(models["box_m"].read_text())
-    with pytest.raises(ModelError, match="furlong.*use one of m, dm, cm, mm"):
+    with pytest.raises(ModelError, match=r"furlong.*use one of m, dm, cm, mm"):
         model_from_dict({**doc, "units": "furlong"})
     from nonprehensile.geometry.build import from_mesh
     with pytest.raises(MeshError, match="furlong"):

@@ -49,9 +49,9 @@ if TYPE_CHECKING:
         rotation_group,
         tetrahedron,
     )
+    from nonprehensile.geometry.units import in_metres
     from nonprehensile.inference import Expansion, cross_check, expand
     from nonprehensile.io import load_model, read_model, read_skills, read_states, write_model
-    from nonprehensile.geometry.units import in_metres
     from nonprehensile.maneuvers import (
         Maneuver,
         ManeuverOption,
