@@ -13,10 +13,10 @@ Model of a demonstration
   minimum-jerk profile, during the one arc that carries it (see :func:`event_progress`).
 * Finger ``R1`` is the index finger, ``R2`` the thumb. The landing event may leave out a
   finger that held the object as it started to move (a topple that falls ahead of it): the
-  finger rides with the object to the landing and lets go there. While a finger is in
-  contact (from the event that first names it to the first event that no longer does) its
-  contact point is a point of the named element, in the object's frame; the tip marker is that point moved
-  outward along the element's normal by the mentor's marker offset (a marker sits on the
+  finger rides with the object to the landing and lets go there. While a finger is in contact
+  (from the event that first names it to the first event that no longer does) its contact
+  point is a point of the named element, in the object's frame; the tip marker is that point
+  moved outward along the element's normal by the mentor's marker offset (a marker sits on the
   nail side of the pad, 0.5 to 2 mm proud). So at each event time every named finger's tip
   lies on the named face, edge or vertex of the object in its pose at that time, on the
   outside: what ``tests/test_synth.py`` checks.

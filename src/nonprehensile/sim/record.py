@@ -87,13 +87,13 @@ class TakeReason:
     Attributes
     ----------
     kind : str
-        ``"stayed"`` (the object never left its initial face), ``"pushed"`` (it slid on
-        it without tipping), ``"untouched"`` (no finger ever touched it), ``"turned"`` (it
-        ended on the right face at another angle), ``"elsewhere"`` (on another face), ``"no-rest"`` (not
-        at rest on a face), ``"events"`` (it moved as the skill says but some event never
-        happened in order), ``"slid"`` (off its pivot), ``"fragile"`` (it worked, but not with
-        another draw of tracker noise) or ``"unfit"`` (the synthetic mentor cannot make the
-        skill's motion).
+        ``"stayed"`` (the object never left its initial face), ``"pushed"`` (it slid on it
+        without tipping), ``"untouched"`` (no finger ever touched it), ``"turned"`` (it
+        ended on the right face at another angle), ``"elsewhere"`` (on another face),
+        ``"no-rest"`` (not at rest on a face), ``"events"`` (it moved as the skill says but
+        some event never happened in order), ``"slid"`` (off its pivot), ``"fragile"`` (it
+        worked, but not with another draw of tracker noise) or ``"unfit"`` (the synthetic
+        mentor cannot make the skill's motion).
     key : str
         What takes failing alike share (counted together).
     text : str
