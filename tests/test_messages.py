@@ -23,7 +23,10 @@ MOTIVE = ROOT.parent / "shared" / "realdata" / "motive" / \
 
 
 def _problem_lines(output: str) -> list[str]:
-    return [line.strip() for line in output.splitlines() if line.strip().startswith("- ")]
+    """The lines naming a problem of demonstration 0 (a list item, or the error line itself
+    when it is the only problem), from the file's name on."""
+    return [line[line.index("(demonstration 0)"):].strip() for line in output.splitlines()
+            if "(demonstration 0)" in line]
 
 
 @pytest.mark.skipif(not MOTIVE.is_file(),
@@ -41,7 +44,8 @@ def test_a_motive_csv_without_the_finger_markers_names_file_and_markers(tmp_path
     lines = _problem_lines(r.output)
     assert len(lines) == 1, r.output
     line = lines[0]
-    assert line.startswith("- take.csv (demonstration 0): marker(s) ['index_tip', ")
+    assert "take.csv (demonstration 0)" in r.output
+    assert line.startswith("(demonstration 0): marker(s) ['index_tip', ")
     assert "Unlabeled 1014" in line and "'markers'" in line  # its own markers, and the fix
     assert "shape" not in r.output and "Traceback" not in r.output
 
@@ -66,7 +70,8 @@ def test_empty_events_say_which_events_to_give(tmp_path: Path) -> None:
     assert r.exit_code == 2
     [line] = _problem_lines(r.output)
     name = doc["demonstrations"][0]["file"]
-    assert line.startswith(f"- {name} (demonstration 0): 'events' is empty: give the time of "
+    assert f"{name} (demonstration 0)" in r.output
+    assert line.startswith("(demonstration 0): 'events' is empty: give the time of "
                            "each event of the skill, in order (['rest', 'touch', 'pivot', ")
     assert "got []" not in line and "dataset annotate" in line
 
