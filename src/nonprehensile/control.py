@@ -49,7 +49,6 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import Expansion
 from nonprehensile.observation import Observation, observed_contacts
 from nonprehensile.planning import MotionLibrary, ObjectPose, Plan, PlanStep, plan
-from nonprehensile.references import ease, fingers_of, resample, step_targets, with_stop
 from nonprehensile.skills.contacts import (
     ContactEvent,
     ContactPair,
@@ -62,6 +61,7 @@ from nonprehensile.skills.contacts import (
     normalize_event,
 )
 from nonprehensile.states import State, angle_diff, state_of_pose
+from nonprehensile.step_paths import ease, fingers_of, resample, step_targets, with_stop
 
 __all__ = [
     "ArcSpec",

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose
-from nonprehensile.references import ease
+from nonprehensile.step_paths import ease
 
 __all__ = ["PEAK_ACCEL", "PEAK_SPEED", "hull_distance", "limits_of", "straight", "transit"]
 

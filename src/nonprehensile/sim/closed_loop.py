@@ -48,12 +48,12 @@ from nonprehensile.control import (
 from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS
 from nonprehensile.observation import Observation, ObservationModel
 from nonprehensile.planning import ObjectPose, Plan
-from nonprehensile.references import fingers_of, resample
 from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, DEFAULT_POSITION_TOL
 from nonprehensile.sim.judge import CONTACT_EVERY, EventLog
 from nonprehensile.sim.observe import SimObserver
 from nonprehensile.sim.run import Simulator
 from nonprehensile.states import State, angle_diff
+from nonprehensile.step_paths import fingers_of, resample
 from nonprehensile.transit import limits_of, straight, transit
 
 __all__ = ["Execution", "execute_plan", "scene_fingers"]
