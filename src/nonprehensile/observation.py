@@ -91,7 +91,7 @@ class ObservationModel:
         Standard deviation (m) of each fingertip position, per axis.
     """
 
-    rate: float = 200.0
+    rate: float = 120.0
     latency: float = 0.0
     position_noise: float = 0.0
     angle_noise_deg: float | None = None
@@ -123,7 +123,7 @@ class ObservationModel:
                 "angle_noise_deg": self.angle_noise_deg, "finger_noise": self.finger_noise}
 
 
-#: A perfect sensor at 200 Hz.
+#: A perfect sensor at 120 Hz (the paper's OptiTrack V120).
 PERFECT = ObservationModel()
 
 

@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import mujoco
@@ -49,6 +49,7 @@ from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS
 from nonprehensile.observation import Observation, ObservationModel
 from nonprehensile.planning import ObjectPose, Plan
 from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, DEFAULT_POSITION_TOL
+from nonprehensile.sim.distribution import FINGER_NOISE_TIME, NO_PERTURBATION, Perturbation
 from nonprehensile.sim.judge import CONTACT_EVERY, EventLog
 from nonprehensile.sim.observe import SimObserver
 from nonprehensile.sim.run import Simulator
@@ -60,8 +61,6 @@ __all__ = ["Execution", "execute_plan", "scene_fingers"]
 
 FloatArray = NDArray[np.float64]
 Replanner = Callable[[State, tuple[float, float], frozenset[str]], Plan]
-#: Correlation time (s) of the fingertip's position error (a Gauss-Markov process).
-FINGER_NOISE_TIME = 0.05
 #: Cross-fade (s) from the running targets into new ones, so the commanded velocity never
 #: jumps.
 CROSSFADE = 0.06
@@ -140,12 +139,13 @@ class _Runner:
     """The MuJoCo side of one execution: the step loop, the observer and the records."""
 
     def __init__(self, sim: Simulator, observation: ObservationModel,
-                 rng: np.random.Generator, finger_noise: float, keep_trace: int) -> None:
+                 tracker_rng: np.random.Generator, finger_rng: np.random.Generator,
+                 finger_noise: float, keep_trace: int) -> None:
         self.sim = sim
         self.m, self.d = sim.model, sim.data
         self.dt = sim.params.timestep
-        self.observer = SimObserver(sim, observation, rng)
-        self.rng = rng
+        self.observer = SimObserver(sim, observation, tracker_rng)
+        self.rng = finger_rng
         self.finger_noise = finger_noise
         self._noise_state = np.zeros((sim.n_fingers, 3))
         self.t = 0.0
@@ -302,9 +302,7 @@ def execute_plan(
     replan: Replanner | None = None,
     config: ControlConfig | None = None,
     observation: ObservationModel | None = None,
-    seed: int = 0,
-    start_pose: ObjectPose | None = None,
-    finger_noise: float = 0.0,
+    perturbation: Perturbation = NO_PERTURBATION,
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG,
     position_tol: float = DEFAULT_POSITION_TOL,
     keep_trace: int = 0,
@@ -326,14 +324,12 @@ def execute_plan(
         execution (closed loop).
     config : ControlConfig, optional
     observation : ObservationModel, optional
-        The sensor (closed loop); default a perfect one at 200 Hz.
-    seed : int
-        Seeds the sensor's and the fingers' noise.
-    start_pose : ObjectPose, optional
-        Where the object really starts (default where the plan believes it is).
-    finger_noise : float
-        Standard deviation (m) of the fingertips' position error per axis (a Gauss-Markov
-        process of correlation time :data:`FINGER_NOISE_TIME`).
+        The sensor (closed loop): rate, latency, noise; default a perfect one at 120 Hz.
+        A perturbation's tracking noise, when not zero, sets its position noise.
+    perturbation : Perturbation
+        Where the object really starts (its start error), the tracker's noise and the
+        fingertips' position error (a Gauss-Markov process per axis, as
+        :func:`~nonprehensile.sim.distribution.finger_noise`), seeded by its noise seed.
     angle_tol, position_tol : float
         The goal's tolerances (degrees, m).
     keep_trace : int
@@ -342,6 +338,9 @@ def execute_plan(
     wall0 = time.perf_counter()
     cfg = config or ControlConfig(angle_tol=angle_tol, position_tol=position_tol)
     obs_model = observation or ObservationModel()
+    if perturbation.tracking_noise > 0:
+        obs_model = replace(obs_model, position_noise=perturbation.tracking_noise,
+                            angle_noise_deg=None)
     if not plan.steps:
         raise ValueError("the plan has no step to execute")
     first = plan.steps[0]
@@ -349,11 +348,11 @@ def execute_plan(
     assert first.start_pose is not None and last.end_pose is not None
     ex = Execution(loop, plan.goal, last.end_pose.position)
     p = sim.params
-    rng = np.random.default_rng(seed)
-    run = _Runner(sim, obs_model, rng, finger_noise, keep_trace)
+    run = _Runner(sim, obs_model, perturbation.rng("tracker"), perturbation.rng("finger"),
+                  perturbation.finger_noise, keep_trace)
     m, d = sim.model, sim.data
     mujoco.mj_resetData(m, d)
-    sim.set_pose(start_pose or first.start_pose)
+    sim.set_pose(perturbation.start_pose(first.start_pose))
     # the fingertips start out of the way, above the object's start
     home = np.array(sim.park())
     c0 = first.start_pose.com
