@@ -74,7 +74,9 @@ __all__ = [
     "anchor_transform",
     "correction_pushes",
     "replanner",
+    "snap_state",
     "step_spec",
+    "turn_push",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -112,7 +114,11 @@ class ControlConfig:
     max_settle : float
         Longest wait (s) for the object to come to rest after a step.
     max_replans : int
-        Re-plans allowed in one execution.
+        Retries and re-plans allowed in one execution.
+    max_tries : int
+        Tries of one step while the object stays in its start state ...
+    slow_retry : float
+        ... each retry this many times slower than the last.
     clearance : float
         Margin (m) between fingertip and object during transits.
     max_speed : float
@@ -142,7 +148,9 @@ class ControlConfig:
     still_time: float = 0.08
     still_tol: float = 0.0005
     max_settle: float = 2.0
-    max_replans: int = 3
+    max_replans: int = 8
+    max_tries: int = 2
+    slow_retry: float = 1.5
     clearance: float = 0.015
     max_speed: float = 0.45
     max_accel: float = 20.0
@@ -157,7 +165,8 @@ class ControlConfig:
             if isinstance(value, bool):
                 continue
             ok = isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
-            if name in ("max_speed", "max_accel", "reach_speed", "still_time") and ok:
+            if name in ("max_speed", "max_accel", "reach_speed", "still_time",
+                        "slow_retry") and ok:
                 ok = value > 0
             if name == "max_speed" and ok:
                 ok = value <= 0.5  # the issue's bound on every fingertip
@@ -659,15 +668,28 @@ class NextAction:
 
     Attributes
     ----------
-    action : {"next", "replan", "done", "fail"}
+    action : {"next", "retry", "replan", "done", "fail"}
     reason : str
     avoid : frozenset of str
         Skills (demonstrated names) the re-plan must avoid.
+    slow : float
+        A retry runs the step's reference this many times slower.
     """
 
-    action: Literal["next", "replan", "done", "fail"]
+    action: Literal["next", "retry", "replan", "done", "fail"]
     reason: str = ""
     avoid: frozenset[str] = frozenset()
+    slow: float = 1.0
+
+
+def snap_state(observed: State, candidates: Sequence[State], angle_tol: float) -> State:
+    """The candidate on the observed face nearest in ``theta``, if within ``angle_tol``
+    degrees (the plan's own states, so a re-plan keeps the plan's frame); else ``observed``.
+    """
+    near = [c for c in candidates if c.face == observed.face
+            and abs(angle_diff(c.theta, observed.theta)) <= angle_tol]
+    return min(near, key=lambda c: abs(angle_diff(c.theta, observed.theta))) \
+        if near else observed
 
 
 def same_state(a: State | None, b: State, angle_tol: float) -> bool:
@@ -677,14 +699,17 @@ def same_state(a: State | None, b: State, angle_tol: float) -> bool:
 
 def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal: State,
                *, replans: int, avoid: frozenset[str], last: bool,
-               config: ControlConfig) -> NextAction:
+               config: ControlConfig, tries: int = 0) -> NextAction:
     """Decide what follows a step from the state the object was observed to rest in.
 
     * the predicted state: the next step (or, after the last, done);
     * the goal itself (reached early): done;
     * no resting state: fail;
-    * another state: re-plan from it (at most ``config.max_replans`` times); a skill that
-      made the object slide instead of tip is avoided from then on.
+    * still the step's start state (it slid, was kicked away, never tipped): the same step
+      again, anchored anew, its reference ``config.slow_retry`` times slower (a slower
+      push), at most ``config.max_tries`` times in all; then a re-plan avoiding the skill;
+    * another state: re-plan from it. Retries and re-plans together are at most
+      ``config.max_replans``.
     """
     if same_state(observed, goal, config.angle_tol):
         return NextAction("done")
@@ -695,11 +720,20 @@ def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal
     if replans >= config.max_replans:
         return NextAction("fail", f"ended in {observed} instead of {spec.end_state} with "
                                   f"{replans} re-plans spent ({monitor_reason or 'no anomaly'})")
-    # a skill that left the object where it was (it slid, or never tipped) will not do
-    # better on this table: the re-plan avoids it (another skill, or another route)
+    start = spec.step.start_world
+    # the object did not do what the skill is for: still on its start face (a turn in
+    # place: still at its start theta); a small turn of it is put right before a re-plan
+    stayed = observed.face == start.face and (
+        start.face != spec.end_state.face
+        or abs(angle_diff(observed.theta, start.theta)) <= config.angle_tol)
+    why = f": {monitor_reason}" if monitor_reason else ""
+    if stayed and tries + 1 < config.max_tries:
+        return NextAction("retry", f"still in {observed}{why}",
+                          avoid, config.slow_retry ** (tries + 1))
+    # a skill that left the object where it was (it slid, or never tipped), slower too, will
+    # not do better on this table: the re-plan avoids it (another skill, or another route)
     name = spec.source_skill
-    more = frozenset({name}) if same_state(observed, spec.step.start_world, config.angle_tol) \
-        else frozenset()
+    more = frozenset({name}) if stayed else frozenset()
     return NextAction("replan", f"ended in {observed} instead of {spec.end_state}"
                                 + (f": {monitor_reason}" if monitor_reason else ""),
                       avoid | more)
@@ -802,3 +836,55 @@ def replanner(poly: Polyhedron, expansion: Expansion, goal: State, *,
                     scale=scale, costs=c or None)
 
     return replan
+
+
+@dataclass(frozen=True)
+class TurnPush:
+    """A push off the centre-of-mass line that turns the object about the vertical: the
+    fingertip presses face ``face`` at ``start`` (beside the face, ``offset`` m along it from
+    the line through the centre of mass) moving along ``direction``; a push at an offset
+    ``e`` along the face's tangent ``t = z x n`` turns the object by the torque ``F e``
+    (counterclockwise seen from above for ``e > 0``)."""
+
+    face: str
+    start: FloatArray
+    direction: FloatArray
+    offset: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {"face": self.face, "start": [round(float(v), 6) for v in self.start],
+                "direction": [round(float(v), 4) for v in self.direction],
+                "offset_m": round(self.offset, 5)}
+
+
+def turn_push(poly: Polyhedron, pose: ObjectPose, turn_deg: float, toward: Sequence[float],
+              *, finger_radius: float, clearance: float) -> TurnPush | None:
+    """A push that turns the object by ``turn_deg`` (its sign: counterclockwise positive),
+    on the side face whose push also moves the centre of mass most toward ``toward`` (x, y);
+    None if the object shows no side face. The contact sits at half the face's half-width
+    from the centre line, low on the face (as :func:`correction_pushes`)."""
+    world = pose.to_world(poly.vertices)
+    height = float(world[:, 2].max() - world[:, 2].min())
+    goal = np.array([float(toward[0]), float(toward[1])]) - pose.com[:2]
+    best: tuple[float, str, FloatArray] | None = None
+    for f in poly.face_ids:
+        n3 = pose.rotation @ poly.normals[f]
+        if abs(n3[2]) >= 0.1:
+            continue
+        n = n3[:2] / float(np.hypot(*n3[:2]))
+        score = float(-n @ goal)
+        if best is None or score > best[0]:
+            best = (score, f, n)
+    if best is None:
+        return None
+    _, f, n = best
+    t = np.array([-n[1], n[0]])
+    pts = world[list(poly.faces[f])][:, :2] - pose.com[:2]
+    along = pts @ t
+    half = float(min(along.max(), -along.min()))
+    e = math.copysign(max(0.0, 0.5 * half), turn_deg)
+    face_dist = float(n @ (pts.mean(axis=0)))
+    xy = pose.com[:2] + n * (face_dist + finger_radius + clearance) + t * e
+    z = max(finger_radius + 0.002, 0.25 * height)
+    return TurnPush(f, np.array([xy[0], xy[1], z]), np.array([-n[0], -n[1], 0.0]), e)

@@ -292,8 +292,8 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
               metavar="HZ", help="Closed loop: the object tracker's sample rate.")
 @click.option("--latency", type=float, default=0.0, show_default=True, metavar="S",
               help="Closed loop: the tracker's latency, seconds.")
-@click.option("--max-replans", type=int, default=3, show_default=True,
-              help="Closed loop: re-plans allowed in one execution.")
+@click.option("--max-replans", type=int, default=8, show_default=True,
+              help="Closed loop: retries and re-plans allowed in one execution.")
 @step_option
 @states_option
 @angle_tol_option
@@ -333,7 +333,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     if not result.steps:
         raise InputError(f"the object already rests in {goal}: nothing to execute")
     with progress_bar("simulating", as_json) as bar:
-        simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=scene_fingers(result),
+        simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=scene_fingers(result, exp),
                                   params=params)
         ex = execute_plan(simulator, result, fingers=ds.fingers,
                           loop="closed" if loop == "closed" else "open",

@@ -43,9 +43,12 @@ from nonprehensile.control import (
     anchor_transform,
     correction_pushes,
     observed_state,
+    snap_state,
     step_spec,
+    turn_push,
 )
 from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS
+from nonprehensile.inference import Expansion
 from nonprehensile.observation import Observation, ObservationModel
 from nonprehensile.planning import ObjectPose, Plan
 from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, DEFAULT_POSITION_TOL
@@ -66,10 +69,13 @@ Replanner = Callable[[State, tuple[float, float], frozenset[str]], Plan]
 CROSSFADE = 0.06
 
 
-def scene_fingers(plan: Plan) -> int:
-    """How many fingertips a scene needs for every step of ``plan``."""
-    return max((max(fingers_of(s.transition.skill), default=1) for s in plan.steps),
-               default=1)
+def scene_fingers(plan: Plan, expansion: Expansion | None = None) -> int:
+    """How many fingertips a scene needs for every step of ``plan`` (and, given the
+    expansion, for any skill a re-plan may turn to)."""
+    skills = [s.transition.skill for s in plan.steps]
+    if expansion is not None:
+        skills += [t.skill for t in expansion.transitions]
+    return max((max(fingers_of(s), default=1) for s in skills), default=1)
 
 
 @dataclass
@@ -121,7 +127,7 @@ class Execution:
                                  else round(self.position_error, 5)),
             "steps": self.steps,
             "replans": self.replans,
-            "retries": len(self.replans),
+            "retries": sum(1 for r in self.replans if r.get("retry")),
             "corrections": self.corrections,
             "transits": self.transits,
             "limits": {"commanded_max_speed": round(self.commanded_speed, 4),
@@ -387,9 +393,13 @@ def execute_plan(
     steps = list(plan.steps)
     avoid: frozenset[str] = frozenset()
     index = 0
+    tries = 0
+    slow = 1.0
     while index < len(steps):
         step = steps[index]
         spec = step_spec(sim.poly, step, fingers)
+        if slow != 1.0:  # a retry: the same reference played slower
+            spec = replace(spec, rate=spec.rate / slow)
         number = len(ex.steps) + 1
         t_step = run.t
         n_events = len(run.log.events)
@@ -439,6 +449,13 @@ def execute_plan(
             if end is not None and end.outcome == "aborted":
                 # get out of the way and let the object come to rest, then look
                 pose_now = run.wait_observation().pose
+                # let go first (straight up off the object: the fingertip may still press
+                # it), then move clear as a transit
+                off = np.array(run.command)
+                for k in spec.used:
+                    off[k - 1, 2] += p.finger_radius + cfg.clearance
+                run.drive(straight(run.command, off, dt=run.dt, max_speed=0.1,
+                                   max_accel=cfg.max_accel / 2))
                 up = _retreat_target(sim, pose_now, run.command, spec.used, cfg.clearance)
                 do_transit(pose_now, up, spec.used, f"recovery after step {number}")
                 mon.watch_rest(run.t)
@@ -470,9 +487,19 @@ def execute_plan(
             continue
         nxt = after_step(spec, record["reason"], observed_end, plan.goal,
                          replans=len(ex.replans), avoid=avoid,
-                         last=index == len(steps) - 1, config=cfg)
+                         last=index == len(steps) - 1, config=cfg, tries=tries)
+        record["next"] = nxt.action
+        if nxt.action != "retry":
+            tries, slow = 0, 1.0
         if nxt.action == "next":
             index += 1
+        elif nxt.action == "retry":
+            tries += 1
+            slow = nxt.slow
+            ex.replans.append({"after_step": number, "retry": True, "reason": nxt.reason,
+                               "slower": round(slow, 3),
+                               "steps": [f"{spec.skill}: {step.start_world} -> "
+                                         f"{step.end_world}"]})
         elif nxt.action == "done":
             break
         elif nxt.action == "fail" or replan is None:
@@ -482,6 +509,19 @@ def execute_plan(
         else:
             assert observed_end is not None
             avoid = nxt.avoid
+            # in the plan's own frame: turned onto the nearest of its states on the observed
+            # face when it is off by more than the tolerance (a re-plan keeps the agent's
+            # frame, so a turned object would miss the goal's theta), then snapped to it
+            frame = [x for s in steps for x in (s.start_world, s.end_world)]
+            near = snap_state(observed_end, frame, 45.0)
+            if near is not observed_end and abs(angle_diff(
+                    observed_end.theta, near.theta)) > cfg.angle_tol / 2:
+                _align(sim, run, ex, cfg, rest, do_transit, near.theta,
+                       sim.pose().position)
+                look = run.wait_observation()
+                observed_end = observed_state(sim.poly, look.pose.rotation) or observed_end
+                mon.final_pose = look.pose
+            observed_end = snap_state(observed_end, frame, cfg.angle_tol)
             here = mon.final_pose.position if mon.final_pose is not None else \
                 sim.pose().position
             entry: dict[str, Any] = {"after_step": number, "reason": nxt.reason,
@@ -504,6 +544,7 @@ def execute_plan(
             index = 0
     # at the end: slide the object onto the goal position if it rests off it
     if loop == "closed" and not ex.reason and cfg.correct_position:
+        _align(sim, run, ex, cfg, rest, do_transit, plan.goal.theta, ex.goal_position)
         _correct(sim, run, ex, cfg, rest, do_transit)
     # park the fingers and let everything come to rest before the verdict
     if loop == "closed":
@@ -565,7 +606,7 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
         s = np.arange(n) * run.dt * speed
         path = np.repeat(run.command[None], n, axis=0)
         path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
-        entry = push.to_dict()
+        entry = {"kind": "slide", **push.to_dict()}
 
         def react(o: Observation, cmd: FloatArray, origin: FloatArray = origin,
                   push: Any = push) -> Decision:
@@ -585,3 +626,57 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
         entry["outcome"] = dec.outcome if dec is not None else ""
         entry["error_after_m"] = round(math.dist(obs.pose.com[:2], ex.goal_position), 5)
         ex.corrections.append(entry)
+
+
+def _yaw_error(poly: Any, pose: ObjectPose, theta: float) -> float | None:
+    """Observed theta minus ``theta`` (degrees), or None when it rests on no face."""
+    st = observed_state(poly, pose.rotation)
+    return None if st is None else angle_diff(st.theta, theta)
+
+
+def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
+           rest: FloatArray, do_transit: Callable[..., None], theta: float,
+           toward: tuple[float, float], tol_deg: float = 1.5) -> None:
+    """Turn the object about the vertical onto ``theta`` by pushes off its centre line
+    (:func:`~nonprehensile.control.turn_push`), each run until the observed turn is done."""
+    p = sim.params
+    for _ in range(3):
+        obs = run.wait_observation()
+        err0 = _yaw_error(sim.poly, obs.pose, theta)
+        if err0 is None or abs(err0) <= tol_deg:
+            return
+        push = turn_push(sim.poly, obs.pose, -err0, toward, finger_radius=p.finger_radius,
+                         clearance=cfg.clearance)
+        if push is None:
+            return
+        target = np.array(rest)
+        target[0] = push.start
+        do_transit(obs.pose, target, (1,), "turn")
+        speed = 0.02
+        length = p.finger_radius + cfg.clearance + 0.03
+        n = round(length / speed / run.dt) + 1
+        s = np.arange(n) * run.dt * speed
+        path = np.repeat(run.command[None], n, axis=0)
+        path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
+
+        def react(o: Observation, cmd: FloatArray, err0: float = err0) -> Decision:
+            e = _yaw_error(sim.poly, o.pose, theta)
+            if e is None:
+                return Decision(done=True, outcome="aborted", reason="tilted")
+            if abs(e) <= 0.3 or e * err0 < 0:
+                return Decision(done=True, outcome="finished")
+            return Decision()
+
+        dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
+                        max_time=length / speed + 0.5)
+        back = np.array(run.command)
+        back[0, :2] -= push.direction[:2] * (p.finger_radius + cfg.clearance)
+        run.drive(straight(run.command, back, dt=run.dt, max_speed=0.1,
+                           max_accel=cfg.max_accel / 2))
+        obs = run.wait_observation()
+        after = _yaw_error(sim.poly, obs.pose, theta)
+        ex.corrections.append({"kind": "turn", **push.to_dict(),
+                               "theta_error_before_deg": round(err0, 3),
+                               "theta_error_after_deg": None if after is None
+                               else round(after, 3),
+                               "outcome": dec.outcome if dec is not None else ""})
