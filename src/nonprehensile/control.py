@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -73,6 +73,7 @@ __all__ = [
     "after_step",
     "anchor_transform",
     "correction_pushes",
+    "raised",
     "replanner",
     "snap_state",
     "step_spec",
@@ -150,7 +151,7 @@ class ControlConfig:
     max_settle: float = 2.0
     max_replans: int = 8
     max_tries: int = 2
-    slow_retry: float = 1.5
+    slow_retry: float = 1.25
     clearance: float = 0.015
     max_speed: float = 0.45
     max_accel: float = 20.0
@@ -170,10 +171,14 @@ class ControlConfig:
                 ok = value > 0
             if name == "max_speed" and ok:
                 ok = value <= 0.5  # the issue's bound on every fingertip
+            if name in ("max_replans", "max_tries", "max_corrections") and ok:
+                ok = isinstance(value, int) and value <= 100  # bounded work
             if not ok:
+                extra = {"max_speed": " and <= 0.5 m/s", "max_replans": ", whole, <= 100",
+                         "max_tries": ", whole, <= 100",
+                         "max_corrections": ", whole, <= 100"}.get(name, "")
                 raise InputError(f"control setting {name} must be a finite number >= 0"
-                                 f"{' and <= 0.5 m/s' if name == 'max_speed' else ''}, "
-                                 f"got {value!r}")
+                                 f"{extra}, got {value!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
@@ -377,6 +382,26 @@ def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
         ))
     return StepSpec(step, used, rate, tuple(arcs), events, tuple(e.id for e in skill.events),
                     grounds, step.start_pose, step.end_pose, targets, tuple(times))
+
+
+def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
+    """The step with a single finger's contact moved up its face: every arc's reference
+    raised so that the fingertip touches ``finger_radius + 2 mm`` below the object's top
+    (another contact point on the same face). Pushed higher, a tipping push needs less table
+    friction: with a push at height ``h`` on a cube of width ``w`` whose pad lifts the face
+    by friction ``mu_f``, it tips before sliding when the table's friction exceeds
+    ``(w / 2) / (h + mu_f w / 2)``. Skills of several fingers (a pinch) are left as they are.
+    """
+    if len(spec.used) != 1 or not spec.arcs:
+        return spec
+    top = float(spec.start_pose.to_world(poly.vertices)[:, 2].max())
+    z_touch = float(spec.arcs[0].positions[-1, 0, 2])
+    dz = top - finger_radius - 0.002 - z_touch
+    if dz <= 0.0:
+        return spec
+    lift = np.array([0.0, 0.0, dz])
+    arcs = tuple(replace(a, positions=a.positions + lift) for a in spec.arcs)
+    return replace(spec, arcs=arcs, targets={k: v + lift for k, v in spec.targets.items()})
 
 
 # ----------------------------------------------------------------------- the step monitor
@@ -673,13 +698,16 @@ class NextAction:
     avoid : frozenset of str
         Skills (demonstrated names) the re-plan must avoid.
     slow : float
-        A retry runs the step's reference this many times slower.
+        A retry runs the step's reference this many times slower ...
+    higher : bool
+        ... and a single finger's contact higher on its face (:func:`raised`).
     """
 
     action: Literal["next", "retry", "replan", "done", "fail"]
     reason: str = ""
     avoid: frozenset[str] = frozenset()
     slow: float = 1.0
+    higher: bool = False
 
 
 def snap_state(observed: State, candidates: Sequence[State], angle_tol: float) -> State:
@@ -706,8 +734,9 @@ def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal
     * the goal itself (reached early): done;
     * no resting state: fail;
     * still the step's start state (it slid, was kicked away, never tipped): the same step
-      again, anchored anew, its reference ``config.slow_retry`` times slower (a slower
-      push), at most ``config.max_tries`` times in all; then a re-plan avoiding the skill;
+      again, anchored anew, its single finger's contact higher on the face (:func:`raised`)
+      and its reference ``config.slow_retry`` times slower (a higher, slower push), at most
+      ``config.max_tries`` times in all; then a re-plan avoiding the skill;
     * another state: re-plan from it. Retries and re-plans together are at most
       ``config.max_replans``.
     """
@@ -729,7 +758,7 @@ def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal
     why = f": {monitor_reason}" if monitor_reason else ""
     if stayed and tries + 1 < config.max_tries:
         return NextAction("retry", f"still in {observed}{why}",
-                          avoid, config.slow_retry ** (tries + 1))
+                          avoid, config.slow_retry ** (tries + 1), higher=True)
     # a skill that left the object where it was (it slid, or never tipped), slower too, will
     # not do better on this table: the re-plan avoids it (another skill, or another route)
     name = spec.source_skill

@@ -214,10 +214,18 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
 @click.argument("skills_file", type=click.Path(dir_okay=False))
 @click.option("--dataset", default="cube", show_default=True,
               help="Demonstrations (a folder, or `cube`) giving the reference motions.")
-@click.option("--reference", type=click.Choice(["demonstration", "cluster"]),
-              default="demonstration", show_default=True,
-              help="Each skill's motion: its medoid demonstration whole, or each arc's "
-                   "cluster medoid (as the planner picks them).")
+@click.option("--reference", type=click.Choice(["cluster", "demonstration"]),
+              default="cluster", show_default=True,
+              help="Each skill's motion: each arc's cluster medoid, the planner's own "
+                   "references; or the skill's medoid demonstration taken whole.")
+@click.option("--position-tol", type=float, default=0.010, show_default=True,
+              help="A final position within this many metres of where the exact maneuver "
+                   "puts the object.")
+@click.option("--loop", type=click.Choice(["open", "closed"]), default="open",
+              show_default=True,
+              help="open: each reference runs where the object is predicted; closed: each "
+                   "transition executed by the event-driven controller (transits, retries, "
+                   "the final position correction; no re-plan: a transition is one step).")
 @step_option
 @states_option
 @angle_tol_option
@@ -225,12 +233,16 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
 @_perturbation_options
 @json_option
 @handle_errors
-def simulate_infer(skills_file: str, dataset: str, reference: str, step: float | None,
-                   states_file: str | None, angle_tol: float, as_json: bool, tol_deg: float,
-                   **kw: Any) -> None:
-    """Every demonstrated and inferred transition: predicted vs simulated final state."""
+def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol: float,
+                   loop: str, step: float | None, states_file: str | None, angle_tol: float,
+                   as_json: bool, tol_deg: float, **kw: Any) -> None:
+    """Every demonstrated and inferred transition: predicted vs simulated final state and
+    position."""
     params = _params(kw)
-    pert = _perturbation(kw)
+    pert = _perturbation(kw, observed=loop == "closed")
+    if not (position_tol == position_tol and 0.0 < position_tol <= 1.0):  # not NaN
+        raise InputError(f"--position-tol must be a number of metres in (0, 1], got "
+                         f"{position_tol!r}")
     sim = _sim()
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
@@ -259,11 +271,24 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
         n = max(max(fingers_of(t.skill), default=1) for t in exp.transitions)
         simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
         records = []
+        if loop == "closed":
+            from nonprehensile.control import ControlConfig
+            from nonprehensile.planning import Offset, Plan
+            from nonprehensile.sim.closed_loop import execute_plan, transition_record
+
+            cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol)
         for i, t in enumerate(exp.transitions):
             st = step_for(poly, t, motions=motions, scale=ds.scale, angle_tol=angle_tol)
-            records.append(simulate_step(simulator, st, fingers=ds.fingers, angle_tol=tol_deg,
-                                         check_position=False, perturbation=pert,
-                                         noise_stream=f"finger/transition{i}").to_dict())
+            if loop == "closed":
+                ex = execute_plan(simulator, Plan(st.start_world, st.end_world, Offset(),
+                                                  (st,)),
+                                  fingers=ds.fingers, config=cfg, perturbation=pert)
+                records.append(transition_record(ex, st))
+            else:
+                records.append(simulate_step(
+                    simulator, st, fingers=ds.fingers, angle_tol=tol_deg,
+                    position_tol=position_tol, perturbation=pert,
+                    noise_stream=f"finger/transition{i}").to_dict())
             bars("simulating", i + 1, len(exp.transitions))
     if not as_json:
         out.print(_rate_table(f"{poly.name}: transitions simulated", records,

@@ -43,6 +43,7 @@ from nonprehensile.control import (
     anchor_transform,
     correction_pushes,
     observed_state,
+    raised,
     snap_state,
     step_spec,
     turn_push,
@@ -50,7 +51,7 @@ from nonprehensile.control import (
 from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS
 from nonprehensile.inference import Expansion
 from nonprehensile.observation import Observation, ObservationModel
-from nonprehensile.planning import ObjectPose, Plan
+from nonprehensile.planning import ObjectPose, Plan, PlanStep
 from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, DEFAULT_POSITION_TOL
 from nonprehensile.sim.distribution import FINGER_NOISE_TIME, NO_PERTURBATION, Perturbation
 from nonprehensile.sim.judge import CONTACT_EVERY, EventLog
@@ -60,7 +61,7 @@ from nonprehensile.states import State, angle_diff
 from nonprehensile.step_paths import fingers_of, resample
 from nonprehensile.transit import limits_of, straight, transit
 
-__all__ = ["Execution", "execute_plan", "scene_fingers"]
+__all__ = ["Execution", "execute_plan", "scene_fingers", "transition_record"]
 
 FloatArray = NDArray[np.float64]
 Replanner = Callable[[State, tuple[float, float], frozenset[str]], Plan]
@@ -395,10 +396,13 @@ def execute_plan(
     index = 0
     tries = 0
     slow = 1.0
+    higher = False
     while index < len(steps):
         step = steps[index]
         spec = step_spec(sim.poly, step, fingers)
-        if slow != 1.0:  # a retry: the same reference played slower
+        if higher:  # a retry: the contact higher on its face ...
+            spec = raised(spec, sim.poly, p.finger_radius)
+        if slow != 1.0:  # ... and the reference played slower
             spec = replace(spec, rate=spec.rate / slow)
         number = len(ex.steps) + 1
         t_step = run.t
@@ -490,21 +494,23 @@ def execute_plan(
                          last=index == len(steps) - 1, config=cfg, tries=tries)
         record["next"] = nxt.action
         if nxt.action != "retry":
-            tries, slow = 0, 1.0
+            tries, slow, higher = 0, 1.0, False
+        if nxt.action == "replan" and replan is None:
+            ex.reason = f"step {number} ({spec.skill}): {nxt.reason} (no re-planner given)"
+            break
         if nxt.action == "next":
             index += 1
         elif nxt.action == "retry":
             tries += 1
-            slow = nxt.slow
+            slow, higher = nxt.slow, nxt.higher
             ex.replans.append({"after_step": number, "retry": True, "reason": nxt.reason,
-                               "slower": round(slow, 3),
+                               "slower": round(slow, 3), "higher": higher,
                                "steps": [f"{spec.skill}: {step.start_world} -> "
                                          f"{step.end_world}"]})
         elif nxt.action == "done":
             break
         elif nxt.action == "fail" or replan is None:
-            ex.reason = f"step {number} ({spec.skill}): " + (
-                nxt.reason or "ended elsewhere and no re-planner was given")
+            ex.reason = f"step {number} ({spec.skill}): {nxt.reason}"
             break
         else:
             assert observed_end is not None
@@ -544,8 +550,9 @@ def execute_plan(
             index = 0
     # at the end: slide the object onto the goal position if it rests off it
     if loop == "closed" and not ex.reason and cfg.correct_position:
-        _align(sim, run, ex, cfg, rest, do_transit, plan.goal.theta, ex.goal_position)
-        _correct(sim, run, ex, cfg, rest, do_transit)
+        for _ in range(2):  # sliding may turn it a little: look again
+            _align(sim, run, ex, cfg, rest, do_transit, plan.goal.theta, ex.goal_position)
+            _correct(sim, run, ex, cfg, rest, do_transit)
     # park the fingers and let everything come to rest before the verdict
     if loop == "closed":
         pose_now = sim.pose()
@@ -594,7 +601,7 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                                    tol=cfg.correction_tol)
         if not pushes:
             return
-        push = pushes[0]
+        push = max(pushes, key=lambda q: q.distance)  # the largest part first
         target = np.array(rest)
         target[0] = push.start
         do_transit(obs.pose, target, (1,), "correction")
@@ -680,3 +687,28 @@ def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                                "theta_error_after_deg": None if after is None
                                else round(after, 3),
                                "outcome": dec.outcome if dec is not None else ""})
+
+
+def transition_record(ex: Execution, step: PlanStep) -> dict[str, Any]:
+    """One transition executed as a one-step plan, as a record of ``simulate infer``: the
+    verdict, the comparison's keys (``chain_ok``: every skill event observed in order on
+    the first attempt) and the execution in full."""
+    events = [e["event"] for e in (ex.steps[0]["observed"] if ex.steps else [])
+              if "event" in e]
+    want = [e.id for e in step.transition.skill.events][1:]
+    it = iter(events)
+    missing = [w for w in want if w not in it]
+    return {
+        "success": ex.success, "skill": step.transition.skill.name,
+        "source": step.transition.source.name, "demonstrated": step.transition.demonstrated,
+        "from": step.start_world.to_dict(), "to": step.end_world.to_dict(),
+        "predicted": step.end_world.to_dict(),
+        "simulated": ex.final_state.to_dict() if ex.final_state else None,
+        "theta_error_deg": None if ex.theta_error is None else round(ex.theta_error, 3),
+        "position_error_m": (None if ex.position_error is None
+                             else round(ex.position_error, 5)),
+        "chain_ok": not missing, "missing_events": missing,
+        "simulation": {"wall_seconds": round(ex.wall_time, 4),
+                       "sim_seconds": round(ex.sim_time, 4)},
+        "execution": ex.to_dict(),
+    }
