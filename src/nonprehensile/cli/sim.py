@@ -14,7 +14,15 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar, stage_bars
+from nonprehensile.cli.common import (
+    bounded,
+    emit_json,
+    err,
+    handle_errors,
+    out,
+    progress_bar,
+    stage_bars,
+)
 from nonprehensile.cli.options import (
     angle_tol_option,
     json_option,
@@ -319,6 +327,13 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
               help="Closed loop: the tracker's latency, seconds.")
 @click.option("--max-replans", type=int, default=8, show_default=True,
               help="Closed loop: retries and re-plans allowed in one execution.")
+@click.option("--record", "record", type=click.Path(file_okay=False), default=None,
+              help="Also write the executed steps to this new folder as a LeRobot v3.0 "
+                   "dataset (one episode per executed step; "
+                   "docs/dataset.md#executions-as-datasets).")
+@click.option("--record-fps", type=bounded(float, 1.0, 1e4), default=100.0,
+              show_default=True,
+              help="Frame rate of --record (a divisor of the physics rate keeps its values).")
 @step_option
 @states_option
 @angle_tol_option
@@ -329,6 +344,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       position: tuple[float, float], dataset: str, position_tol: float,
                       loop: str, observation_rate: float, latency: float, max_replans: int,
+                      record: str | None, record_fps: float,
                       step: float | None, states_file: str | None, angle_tol: float,
                       as_json: bool, tol_deg: float, **kw: Any) -> None:
     """Plan as `plan` does, then execute the plan in one continuous simulation, closed loop
@@ -337,6 +353,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     params = _params(kw)
     pert = _perturbation(kw, observed=loop == "closed")
     sim = _sim()
+    _check_record(record)
     from nonprehensile.control import ControlConfig, replanner
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
@@ -364,10 +381,29 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                           loop="closed" if loop == "closed" else "open",
                           replan=replanner(poly, exp, goal, motions=motions, scale=ds.scale,
                                            angle_tol=tol_deg),
-                          config=cfg, observation=obs_model, perturbation=pert)
+                          config=cfg, observation=obs_model, perturbation=pert,
+                          keep_trace=1 if record else 0)
         bar(1, 1)
     doc = ex.to_dict()
     records = doc["steps"]
+    recorded = None
+    if record:
+        from nonprehensile.export import write_episodes
+        from nonprehensile.sim.episodes import step_episode
+
+        episodes = [step_episode(poly, st, o, n_fingers=simulator.n_fingers,
+                                 fingers=ds.fingers, fps=record_fps,
+                                 meta={"plan": f"{start} -> {goal}", "step": i + 1,
+                                       "n_steps": len(ex.executed), "loop": loop})
+                    for i, (st, o) in enumerate(ex.executed)]
+        write_episodes(episodes, record, extra_info={
+            "source": "simulate plan", "object": poly.name, "scale_m_per_unit": ds.scale,
+            "plan": f"{start} -> {goal}", "loop": loop, "params": params.to_dict()})
+        recorded = {"output": record, "n_episodes": len(episodes),
+                    "n_frames": sum(e.n_frames for e in episodes), "fps": record_fps}
+        if not as_json:
+            err.print(f"recorded {len(episodes)} episodes ({recorded['n_frames']} frames at "
+                      f"{record_fps:g} fps) to {record}", markup=False)
     if not as_json:
         t = Table(title=f"plan {start} -> {goal} executed, {loop} loop")
         for c in ("step", "skill", "predicted", "simulated", "theta error", "position error",
@@ -386,8 +422,15 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
             out.print(f"re-planned after step {rp['after_step']} ({rp['reason']}): "
                       + ("; ".join(rp.get("steps", [])) or rp.get("error", "")))
         for c in doc["corrections"]:
-            out.print(f"slid the object {1000 * c['moved_m']:.1f} mm by pushing face "
-                      f"{c['face']}: {1000 * c['error_after_m']:.1f} mm from the goal position")
+            if c["kind"] == "turn":
+                after = c["theta_error_after_deg"]
+                out.print(f"turned the object by pushing face {c['face']} off its centre: "
+                          f"theta {c['theta_error_before_deg']:+.1f} -> "
+                          + ("?" if after is None else f"{after:+.1f}") + " deg from the goal")
+            else:
+                out.print(f"slid the object {1000 * c['moved_m']:.1f} mm by pushing face "
+                          f"{c['face']}: {1000 * c['error_after_m']:.1f} mm from the goal "
+                          "position")
         lim = doc["limits"]
         out.print(f"fingertips: at most {lim['commanded_max_speed']:.2f} m/s and "
                   f"{lim['commanded_max_accel']:.1f} m/s^2 commanded; "
@@ -402,9 +445,19 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                    "n": len(records), "n_success": sum(r["success"] for r in records),
                    "params": params.to_dict(), "perturbation": pert.to_dict(),
                    "observation": obs_model.to_dict(), "control": cfg.to_dict(),
-                   "plan": result.to_dict()})
+                   "plan": result.to_dict(),
+                   **({"record": recorded} if recorded else {})})
     if not ex.success:
         sys.exit(1)
+
+
+def _check_record(record: str | None) -> None:
+    """Refuse an existing ``--record`` folder before simulating (not after)."""
+    from pathlib import Path
+
+    if record is not None and Path(record).exists():
+        raise InputError(f"{record}: the --record folder exists; give a new folder (a LeRobot "
+                         "dataset is written whole, never into or over another)")
 
 
 @simulate_group.command("record")

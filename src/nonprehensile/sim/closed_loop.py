@@ -52,11 +52,12 @@ from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS
 from nonprehensile.inference import Expansion
 from nonprehensile.observation import Observation, ObservationModel
 from nonprehensile.planning import ObjectPose, Plan, PlanStep
-from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, DEFAULT_POSITION_TOL
+from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, DEFAULT_POSITION_TOL, compare
 from nonprehensile.sim.distribution import FINGER_NOISE_TIME, NO_PERTURBATION, Perturbation
-from nonprehensile.sim.judge import CONTACT_EVERY, EventLog
+from nonprehensile.sim.execute import Outcome
+from nonprehensile.sim.judge import CONTACT_EVERY, EventLog, SimEvent
 from nonprehensile.sim.observe import SimObserver
-from nonprehensile.sim.run import Simulator
+from nonprehensile.sim.run import SimResult, Simulator
 from nonprehensile.states import State, angle_diff
 from nonprehensile.step_paths import fingers_of, resample
 from nonprehensile.transit import limits_of, straight, transit
@@ -85,7 +86,10 @@ class Execution:
 
     ``success`` is the judge's verdict on the true final pose: the goal's face, ``theta``
     within the angle tolerance and the centre of mass within the position tolerance of the
-    goal position (the plan's predicted end).
+    goal position (the plan's predicted end). With ``keep_trace``, ``executed`` holds every
+    executed step (re-planned ones included) with an
+    :class:`~nonprehensile.sim.execute.Outcome` whose trace and events start at the step's
+    first arc (what ``simulate plan --record`` writes).
     """
 
     loop: str
@@ -111,6 +115,7 @@ class Execution:
     n_steps: int = 0
     trace: FloatArray | None = None
     step_traces: list[tuple[int, float, float]] = field(default_factory=list)
+    executed: list[tuple[PlanStep, Outcome]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
@@ -418,7 +423,7 @@ def execute_plan(
             for j, k in enumerate(spec.used):
                 first_pts[k - 1] = spec.arcs[0].positions[0, j]
             do_transit(spec.start_pose, first_pts, spec.used, f"step {number}")
-            t_ref = run.t
+            t_begin = run.t
             targets = np.repeat(rest[None], len(spec.arcs[0].positions), axis=0)
             ref = np.stack([spec.targets[k] for k in spec.used], axis=1)
             targets = np.repeat(rest[None], len(ref), axis=0)
@@ -426,13 +431,12 @@ def execute_plan(
             # faded in from rest as the closed loop's first arc is
             run.drive(run._crossfade(np.array([run.command]), 0,
                                      resample(targets, spec.rate, run.dt)))
-            j, settled = sim.settle(p.settle, run.log, run.t)
+            j, settled = sim.settle(p.settle, run.log, run.t, keep_trace, run.trace)
             run.t += j * run.dt
             run.n += j
             record.update(outcome="finished" if settled else "unsettled", reason="",
                           observed=[])
             observed_end: State | None = sim.state()
-            del t_ref
         else:
             obs = run.wait_observation()
             # the approach's first point, anchored on the object as observed
@@ -444,6 +448,7 @@ def execute_plan(
             obs = run.wait_observation()
             mon = StepMonitor(sim.poly, spec, cfg, dt=run.dt, finger_radius=p.finger_radius,
                               rest=rest, noise=obs_model.position_noise)
+            t_begin = run.t
             dec = mon.begin(obs, run.command)
             assert dec.segment is not None
             budget = mon.expected_duration + 3.0 * cfg.grace + cfg.max_settle + 2.0
@@ -486,6 +491,9 @@ def execute_plan(
         record["sim_seconds"] = round(run.t - t_step, 4)
         ex.steps.append(record)
         ex.step_traces.append((number, t_step, run.t))
+        if keep_trace:
+            ex.executed.append((step, _outcome(sim, run, step, spec, record, t_begin,
+                                               n_events, cfg)))
         if loop == "open":
             index += 1
             continue
@@ -712,3 +720,22 @@ def transition_record(ex: Execution, step: PlanStep) -> dict[str, Any]:
                        "sim_seconds": round(ex.sim_time, 4)},
         "execution": ex.to_dict(),
     }
+
+
+def _outcome(sim: Simulator, run: _Runner, step: PlanStep, spec: Any, record: dict[str, Any],
+             t_begin: float, n_events: int, cfg: ControlConfig) -> Outcome:
+    """One executed step as the open-loop executor's :class:`Outcome` (trace and events
+    from the step's first arc, times from there; the judge's comparison)."""
+    rows = np.array([r for r in run.trace if t_begin - 1e-9 <= r[0] <= run.t + 1e-9])
+    if len(rows):
+        rows[:, 0] -= t_begin
+    events = tuple(SimEvent(e.time - t_begin, e.event) for e in run.log.events[n_events:]
+                   if e.time >= t_begin - 1e-9)
+    res = SimResult(sim.pose(), sim.state(), events, record["outcome"] == "finished",
+                    run.t - t_begin, 0.0, round((run.t - t_begin) / run.dt),
+                    run.log.finger_table, rows if len(rows) else None)
+    cmp = compare(sim.poly, step.transition.skill, res, predicted=step.end_world,
+                  predicted_pose=step.end_pose, event_times=spec.event_times,
+                  angle_tol=cfg.angle_tol, position_tol=cfg.position_tol)
+    label = {k: record[k] for k in ("step", "skill", "source", "demonstrated", "from", "to")}
+    return Outcome(label, res, cmp)
