@@ -195,3 +195,20 @@ def test_object_html_renders_offline_in_chromium(tmp_path: Path) -> None:
     # plotly drew its scene: the SVG layers around the WebGL canvas, and the title
     assert 'class="main-svg"' in dom and "gl-container" in dom
     assert "every face labeled" in dom
+
+
+def test_figure_of_a_large_model_says_how_to_find_faces(tmp_path: Path) -> None:
+    from nonprehensile.geometry.build import prism
+    from nonprehensile.io import write_model
+    from nonprehensile.viz.labeled_object import DETAIL_LIMIT
+
+    model = tmp_path / "p.json"
+    write_model(prism(DETAIL_LIMIT + 8), model)
+    code, _, err = run("object", "figure", str(model), "-o", str(tmp_path / "p.png"))
+    assert code == 0 and "--faces" in err and "--html" in err
+    code, _, err = run("object", "figure", str(model), "-o", str(tmp_path / "q.png"),
+                       "--faces", "a,b")
+    assert code == 0 and "note:" not in err
+    # a small model's picture labels every face: no note
+    code, _, err = run("object", "figure", str(EXAMPLE), "-o", str(tmp_path / "c.png"))
+    assert code == 0 and "note:" not in err
