@@ -33,13 +33,18 @@ CORE_RANKS: dict[str, int] = {
     "inference": 7,      # undemonstrated transitions (paper V)
     "io": 7,             # model and skills files
     "demonstrations": 8,  # recordings and datasets
+    "success_rates": 8,  # measured success rates of transitions (physics' verdict as data)
     "planning": 9,       # plans (paper VII)
-    "control": 10,       # the controller's decisions while a plan executes
+    "step_paths": 10,    # a plan step's reference finger paths as a controller tracks them
+    "observation": 10,   # what a controller observes (sensor model, contacts from geometry)
+    "control": 11,       # the controller's decisions while a plan executes
+    "transit": 11,       # collision-free, bounded fingertip motions between steps
     "references": 11,    # the edge joining motion clusters, demonstrations and the planner
 }
 
 #: The edges: they may import anything of the core; the core imports none of them.
-EDGES = {"__init__", "__main__", "cli", "viz", "pipeline", "sim", "service", "export"}
+EDGES = {"__init__", "__main__", "cli", "viz", "pipeline", "sim", "service", "export",
+         "naming"}
 
 
 def _part(module: str) -> str:
