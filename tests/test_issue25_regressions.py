@@ -180,3 +180,18 @@ def test_classes_of_a_prism_against_geometry(n: int, step: float) -> None:
             t = apply_to_state(p, g, states[i])
             hit = [k for k, s in enumerate(states) if s.isclose(t)]
             assert all(classes[k] == classes[i] for k in hit)
+
+
+def test_a_hull_of_too_many_triangles_is_refused_with_the_way_out(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``from-mesh`` of a 1.3-million-triangle sphere ran past 60 s and 2.9 GB: a hull of
+    more than ``MAX_HULL_TRIANGLES`` is refused right after Qhull, saying how to simplify
+    the mesh (the bound is lowered here so that a small sphere shows it)."""
+    from nonprehensile.geometry import build
+
+    monkeypatch.setattr(build, "MAX_HULL_TRIANGLES", 50)
+    rng = np.random.default_rng(0)
+    pts = rng.normal(size=(200, 3))
+    pts /= np.linalg.norm(pts, axis=1)[:, None]
+    with pytest.raises(MeshError, match=r"has 396 triangles, more than the 50 .*simplify"):
+        nph.convex_hull(pts)

@@ -64,6 +64,9 @@ MAX_PRISM_SIDES = 1_000_000
 #: Point sets from this size on are large: a Qhull run over them takes seconds, so the
 #: builder retries as few times as it can (:func:`_hull_model`).
 LARGE_HULL = 50_000
+#: Most triangles a hull may have to be built into a model: 200,000 take about 10 s and
+#: 1 GB; a 1.3-million-triangle sphere took 90 s of CPU and 3.3 GB (docs/benchmarks.md).
+MAX_HULL_TRIANGLES = 200_000
 #: Most faces :func:`convex_hull` may be asked to facet a curved object into.
 MAX_FACES = 10_000_000
 
@@ -402,6 +405,16 @@ def _hull_model(
     size = extent / math.sqrt(3.0)  # at most the diameter: the merge radius errs small
     radius = rtol * size
     hull = _qhull(p, radius, angle)
+    if len(hull.simplices) > MAX_HULL_TRIANGLES:
+        raise MeshError(
+            f"the convex hull of the points has {len(hull.simplices):,} triangles, more than "
+            f"the {MAX_HULL_TRIANGLES:,} a model is built from (a model's checks, states and "
+            "plans grow with its faces: 1.3 million take minutes and over 2 GB, and no "
+            "manipulation needs them); simplify the mesh first to at most "
+            f"{MAX_HULL_TRIANGLES:,} triangles, e.g. trimesh's "
+            "simplify_quadric_decimation, MeshLab's Quadric Edge Collapse Decimation or "
+            "Blender's Decimate modifier"
+        )
     if max_faces is not None:
         # coarser and coarser merging until the hull has few enough faces
         for _ in range(60):
@@ -437,6 +450,8 @@ def _hull_model(
                 hull_facets=True,
             ), np.zeros(0, dtype=np.int64)
         except ModelError as exc:
+            # kept without its traceback, whose frames hold the failed model's arrays
+            exc = exc.with_traceback(None)
             if not unturned:
                 return exc, np.zeros(0, dtype=np.int64)
             return exc, keyed[_unturned_corners(vertices, faces, model_rtol)]
