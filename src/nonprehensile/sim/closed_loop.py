@@ -218,6 +218,7 @@ class _Runner:
         # the free fingertips' joint velocities are their speeds (a robot's driver has none)
         finger_dofs = getattr(sim.driver, "dadr", None)
         trace_every = self.keep_trace
+        next_obs = observer.next_time()
         while True:
             if i < len(ctrl):
                 ctrl_view[:] = ctrl[i]
@@ -237,13 +238,14 @@ class _Runner:
             if trace_every and self.n % trace_every == 0:
                 self.trace.append(sim.trace_row(
                     self.t, seg[min(i - 1, len(seg) - 1)] if self.signals else None))
-            if react is not None:
+            if react is not None and self.t >= next_obs - 1e-9:
                 obs = observer.sample(self.t)
+                next_obs = observer.next_time()
                 if obs is not None:
                     cur = seg[min(i, len(seg) - 1)]
                     dec = react(obs, cur)
                     if dec.segment is not None:
-                        new = self._crossfade(seg, i, dec.segment)
+                        new = self._crossfade(seg, i, dec.segment, dec.fade)
                         self.commanded[-1] = seg[:i]
                         self.commanded.append(new)
                         seg, i = new, 0
@@ -251,6 +253,7 @@ class _Runner:
                     if dec.done:
                         self._stop(seg, i)
                         return dec
+            if react is not None:
                 if self.t >= t_end:
                     self._stop(seg, i)
                     return Decision(done=True, outcome="aborted",
@@ -266,10 +269,12 @@ class _Runner:
         self.command = seg[j]
         self._tail = seg[j:] if len(seg) - j > 1 else None
 
-    def _crossfade(self, old: FloatArray, i: int, new: FloatArray) -> FloatArray:
-        """``new`` with its first :data:`CROSSFADE` seconds faded in from ``old``'s
-        continuation (held at its end), so position and velocity stay continuous."""
-        n = max(2, round(CROSSFADE / self.dt))
+    def _crossfade(self, old: FloatArray, i: int, new: FloatArray,
+                   fade: float | None = None) -> FloatArray:
+        """``new`` with its first ``fade`` (default :data:`CROSSFADE`) seconds faded in from
+        ``old``'s continuation (held at its end), so position and velocity stay
+        continuous."""
+        n = max(2, round((CROSSFADE if fade is None else fade) / self.dt))
         if len(new) < n:  # a short hold: long enough to fade into
             new = np.concatenate([new, np.repeat(new[-1:], n - len(new), axis=0)])
         rest = old[i:i + n]
