@@ -14,6 +14,7 @@ import logging
 import threading
 from collections.abc import Awaitable, Callable, MutableMapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, File, Form, Header, Request, UploadFile
@@ -22,11 +23,11 @@ from fastapi.responses import JSONResponse
 
 import nonprehensile
 from nonprehensile.errors import InputError, NonprehensileError
+from nonprehensile.io import parse_document
 from nonprehensile.service.db import Pool, mentor_of
+from nonprehensile.service.errors import Forbidden, Rejected, public_text
 from nonprehensile.service.ingest import (
-    Forbidden,
     Registry,
-    Rejected,
     Template,
     archive_upload,
     registration_error,
@@ -91,6 +92,7 @@ class BodyLimit:
                 return
         seen = 0
         refused = False
+        started = False
 
         async def limited() -> Message:
             nonlocal seen, refused
@@ -102,24 +104,26 @@ class BodyLimit:
                     raise _TooLarge
             return msg
 
-        started = False
-
-        async def tracking_send(msg: Message) -> None:
+        async def guarded_send(msg: Message) -> None:
             nonlocal started
+            if refused:
+                # the application answered the body it could not read with its own error
+                # (FastAPI: 400 "error parsing the body"): the answer is ours, a 413
+                if msg["type"] == "http.response.start" and not started:
+                    started = True
+                    await self._refuse(send)
+                return
             if msg["type"] == "http.response.start":
                 started = True
             await send(msg)
 
         try:
-            await self.app(scope, limited, tracking_send)
-        except _TooLarge:
+            await self.app(scope, limited, guarded_send)
+        except Exception:
+            if not refused:
+                raise
             if not started:
                 await self._refuse(send)
-        except Exception:
-            if refused and not started:
-                await self._refuse(send)
-            else:
-                raise
 
     async def _refuse(self, send: Send) -> None:
         body = json.dumps({"detail": f"the request body is larger than {self.max_bytes} bytes",
@@ -134,8 +138,12 @@ class _TooLarge(Exception):
     pass
 
 
-def _error(status: int, detail: str, problems: list[str] | None = None) -> JSONResponse:
-    return JSONResponse({"detail": detail, "problems": problems or []}, status_code=status)
+def _error(status: int, detail: str, problems: list[str] | None = None,
+           hidden: tuple[Path, ...] = ()) -> JSONResponse:
+    """The one reply of every refusal: one line, and nothing of the server's folders."""
+    return JSONResponse({"detail": public_text(detail, hidden),
+                         "problems": [public_text(p, hidden) for p in problems or []]},
+                        status_code=status)
 
 
 class Recalibrator:
@@ -213,22 +221,24 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
     )
     app.state.registry = reg
     app.state.recalibrator = recal
+    # the service's dataset (its skills file's folder): no reply shows where it is
+    hidden = (Path(str(template.top.get("skills", "."))).parent,)
 
     @app.exception_handler(Rejected)
     async def _rejected(request: Request, exc: Rejected) -> JSONResponse:
-        return _error(exc.status, str(exc), exc.problems)
+        return _error(exc.status, str(exc), exc.problems, hidden)
 
     @app.exception_handler(Forbidden)
     async def _forbidden(request: Request, exc: Forbidden) -> JSONResponse:
-        return _error(403, str(exc))
+        return _error(403, str(exc), hidden=hidden)
 
     @app.exception_handler(InputError)
     async def _input(request: Request, exc: InputError) -> JSONResponse:
-        return _error(422, str(exc))
+        return _error(422, str(exc), hidden=hidden)
 
     @app.exception_handler(NonprehensileError)
     async def _other(request: Request, exc: NonprehensileError) -> JSONResponse:
-        return _error(503, str(exc))
+        return _error(503, str(exc), hidden=hidden)
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -273,9 +283,10 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
     ) -> JSONResponse:
         """Upload one recording with its annotation entry; the reply names its clusters."""
         try:
-            entry = json.loads(annotation)
-        except (json.JSONDecodeError, RecursionError) as exc:
-            raise Rejected(f"the annotation is not valid JSON ({exc})", status=400) from None
+            # the CLI's bounded reader: integers, nesting, size, text
+            entry = parse_document(annotation, "the annotation")
+        except InputError as exc:
+            raise Rejected(str(exc), status=400) from None
         data = file.file.read()
         with single_upload(template, who, file.filename, data, entry) as (ds, hashes):
             try:
@@ -291,8 +302,8 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
                                                         "archive.")],
     ) -> JSONResponse:
         """Upload a dataset folder (zip or tar); every demonstration must be the mentor's."""
-        data = archive.file.read()
-        with archive_upload(template, who, data, config.max_bytes) as (ds, hashes):
+        # read from the spooled file member by member, never whole (ingest/archive.py)
+        with archive_upload(template, who, archive.file, config.max_bytes) as (ds, hashes):
             try:
                 replies = reg.register(who, ds, hashes, "archive")
             except NonprehensileError as exc:
