@@ -155,7 +155,7 @@ def packaged_dataset(name: str, packages: tuple[str, ...], length: int | None = 
 def cube_dataset() -> Dataset | None:
     try:
         from nonprehensile.demonstrations.dataset import dataset_path, load_dataset
-        from nonprehensile.motion.library import flatten_demonstrations
+        from nonprehensile.references import flatten_demonstrations
 
         root = dataset_path("cube")
         if not root.exists():

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from nonprehensile.cli_dataset import dataset_group
+from nonprehensile.cli.dataset import dataset_group
 from nonprehensile.demonstrations.axes import AXES_PRESETS, axes_matrix, parse_axes
 from nonprehensile.demonstrations.dataset import (
     Dataset,

@@ -49,8 +49,8 @@ def test_help_and_version_import_no_heavy_module(args: list[str]) -> None:
 
 def test_one_command_imports_only_its_module() -> None:
     _, mods = _modules_after(["object", "--help"])
-    assert "nonprehensile.cli_object" in mods
-    assert "nonprehensile.cli_plan" not in mods and "sklearn" not in mods
+    assert "nonprehensile.cli.object" in mods
+    assert "nonprehensile.cli.plan" not in mods and "sklearn" not in mods
     assert "matplotlib" not in mods
 
 
@@ -104,7 +104,7 @@ def test_demo_help_imports_no_library_module() -> None:
     heavy = [h for h in HEAVY if h != "rich"]  # rich draws the command's progress bars
     loaded = sorted(m for m in mods if any(m == h or m.startswith(h + ".") for h in heavy))
     assert loaded == [], f"demo --help imported {loaded[:10]}"
-    from nonprehensile.cli_demo import DEMO_GOAL, DEMO_START
+    from nonprehensile.cli.demo import DEMO_GOAL, DEMO_START
     from nonprehensile.pipeline import DEFAULT_GOAL, DEFAULT_START
 
     assert (str(DEFAULT_START), str(DEFAULT_GOAL)) == (DEMO_START, DEMO_GOAL)
@@ -114,7 +114,7 @@ def test_demo_help_imports_no_library_module() -> None:
 def test_option_module_imports_no_numpy() -> None:
     """The options every command shares import click only (their defaults come from
     :mod:`nonprehensile.checks`, the same values the geometry and states use)."""
-    code = ("import sys, nonprehensile.cli_options as o, nonprehensile.checks as c; "
+    code = ("import sys, nonprehensile.cli.options as o, nonprehensile.checks as c; "
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numpy', 'scipy')))")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=60, check=True)

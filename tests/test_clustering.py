@@ -330,7 +330,7 @@ def test_cli_fit_add_show(tmp_path: Path) -> None:
 
     from click.testing import CliRunner
 
-    from nonprehensile.cli_cluster import cluster_group
+    from nonprehensile.cli.cluster import cluster_group
 
     x, y = _blobs(150, 3, 12, seed=14)
     np.savez(tmp_path / "a.npz", X=x[:120], y=y[:120])

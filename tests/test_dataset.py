@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from nonprehensile.cli_dataset import dataset_group
+from nonprehensile.cli.dataset import dataset_group
 from nonprehensile.demonstrations import MarkerTrajectory, read_c3d, write_c3d
 from nonprehensile.demonstrations.dataset import (
     DATASET_FORMAT,

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-from nonprehensile.cli_common import bounded
+from nonprehensile.cli.common import bounded
 from nonprehensile.errors import InputError
 from nonprehensile.io import load_document, model_from_dict
 from nonprehensile.motion.store import SQLiteStore

@@ -232,7 +232,7 @@ def test_clusterer_state_round_trip(pg_url: str) -> None:
 @pytest.fixture(scope="module")
 def cube_arrays(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The bundled dataset's demonstrations, flattened, as the CLI's --arrays file."""
-    from nonprehensile.cli_cluster import _load_dataset
+    from nonprehensile.cli.cluster import _load_dataset
 
     x, y = _load_dataset("cube", True)
     path = tmp_path_factory.mktemp("cube") / "cube.npz"

@@ -24,7 +24,6 @@ from nonprehensile.demonstrations.segment import segment_dataset
 from nonprehensile.demonstrations.synth import synthesize_dataset
 from nonprehensile.inference import expand
 from nonprehensile.io import load_model
-from nonprehensile.motion.library import ClusteredMotions, flatten_segments
 from nonprehensile.pipeline import (
     DEFAULT_GOAL,
     DEFAULT_POSITION,
@@ -32,6 +31,7 @@ from nonprehensile.pipeline import (
     write_plan_motions,
 )
 from nonprehensile.planning import Plan, plan
+from nonprehensile.references import ClusteredMotions, flatten_segments
 from nonprehensile.skills.contacts import Edge, Face, Finger, Vertex
 from nonprehensile.states import state_pose, states_by_step
 

@@ -17,12 +17,12 @@ import pytest
 from click.testing import CliRunner
 
 from nonprehensile.cli import main
+from nonprehensile.equivalence import equivalence_classes
 from nonprehensile.errors import MeshError, ModelError, StateError
 from nonprehensile.geometry import (
     Polyhedron,
     convex_hull,
     cube,
-    equivalence_classes,
     from_mesh,
     rotation_group,
 )

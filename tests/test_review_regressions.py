@@ -9,8 +9,9 @@ import pytest
 from click.testing import CliRunner
 
 from nonprehensile.cli import main
+from nonprehensile.equivalence import equivalence_classes
 from nonprehensile.errors import InputError, ModelError, SkillError, StateError
-from nonprehensile.geometry import Polyhedron, cube, equivalence_classes, rotation_group
+from nonprehensile.geometry import Polyhedron, cube, rotation_group
 from nonprehensile.geometry.build import convex_hull
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills

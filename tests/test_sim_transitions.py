@@ -22,8 +22,8 @@ pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not installed")
 from nonprehensile.demonstrations.dataset import Dataset, load_dataset
 from nonprehensile.demonstrations.segment import segment_dataset
 from nonprehensile.inference import expand
-from nonprehensile.motion.library import ClusteredMotions, flatten_segments
 from nonprehensile.planning import step_for
+from nonprehensile.references import ClusteredMotions, flatten_segments
 from nonprehensile.sim import Simulator
 from nonprehensile.sim.execute import DemonstrationLibrary, replay_demonstration, simulate_step
 from nonprehensile.sim.record import record_dataset

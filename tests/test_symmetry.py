@@ -7,15 +7,8 @@ import pytest
 from hypothesis import given, strategies as st
 
 from conftest import SOLIDS, occupies_same_space
-from nonprehensile.geometry import (
-    Polyhedron,
-    apply_to_state,
-    box,
-    cube,
-    equivalence_classes,
-    equivalent,
-    rotation_group,
-)
+from nonprehensile.equivalence import apply_to_state, equivalence_classes, equivalent
+from nonprehensile.geometry import Polyhedron, box, cube, rotation_group
 from nonprehensile.states import State, states_by_step
 
 

@@ -81,7 +81,7 @@ def test_collector_spared_skips_the_objects_alive_and_collects_the_rest() -> Non
     import gc
     import weakref
 
-    from nonprehensile.pipeline import collector_spared
+    from nonprehensile.viz.demo_report import collector_spared
 
     if gc.get_freeze_count():
         pytest.skip("this process has frozen objects already")

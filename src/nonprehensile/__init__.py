@@ -5,6 +5,7 @@ for Nonprehensile Manipulation):
 
 * :mod:`nonprehensile.geometry`: the object model (Section III) and its symmetry;
 * :mod:`nonprehensile.states`: states ``{F_b, theta}`` and their poses (Section II);
+* :mod:`nonprehensile.equivalence`: geometric equivalence of states (Section V);
 * :mod:`nonprehensile.maneuvers`: exact rolling, rotating and tumbling (Section II);
 * :mod:`nonprehensile.transitions`: the state-transition graph (Fig. 7);
 * :mod:`nonprehensile.skills`: contact events and skills (Section IV);
@@ -35,14 +36,13 @@ from nonprehensile.errors import (
 )
 
 if TYPE_CHECKING:
+    from nonprehensile.equivalence import equivalence_classes, equivalent
     from nonprehensile.geometry import (
         Polyhedron,
         Symmetry,
         box,
         convex_hull,
         cube,
-        equivalence_classes,
-        equivalent,
         from_mesh,
         octahedron,
         prism,
@@ -126,8 +126,8 @@ _LAZY = {
     "box": "nonprehensile.geometry",
     "convex_hull": "nonprehensile.geometry",
     "cube": "nonprehensile.geometry",
-    "equivalence_classes": "nonprehensile.geometry",
-    "equivalent": "nonprehensile.geometry",
+    "equivalence_classes": "nonprehensile.equivalence",
+    "equivalent": "nonprehensile.equivalence",
     "from_mesh": "nonprehensile.geometry",
     "octahedron": "nonprehensile.geometry",
     "prism": "nonprehensile.geometry",

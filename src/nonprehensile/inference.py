@@ -36,9 +36,10 @@ from typing import Any, Literal
 import networkx as nx
 
 from nonprehensile.checks import check_tolerance
+from nonprehensile.equivalence import apply_to_state
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron, wrap_index
-from nonprehensile.geometry.symmetry import apply_to_state, rotation_group
+from nonprehensile.geometry.symmetry import rotation_group
 from nonprehensile.skills.skill import Skill, events_to_dicts
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex, angles_close
 from nonprehensile.transitions import Transition, TransitionGraph

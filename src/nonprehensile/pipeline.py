@@ -5,21 +5,21 @@ incremental clustering of every demonstrated motion segment, and a plan between 
 were never demonstrated, with reference finger motions; written as a self-contained HTML report
 (``index.html``, images embedded) and a JSON summary (``summary.json``).
 
-This module sits at the edge of the package (it writes files and draws figures); the CLI calls
-it and shows its progress.
+This module runs the job; the report's composition (its sections, drawn from what the job
+computed) is :mod:`nonprehensile.viz.demo_report`. It sits at the edge of the package (it
+writes files); the CLI calls it and shows its progress.
 """
 
 from __future__ import annotations
 
 import contextlib
-import gc
 import hashlib
 import json
 import os
 import pickle
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,24 +28,21 @@ import numpy as np
 
 from nonprehensile.demonstrations.dataset import Dataset, load_dataset
 from nonprehensile.demonstrations.segment import Segment, segment_dataset
+from nonprehensile.equivalence import equivalence_classes
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
-from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
-from nonprehensile.inference import Expansion, cross_check, expand
+from nonprehensile.geometry.symmetry import rotation_group
+from nonprehensile.inference import cross_check, expand
 from nonprehensile.io import write_text_file
 from nonprehensile.motion.clustering import HilbertClusterer
-from nonprehensile.motion.library import ClusteredMotions, flatten_segments
 from nonprehensile.motion.microcluster import one_thread
 from nonprehensile.planning import Plan, plan
-from nonprehensile.skills.contacts import format_event
+from nonprehensile.references import ClusteredMotions, flatten_segments
 from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State, stable_faces, states_by_step
-from nonprehensile.viz.report import HtmlFigure, Section, figure_to_png, write_report
 
 __all__ = [
-    "REPORT_SECTIONS",
     "DemoResult",
-    "ReportContext",
     "adjusted_rand_index",
     "cluster_segments",
     "motions_from_dataset",
@@ -252,8 +249,9 @@ def motions_from_dataset(
 #: clusters it builds (2: issue 14's macro-step schedule and components), so that a library
 #: cached by an older clustering is rebuilt even though the dataset's files did not change
 #: (3: macro steps between searches refit the chosen mixture; 4: every recording's markers in
-#: the dataset's one order, so a library built from files of mixed orders is rebuilt).
-_CACHE_FORMAT = "motions/4"
+#: the dataset's one order, so a library built from files of mixed orders is rebuilt; 5: the
+#: library's class moved to nonprehensile.references, which old pickles do not name).
+_CACHE_FORMAT = "motions/5"
 
 
 def cache_dir() -> Path:
@@ -468,265 +466,12 @@ def run_demo(
                                    f"--to {goal} --seed {seed}"),
             ("dataset", str(ds.root or dataset))]
     summary["meta"] = dict(meta)
-    report = _write_report(out, ds, exp, graphs, segments, motions, arcs, result, summary,
-                           progress, meta)
+    from nonprehensile.viz.demo_report import ReportContext, write_demo_report
+
+    ctx = ReportContext(ds, exp, graphs, segments, motions, arcs, result, summary)
+    report = write_demo_report(out, ctx, progress, meta)
     lap("report")
     summary["seconds"] = times
     summary_path = out / "summary.json"
     write_text_file(summary_path, json.dumps(summary, indent=2) + "\n")
     return DemoResult(summary, report, summary_path)
-
-
-@contextlib.contextmanager
-def collector_spared() -> Iterator[None]:
-    """Leave the objects alive now out of the cyclic garbage collector's walks in the block.
-
-    Matplotlib's figures are webs of reference cycles, so drawing the report sets off the
-    collector, and each full collection walks every object the job holds (its modules,
-    dataset and models: 150,000 objects, about 0.05 s a walk; issue 16). Frozen
-    (:func:`gc.freeze`), they are skipped; garbage made in the block is collected as usual,
-    and the frozen objects are handed back to the collector when the block ends. Where
-    something else has already frozen objects, nothing is changed (unfreezing would hand
-    back theirs too).
-    """
-    if gc.get_freeze_count():
-        yield
-        return
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
-
-
-@dataclass(frozen=True)
-class ReportContext:
-    """Everything the main job computed, for the report's sections to draw from."""
-
-    ds: Dataset
-    exp: Expansion
-    graphs: Any
-    segments: list[Segment]
-    motions: ClusteredMotions
-    arcs: list[dict[str, Any]]
-    result: Plan
-    summary: dict[str, Any]
-
-
-#: The report's sections, in order: ``"module:function"``, each function taking a
-#: :class:`ReportContext` and returning a :class:`~nonprehensile.viz.report.Section` (or None
-#: to leave itself out). A new section is one line here; its module imports what it draws
-#: with, inside the function.
-REPORT_SECTIONS: list[str] = [
-    "nonprehensile.pipeline:object_section",
-    "nonprehensile.pipeline:inference_section",
-    "nonprehensile.pipeline:motion_section",
-    "nonprehensile.pipeline:plan_section",
-    "nonprehensile.pipeline:physics_section",
-]
-
-
-def _write_report(
-    out: Path, ds: Dataset, exp: Expansion, graphs: Any, segments: list[Segment],
-    motions: ClusteredMotions, arcs: list[dict[str, Any]], result: Plan,
-    summary: dict[str, Any], progress: StageProgress, meta: Sequence[tuple[str, str]] = (),
-) -> Path:
-    import importlib
-
-    ctx = ReportContext(ds, exp, graphs, segments, motions, arcs, result, summary)
-    sections = []
-    progress("figures", 0, len(REPORT_SECTIONS))
-    with collector_spared():
-        for i, target in enumerate(REPORT_SECTIONS, start=1):
-            module, _, attr = target.partition(":")
-            section = getattr(importlib.import_module(module), attr)(ctx)
-            if section is not None:
-                sections.append(section)
-            progress("figures", i, len(REPORT_SECTIONS))
-    return write_report(
-        out, f"nonprehensile: {ds.poly.name}",
-        "The whole pipeline of the paper (Integrated Object, Skill, and Motion Models for "
-        "Nonprehensile Manipulation) on the bundled demonstrations: the object model, the "
-        "state-transition graph expanded by inference, the skill graphs, the clustered finger "
-        "motions, and a plan between two states that were never demonstrated.",
-        sections, meta=meta,
-    )
-
-
-def physics_section(ctx: ReportContext) -> Section:
-    """The plan executed in MuJoCo (issue 9); a note instead where that cannot be done."""
-    from nonprehensile.errors import NonprehensileError
-    from nonprehensile.viz.physics import physics_section as draw
-
-    ds, result, summary = ctx.ds, ctx.result, ctx.summary
-    try:
-        section, records = draw(ds.poly, result, scale=ds.scale, fingers=ds.fingers)
-    except NonprehensileError as exc:
-        summary["physics"] = {"error": str(exc)}
-        return Section("Physics: the plan executed in MuJoCo", [f"Not simulated: {exc}"])
-    summary["physics"] = {"steps": records,
-                          "all_as_predicted": all(r["success"] for r in records)}
-    return section
-
-
-def plural(n: int, word: str, many: str | None = None) -> str:
-    """``1 demonstration``, ``2 demonstrations``."""
-    return f"{n} {word if n == 1 else many or word + 's'}"
-
-
-def object_section(ctx: ReportContext) -> Section:
-    """The object model: two labeled views, and ``A`` and ``Delta`` as HTML tables."""
-    from nonprehensile.viz import object_figure
-
-    poly, summary = ctx.ds.poly, ctx.summary
-    png = figure_to_png(object_figure(poly, tables=False))
-    labels, a = poly.adjacency_matrix()
-    tables: list[tuple[list[str], list[list[str]]]] = []
-    if len(labels) <= 40:
-        tables.append((["A", *labels], [[f, *[str(k) if k else "-" for k in a[i]]]
-                                         for i, f in enumerate(labels)]))
-    tables.append((["face", "Delta (deg)", "edges"],
-                   [[f, ", ".join(f"{d:g}" for d in poly.delta[f]), str(poly.n_edges(f))]
-                    for f in list(poly.faces)[:200]]))
-    return Section(
-        "Object model (paper Section III, Fig. 3)",
-        [f"{poly.name}: {plural(len(poly.faces), 'face')} labeled "
-         f"{', '.join(list(poly.faces)[:40])}{' ...' if len(poly.faces) > 40 else ''}; edge "
-         "numbers run clockwise seen from outside; the adjacency matrix A holds, for each pair "
-         "of adjacent faces, the number of their shared edge on the row face. Rotation "
-         f"symmetry group of order {summary['object']['symmetry_order']}; "
-         f"{plural(summary['states']['count'], 'state')} at a "
-         f"{summary['states']['step']:g}-degree step form "
-         f"{plural(summary['states']['classes'], 'geometric-equivalence class', 'geometric-equivalence classes')}."],  # noqa: E501
-        [(png, "The labeled object from two opposite sides")],
-        tables,
-    )
-
-
-def inference_section(ctx: ReportContext) -> Section:
-    """The expanded state-transition graph (every skill) and the skill graphs."""
-    from nonprehensile.viz import skill_graphs_figure, state_graph_figure
-    from nonprehensile.viz.graphs import MAX_DRAWN_STATES, transition_matrix_html
-
-    exp, summary = ctx.exp, ctx.summary
-    caption = ("State-transition graph: demonstrated arcs bold, inferred arcs thin (every "
-               "skill drawn)")
-    graph: list[tuple[bytes | HtmlFigure, str]]
-    if len(exp.graph.states) <= MAX_DRAWN_STATES:
-        # the matrix as a table the page lays out: drawn, its 48 tick labels and cells cost
-        # matplotlib about 0.09 s (issue 16)
-        graph = [(figure_to_png(state_graph_figure(exp, matrix=False)), caption),
-                 (HtmlFigure(transition_matrix_html(exp)),
-                  "Transition matrix: rows the start states, columns the end states; a cell "
-                  "holds a stripe per skill realising the transition, outlined where it was "
-                  "demonstrated")]
-    else:
-        graph = [(figure_to_png(state_graph_figure(exp)),
-                  "Transition matrix (too many states to draw the graph)")]
-    skills_png = figure_to_png(skill_graphs_figure(list(ctx.graphs.graphs)))
-    inf = summary["inference"]
-    rows = [[str(t.start), str(t.end), t.skill.name, t.skill.maneuver,
-             "demonstrated" if t.demonstrated else "inferred"]
-            for t in exp.transitions if t.demonstrated]
-    return Section(
-        "Skills and inference (Sections IV and V, Fig. 5, 7)",
-        [f"{plural(len(summary['skills']), 'demonstrated skill')} expand to "
-         f"{plural(inf['transitions'], 'transition')} over the state set, "
-         f"{inf['demonstrated']} of them demonstrated. The paper's edge-index method and the "
-         f"exact symmetry method disagree on {inf['paper_method_disagreements']} of them."],
-        [*graph,
-         (skills_png, "Skill graphs: contact events as nodes, finger motions as arcs")],
-        [(["from", "to", "skill", "maneuver", "shown"], rows)],
-    )
-
-
-def motion_section(ctx: ReportContext) -> Section:
-    """Fingertip trajectories and the Hilbert-key histograms of the shared arcs."""
-    from nonprehensile.viz.clusters import cluster_histogram_figure
-    from nonprehensile.viz.trajectories import trajectory_figure
-
-    arcs, motions, segments = ctx.arcs, ctx.motions, ctx.segments
-    # the arcs where skills with the same contact events move differently: the paper's Fig. 12
-    shared = [a for a in arcs
-              if len(a["skills"]) > 1 and len(a["labels"]) > 1 and a["clusterer"] is not None]
-    tumbling = next((a for a in shared if a["group"] == 1), shared[0] if shared else None)
-    traj_png = figure_to_png(trajectory_figure(ctx.ds, tumbling["skills"] if tumbling else None))
-    hists = []
-    for a in shared:
-        rows = a["rows"]
-        title = f"{a['from']} -> {a['to']} ({', '.join(a['skills'])})"
-        hists.append((figure_to_png(cluster_histogram_figure(
-            a["clusterer"], motions.vectors[rows], [segments[i].skill for i in rows],
-            title=title, labels=motions.labels[rows])), title))
-    ds = ctx.summary["dataset"]
-
-    def score(a: dict[str, Any], key: str) -> str:
-        return f"{a[key]:.2f}" if key in a else "-"
-
-    rows = [[f"{a['from']} -> {a['to']}", ", ".join(a["skills"]), ", ".join(a["labels"]),
-             str(a["segments"]), str(a["clusters"]), score(a, "ari_vs_skill"),
-             score(a, "ari_vs_skill_as_streamed"), score(a, "ari_vs_skill_and_mentor")]
-            for a in arcs]
-    return Section(
-        "Demonstrations and motion clusters (Section VI, Fig. 12)",
-        [f"{plural(ds['demonstrations'], 'demonstration')} by "
-         f"{plural(len(ds['mentors']), 'mentor')}, cut at their "
-         f"contact events into {plural(ds['segments'], 'segment')} registered to the skill "
-         "graphs' arcs, then streamed, 10 at a time and skill after skill, into an incremental "
-         "clusterer on a Hilbert-curve index, arc by arc, with no closing recalibration (the "
-         "ARI as registered scores the ids each segment got on arrival). "
-         "Where two skills share their contact events, the clusterer is asked for two clusters "
-         "and the adjusted Rand index (ARI, 1 is perfect) says how well they separate the "
-         "skills: on the arcs where the skills move differently (quarter circle or straight "
-         "pull, lift-over or twist-over) they should, on the others (the same approach) they "
-         "cannot. Where one skill has an arc, the clusterer picks the number of clusters: the "
-         "mentors' styles (last column). Clusters are numbered from 1 on each arc, in the "
-         "order of their first segment, here, in the histograms and in the plan."],
-        [(traj_png, "Fingertip trajectories of two skills with the same contact events"),
-         *[(png, f"Hilbert keys of {title}, coloured by cluster") for png, title in hists]],
-        [(["arc", "skills", "motions", "segments", "clusters", "ARI vs skill",
-           "ARI vs skill, as registered", "ARI vs skill x mentor"], rows)],
-    )
-
-
-def plan_section(ctx: ReportContext) -> Section:
-    """The plan: a filmstrip of the object's poses, and its steps as a table."""
-    from nonprehensile.viz.plan_figure import plan_filmstrip_figure
-
-    result = ctx.result
-    off = result.offset
-    rows = []
-    for i, step in enumerate(result.steps, start=1):
-        t = step.transition
-        agent = step.agent or off
-        for j, ev in enumerate(t.skill.events):
-            motion = step.motions[j] if j < len(step.motions) else None
-            ref = motion[3] if motion else None
-            rows.append([
-                str(i) if j == 0 else "",
-                f"{step.start_world} -> {step.end_world} by {t.skill.name}" if j == 0 else "",
-                (f"{agent.rotate_deg:g} deg at ({agent.translate[0]:.3g}, "
-                 f"{agent.translate[1]:.3g})" + (" (relocated)" if step.relocated and i > 1
-                                                 else "")) if j == 0 else "",
-                ev.id, format_event(ev, "paper"), motion[2] if motion else "",
-                (f"cluster {ref.cluster} medoid ({plural(ref.n_demonstrations, 'demo')}, "
-                 f"{ref.positions.shape[0]} frames)") if ref else "",
-            ])
-    relocs = (f" and {plural(result.relocations, 'relocation')}" if result.relocations
-              else "")
-    film = figure_to_png(plan_filmstrip_figure(ctx.ds.poly, result, scale=ctx.ds.scale,
-                                               markers=list(ctx.ds.fingers.values())))
-    return Section(
-        "Plan (Section VII)",
-        [f"From {result.start} to {result.goal}, neither of them demonstrated: place the "
-         f"agent turned by {off.rotate_deg:g} degrees at ({off.translate[0]:g}, "
-         f"{off.translate[1]:g}) m, then {plural(len(result.steps), 'transition')}"
-         f"{relocs}"
-         ". Each step lists where the agent stands, its contact events and, for each motion, "
-         "the reference finger trajectory: the medoid of the skill's main cluster, in the "
-         "world frame."],
-        [(film, "Plan filmstrip: the object's pose at each step in 3-D, the reference finger "
-                "paths and the agent's position")],
-        [(["step", "transition", "agent", "event", "contacts", "then", "reference motion"],
-          rows)],
-    )

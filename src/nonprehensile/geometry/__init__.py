@@ -11,25 +11,16 @@ from nonprehensile.geometry.build import (
     tetrahedron,
 )
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron, check_polyhedron, wrap_index
-from nonprehensile.geometry.symmetry import (
-    Symmetry,
-    apply_to_state,
-    equivalence_classes,
-    equivalent,
-    rotation_group,
-)
+from nonprehensile.geometry.symmetry import Symmetry, rotation_group
 
 __all__ = [
     "DEFAULT_RTOL",
     "Polyhedron",
     "Symmetry",
-    "apply_to_state",
     "box",
     "check_polyhedron",
     "convex_hull",
     "cube",
-    "equivalence_classes",
-    "equivalent",
     "face_name",
     "from_mesh",
     "octahedron",

@@ -49,9 +49,9 @@ from nonprehensile.demonstrations.segment import SkillGraphs, segment_demonstrat
 from nonprehensile.errors import InputError, NonprehensileError
 from nonprehensile.io import load_document, read_skills
 from nonprehensile.motion.clustering import HilbertClusterer
-from nonprehensile.motion.library import flatten_segments
 from nonprehensile.motion.store import MemoryStore
 from nonprehensile.motion.tablestore import TableStore
+from nonprehensile.references import flatten_segments
 from nonprehensile.service.archive import MAX_ARCHIVE_FILES, unpack_archive
 from nonprehensile.service.db import Pool, arc_store, snapshot
 from nonprehensile.service.errors import TEMP_PREFIX, Forbidden, Rejected

@@ -25,15 +25,16 @@ from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS, Dataset, Demon
 from nonprehensile.demonstrations.segment import Segment
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
-from nonprehensile.motion.library import flatten_segments, medoid
 from nonprehensile.motion.trajectory import fill_gaps
 from nonprehensile.planning import Plan, PlanStep, ReferenceMotion
+from nonprehensile.references import flatten_segments, medoid
 from nonprehensile.sim.compare import (
     DEFAULT_ANGLE_TOL_DEG,
     DEFAULT_POSITION_TOL,
     Comparison,
     compare,
 )
+from nonprehensile.sim.distribution import NO_PERTURBATION, Perturbation
 from nonprehensile.sim.run import SimResult, Simulator, pose_of_state
 from nonprehensile.skills.contacts import Finger
 from nonprehensile.skills.skill import Skill
@@ -88,12 +89,14 @@ def _marker(fingers: Mapping[str, str], k: int, names: tuple[str, ...] | list[st
 def replay_demonstration(
     sim: Simulator, dataset: Dataset, demo: Demonstration, *,
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG, smooth: int = 9,
+    perturbation: Perturbation = NO_PERTURBATION, noise_stream: str = "finger",
 ) -> Outcome:
     """Replay one demonstration open loop and compare with its annotations.
 
     The recorded tip markers (gaps filled) are smoothed by a centred moving average of
     ``smooth`` frames, as a tracking controller filters measurement noise, before they drive
-    the fingertips.
+    the fingertips. ``perturbation`` moves the object's start and adds the finger's noise
+    (stream ``noise_stream``).
     """
     traj = demo.trajectory.to_units("m")
     pos = fill_gaps(traj.positions, max(dataset.gap_limit, 1) * 4)
@@ -109,7 +112,9 @@ def replay_demonstration(
         pos = smooth_markers(pos, smooth)
     targets = {k: pos[:, _marker(dataset.fingers, k, traj.marker_names)]
                for k in fingers_of(demo.skill)}
-    start = pose_of_state(dataset.poly, demo.initial, (0.0, 0.0), sim.scale)
+    targets = perturbation.finger_targets(targets, traj.rate, noise_stream)
+    start = perturbation.start_pose(pose_of_state(dataset.poly, demo.initial, (0.0, 0.0),
+                                                  sim.scale))
     result = sim.run(start, targets, traj.rate)
     t0 = 0.0
     cmp = compare(dataset.poly, demo.skill, result, predicted=demo.final,
@@ -191,14 +196,19 @@ def simulate_step(
     continue_from_current: bool = False, check_position: bool = True,
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG, position_tol: float = DEFAULT_POSITION_TOL,
     label: Mapping[str, Any] | None = None, keep_trace: int = 0,
+    perturbation: Perturbation = NO_PERTURBATION, noise_stream: str = "finger",
 ) -> Outcome:
     """Simulate one step: the object starts at the step's planned pose (or, with
-    ``continue_from_current``, wherever the previous simulation left it)."""
+    ``continue_from_current``, wherever the previous simulation left it).
+
+    ``perturbation`` moves the object's start away from the planned pose (not when
+    continuing) and adds the finger's noise (stream ``noise_stream``)."""
     targets, rate, times = step_targets(step, fingers)
     if step.start_pose is None or step.end_pose is None:
         raise InputError("the step carries no object pose: make it with plan() or step_for()")
-    result = sim.run(None if continue_from_current else step.start_pose, targets, rate,
-                     keep_trace=keep_trace)
+    targets = perturbation.finger_targets(targets, rate, noise_stream)
+    result = sim.run(None if continue_from_current else perturbation.start_pose(
+        step.start_pose), targets, rate, keep_trace=keep_trace)
     t = step.transition
     cmp = compare(sim.poly, t.skill, result, predicted=step.end_world,
                   predicted_pose=step.end_pose if check_position else None,
@@ -222,7 +232,8 @@ def simulate_plan(
     out = []
     for i, step in enumerate(plan.steps):
         out.append(simulate_step(sim, step, fingers=fingers, continue_from_current=i > 0,
-                                 label={"step": i + 1}, **kw))
+                                 label={"step": i + 1}, noise_stream=f"finger/step{i + 1}",
+                                 **kw))
         if progress is not None:
             progress(i + 1, len(plan.steps))
     return out
@@ -231,7 +242,7 @@ def simulate_plan(
 class DemonstrationLibrary:
     """Reference motions taken whole from one demonstration per skill.
 
-    A plan's :class:`~nonprehensile.motion.library.ClusteredMotions` gives each arc the medoid
+    A plan's :class:`~nonprehensile.references.ClusteredMotions` gives each arc the medoid
     of its own cluster, so a step's arcs may come from different demonstrations: fine for a
     controller that tracks contacts, but an open-loop replay then runs a motion nobody made.
     Here every arc of a skill comes from the same demonstration: the medoid of the skill's

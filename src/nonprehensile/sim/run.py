@@ -1,10 +1,13 @@
 """Run fingertips along reference trajectories in MuJoCo and read back what happened.
 
-:class:`Simulator` holds a compiled scene; :meth:`Simulator.run` places the object, drives the
-fingertips through pre-interpolated targets with ``mj_step`` in a tight loop, reads the
-contacts every few steps, lets the object settle and returns a :class:`SimResult`: the final
-pose, the final state (:func:`~nonprehensile.states.state_of_pose`), and the debounced contact
-events as the project's own :class:`~nonprehensile.skills.contacts.ContactEvent` values.
+:class:`Simulator` holds a compiled scene, its finger driver (:mod:`nonprehensile.sim.driver`)
+and its judge (:mod:`nonprehensile.sim.judge`); :meth:`Simulator.run` places the object,
+drives the fingertips open loop through pre-interpolated targets with ``mj_step`` in a tight
+loop, lets the judge read the contacts every few steps, lets the object settle and returns a
+:class:`SimResult`: the final pose, the final state
+(:func:`~nonprehensile.states.state_of_pose`), and the debounced contact events as the
+project's own :class:`~nonprehensile.skills.contacts.ContactEvent` values. The closed loop is
+:mod:`nonprehensile.sim.closed_loop`.
 """
 
 from __future__ import annotations
@@ -19,21 +22,20 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
-from nonprehensile.errors import GeometryError, InputError
+from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose
-from nonprehensile.sim.scene import DEFAULT_PARAMS, UNIT_METRES, SimParams, scene_xml
-from nonprehensile.skills.contacts import (
-    ContactEvent,
-    ContactPair,
-    Edge,
-    Face,
-    Finger,
-    Ground,
-    ObjectElement,
-    Vertex,
+from nonprehensile.sim.driver import FingerDriver, FreeFingertips
+from nonprehensile.sim.judge import (
+    CONTACT_EVERY,
+    REST_TILT_DEG,
+    STILL_TIME,
+    EventLog,
+    Judge,
+    SimEvent,
 )
-from nonprehensile.states import State, state_of_pose, state_pose
+from nonprehensile.sim.scene import DEFAULT_PARAMS, UNIT_METRES, SimParams, scene_xml
+from nonprehensile.states import State, state_pose
 
 __all__ = [
     "SimEvent",
@@ -44,11 +46,6 @@ __all__ = [
 ]
 
 FloatArray = NDArray[np.float64]
-
-#: Contacts are read every this many physics steps (5 ms at the default 1 ms step).
-CONTACT_EVERY = 5
-#: Tilt (degrees) of the bottom face from horizontal still read as resting on it.
-REST_TILT_DEG = 3.0
 
 
 def default_scale(poly: Polyhedron) -> float:
@@ -68,29 +65,6 @@ def pose_of_state(poly: Polyhedron, state: State, position: Sequence[float] = (0
     r, t = state_pose(poly, state)
     tw = scale * t + np.array([float(position[0]), float(position[1]), 0.0])
     return ObjectPose(r, tw, scale * (r @ poly.com) + tw, scale)
-
-
-@dataclass(frozen=True)
-class SimEvent:
-    """A debounced contact event read from the simulation.
-
-    Attributes
-    ----------
-    time : float
-        When the contact set began (s from the start of the motion).
-    event : ContactEvent
-        The contact pairs (fingers and ground with the face, edge or vertex touched); the id
-        is empty. Fingers touching the table are not contact pairs of the skill model's kind
-        that skills name, and are left out.
-    """
-
-    time: float
-    event: ContactEvent
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON form."""
-        return {"time": round(self.time, 4),
-                "contacts": [str(p) for p in self.event.ordered_pairs]}
 
 
 @dataclass(frozen=True)
@@ -146,6 +120,12 @@ class SimResult:
 class Simulator:
     """A compiled MuJoCo scene of one object and ``n_fingers`` fingertips.
 
+    The simulation is split in two: the **driver** moves the fingertips
+    (:class:`~nonprehensile.sim.driver.FreeFingertips` here; any
+    :class:`~nonprehensile.sim.driver.FingerDriver`), the **judge**
+    (:class:`~nonprehensile.sim.judge.Judge`) reads contacts, settling and the resting state,
+    the same way whatever the driver.
+
     Parameters
     ----------
     poly : Polyhedron
@@ -172,36 +152,18 @@ class Simulator:
         except ValueError as exc:  # MuJoCo's compiler refuses the mesh
             raise InputError(f"MuJoCo cannot build a scene of {poly.name!r}: {exc}") from None
         self.data = mujoco.MjData(self.model)
-        m = self.model
-        self._body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
-        self._obj_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
-        self._table = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table")
-        self._finger_geoms = {
-            mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"finger{k}"): k
-            for k in range(1, n_fingers + 1)
-        }
-        adr = m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "object")]
-        self._qadr = int(adr)
-        self._dadr = int(m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT,
-                                                        "object")])
-        self._finger_qadr = np.array([
-            m.jnt_qposadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"finger{k}_{a}")]
-            for k in range(1, n_fingers + 1) for a in "xyz"])
-        self._finger_dadr = np.array([
-            m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, f"finger{k}_{a}")]
-            for k in range(1, n_fingers + 1) for a in "xyz"])
-        # face planes in the model frame (model units) and vertices, to name touched elements
-        self._normals = np.array([poly.normals[f] for f in poly.face_ids])
-        self._offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
-                                  for f in poly.face_ids])
+        self.driver: FingerDriver = FreeFingertips(self.model, n_fingers)
+        self.judge = Judge(poly, self.scale, params, self.model, n_fingers)
+        # kept for the renderer and the executors
+        self._body = self.judge.body
+        self._qadr = self.judge.qadr
+        self._dadr = self.judge.dadr
+        self._finger_qadr = self.driver.qpos_indices()
 
     # ------------------------------------------------------------------------ state access
     def pose(self) -> ObjectPose:
         """The object's current pose."""
-        d = self.data
-        r = d.xmat[self._body].reshape(3, 3).copy()
-        t = d.xpos[self._body].copy()
-        return ObjectPose(r, t, self.scale * (r @ self.poly.com) + t, self.scale)
+        return self.judge.pose(self.data)
 
     def set_pose(self, pose: ObjectPose) -> None:
         """Put the object at ``pose`` (at rest)."""
@@ -213,70 +175,63 @@ class Simulator:
 
     def state(self, tol_deg: float = REST_TILT_DEG) -> State | None:
         """The state the object rests in now, or None."""
-        try:
-            return state_of_pose(self.poly, self.pose().rotation, tol=tol_deg)
-        except GeometryError:
-            return None
+        return self.judge.state(self.data, tol_deg)
 
-    # ---------------------------------------------------------------------------- contacts
-    def _element(self, x: FloatArray) -> ObjectElement:
-        """The face, edge or vertex of the model nearest a surface point (model frame)."""
-        tol = self.params.contact_tol / self.scale
-        d = self._normals @ x - self._offsets
-        near = [self.poly.face_ids[i] for i in np.flatnonzero(d > -tol)]
-        if not near:
-            near = [self.poly.face_ids[int(np.argmax(d))]]
-        if len(near) == 1:
-            return Face(near[0])
-        if len(near) == 2 and frozenset(near) in self.poly.edges:
-            return Edge(frozenset(near))
-        shared = self.poly.shared_vertices(near) if len(near) >= 3 else []
-        if shared:
-            return Vertex(self.poly.vertex_faces[shared[0]])
-        return Face(self.poly.face_ids[int(np.argmax(d))])
+    def park(self) -> FloatArray:
+        """Where fingers not in use wait, far above the table, shape (n_fingers, 3)."""
+        park = self.scale * self.poly.diameter * 3.0 + 0.05
+        return np.array([[park * k, park, park] for k in range(1, self.n_fingers + 1)])
 
-    def _ground_element(self, pose_r: FloatArray, pose_t: FloatArray) -> ObjectElement:
-        z = self.scale * (self.poly.vertices @ pose_r[2]) + pose_t[2]
-        low = np.flatnonzero(z < z.min() + self.params.contact_tol)
-        vf = self.poly.vertex_faces
-        common = frozenset.intersection(*(vf[i] for i in low))
-        if len(low) >= 3 and len(common) == 1:
-            return Face(next(iter(common)))
-        if len(low) >= 3:  # several vertices low, no single face: the lowest face's plane
-            normals_z = self._normals @ pose_r[2]
-            return Face(self.poly.face_ids[int(np.argmin(normals_z))])
-        if len(low) == 2 and len(common) == 2:
-            return Edge(common)
-        return Vertex(vf[int(np.argmin(z))])
-
-    def _contacts(self) -> tuple[frozenset[ContactPair], bool]:
+    def trace_row(self, now: float) -> FloatArray:
+        """``[t, x, y, z, qw, qx, qy, qz, finger qpos ...]`` now (see :meth:`run`)."""
         d = self.data
-        n = d.ncon
-        if n == 0:
-            return frozenset(), False
-        con = d.contact
-        g1, g2, dist = con.geom1[:n], con.geom2[:n], con.dist[:n]
-        r = d.xmat[self._body].reshape(3, 3)
-        t = d.xpos[self._body]
-        pairs: set[ContactPair] = set()
-        finger_table = False
-        ground = False
-        for i in range(n):
-            if dist[i] > 1e-4:
-                continue
-            a, b = int(g1[i]), int(g2[i])
-            if self._obj_geom in (a, b):
-                other = b if a == self._obj_geom else a
-                if other == self._table:
-                    ground = True
-                elif other in self._finger_geoms:
-                    x = r.T @ (con.pos[i] - t) / self.scale
-                    pairs.add(ContactPair(Finger(self._finger_geoms[other]), self._element(x)))
+        return np.concatenate(([now], d.qpos[self._qadr:self._qadr + 7],
+                               d.qpos[self._finger_qadr]))
+
+    def check_targets(self, targets: Mapping[int, FloatArray], rate: float) -> int:
+        """Validate fingertip targets (see :meth:`run`); returns their number of frames."""
+        if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
+            raise InputError(f"the trajectory rate must be a finite positive number of Hz, "
+                             f"got {rate!r}")
+        lengths = set()
+        for k, tr in targets.items():
+            if k not in range(1, self.n_fingers + 1):
+                raise InputError(f"finger R{k} is not in the scene (R1..R{self.n_fingers})")
+            arr = np.asarray(tr, dtype=float)
+            if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) < 2:
+                raise InputError(f"the trajectory of R{k} must have shape (n_frames >= 2, 3), "
+                                 f"got {arr.shape}")
+            if not np.isfinite(arr).all():
+                bad = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])
+                raise InputError(f"the trajectory of R{k} has NaN or infinite values (first at "
+                                 f"frame {bad}); fill the gaps before simulating")
+            if np.abs(arr).max() > 100.0:
+                raise InputError(f"the trajectory of R{k} goes {np.abs(arr).max():.3g} m from "
+                                 "the origin: give it in metres")
+            lengths.add(len(arr))
+        if len(lengths) > 1:
+            raise InputError(f"the fingers' trajectories differ in length: {sorted(lengths)}")
+        return lengths.pop() if lengths else 2
+
+    def resample(self, targets: Mapping[int, FloatArray], rate: float, n_frames: int,
+                 rest: FloatArray | None = None) -> FloatArray:
+        """Targets interpolated to the physics step, shape (n_steps + 1, n_fingers, 3);
+        fingers not given stay at ``rest`` (default :meth:`park`)."""
+        p = self.params
+        duration = (n_frames - 1) / rate
+        n_move = max(1, round(duration / p.timestep))
+        t_move = np.arange(n_move + 1) * p.timestep
+        t_ref = np.arange(n_frames) / rate
+        out = np.empty((n_move + 1, self.n_fingers, 3))
+        rest = self.park() if rest is None else rest
+        for k in range(1, self.n_fingers + 1):
+            if k in targets:
+                arr = np.asarray(targets[k], dtype=float)
+                for j in range(3):
+                    out[:, k - 1, j] = np.interp(t_move, t_ref, arr[:, j])
             else:
-                finger_table = True
-        if ground:
-            pairs.add(ContactPair(Ground(), self._ground_element(r, t)))
-        return frozenset(pairs), finger_table
+                out[:, k - 1] = rest[k - 1]
+        return out
 
     # --------------------------------------------------------------------------------- run
     def run(
@@ -288,7 +243,8 @@ class Simulator:
         settle: float | None = None,
         keep_trace: int = 0,
     ) -> SimResult:
-        """Drive the fingertips through ``targets`` with the object starting at ``start``.
+        """Drive the fingertips through ``targets`` with the object starting at ``start``,
+        open loop.
 
         Parameters
         ----------
@@ -315,114 +271,62 @@ class Simulator:
         """
         wall0 = time.perf_counter()
         p = self.params
-        if not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
-            raise InputError(f"the trajectory rate must be a finite positive number of Hz, "
-                             f"got {rate!r}")
-        lengths = set()
-        for k, tr in targets.items():
-            if k not in range(1, self.n_fingers + 1):
-                raise InputError(f"finger R{k} is not in the scene (R1..R{self.n_fingers})")
-            arr = np.asarray(tr, dtype=float)
-            if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) < 2:
-                raise InputError(f"the trajectory of R{k} must have shape (n_frames >= 2, 3), "
-                                 f"got {arr.shape}")
-            if not np.isfinite(arr).all():
-                bad = int(np.flatnonzero(~np.isfinite(arr).all(axis=1))[0])
-                raise InputError(f"the trajectory of R{k} has NaN or infinite values (first at "
-                                 f"frame {bad}); fill the gaps before simulating")
-            if np.abs(arr).max() > 100.0:
-                raise InputError(f"the trajectory of R{k} goes {np.abs(arr).max():.3g} m from "
-                                 "the origin: give it in metres")
-            lengths.add(len(arr))
-        if len(lengths) > 1:
-            raise InputError(f"the fingers' trajectories differ in length: {sorted(lengths)}")
-        n_frames = lengths.pop() if lengths else 2
-        duration = (n_frames - 1) / rate
-        n_move = max(1, round(duration / p.timestep))
-        t_move = np.arange(n_move + 1) * p.timestep
-        t_ref = np.arange(n_frames) / rate
-        ctrl = np.empty((n_move + 1, 3 * self.n_fingers))
-        park = self.scale * self.poly.diameter * 3.0 + 0.05
-        for k in range(1, self.n_fingers + 1):
-            cols = slice(3 * (k - 1), 3 * k)
-            if k in targets:
-                arr = np.asarray(targets[k], dtype=float)
-                ctrl[:, cols] = np.column_stack(
-                    [np.interp(t_move, t_ref, arr[:, j]) for j in range(3)])
-            else:  # parked far above the table
-                ctrl[:, cols] = np.array([park * k, park, park])
-
+        n_frames = self.check_targets(targets, rate)
+        ctrl = self.driver.controls(self.resample(targets, rate, n_frames))
+        n_move = len(ctrl) - 1
         m, d = self.model, self.data
         if start is not None:
             mujoco.mj_resetData(m, d)
             self.set_pose(start)
         d.time = 0.0
-        d.qpos[self._finger_qadr] = ctrl[0]
-        d.qvel[self._finger_dadr] = 0.0
-        d.ctrl[:] = ctrl[0]
+        self.driver.place(d, ctrl[0])
         mujoco.mj_forward(m, d)
 
-        events: list[SimEvent] = []
-        current: frozenset[ContactPair] | None = None
-        candidate: frozenset[ContactPair] | None = None
-        cand_since = 0.0
-        touched_table = False
-        hold = p.debounce
+        log = EventLog(self.judge)
         trace: list[FloatArray] = []
-
-        def observe(now: float) -> None:
-            nonlocal current, candidate, cand_since, touched_table
-            pairs, ft = self._contacts()
-            touched_table = touched_table or ft
-            if pairs != candidate:
-                candidate, cand_since = pairs, now
-            if candidate != current and now - cand_since >= hold - 1e-12 and candidate:
-                current = candidate
-                events.append(SimEvent(cand_since, ContactEvent("", candidate)))
-
-        def record(now: float) -> None:
-            row = np.concatenate(([now], d.qpos[self._qadr:self._qadr + 7],
-                                  d.qpos[self._finger_qadr]))
-            trace.append(row)
-
         step = mujoco.mj_step
         ctrl_view = d.ctrl
-        observe(0.0)
+        log.observe(d, 0.0)
         for i in range(1, n_move + 1):
             ctrl_view[:] = ctrl[i]
             step(m, d)
             if i % CONTACT_EVERY == 0:
-                observe(i * p.timestep)
+                log.observe(d, i * p.timestep)
             if keep_trace and i % keep_trace == 0:
-                record(i * p.timestep)
+                trace.append(self.trace_row(i * p.timestep))
         # settle: the fingers hold their last targets; stop once the object is still
         settle_s = p.settle if settle is None else float(settle)
-        n_settle = round(settle_s / p.timestep)
+        j, settled = self.settle(settle_s, log, n_move * p.timestep, keep_trace, trace)
+        now = (n_move + j) * p.timestep
+        log.close(d, now)
+        return SimResult(
+            self.pose(), self.state(), tuple(log.events), settled, now,
+            time.perf_counter() - wall0, n_move + j, log.finger_table,
+            np.array(trace) if trace else None,
+        )
+
+    def settle(self, seconds: float, log: EventLog, t0: float, keep_trace: int = 0,
+               trace: list[FloatArray] | None = None) -> tuple[int, bool]:
+        """Step with the controls held until the object is still for
+        :data:`~nonprehensile.sim.judge.STILL_TIME` (at most ``seconds``); returns the steps
+        taken and whether it came to rest."""
+        p = self.params
+        m, d, judge = self.model, self.data, self.judge
+        n_settle = round(seconds / p.timestep)
         still = 0
-        settled = False
-        qv = slice(self._dadr, self._dadr + 6)  # the object's free joint
         j = 0
+        step = mujoco.mj_step
         for j in range(1, n_settle + 1):
             step(m, d)
-            now = (n_move + j) * p.timestep
+            now = t0 + j * p.timestep
             if j % CONTACT_EVERY == 0:
-                observe(now)
-                if float(np.abs(d.qvel[qv]).max()) < 1e-3:
+                log.observe(d, now)
+                if judge.is_still(d):
                     still += 1
-                    if still * CONTACT_EVERY * p.timestep >= 0.05:
-                        settled = True
-                        break
+                    if still * CONTACT_EVERY * p.timestep >= STILL_TIME:
+                        return j, True
                 else:
                     still = 0
-            if keep_trace and j % keep_trace == 0:
-                record(now)
-        # a final contact set that had not yet lasted the debounce time still counts at rest
-        pairs, _ = self._contacts()
-        if pairs and pairs != current:
-            events.append(SimEvent((n_move + j) * p.timestep, ContactEvent("", pairs)))
-        state = self.state()
-        return SimResult(
-            self.pose(), state, tuple(events), settled,
-            (n_move + j) * p.timestep, time.perf_counter() - wall0, n_move + j,
-            touched_table, np.array(trace) if trace else None,
-        )
+            if keep_trace and trace is not None and j % keep_trace == 0:
+                trace.append(self.trace_row(now))
+        return j, False

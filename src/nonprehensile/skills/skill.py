@@ -17,9 +17,10 @@ from typing import Any
 
 import networkx as nx
 
+from nonprehensile.equivalence import apply_to_state
 from nonprehensile.errors import ContactError, ManeuverError, SkillError
 from nonprehensile.geometry.polyhedron import Polyhedron
-from nonprehensile.geometry.symmetry import Symmetry, apply_to_state, rotation_group
+from nonprehensile.geometry.symmetry import Symmetry, rotation_group
 from nonprehensile.maneuvers import MANEUVER_TYPES, ManeuverType, classify
 from nonprehensile.skills.contacts import (
     ContactEvent,

@@ -4,19 +4,19 @@ Every command that prints a result takes ``--json`` and then prints exactly one 
 on stdout; messages go to stderr. Exit codes: 0 success, 2 bad input (the message names the
 file and the culprit), 1 anything else (``shared/spec/files-and-cli.md``).
 
-This module imports only :mod:`click`: ``nonprehensile --version`` and ``--help`` must not pay
-for numpy, scipy, networkx, scikit-learn or matplotlib. Each command lives in its own
-``cli_<topic>.py`` module, imported only when that command runs (or its own ``--help`` is
-asked for).
+This package's ``__init__`` imports only :mod:`click`: ``nonprehensile --version`` and
+``--help`` must not pay for numpy, scipy, networkx, scikit-learn or matplotlib. Each command
+group lives in its own module of this package (``cli/object.py``, ``cli/plan.py``, ...),
+imported only when that command runs (or its own ``--help`` is asked for).
 
 How to register a command
 -------------------------
-Write it in your own module, say ``src/nonprehensile/cli_sim.py``, as a plain click command
+Write it in your own module, say ``src/nonprehensile/cli/sim.py``, as a plain click command
 or group (``@click.command("simulate")`` / ``@click.group("sim")``; import heavy libraries at
 the top of that module or inside the command, as you like). Then add ONE line to
 :data:`COMMANDS` below::
 
-    "simulate": ("nonprehensile.cli_sim:simulate_cmd", "Run a plan in the physics simulator."),
+    "simulate": ("nonprehensile.cli.sim:simulate_cmd", "Run a plan in the physics simulator."),
 
 The key is the command's name on the command line (it must equal the click command's name),
 the first string is ``"module:attribute"``, the second the one-line help that
@@ -43,28 +43,28 @@ __all__ = ["COMMANDS", "LazyGroup", "main", "run"]
 
 #: Command name -> ("module:attribute" of the click command, its one-line help).
 COMMANDS: dict[str, tuple[str, str]] = {
-    "cluster": ("nonprehensile.cli_cluster:cluster_group",
+    "cluster": ("nonprehensile.cli.cluster:cluster_group",
                 "Cluster demonstrated trajectories on a Hilbert-curve index, in a store."),
-    "dataset": ("nonprehensile.cli_dataset:dataset_group",
+    "dataset": ("nonprehensile.cli.dataset:dataset_group",
                 "Demonstration datasets: generate a synthetic one, or show one."),
-    "demo": ("nonprehensile.cli_demo:demo",
+    "demo": ("nonprehensile.cli.demo:demo",
              "The main job: the whole pipeline on a dataset, ending in an HTML report."),
-    "infer": ("nonprehensile.cli_plan:infer_cmd",
+    "infer": ("nonprehensile.cli.infer:infer_cmd",
               "Infer undemonstrated transitions of SKILLS_FILE over a state set (paper "
               "Section V)."),
-    "object": ("nonprehensile.cli_object:object_group",
+    "object": ("nonprehensile.cli.object:object_group",
                "Object models: show one, or make one from a mesh."),
-    "plan": ("nonprehensile.cli_plan:plan_cmd",
+    "plan": ("nonprehensile.cli.plan:plan_cmd",
              "Plan transitions, contact events and finger motions from --from to --to."),
-    "serve": ("nonprehensile.cli_serve:serve_group",
+    "serve": ("nonprehensile.cli.serve:serve_group",
               "Run the demonstration service: mentors upload demonstrations into a PostgreSQL "
               "or SQLite store."),
-    "simulate": ("nonprehensile.cli_sim:simulate_group",
+    "simulate": ("nonprehensile.cli.sim:simulate_group",
                  "Execute demonstrations, inferred transitions and plans in the MuJoCo "
                  "simulation."),
-    "skills": ("nonprehensile.cli_plan:skills_group",
+    "skills": ("nonprehensile.cli.skills:skills_group",
                "Demonstrated skills: contact events, motions and skill graphs."),
-    "states": ("nonprehensile.cli_object:states_cmd",
+    "states": ("nonprehensile.cli.states:states_cmd",
                "The stable states of MODEL and their geometric-equivalence classes."),
 }
 
@@ -191,6 +191,3 @@ def run(args: Sequence[str] | None = None) -> NoReturn:
         pass
     os._exit(code)
 
-
-if __name__ == "__main__":  # pragma: no cover
-    run()

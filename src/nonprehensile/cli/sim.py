@@ -14,8 +14,8 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, handle_errors, out, progress_bar, stage_bars
-from nonprehensile.cli_options import (
+from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar, stage_bars
+from nonprehensile.cli.options import (
     angle_tol_option,
     json_option,
     parse_state,
@@ -51,6 +51,11 @@ def _physics_options(fn: F) -> F:
                      help="Fingertip sphere radius, m (default 0.006)."),
         click.option("--stiffness", type=float, default=None,
                      help="Finger position gain, N/m per axis (default 600)."),
+        click.option("--force-limit", type=float, default=None,
+                     help="Finger force limit, N per axis (default 8)."),
+        click.option("--contact-timeconst", type=float, default=None,
+                     help="Contact softness: MuJoCo solref time constant, s (default 0.02; "
+                          "smaller is stiffer, at least two 1 ms steps)."),
         click.option("--tol-deg", type=float, default=5.0, show_default=True,
                      help="A final theta within this many degrees is the predicted state."),
     ]):
@@ -58,10 +63,58 @@ def _physics_options(fn: F) -> F:
     return fn
 
 
+def _perturbation_options(fn: F) -> F:
+    for opt in reversed([
+        click.option("--start-error", type=(float, float, float), default=None,
+                     metavar="DX DY DYAW",
+                     help="The object really starts DX, DY metres and DYAW degrees (about "
+                          "the vertical) from where it is believed to be."),
+        click.option("--tracking-noise", type=float, default=None, metavar="M",
+                     help="Object tracker noise, m (standard deviation per marker); only "
+                          "closed-loop execution observes the object."),
+        click.option("--finger-noise", type=float, default=None, metavar="M",
+                     help="Fingertip position noise, m (standard deviation per axis, "
+                          "50 ms correlation)."),
+        click.option("--seed", type=int, default=0, show_default=True,
+                     help="Seed of the noise draws."),
+    ]):
+        fn = opt(fn)
+    return fn
+
+
+def _perturbation(kw: dict[str, Any], *, observed: bool = False) -> Any:
+    """The --start-error / --tracking-noise / --finger-noise / --seed options as a
+    Perturbation (popped from ``kw``); ``observed``: the execution watches the object."""
+    _sim()
+    from nonprehensile.sim.distribution import Perturbation
+
+    se = kw.pop("start_error", None)
+    tracking = kw.pop("tracking_noise", None)
+    finger = kw.pop("finger_noise", None)
+    seed = kw.pop("seed", 0)
+    if seed is None or seed < 0 or seed >= 2**63:
+        raise InputError(f"--seed must be a whole number in [0, 2^63), got {seed!r}")
+    for name, v in (("--tracking-noise", tracking), ("--finger-noise", finger)):
+        if v is not None and not (v == v and 0.0 <= v <= 0.01):  # v == v: not NaN
+            raise InputError(f"{name} must be a number of metres in [0, 0.01], got {v!r}")
+    if se is not None:
+        for name, v, lim in zip(("DX", "DY", "DYAW"), se, (0.05, 0.05, 45.0), strict=True):
+            if not (v == v and abs(v) <= lim):
+                raise InputError(f"--start-error {name} must be a number in [-{lim:g}, "
+                                 f"{lim:g}] ({'degrees' if name == 'DYAW' else 'm'}), "
+                                 f"got {v!r}")
+    if tracking and not observed:
+        err.print("note: --tracking-noise changes nothing here: open-loop execution never "
+                  "observes the object")
+    return Perturbation(tuple(se) if se is not None else (0.0, 0.0, 0.0), tracking or 0.0,
+                        finger or 0.0, seed)
+
+
 def _params(kw: dict[str, Any]) -> Any:
     sim = _sim()
     names = {"friction": "friction_table", "finger_friction": "friction_finger",
-             "mass": "mass", "finger_radius": "finger_radius", "stiffness": "stiffness"}
+             "mass": "mass", "finger_radius": "finger_radius", "stiffness": "stiffness",
+             "force_limit": "max_force", "contact_timeconst": "contact_timeconst"}
     given = {names[k]: kw.pop(k) for k in list(names) if kw.get(k) is not None}
     for k in names:
         kw.pop(k, None)
@@ -123,6 +176,7 @@ def simulate_group() -> None:
 @click.argument("dataset", default="cube")
 @click.option("--skill", "skill_names", multiple=True, help="Only these skills (repeatable).")
 @_physics_options
+@_perturbation_options
 @json_option
 @handle_errors
 def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
@@ -130,6 +184,7 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
     """Replay a dataset's demonstrations open loop: per skill and mentor, how many end in
     their annotated state."""
     params = _params(kw)
+    pert = _perturbation(kw)
     sim = _sim()
     from nonprehensile.demonstrations.dataset import load_dataset
     from nonprehensile.sim.execute import fingers_of, replay_demonstration
@@ -144,13 +199,15 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
         simulator = sim.Simulator(ds.poly, scale=ds.scale, n_fingers=n, params=params)
         records = []
         for i, demo in enumerate(demos):
-            records.append(replay_demonstration(simulator, ds, demo,
-                                                angle_tol=tol_deg).to_dict())
+            records.append(replay_demonstration(
+                simulator, ds, demo, angle_tol=tol_deg,
+                perturbation=pert, noise_stream=f"finger/demo{i}").to_dict())
             bars("simulating", i + 1, len(demos))
     if not as_json:
         out.print(_rate_table(f"{dataset}: demonstrations replayed", records,
                               ["skill", "mentor"]))
-    _finish(records, as_json, "demonstrations", {"params": params.to_dict()})
+    _finish(records, as_json, "demonstrations", {"params": params.to_dict(),
+                                                 "perturbation": pert.to_dict()})
 
 
 @simulate_group.command("infer")
@@ -165,6 +222,7 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
 @states_option
 @angle_tol_option
 @_physics_options
+@_perturbation_options
 @json_option
 @handle_errors
 def simulate_infer(skills_file: str, dataset: str, reference: str, step: float | None,
@@ -172,6 +230,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
                    **kw: Any) -> None:
     """Every demonstrated and inferred transition: predicted vs simulated final state."""
     params = _params(kw)
+    pert = _perturbation(kw)
     sim = _sim()
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
@@ -203,12 +262,14 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
         for i, t in enumerate(exp.transitions):
             st = step_for(poly, t, motions=motions, scale=ds.scale, angle_tol=angle_tol)
             records.append(simulate_step(simulator, st, fingers=ds.fingers, angle_tol=tol_deg,
-                                         check_position=False).to_dict())
+                                         check_position=False, perturbation=pert,
+                                         noise_stream=f"finger/transition{i}").to_dict())
             bars("simulating", i + 1, len(exp.transitions))
     if not as_json:
         out.print(_rate_table(f"{poly.name}: transitions simulated", records,
                               ["source", "demonstrated"]))
-    _finish(records, as_json, "transitions", {"params": params.to_dict()})
+    _finish(records, as_json, "transitions", {"params": params.to_dict(),
+                                              "perturbation": pert.to_dict()})
 
 
 @simulate_group.command("plan")
@@ -226,6 +287,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
 @states_option
 @angle_tol_option
 @_physics_options
+@_perturbation_options
 @json_option
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
@@ -235,6 +297,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     """Plan as `plan` does, then execute the plan step by step in one simulation, open
     loop."""
     params = _params(kw)
+    pert = _perturbation(kw)
     sim = _sim()
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
@@ -255,7 +318,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
         outcomes = simulate_plan(poly, result, scale=ds.scale, fingers=ds.fingers,
                                  sim=simulator, progress=bar, angle_tol=tol_deg,
-                                 position_tol=position_tol)
+                                 position_tol=position_tol, perturbation=pert)
     records = [o.to_dict() for o in outcomes]
     if not as_json:
         t = Table(title=f"plan {start} -> {goal} simulated")
@@ -272,7 +335,9 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       "yes" if r["chain_ok"] else "missing " + ",".join(r["missing_events"]),
                       "yes" if r["success"] else "NO")
         out.print(t)
-    _finish(records, as_json, "steps", {"params": params.to_dict(), "plan": result.to_dict()})
+    _finish(records, as_json, "steps", {"params": params.to_dict(),
+                                        "perturbation": pert.to_dict(),
+                                        "plan": result.to_dict()})
 
 
 @simulate_group.command("record")

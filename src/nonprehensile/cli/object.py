@@ -1,4 +1,4 @@
-"""``nonprehensile object`` and ``nonprehensile states``: object models and their states.
+"""``nonprehensile object``: object models (``states`` is in :mod:`nonprehensile.cli.states`).
 
 Registered in :data:`nonprehensile.cli.COMMANDS`.
 """
@@ -11,24 +11,19 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, fmt_num, handle_errors, out
-from nonprehensile.cli_options import (
-    angle_tol_option,
-    atol_option,
+from nonprehensile.cli.common import emit_json, err, fmt_num, handle_errors, out
+from nonprehensile.cli.options import (
     json_option,
     load_cli_model,
     rtol_option,
-    state_set,
-    states_option,
-    step_option,
 )
 from nonprehensile.geometry.build import MESH_RTOL, from_mesh
 from nonprehensile.geometry.polyhedron import Polyhedron
-from nonprehensile.geometry.symmetry import equivalence_classes, rotation_group
+from nonprehensile.geometry.symmetry import rotation_group
 from nonprehensile.io import write_model
 from nonprehensile.states import stable_faces
 
-__all__ = ["STREAM_ROWS", "adjacency_table", "object_group", "object_summary", "states_cmd"]
+__all__ = ["STREAM_ROWS", "adjacency_table", "object_group", "object_summary"]
 
 #: Tables longer than this are streamed as plain text rather than drawn as a rich Table.
 STREAM_ROWS = 500
@@ -192,49 +187,3 @@ def object_from_mesh(
         f"({len(virtual)} virtual{': ' + shown if virtual else ''}), "
         f"{len(poly.vertices)} vertices, {poly.diameter:.4g} {poly.units} across"
     )
-
-
-@click.command("states")
-@click.argument("model")
-@step_option
-@states_option
-@rtol_option
-@atol_option
-@angle_tol_option
-@json_option
-@handle_errors
-def states_cmd(
-    model: str, step: float | None, states_file: str | None, rtol: float | None, atol: float | None,
-    angle_tol: float, as_json: bool,
-) -> None:
-    """The stable states of MODEL and their geometric-equivalence classes."""
-    poly = load_cli_model(model, rtol)
-    states = state_set(poly, step, states_file, angle_tol)
-    classes = equivalence_classes(poly, states, atol=atol, angle_tol=angle_tol)
-    n_classes = max(classes) + 1 if classes else 0
-    if as_json:
-        emit_json({
-            "states": [{**s.to_dict(), "class": c} for s, c in zip(states, classes, strict=True)],
-            "n_classes": n_classes,
-        })
-        return
-    title = f"{len(states)} states of {poly.name}, {n_classes} equivalence classes"
-    if len(states) > STREAM_ROWS:
-        # a table of thousands of rows is printed as it goes, in plain aligned columns: a
-        # rich Table measures every cell first (minutes and a GB at 360,000 rows)
-        width = max(len(str(s)) for s in states)
-        lines = [title, f"{'state':<{width}}  face  {'theta (deg)':>11}  class"]
-        click.echo("\n".join(lines))
-        for i in range(0, len(states), 4096):
-            click.echo("\n".join(
-                f"{s!s:<{width}}  {s.face:<4}  {fmt_num(s.theta):>11}  {c:>5}"
-                for s, c in zip(states[i:i + 4096], classes[i:i + 4096], strict=True)))
-        return
-    t = Table(title=title)
-    t.add_column("state")
-    t.add_column("face")
-    t.add_column("theta (deg)", justify="right")
-    t.add_column("class", justify="right")
-    for s, c in zip(states, classes, strict=True):
-        t.add_row(str(s), s.face, fmt_num(s.theta), str(c))
-    out.print(t)

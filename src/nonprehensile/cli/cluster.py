@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 from rich.table import Table
 
 from nonprehensile.bounds import check_path
-from nonprehensile.cli_common import emit_json, handle_errors, out, progress_bar
+from nonprehensile.cli.common import emit_json, handle_errors, out, progress_bar
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.store import SampleStore
@@ -130,7 +130,7 @@ def _real(a: NDArray[Any], path: str) -> NDArray[np.float64]:
 def _load_dataset(spec: str, quiet: bool) -> tuple[NDArray[np.float64], list[str]]:
     """Flattened demonstrations of a dataset folder (or bundled name) and their skills."""
     from nonprehensile.demonstrations.dataset import load_dataset
-    from nonprehensile.motion.library import flatten_demonstrations
+    from nonprehensile.references import flatten_demonstrations
 
     with progress_bar("reading demonstrations", quiet) as tick:
         ds = load_dataset(spec, progress=tick)

@@ -12,7 +12,7 @@ from typing import Any
 
 import click
 
-from nonprehensile.cli_common import emit_json, err, handle_errors, out
+from nonprehensile.cli.common import emit_json, err, handle_errors, out
 from nonprehensile.errors import InputError
 
 __all__ = ["serve_group"]

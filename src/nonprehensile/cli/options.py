@@ -1,6 +1,6 @@
 """Options and helpers that several commands share: tolerances, state sets, ``--json``.
 
-Imported by the command modules (``cli_object``, ``cli_plan``, ...), never by
+Imported by the command modules (``cli.object``, ``cli.plan``, ...), never by
 :mod:`nonprehensile.cli` itself, which stays free of the library's imports. This module
 imports click and no numpy: a command's ``--help`` (``nonprehensile demo --help``) must not
 pay for the geometry (0.4 s of imports: issue 16); the helpers import what they use when

@@ -1,6 +1,6 @@
 """``nonprehensile dataset annotate``: contact events found from the tracked object and fingers.
 
-Registered on the ``dataset`` group by :mod:`nonprehensile.cli_dataset`. Messages and the
+Registered on the ``dataset`` group by :mod:`nonprehensile.cli.dataset`. Messages and the
 review list go to stderr; ``--json`` prints one JSON document on stdout.
 """
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from nonprehensile.cli_common import emit_json, err, handle_errors, out, progress_bar
+from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar
 from nonprehensile.demonstrations.annotate import DetectionParams, annotate_dataset
 from nonprehensile.demonstrations.dataset import ANNOTATION_FILES, _annotations_file
 from nonprehensile.errors import InputError

@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from nonprehensile.cli_common import emit_json, handle_errors, out, stage_bars
-from nonprehensile.cli_options import json_option, parse_state
+from nonprehensile.cli.common import emit_json, handle_errors, out, stage_bars
+from nonprehensile.cli.options import json_option, parse_state
 
 if TYPE_CHECKING:
     from nonprehensile.states import State
@@ -53,7 +53,7 @@ def _command_line() -> str | None:
 def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
          as_json: bool) -> None:
     """The main job: the whole pipeline on a dataset, ending in an HTML report."""
-    from nonprehensile.cli_plan import print_plan
+    from nonprehensile.cli.plan import print_plan
     from nonprehensile.pipeline import run_demo
 
     t0 = time.perf_counter()

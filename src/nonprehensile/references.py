@@ -4,6 +4,10 @@ Segments of the demonstrations (:mod:`nonprehensile.demonstrations.segment`) are
 the arcs of the skill graphs and clustered by their motion. For a skill's arc the reference
 motion is the medoid of the cluster that holds most of that skill's segments on that arc: a
 real demonstration, not an average, so it is a motion a mentor actually made.
+
+This module is the edge that joins the motion model (:mod:`nonprehensile.motion`, which knows
+trajectories and clusters only), the demonstrations and the planner: neither the motion model
+nor the planner imports the other.
 """
 
 from __future__ import annotations

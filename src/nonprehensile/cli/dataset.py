@@ -13,7 +13,7 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli_common import bounded, emit_json, err, handle_errors, out, progress_bar
+from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, out, progress_bar
 from nonprehensile.demonstrations.dataset import (
     DEFAULT_GAP_LIMIT,
     Dataset,
@@ -222,6 +222,6 @@ def figure_cmd(
     err.print(f"wrote {output}")
 
 
-from nonprehensile.cli_annotate import annotate_cmd  # noqa: E402  (it imports this module's deps)
+from nonprehensile.cli.annotate import annotate_cmd  # noqa: E402  (it imports this module's deps)
 
 dataset_group.add_command(annotate_cmd)

@@ -1,0 +1,5 @@
+"""``python -m nonprehensile.cli``: the ``nonprehensile`` script."""
+
+from nonprehensile.cli import run
+
+run()

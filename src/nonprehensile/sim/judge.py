@@ -1,0 +1,271 @@
+"""The judge: what physics did, read the same way whatever moves the fingers.
+
+A :class:`Judge` reads a compiled scene (the object, the table, the fingertip geoms by finger
+number) and knows nothing of how the fingertips are moved (free spheres today, a robot arm's
+tool tomorrow: :mod:`nonprehensile.sim.driver`). It gives every driver the same rules:
+
+* **contact reading**: MuJoCo's contacts named as the skill model's contact pairs, the touched
+  face, edge or vertex found from the contact point in the object's frame
+  (:meth:`Judge.contacts`);
+* **events**: contact sets debounced into :class:`SimEvent` values (:class:`EventLog`);
+* **settling**: the object is at rest when its free joint's velocity stays below
+  :data:`STILL_VELOCITY` for :data:`STILL_TIME` (:meth:`Judge.is_still`);
+* **the state** it rests in (:meth:`Judge.state`); the comparison with a prediction is
+  :func:`nonprehensile.sim.compare.compare`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.errors import GeometryError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.planning import ObjectPose
+from nonprehensile.sim.scene import SimParams
+from nonprehensile.skills.contacts import (
+    ContactEvent,
+    ContactPair,
+    Edge,
+    Face,
+    Finger,
+    Ground,
+    ObjectElement,
+    Vertex,
+)
+from nonprehensile.states import State, state_of_pose
+
+__all__ = [
+    "CONTACT_EVERY",
+    "REST_TILT_DEG",
+    "STILL_TIME",
+    "STILL_VELOCITY",
+    "EventLog",
+    "Judge",
+    "SimEvent",
+]
+
+FloatArray = NDArray[np.float64]
+
+#: Contacts are read every this many physics steps (5 ms at the default 1 ms step).
+CONTACT_EVERY = 5
+#: Tilt (degrees) of the bottom face from horizontal still read as resting on it.
+REST_TILT_DEG = 3.0
+#: The object is still when no component of its free joint's velocity (m/s, rad/s) exceeds
+#: this ...
+STILL_VELOCITY = 1e-3
+#: ... for this long (s).
+STILL_TIME = 0.05
+
+
+@dataclass(frozen=True)
+class SimEvent:
+    """A debounced contact event read from the simulation.
+
+    Attributes
+    ----------
+    time : float
+        When the contact set began (s from the start of the motion).
+    event : ContactEvent
+        The contact pairs (fingers and ground with the face, edge or vertex touched); the id
+        is empty. Fingers touching the table are not contact pairs of the skill model's kind
+        that skills name, and are left out.
+    """
+
+    time: float
+    event: ContactEvent
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {"time": round(self.time, 4),
+                "contacts": [str(p) for p in self.event.ordered_pairs]}
+
+
+class Judge:
+    """Contact reading, settling and the resting state of one compiled scene.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+        The object model (model units).
+    scale : float
+        Metres per model unit.
+    params : SimParams
+        ``contact_tol`` names touched elements; ``debounce`` makes events.
+    model : mujoco.MjModel
+        A scene with a body and geom ``object``, a geom ``table`` and, per finger ``k``, a
+        geom ``finger{k}`` (its tip: the only part of a finger that may touch the object).
+    n_fingers : int
+    """
+
+    def __init__(self, poly: Polyhedron, scale: float, params: SimParams, model: Any,
+                 n_fingers: int) -> None:
+        self.poly = poly
+        self.scale = scale
+        self.params = params
+        m = model
+        self.body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
+        self.obj_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
+        self.table = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "table")
+        self.finger_geoms = {
+            mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"finger{k}"): k
+            for k in range(1, n_fingers + 1)
+        }
+        jnt = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "object")
+        self.qadr = int(m.jnt_qposadr[jnt])
+        self.dadr = int(m.jnt_dofadr[jnt])
+        # face planes in the model frame (model units), to name touched elements
+        self._normals = np.array([poly.normals[f] for f in poly.face_ids])
+        self._offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
+                                  for f in poly.face_ids])
+
+    # ------------------------------------------------------------------------ the object
+    def pose(self, data: Any) -> ObjectPose:
+        """The object's current pose."""
+        r = data.xmat[self.body].reshape(3, 3).copy()
+        t = data.xpos[self.body].copy()
+        return ObjectPose(r, t, self.scale * (r @ self.poly.com) + t, self.scale)
+
+    def state(self, data: Any, tol_deg: float = REST_TILT_DEG) -> State | None:
+        """The state the object rests in now, or None."""
+        try:
+            return state_of_pose(self.poly, data.xmat[self.body].reshape(3, 3), tol=tol_deg)
+        except GeometryError:
+            return None
+
+    def speed(self, data: Any) -> float:
+        """Largest component of the object's free-joint velocity (m/s and rad/s)."""
+        return float(np.abs(data.qvel[self.dadr:self.dadr + 6]).max())
+
+    def is_still(self, data: Any) -> bool:
+        """Whether the object's velocity is below :data:`STILL_VELOCITY` now."""
+        return self.speed(data) < STILL_VELOCITY
+
+    # ---------------------------------------------------------------------------- contacts
+    def element(self, x: FloatArray) -> ObjectElement:
+        """The face, edge or vertex of the model nearest a surface point (model frame)."""
+        tol = self.params.contact_tol / self.scale
+        d = self._normals @ x - self._offsets
+        near = [self.poly.face_ids[i] for i in np.flatnonzero(d > -tol)]
+        if not near:
+            near = [self.poly.face_ids[int(np.argmax(d))]]
+        if len(near) == 1:
+            return Face(near[0])
+        if len(near) == 2 and frozenset(near) in self.poly.edges:
+            return Edge(frozenset(near))
+        shared = self.poly.shared_vertices(near) if len(near) >= 3 else []
+        if shared:
+            return Vertex(self.poly.vertex_faces[shared[0]])
+        return Face(self.poly.face_ids[int(np.argmax(d))])
+
+    def ground_element(self, pose_r: FloatArray, pose_t: FloatArray) -> ObjectElement:
+        """The face, edge or vertex of the object lowest on the table (within
+        ``contact_tol``) at the pose ``(R, t)``."""
+        z = self.scale * (self.poly.vertices @ pose_r[2]) + pose_t[2]
+        low = np.flatnonzero(z < z.min() + self.params.contact_tol)
+        vf = self.poly.vertex_faces
+        common = frozenset.intersection(*(vf[i] for i in low))
+        if len(low) >= 3 and len(common) == 1:
+            return Face(next(iter(common)))
+        if len(low) >= 3:  # several vertices low, no single face: the lowest face's plane
+            normals_z = self._normals @ pose_r[2]
+            return Face(self.poly.face_ids[int(np.argmin(normals_z))])
+        if len(low) == 2 and len(common) == 2:
+            return Edge(common)
+        return Vertex(vf[int(np.argmin(z))])
+
+    def contacts(self, data: Any) -> tuple[frozenset[ContactPair], bool, bool]:
+        """The contact pairs now, whether a fingertip touches the table, and whether any
+        part of a finger other than its tip (a link of a robot arm) touches the object or
+        the table."""
+        n = data.ncon
+        if n == 0:
+            return frozenset(), False, False
+        con = data.contact
+        g1, g2, dist = con.geom1[:n], con.geom2[:n], con.dist[:n]
+        r = data.xmat[self.body].reshape(3, 3)
+        t = data.xpos[self.body]
+        pairs: set[ContactPair] = set()
+        finger_table = other_contact = ground = False
+        obj, table, tips = self.obj_geom, self.table, self.finger_geoms
+        for i in range(n):
+            if dist[i] > 1e-4:
+                continue
+            a, b = int(g1[i]), int(g2[i])
+            if obj in (a, b):
+                other = b if a == obj else a
+                if other == table:
+                    ground = True
+                elif other in tips:
+                    x = r.T @ (con.pos[i] - t) / self.scale
+                    pairs.add(ContactPair(Finger(tips[other]), self.element(x)))
+                else:
+                    other_contact = True
+            elif a in tips or b in tips:
+                finger_table = True
+            else:
+                other_contact = True
+        if ground:
+            pairs.add(ContactPair(Ground(), self.ground_element(r, t)))
+        return frozenset(pairs), finger_table, other_contact
+
+    def finger_object_contact(self, data: Any) -> bool:
+        """Whether any fingertip touches the object now (transits measure it)."""
+        n = data.ncon
+        if n == 0:
+            return False
+        con = data.contact
+        obj, tips = self.obj_geom, self.finger_geoms
+        for i in range(n):
+            if con.dist[i] > 1e-4:
+                continue
+            a, b = int(con.geom1[i]), int(con.geom2[i])
+            if (a == obj and b in tips) or (b == obj and a in tips):
+                return True
+        return False
+
+
+class EventLog:
+    """Debounced contact events of one motion, read from a :class:`Judge`.
+
+    A contact set becomes an event once it has held for ``SimParams.debounce``;
+    :meth:`close` adds a final set that had not yet lasted that long (it counts at rest).
+    """
+
+    def __init__(self, judge: Judge, t0: float = 0.0) -> None:
+        self.judge = judge
+        self.t0 = t0
+        self.events: list[SimEvent] = []
+        self.current: frozenset[ContactPair] | None = None
+        self._candidate: frozenset[ContactPair] | None = None
+        self._since = 0.0
+        self.finger_table = False
+        self.other_contact = False
+        self._hold = judge.params.debounce - 1e-12
+
+    def observe(self, data: Any, now: float) -> frozenset[ContactPair]:
+        """Read the contacts at simulated time ``now`` (s); returns the contact set."""
+        pairs, ft, oc = self.judge.contacts(data)
+        if ft:
+            self.finger_table = True
+        if oc:
+            self.other_contact = True
+        if pairs != self._candidate:
+            self._candidate, self._since = pairs, now
+        if self._candidate != self.current and now - self._since >= self._hold \
+                and self._candidate:
+            self.current = self._candidate
+            self.events.append(SimEvent(self._since - self.t0,
+                                        ContactEvent("", self._candidate)))
+        return pairs
+
+    def close(self, data: Any, now: float) -> None:
+        """A final contact set that had not yet lasted the debounce time counts at rest."""
+        pairs, _, _ = self.judge.contacts(data)
+        if pairs and pairs != self.current:
+            self.current = pairs
+            self.events.append(SimEvent(now - self.t0, ContactEvent("", pairs)))
