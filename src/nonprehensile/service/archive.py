@@ -111,9 +111,12 @@ class _Plan:
         self.written = 0
         self.current = ""
 
-    def too_many(self, n: int | str) -> Rejected:
-        return Rejected(f"the archive has {n} members, more than {self.max_files}; a dataset "
-                        "archive holds its annotations, skills file and recordings", status=413)
+    def too_many(self, n: int | None = None) -> Rejected:
+        """The refusal of an archive of ``n`` members (None: more than can be had)."""
+        has = f"{n} members, more than {self.max_files}" if n else \
+            f"more than {self.max_files} members"
+        return Rejected(f"the archive has {has}; a dataset archive holds its annotations, "
+                        "skills file and recordings", status=413)
 
     def too_big(self) -> Rejected:
         return Rejected(f"the archive unpacks to more than {self.max_bytes} bytes", status=413)
@@ -123,7 +126,7 @@ class _Plan:
         (None: the archive's top folder itself, ``./``)."""
         self.count += 1
         if self.count > self.max_files:
-            raise self.too_many(f"more than {self.max_files}")
+            raise self.too_many()
         self.current = raw[:300]
         path = _member_path(raw)
         if path is None:
@@ -284,8 +287,8 @@ def _count_zip_entries(f: BinaryIO, limit: int, plan: _Plan) -> None:
         fields = _ZIP64_EOCD.unpack(data)
         n_total, cd_size, cd_offset = fields[7], fields[8], fields[9]
         extra = _ZIP64_LOCATOR.size + _ZIP64_EOCD.size
-    if n_total > limit:
-        raise plan.too_many(n_total)
+    if n_total > limit:  # (0xFFFF in a zip without zip64 records: at least that many)
+        raise plan.too_many(None if n_total == 0xFFFF else n_total)
     start = eocd_pos - extra - cd_size
     if start < 0 or cd_offset > start:
         raise zipfile.BadZipFile("the central directory lies outside the file")
@@ -299,7 +302,7 @@ def _count_zip_entries(f: BinaryIO, limit: int, plan: _Plan) -> None:
         skip = fields[10] + fields[11] + fields[12]  # name, extra field, comment
         count += 1
         if count > limit:
-            raise plan.too_many(f"more than {limit}")
+            raise plan.too_many()
         f.seek(skip, io.SEEK_CUR)
         seen += _CENTRAL.size + skip
 
