@@ -266,13 +266,16 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
 
     Mentor = Annotated[str, Depends(mentor)]
 
+    store_kind = _public_store(config.store)
+
     @app.get("/health")
     def health() -> dict[str, Any]:
-        """Liveness, and whether the database answers."""
+        """Liveness, whether the database answers, and its kind (never where it is)."""
         with pool.connection() as conn:
             conn.execute("SELECT 1")
-        return {"status": "ok", "store": config.store,
-                "recalibration_error": recal.last_error}
+        return {"status": "ok", "store": store_kind,
+                "recalibration_error": None if recal.last_error is None
+                else public_text(recal.last_error, hidden)}
 
     @app.post("/demonstrations", status_code=201)
     def upload_demonstration(
@@ -350,6 +353,18 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
 
     app.add_middleware(BodyLimit, max_bytes=config.max_bytes)
     return app
+
+
+def _public_store(store: str) -> str:
+    """The store as a reply may show it: its kind and database or file name, not its host,
+    folder or user (``postgresql:nonprehensile``, ``sqlite:demos.db``)."""
+    from urllib.parse import urlsplit
+
+    from nonprehensile.motion.stores import is_postgres_url
+
+    if is_postgres_url(store):
+        return f"postgresql:{urlsplit(store).path.lstrip('/') or 'postgres'}"
+    return f"sqlite:{Path(store).name}"
 
 
 class _Unauthorized(NonprehensileError):
