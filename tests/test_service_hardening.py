@@ -358,7 +358,8 @@ def test_unknown_archive_keys_are_refused_like_dataset_show(svc: dict[str, Any],
         (tmp_path / name).write_bytes(data)
     cli = CliRunner().invoke(main, ["dataset", "show", str(tmp_path / "takes")])
     assert cli.exit_code == 2
-    line = re.search(r"unknown key\(s\) \['zz_note'\][^\n]*", cli.output.replace("\n    ", " "))
+    line = re.search(r"unknown key\(s\) \['zz_note'\]; the annotations have \[[^\]]*\]",
+                     " ".join(cli.output.split()))
     assert line is not None, cli.output
     assert line.group(0) in detail
     # a known setting unlike the service's is refused, not dropped: the takes would be read

@@ -268,7 +268,7 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
 
     store_kind = _public_store(config.store)
 
-    @app.get("/health")
+    @app.get("/health", operation_id="health")
     def health() -> dict[str, Any]:
         """Liveness, whether the database answers, and its kind (never where it is)."""
         with pool.connection() as conn:
@@ -277,7 +277,8 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
                 "recalibration_error": None if recal.last_error is None
                 else public_text(recal.last_error, hidden)}
 
-    @app.post("/demonstrations", status_code=201)
+    @app.post("/demonstrations", status_code=201, operation_id="uploadDemonstration",
+              responses=_upload_links("#/upload"))
     def upload_demonstration(
         who: Mentor,
         file: Annotated[UploadFile, File(description="The recording: C3D or Motive CSV.")],
@@ -298,7 +299,8 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
                 raise registration_error(exc) from None
         return JSONResponse(replies[0], status_code=200 if replies[0]["duplicate"] else 201)
 
-    @app.post("/datasets", status_code=201)
+    @app.post("/datasets", status_code=201, operation_id="uploadDataset",
+              responses=_upload_links("#/uploads/0/upload"))
     def upload_dataset(
         who: Mentor,
         archive: Annotated[UploadFile, File(description="A dataset folder as a zip or tar "
@@ -316,28 +318,31 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
                              "duplicates": len(replies) - new},
                             status_code=201 if new else 200)
 
-    @app.get("/uploads/{digest}")
+    @app.get("/uploads/{digest}", operation_id="getUpload")
     def get_upload(digest: str) -> dict[str, Any]:
         """One upload: mentor, file, skill, and each segment's arc, sample and cluster."""
         with pool.connection() as conn:
             return reg.upload(conn, digest)
 
-    @app.delete("/uploads/{digest}")
+    @app.delete("/uploads/{digest}", operation_id="withdrawUpload",
+                responses={200: {"description": "The upload, withdrawn.", "links": {
+                    "GetUpload": {"operationId": "getUpload",
+                                  "parameters": {"digest": "$response.body#/upload"}}}}})
     def withdraw_upload(who: Mentor, digest: str) -> dict[str, Any]:
         """Withdraw one of the mentor's own uploads (another's: 403)."""
         return reg.withdraw(who, digest)
 
-    @app.get("/clusters")
+    @app.get("/clusters", operation_id="listClusters")
     def clusters() -> dict[str, Any]:
         """Every arc: its clusters and their sizes, samples pending a first clustering."""
         return {"arcs": reg.clusters()}
 
-    @app.get("/mentors")
+    @app.get("/mentors", operation_id="listMentors")
     def mentors() -> dict[str, Any]:
         """Per-mentor statistics: uploads, segments, skills and clusters."""
         return {"mentors": reg.mentor_stats()}
 
-    @app.get("/mentors/{name}")
+    @app.get("/mentors/{name}", operation_id="getMentor")
     def mentor_stats(name: str) -> dict[str, Any]:
         """One mentor's statistics."""
         docs = reg.mentor_stats(name)
@@ -345,7 +350,7 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
             raise Rejected(f"no uploads by mentor {name!r}", status=404)
         return docs[0]
 
-    @app.post("/recalibrate", status_code=202)
+    @app.post("/recalibrate", status_code=202, operation_id="recalibrate")
     def recalibrate(who: Mentor) -> dict[str, Any]:
         """Ask for a recalibration of every arc, in the background (uploads go on)."""
         recal.request()
@@ -353,6 +358,18 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
 
     app.add_middleware(BodyLimit, max_bytes=config.max_bytes)
     return app
+
+
+def _upload_links(pointer: str) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI links from an upload's reply (``pointer``: where its hash is) to reading,
+    withdrawing and the mentor's statistics (clients and stateful testers follow them)."""
+    digest = {"digest": f"$response.body{pointer}"}
+    links = {"GetUpload": {"operationId": "getUpload", "parameters": digest},
+             "WithdrawUpload": {"operationId": "withdrawUpload", "parameters": digest},
+             "GetMentor": {"operationId": "getMentor", "parameters": {
+                 "name": f"$response.body{pointer.rsplit('/', 1)[0]}/mentor"}}}
+    return {201: {"description": "Stored.", "links": links},
+            200: {"description": "Stored before (`duplicate`).", "links": links}}
 
 
 def _public_store(store: str) -> str:
