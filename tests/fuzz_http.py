@@ -191,7 +191,7 @@ class Data:
         from nonprehensile.demonstrations.dataset import check_dataset
 
         try:
-            ds, _ = check_dataset(folder)
+            ds, _ = check_dataset(folder, known_skills=self.template.known)
         except Exception:
             return False
         return ds is not None
@@ -1133,7 +1133,8 @@ KIND_NAMES = {f: f.__name__.removeprefix("case_") for f, _ in KINDS}
 
 
 def run_store(name: str, store: str, data: Data, work: Path, budget: int, seed: int,
-              kills: int, progress: Callable[[str], None]) -> dict[str, Any]:
+              kills: int, progress: Callable[[str], None],
+              only: int | None = None) -> dict[str, Any]:
     from nonprehensile.service.db import create_token, make_pool
 
     pool = make_pool(store, max_size=1)
@@ -1150,6 +1151,8 @@ def run_store(name: str, store: str, data: Data, work: Path, budget: int, seed: 
     weights = [w for _, w in KINDS]
     i = 0
     last = time.perf_counter()
+    if only is not None:  # replay one case on a fresh server (its state may differ)
+        i, budget, kill_at = only, 1, []
     while run.requests < budget:
         rng = random.Random(f"{seed}/http/{i}")
         if kill_at and run.requests >= kill_at[0]:
@@ -1180,6 +1183,8 @@ def run_store(name: str, store: str, data: Data, work: Path, budget: int, seed: 
             progress(f"[http {name}] {run.requests}/{budget} requests, {run.kills} kills, "
                      f"{len(run.failures)} failures")
     run.check_log()
+    if only is not None:
+        progress(server.log.read_text(errors="replace")[-4000:])
     final = final_check(run)
     run.check_log()
     progress(f"[http {name}] {run.requests} requests, {run.kills} kills, "
@@ -1217,7 +1222,7 @@ def postgres() -> Iterator[str]:
 
 
 def run(budget: int, seed: int, kills: int, stores: list[str],
-        progress: Callable[[str], None] = print) -> dict[str, Any]:
+        progress: Callable[[str], None] = print, only: int | None = None) -> dict[str, Any]:
     """The HTTP family over ``stores`` ("sqlite", "postgresql"), ``budget`` requests in all."""
     data = Data()
     out: dict[str, Any] = {"budget": budget, "seed": seed, "stores": {}, "skipped": {}}
@@ -1225,12 +1230,12 @@ def run(budget: int, seed: int, kills: int, stores: list[str],
     def one(name: str, work: Path) -> None:
         if name == "sqlite":
             out["stores"][name] = run_store(name, str(work / "service.db"), data, work, per,
-                                            seed, kills, progress)
+                                            seed, kills, progress, only)
             return
         try:
             with postgres() as url:
                 out["stores"][name] = run_store(name, url, data, work, per, seed, kills,
-                                                progress)
+                                                progress, only)
         except RuntimeError as exc:
             if name in out["stores"]:
                 raise
@@ -1263,13 +1268,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--kills", type=int, default=DEFAULT_KILLS, help="SIGKILLs per store")
     p.add_argument("--store", choices=["sqlite", "postgresql", "both"], default="both")
     p.add_argument("--report", type=Path, default=None)
+    p.add_argument("--case", type=int, default=None,
+                   help="replay case N alone, on a fresh server (the server's log is printed)")
     args = p.parse_args(argv)
     stores = ["sqlite", "postgresql"] if args.store == "both" else [args.store]
 
     def progress(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    doc = run(args.budget, args.seed, args.kills, stores, progress)
+    doc = run(args.budget, args.seed, args.kills, stores, progress, args.case)
     if args.report:
         args.report.write_text(json.dumps(doc, indent=1))
     else:

@@ -418,3 +418,20 @@ def test_tar_archives_of_a_folder_are_read(svc: dict[str, Any], tmp_path: Path,
     r = _post_archive(svc["client"], svc["auth"]["ben"], buf.getvalue(), "a.tar")
     assert r.status_code == 201, r.text
     assert r.json()["stored"] == 1
+
+
+def test_an_annotated_file_name_too_long_for_the_file_system(svc: dict[str, Any],
+                                                             tmp_path: Path) -> None:
+    """Found by the HTTP fuzz: a 'file' of 2,000 characters made the check's look for a
+    rosbag2 folder raise ENAMETOOLONG (a 500; `dataset show` exit 1)."""
+    files = _dataset_files(n=1)
+    doc = json.loads(files["takes/annotations.json"])
+    doc["demonstrations"][0]["file"] = "t" * 2000 + ".c3d"
+    files["takes/annotations.json"] = json.dumps(doc).encode()
+    detail = _refused(_post_archive(svc["client"], svc["auth"]["ben"], _zip(files)), 422)
+    assert "cannot look for the trajectory file" in detail
+    for name, data in files.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(data)
+    cli = CliRunner().invoke(main, ["dataset", "show", str(tmp_path / "takes")])
+    assert cli.exit_code == 2 and "cannot look for the trajectory file" in cli.output
