@@ -106,7 +106,9 @@ def physics_rows(n: int = 10) -> None:
     skills = Path(str(resources.files("nonprehensile") / "data" / "cube_skills.json"))
     t0 = time.perf_counter()
     # the seed and attempts of the bundled dataset's physics takes (docs/make_cube_demos.py)
-    ds, stats = record_dataset(skills, seed=20190520, n_per_skill=n, max_attempts=100)
+    # the bundled cube model is the unit cube; its takes are of a 5 cm cube (scale 0.05)
+    ds, stats = record_dataset(skills, seed=20190520, n_per_skill=n, max_attempts=100,
+                               scale=0.05)
     kept = sum(v["kept"] for v in stats.values())
     tried = sum(v["tried"] for v in stats.values())
     print(f"   physics-recorded: {len(ds.demonstrations)} takes of the {len(stats)} skills "

@@ -672,6 +672,15 @@ def annotate_recording(
     """
     p = params or DetectionParams()
     rate = traj.rate
+    # the states are read over 0.1 s at each end: a take needs rest, a manipulation, rest
+    edge = max(2, round(0.1 * rate))
+    if traj.n_frames < 3 * edge:
+        raise DemonstrationError(
+            f"the recording is too short to annotate: {traj.n_frames} frame(s) "
+            f"({traj.n_frames / rate:.3g} s at {rate:g} Hz); a take needs at least {3 * edge} "
+            f"frames ({3 * edge / rate:.3g} s): the object at rest, the manipulation, at rest "
+            "again; export the whole take"
+        )
     t_m = traj.to_units("m")
     pose_m = pose.to_units("m").filled(p.gap_limit)
     doubts: list[str] = []
@@ -744,7 +753,6 @@ def annotate_recording(
                               f"element is that one in only {share:.0%} of the frames "
                               f"({dict(seen.most_common(3))})")
 
-    edge = max(2, round(0.1 * rate))
     initial = _resting_state(poly, pose_m, slice(0, edge), p.state_tol)
     final = _resting_state(poly, pose_m, slice(n - edge, n), p.state_tol)
     if initial is None:
