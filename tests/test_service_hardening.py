@@ -435,3 +435,27 @@ def test_an_annotated_file_name_too_long_for_the_file_system(svc: dict[str, Any]
         (tmp_path / name).write_bytes(data)
     cli = CliRunner().invoke(main, ["dataset", "show", str(tmp_path / "takes")])
     assert cli.exit_code == 2 and "cannot look for the trajectory file" in cli.output
+
+
+def test_a_full_disk_while_checking_an_upload_is_one_line(svc: dict[str, Any],
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    """The server's own file-system errors: 507 for a full disk, never a 500."""
+    import errno
+
+    def full(self: Path, data: bytes) -> int:
+        raise OSError(errno.ENOSPC, "No space left on device", str(self))
+
+    monkeypatch.setattr(Path, "write_bytes", full)
+    detail = _refused(_post_take(svc["client"], svc["auth"]["ana"], _entry()), 507)
+    assert "disk is full" in detail
+    real_open = Path.open
+
+    def full_open(self: Path, mode: str = "r", *args: Any, **kwargs: Any) -> Any:
+        if mode.startswith(("w", "x")):
+            raise OSError(errno.ENOSPC, "No space left on device", str(self))
+        return real_open(self, mode, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "open", full_open)
+    detail = _refused(_post_archive(svc["client"], svc["auth"]["ben"], _zip(_dataset_files())),
+                      507)
+    assert "disk is full" in detail

@@ -39,6 +39,7 @@ def run_stateful(store: str, examples: int, steps: int, seed: int = 0) -> dict[s
     import schemathesis
     from fastapi.testclient import TestClient
     from hypothesis import HealthCheck, settings
+    from hypothesis.errors import Flaky
     from schemathesis.core.transport import Response
 
     from nonprehensile.demonstrations.dataset import dataset_path
@@ -61,8 +62,8 @@ def run_stateful(store: str, examples: int, steps: int, seed: int = 0) -> dict[s
     app = create_app(pool, template, ServiceConfig("schema", max_bytes=1 << 20),
                      registry=Registry(pool, template, init_size=4, checkpoint=3),
                      background=False)
-    rng = random.Random(seed)
     statuses: Counter[str] = Counter()
+    made = [0]
     server_errors: list[str] = []
     planted: dict[int, tuple[str, dict[str, Any]]] = {}
 
@@ -71,15 +72,28 @@ def run_stateful(store: str, examples: int, steps: int, seed: int = 0) -> dict[s
         base = schema.as_state_machine()
 
         class Machine(base):  # type: ignore[misc,valid-type]
+            def setup(self) -> None:
+                # a new mentor per sequence: hypothesis replays sequences (to vary them),
+                # and a replay must meet the same answers (not "duplicate" where the first
+                # run stored), or its rules' bundles differ
+                made[0] += 1
+                self.mentor = f"m{seed}-{made[0]}"
+                with pool.connection() as conn:
+                    tokens[self.mentor] = create_token(conn, self.mentor)
+
             def before_call(self, case: Any) -> None:
-                mentor = rng.choice(MENTORS)
+                # decided by the generated case alone (a replay decides the same)
+                rng = random.Random(repr((case.method, case.path, case.path_parameters,
+                                          case.query, case.headers, case.body)))
+                mentor = self.mentor
                 if rng.random() < 0.8:  # a real token, else the generated header
                     case.headers = {**(case.headers or {}),
                                     "authorization": f"Bearer {tokens[mentor]}"}
                 if case.method != "POST" or rng.random() < 0.4:
                     return
-                demo = rng.choice([d for d in ann["demonstrations"] if d["mentor"] == mentor]
-                                  if rng.random() < 0.8 else ann["demonstrations"])
+                demo = rng.choice(ann["demonstrations"])
+                if rng.random() < 0.85:  # (else another mentor's take in an archive: 403)
+                    demo = {**demo, "mentor": mentor}
                 data = (cube / demo["file"]).read_bytes()
                 entry = {k: v for k, v in demo.items() if k not in ("file", "mentor")}
                 if case.path == "/demonstrations":
@@ -115,11 +129,23 @@ def run_stateful(store: str, examples: int, steps: int, seed: int = 0) -> dict[s
                     server_errors.append(f"{case.method} {case.formatted_path}: "
                                          f"{response.status_code} {response.text[:200]}")
 
-        Machine.run(settings=settings(max_examples=examples, stateful_step_count=steps,
-                                      deadline=None, database=None, derandomize=True,
-                                      suppress_health_check=list(HealthCheck)))
+        # the service keeps what each sequence did, so hypothesis, replaying a sequence
+        # to vary it, may meet other answers (a sequence's bundles differ): it raises Flaky.
+        # schemathesis's own runner then starts a new suite; so does this one, keeping
+        # every reply judged so far, until ``examples`` sequences ran
+        restarts = 0
+        while made[0] < examples and restarts < 100:
+            try:
+                Machine.run(settings=settings(
+                    max_examples=examples - made[0], stateful_step_count=steps, deadline=None,
+                    database=None, derandomize=restarts == 0,
+                    suppress_health_check=list(HealthCheck)))
+                break
+            except Flaky:
+                restarts += 1
     pool.close()
-    return {"requests": sum(statuses.values()), "server_errors": server_errors,
+    return {"requests": sum(statuses.values()), "sequences": made[0],
+            "suites_restarted": restarts, "server_errors": server_errors,
             "statuses": dict(sorted(statuses.items()))}
 
 
@@ -173,7 +199,8 @@ def main(argv: list[str]) -> int:
         if isinstance(res, str):
             print(name, res)
             continue
-        print(f"{name}: {res['requests']} requests, {len(res['server_errors'])} 5xx; "
+        print(f"{name}: {res['requests']} requests in {res['sequences']} sequences "
+              f"({res['suites_restarted']} suites restarted), {len(res['server_errors'])} 5xx; "
               f"uploads read back {_followed(res['statuses'], 'GET /uploads/')}, withdrawn "
               f"{_followed(res['statuses'], 'DELETE /uploads/')}")
         print("  ", json.dumps(res["statuses"]))

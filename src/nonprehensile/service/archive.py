@@ -37,7 +37,7 @@ import zlib
 from pathlib import Path, PurePosixPath
 from typing import IO, Any, BinaryIO, Protocol
 
-from nonprehensile.service.errors import Rejected, one_line
+from nonprehensile.service.errors import Rejected, disk_error, one_line
 
 __all__ = ["MAX_ARCHIVE_FILES", "MAX_NAME_DEPTH", "MAX_NAME_PART", "unpack_archive"]
 
@@ -86,8 +86,7 @@ def unpack_archive(source: bytes | BinaryIO, dest: Path, *, max_bytes: int,
         raise
     except OSError as exc:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-            raise Rejected("the server's disk is full: the archive could not be unpacked; "
-                           "try again later", status=507) from None
+            raise disk_error(exc, "the archive") from None
         where = f" (member {plan.current!r})" if plan.current else ""
         raise Rejected(f"the archive cannot be unpacked{where}: {one_line(exc)}",
                        status=400) from None

@@ -8,6 +8,7 @@ beside the skills file of its dataset. :func:`public_text` takes those folders o
 
 from __future__ import annotations
 
+import errno
 import re
 import tempfile
 from collections.abc import Iterable
@@ -16,7 +17,7 @@ from pathlib import Path
 import nonprehensile
 from nonprehensile.errors import InputError
 
-__all__ = ["TEMP_PREFIX", "Forbidden", "Rejected", "one_line", "public_text"]
+__all__ = ["TEMP_PREFIX", "Forbidden", "Rejected", "disk_error", "one_line", "public_text"]
 
 #: Prefix of the service's temporary folders (an upload is checked in one).
 TEMP_PREFIX = "np-svc-"
@@ -34,6 +35,16 @@ class Rejected(InputError):
 
 class Forbidden(InputError):
     """A mentor acting on another mentor's data: HTTP 403."""
+
+
+def disk_error(exc: OSError, what: str) -> Rejected:
+    """A file-system error of the server while it handles an upload: 507 for a full disk
+    (the server's state, not the upload's fault), else 400 naming ``what`` it wrote."""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        return Rejected("the server's disk is full: the upload could not be checked; try "
+                        "again later (nothing was stored)", status=507)
+    return Rejected(f"{what} cannot be written on the server ({exc.strerror or one_line(exc)})",
+                    status=400)
 
 
 def one_line(exc: BaseException) -> str:

@@ -55,7 +55,7 @@ from nonprehensile.motion.tablestore import TableStore
 from nonprehensile.references import flatten_segments
 from nonprehensile.service.archive import MAX_ARCHIVE_FILES, unpack_archive
 from nonprehensile.service.db import Pool, arc_store, snapshot
-from nonprehensile.service.errors import TEMP_PREFIX, Forbidden, Rejected
+from nonprehensile.service.errors import TEMP_PREFIX, Forbidden, Rejected, disk_error
 
 __all__ = ["MAX_ARCHIVE_FILES", "Forbidden", "Registry", "Rejected", "Template", "content_hash",
            "extract_archive", "load_template"]
@@ -189,9 +189,12 @@ def single_upload(template: Template, mentor: str, filename: str | None, data: b
     entry = {**annotation, "file": name, "mentor": mentor}
     with tempfile.TemporaryDirectory(prefix=TEMP_PREFIX) as tmp:
         root = Path(tmp)
-        (root / name).write_bytes(data)
         doc = {**template.top, "demonstrations": [entry]}
-        (root / ANNOTATION_FILES[0]).write_text(json.dumps(doc))
+        try:
+            (root / name).write_bytes(data)
+            (root / ANNOTATION_FILES[0]).write_text(json.dumps(doc))
+        except OSError as exc:
+            raise disk_error(exc, f"the recording {name!r}") from None
         ds, problems = check_dataset(root, known_skills=template.known)
         if ds is None:
             raise _problems(problems, root)
@@ -247,9 +250,12 @@ def archive_upload(template: Template, mentor: str, source: bytes | BinaryIO,
                                 f"{str(item.get('mentor'))[:100]!r} is not the token's mentor "
                                 f"{mentor!r}; a mentor uploads only their own demonstrations")
         unknown = {str(k): v for k, v in doc.items() if k not in _TOP_KEYS}
-        ann.unlink()
-        (root / ANNOTATION_FILES[0]).write_text(json.dumps(
-            {**template.top, **unknown, "demonstrations": doc["demonstrations"]}))
+        try:
+            ann.unlink()
+            (root / ANNOTATION_FILES[0]).write_text(json.dumps(
+                {**template.top, **unknown, "demonstrations": doc["demonstrations"]}))
+        except OSError as exc:
+            raise disk_error(exc, "the archive's annotations") from None
         ds, problems = check_dataset(root, known_skills=template.known)
         if ds is None:
             raise _problems(problems, root)
