@@ -23,6 +23,7 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
+from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, robot_table, wants_robot
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -288,6 +289,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
 @angle_tol_option
 @_physics_options
 @_perturbation_options
+@robot_options
 @json_option
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
@@ -295,7 +297,10 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       step: float | None, states_file: str | None, angle_tol: float,
                       as_json: bool, tol_deg: float, **kw: Any) -> None:
     """Plan as `plan` does, then execute the plan step by step in one simulation, open
-    loop."""
+    loop (with --robot or --robot-xml: by a robot arm)."""
+    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
+    use_robot = wants_robot(robot_kw)
+    robot = load_robot(robot_kw) if use_robot else None
     params = _params(kw)
     pert = _perturbation(kw)
     sim = _sim()
@@ -312,14 +317,36 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
     result = plan(poly, exp, start, goal, position=position, motions=motions,
                   angle_tol=angle_tol, scale=ds.scale)
+    extra: dict[str, Any] = {}
+    bounds = [0]
+    if use_robot:
+        from nonprehensile.sim.robot_run import RobotSimulator
+
+        arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
+                                      robot)
+        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params)
+        extra["robot"] = simulator.describe()
+        extra["placement"] = placement.to_dict() if placement is not None else None
     with progress_bar("simulating", as_json) as bar:
         n = max((max(fingers_of(s.transition.skill), default=1)
                  for s in result.steps), default=1)
-        simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
+        if not use_robot:
+            simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
+
+        def progress(i: int, total: int) -> None:
+            if use_robot:
+                bounds.append(len(simulator.robot_log.time))
+            bar(i, total)
+
         outcomes = simulate_plan(poly, result, scale=ds.scale, fingers=ds.fingers,
-                                 sim=simulator, progress=bar, angle_tol=tol_deg,
+                                 sim=simulator, progress=progress, angle_tol=tol_deg,
                                  position_tol=position_tol, perturbation=pert)
     records = [o.to_dict() for o in outcomes]
+    if use_robot:
+        log = simulator.robot_log
+        for i, r in enumerate(records):
+            r["robot"] = log.metrics(bounds[i], bounds[i + 1]).to_dict()
+        extra["robot_metrics"] = log.metrics().to_dict()
     if not as_json:
         t = Table(title=f"plan {start} -> {goal} simulated")
         for c in ("step", "skill", "predicted", "simulated", "theta error", "position error",
@@ -335,9 +362,11 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       "yes" if r["chain_ok"] else "missing " + ",".join(r["missing_events"]),
                       "yes" if r["success"] else "NO")
         out.print(t)
+        if use_robot:
+            out.print(robot_table(records, extra))
     _finish(records, as_json, "steps", {"params": params.to_dict(),
                                         "perturbation": pert.to_dict(),
-                                        "plan": result.to_dict()})
+                                        "plan": result.to_dict(), **extra})
 
 
 @simulate_group.command("record")
