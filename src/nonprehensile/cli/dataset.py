@@ -108,6 +108,8 @@ def _n(count: int, word: str) -> str:
 def _show_problems(problems: list[Any], as_json: bool, root: str) -> None:
     if as_json:
         emit_json({"root": root, "problems": [p.to_dict() for p in problems]})
+    if len(problems) == 1:  # one line naming the culprit
+        raise DemonstrationError(f"{root}: {problems[0]}; nothing was loaded")
     lines = "\n".join(f"  - {p}" for p in problems)
     raise DemonstrationError(
         f"{root}: {len(problems)} problem(s) in the dataset, nothing was loaded:\n{lines}"
@@ -223,5 +225,7 @@ def figure_cmd(
 
 
 from nonprehensile.cli.annotate import annotate_cmd  # noqa: E402  (it imports this module's deps)
+from nonprehensile.cli.export import export_cmd  # noqa: E402
 
 dataset_group.add_command(annotate_cmd)
+dataset_group.add_command(export_cmd)

@@ -14,7 +14,15 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar, stage_bars
+from nonprehensile.cli.common import (
+    bounded,
+    emit_json,
+    err,
+    handle_errors,
+    out,
+    progress_bar,
+    stage_bars,
+)
 from nonprehensile.cli.options import (
     angle_tol_option,
     json_option,
@@ -284,6 +292,12 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
               help="Demonstrations (a folder, or `cube`) giving the reference motions.")
 @click.option("--position-tol", type=float, default=0.010, show_default=True,
               help="A final position within this many metres of the plan's prediction.")
+@click.option("--record", "record", type=click.Path(file_okay=False), default=None,
+              help="Also write the executed steps to this new folder as a LeRobot v3.0 "
+                   "dataset (one episode per step; docs/dataset.md#executions-as-datasets).")
+@click.option("--record-fps", type=bounded(float, 1.0, 1e4), default=100.0,
+              show_default=True,
+              help="Frame rate of --record (a divisor of the physics rate keeps its values).")
 @step_option
 @states_option
 @angle_tol_option
@@ -294,16 +308,21 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       position: tuple[float, float], dataset: str, position_tol: float,
+                      record: str | None, record_fps: float,
                       step: float | None, states_file: str | None, angle_tol: float,
                       as_json: bool, tol_deg: float, **kw: Any) -> None:
     """Plan as `plan` does, then execute the plan step by step in one simulation, open
     loop (with --robot or --robot-xml: by a robot arm)."""
     robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
     use_robot = wants_robot(robot_kw)
+    if use_robot and record:
+        raise InputError("--record writes free-fingertip episodes; it does not take a robot "
+                         "yet (drop --robot, or --record)")
     robot = load_robot(robot_kw) if use_robot else None
     params = _params(kw)
     pert = _perturbation(kw)
     sim = _sim()
+    _check_record(record)
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
     from nonprehensile.pipeline import motions_from_dataset
@@ -340,13 +359,29 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
         outcomes = simulate_plan(poly, result, scale=ds.scale, fingers=ds.fingers,
                                  sim=simulator, progress=progress, angle_tol=tol_deg,
-                                 position_tol=position_tol, perturbation=pert)
+                                 position_tol=position_tol, perturbation=pert,
+                                 keep_trace=1 if record else 0)
     records = [o.to_dict() for o in outcomes]
     if use_robot:
         log = simulator.robot_log
         for i, r in enumerate(records):
             r["robot"] = log.metrics(bounds[i], bounds[i + 1]).to_dict()
         extra["robot_metrics"] = log.metrics().to_dict()
+    recorded = None
+    if record:
+        from nonprehensile.export import write_episodes
+        from nonprehensile.sim.episodes import plan_episodes
+
+        episodes = plan_episodes(poly, result, outcomes, n_fingers=n, fingers=ds.fingers,
+                                 fps=record_fps)
+        write_episodes(episodes, record, extra_info={
+            "source": "simulate plan", "object": poly.name, "scale_m_per_unit": ds.scale,
+            "plan": f"{start} -> {goal}", "params": params.to_dict()})
+        recorded = {"output": record, "n_episodes": len(episodes),
+                    "n_frames": sum(e.n_frames for e in episodes), "fps": record_fps}
+        if not as_json:
+            err.print(f"recorded {len(episodes)} episodes ({recorded['n_frames']} frames at "
+                      f"{record_fps:g} fps) to {record}", markup=False)
     if not as_json:
         t = Table(title=f"plan {start} -> {goal} simulated")
         for c in ("step", "skill", "predicted", "simulated", "theta error", "position error",
@@ -366,7 +401,18 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
             out.print(robot_table(records, extra))
     _finish(records, as_json, "steps", {"params": params.to_dict(),
                                         "perturbation": pert.to_dict(),
-                                        "plan": result.to_dict(), **extra})
+                                        "plan": result.to_dict(), **extra,
+                                        **({"record": recorded} if recorded else {})})
+
+
+
+def _check_record(record: str | None) -> None:
+    """Refuse an existing ``--record`` folder before simulating (not after)."""
+    from pathlib import Path
+
+    if record is not None and Path(record).exists():
+        raise InputError(f"{record}: the --record folder exists; give a new folder (a LeRobot "
+                         "dataset is written whole, never into or over another)")
 
 
 @simulate_group.command("record")

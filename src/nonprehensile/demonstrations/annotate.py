@@ -1130,6 +1130,8 @@ def annotate_dataset(
                             f"has {[b.name for b in traj.rigid_bodies] or 'none'}")
             continue
         todo.append((i, file, mentor.strip(), hint if isinstance(hint, str) else None, traj))
+    if len(out.problems) == 1:  # one line naming the culprit
+        raise DemonstrationError(f"{root}: {out.problems[0]}; nothing was annotated")
     if out.problems or poly is None or setup is None:
         lines = "\n".join(f"  - {q}" for q in out.problems)
         raise DemonstrationError(

@@ -41,6 +41,7 @@ from nonprehensile.demonstrations.formats import (
     write_motive_csv,
 )
 from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
+from nonprehensile.demonstrations.rosbag import RosSetup, is_rosbag, parse_ros_setup, read_rosbag
 from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup, parse_rigid_body
 from nonprehensile.errors import DemonstrationError, InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
@@ -100,7 +101,7 @@ _READERS: dict[str, Callable[[Path], MarkerTrajectory]] = {
 }
 _FINGER_RE = re.compile(r"R\d+")
 _TOP_KEYS = {"format", "skills", "scale", "gap_limit", "fingers", "markers", "object_markers",
-             "rigid_body", "axes", "units", "tolerance_mm", "demonstrations"}
+             "rigid_body", "axes", "units", "tolerance_mm", "ros", "demonstrations"}
 _DEMO_KEYS = {"file", "skill", "mentor", "initial", "final", "events"}
 
 
@@ -341,6 +342,7 @@ class _Settings:
     tolerance_m: float
     rigid_body: str | Mapping[str, Any] | None = None  # the annotations' value
     rigid_body_name: str | None = None
+    ros: RosSetup | None = None  # how rosbag2 recordings map topics to markers
 
 
 def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
@@ -416,8 +418,14 @@ def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
         except InputError as exc:
             out.add(name, None, str(exc))
             rigid_body = None
+    ros = None
+    if "ros" in data:
+        try:
+            ros = parse_ros_setup(data["ros"])
+        except InputError as exc:
+            out.add(name, None, str(exc))
     return _Settings(poly, skills, scale, gap, fingers, markers, object_markers, axes, units,
-                     tol / 1000.0, rigid_body, body_name)
+                     tol / 1000.0, rigid_body, body_name, ros)
 
 
 def _object_markers(
@@ -778,10 +786,21 @@ def _read(
     """Read a recording into our axes (z up) and units, as the annotations say."""
     suffix = path.suffix.lower()
     reader = _READERS.get(suffix)
-    if reader is None:
-        out.add(*where, f"unknown trajectory format {path.suffix!r}; use .c3d or a Motive .csv")
+    if is_rosbag(path):
+        if settings.ros is None:
+            out.add(*where, "a rosbag2 folder, but the annotations have no 'ros' set-up saying "
+                            "which topic is which marker (see docs/dataset.md#ros-2-bags)")
+            return None
+        ros = settings.ros
+
+        def reader(p: Path) -> MarkerTrajectory:
+            return read_rosbag(p, ros, settings.rigid_body_name)
+        suffix = ""  # ROS is z up (REP 103)
+    elif reader is None:
+        out.add(*where, f"unknown trajectory format {path.suffix!r}; use .c3d, a Motive .csv "
+                        "or a rosbag2 folder")
         return None
-    if not path.is_file():
+    elif not path.is_file():
         out.add(*where, "no such trajectory file in the dataset folder")
         return None
     try:
@@ -836,6 +855,8 @@ def load_dataset(path: str | Path, *, progress: Progress | None = None) -> Datas
         returned half-loaded. :func:`check_dataset` gives the problems as values.
     """
     dataset, problems = check_dataset(path, progress=progress)
+    if dataset is None and len(problems) == 1:  # one line naming the culprit
+        raise DemonstrationError(f"{path}: {problems[0]}; nothing was loaded")
     if dataset is None:
         lines = "\n".join(f"  - {p}" for p in problems)
         raise DemonstrationError(
