@@ -131,7 +131,52 @@ def test_demo_report_names_version_seed_command_and_reads_well(
     assert "nonprehensile demo" in summary["meta"]["command"]
     assert not re.search(r"\b1 (demonstrations|demos|transitions|steps|faces)\b", html)
     # every skill is drawn on the state-transition graph; the plan says where the agent is
-    assert "(every skill drawn)" in html and "<th>agent</th>" in html
+    assert "one panel per skill" in html and "<th>agent</th>" in html
+
+
+def test_demo_report_has_the_figures_of_issue_24(
+    demo_run: tuple[Path, dict[str, object]],
+) -> None:
+    """Issue 24 point 6: the transition graph in per-skill panels, the plan's filmstrip, the
+    physics filmstrip and the per-step tracking error / contact force / slip plots, and one
+    ARI column whose header says what it means."""
+    import html as html_lib
+
+    out, _ = demo_run
+    page = (out / "index.html").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    svg = page[page.index('<svg class="transitions"'):]
+    svg = svg[:svg.index("</svg>")]
+    skills = re.findall(r'<g data-skill="([^"]+)">', svg)
+    # one panel per skill of the graph (the six demonstrated and the twist's reverse)
+    assert len(skills) == len(set(skills)) == 7
+    assert set(summary["skills"]) < set(skills)
+    # every transition is an arc, the demonstrated ones marked so
+    arcs = re.findall(r"<path d=\"M[^>]*><title>([^<]*)</title>", svg)
+    assert len(arcs) == summary["inference"]["transitions"] == 168
+    assert sum(t.endswith("(demonstrated)") for t in arcs) == 6
+    alts = re.findall(r'<img alt="([^"]*)"', page)
+    assert any(a.startswith("Plan filmstrip") for a in alts)
+    physics = summary["physics"]
+    assert isinstance(physics, dict)
+    if "steps" in physics:  # MuJoCo installed (the sim extra)
+        assert any(a.startswith("What the execution did") for a in alts)
+        for step in physics["steps"]:
+            sig = step["signals"]
+            # a push that rolls a 5 cm cube: the finger presses, tracks within millimetres
+            assert 0.0 < sig["max_contact_force_n"] < 50.0
+            assert 0.0 < sig["max_tracking_error_m"] < 0.02
+            assert sig["max_slip_m_per_s"] is not None
+    # the motion table: one score column, its meaning in the header, the rest in tooltips
+    table = page[page.index("<th>arc</th>"):]
+    table = table[:table.index("</table>")]
+    headers = re.findall(r"<th[^>]*>([^<]*)</th>", table)
+    assert [h for h in headers if "ARI" in h] == [
+        "clusters match the skills? (ARI: 1 exactly, 0 chance)"]
+    tips = [html_lib.unescape(t) for t in re.findall(r'<td title="([^"]*)"', table)]
+    assert len(tips) == len(summary["clustering"])
+    assert all("skill x mentor" in t for t in tips)
+    assert "Rest the pointer on a score" in page
 
 
 def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:

@@ -17,6 +17,7 @@ from nonprehensile.cli.options import (
     load_cli_model,
     rtol_option,
 )
+from nonprehensile.errors import InputError
 from nonprehensile.geometry.build import MESH_RTOL, from_mesh
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.symmetry import rotation_group
@@ -124,18 +125,52 @@ def object_show(model: str, rtol: float | None, as_json: bool) -> None:
     out.print(adjacency_table(poly))
 
 
+def _face_list(ctx: click.Context, param: click.Parameter, value: str | None
+               ) -> list[str] | None:
+    """``a,b,c`` as a list of face IDs (checked against the model later)."""
+    if value is None:
+        return None
+    faces = [f.strip() for f in value.split(",") if f.strip()]
+    if not faces:
+        raise click.BadParameter("give face IDs separated by commas, e.g. --faces a,b,c")
+    return faces
+
+
 @object_group.command("figure")
 @click.argument("model")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
-              help="Image file to write (PNG, SVG or PDF, by suffix).")
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False),
+              help="Image file to write (PNG, SVG or PDF, by suffix): two opposite labeled "
+              "views, A and Delta.")
+@click.option("--html", "html_out", default=None, type=click.Path(dir_okay=False),
+              help="Also (or instead) write a rotatable 3-D view: one self-contained HTML file "
+              "(plotly.js embedded, opens offline) with every face labeled; needs the view3d "
+              "extra.")
+@click.option("--faces", default=None, callback=_face_list, metavar="A,B,...",
+              help="Label only these faces (IDs separated by commas): on a large model, whose "
+              "figure otherwise has no labels, the faces you want to find.")
 @rtol_option
 @handle_errors
-def object_figure_cmd(model: str, output: str, rtol: float | None) -> None:
-    """Draw MODEL labeled like the paper's Fig. 3: faces, edge numbers, A and Delta."""
-    from nonprehensile.viz import object_figure, save_figure
+def object_figure_cmd(model: str, output: str | None, html_out: str | None,
+                      faces: list[str] | None, rtol: float | None) -> None:
+    """Draw MODEL labeled like the paper's Fig. 3: faces, edge numbers, A and Delta.
 
-    save_figure(object_figure(load_cli_model(model, rtol)), output, dpi=100)
-    err.print(f"wrote {output}")
+    Give -o for a picture, --html for a rotatable 3-D view, or both.
+    """
+    if output is None and html_out is None:
+        raise InputError("nothing to write: give -o FILE (PNG, SVG or PDF) and/or --html FILE")
+    poly = load_cli_model(model, rtol)
+    if html_out is not None:
+        from nonprehensile.viz.view3d import object_view, write_html
+
+        if not html_out.lower().endswith((".html", ".htm")):
+            raise InputError(f"--html {html_out}: the 3-D view is an HTML file; name it .html")
+        write_html(object_view(poly, faces=faces), html_out)
+        err.print(f"wrote {html_out}")
+    if output is not None:
+        from nonprehensile.viz import object_figure, save_figure
+
+        save_figure(object_figure(poly, faces=faces), output, dpi=100)
+        err.print(f"wrote {output}")
 
 
 @object_group.command("from-mesh")

@@ -129,6 +129,10 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
               help="Write each step's reference trajectories here (C3D and CSV).")
 @robot_options
+@click.option("--html", "html_out", default=None, type=click.Path(dir_okay=False),
+              help="Write a rotatable 3-D view of the plan: one self-contained HTML file "
+              "(plotly.js embedded, opens offline) with the object's pose at each step, the "
+              "reference finger paths (with --dataset) and the agent; needs the view3d extra.")
 @rtol_option
 @atol_option
 @angle_tol_option
@@ -137,8 +141,8 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
 def plan_cmd(
     skills_file: str, start: State, goal: State, step: float | None, states_file: str | None,
     position: tuple[float, float], costs: dict[str, float] | None, relocation_cost: float,
-    dataset: str | None, out_dir: str | None, rtol: float | None, atol: float | None,
-    angle_tol: float, as_json: bool, **robot_kw: Any,
+    dataset: str | None, out_dir: str | None, html_out: str | None, rtol: float | None,
+    atol: float | None, angle_tol: float, as_json: bool, **robot_kw: Any,
 ) -> None:
     """Plan transitions, contact events and finger motions from --from to --to."""
     use_robot = wants_robot(robot_kw)
@@ -151,13 +155,17 @@ def plan_cmd(
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
     if out_dir is not None and dataset is None:
         raise InputError("--out writes reference trajectories: give --dataset too")
+    if html_out is not None and not html_out.lower().endswith((".html", ".htm")):
+        raise InputError(f"--html {html_out}: the 3-D view is an HTML file; name it .html")
     motions = None
     scale = 1.0
+    markers: list[str] | None = None
     if dataset is not None:
         with stage_bars(as_json) as bars:
             ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly,
                                                progress=bars)
         scale = ds.scale
+        markers = list(ds.fingers.values())
     result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
                   angle_tol=angle_tol, scale=scale, relocation_cost=relocation_cost)
     doc = result.to_dict()
@@ -167,6 +175,13 @@ def plan_cmd(
             written += _write_joints(robot_kw, robot, poly, ds, result, out_dir, doc)
         doc["files"] = [str(p) for p in written]
         err.print(f"wrote {len(written)} files to {out_dir}")
+    if html_out is not None:
+        from nonprehensile.viz.view3d import plan_view, write_html
+
+        write_html(plan_view(poly, result, scale=scale, markers=markers,
+                             units="m" if dataset is not None else poly.units), html_out)
+        doc["html"] = str(html_out)
+        err.print(f"wrote {html_out}")
     if as_json:
         emit_json(doc)
         return

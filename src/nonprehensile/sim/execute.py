@@ -197,9 +197,11 @@ def simulate_step(
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG, position_tol: float = DEFAULT_POSITION_TOL,
     label: Mapping[str, Any] | None = None, keep_trace: int = 0,
     perturbation: Perturbation = NO_PERTURBATION, noise_stream: str = "finger",
+    signals: bool = False,
 ) -> Outcome:
     """Simulate one step: the object starts at the step's planned pose (or, with
-    ``continue_from_current``, wherever the previous simulation left it).
+    ``continue_from_current``, wherever the previous simulation left it). ``keep_trace``
+    and ``signals``: as :meth:`Simulator.run`.
 
     ``perturbation`` moves the object's start away from the planned pose (not when
     continuing) and adds the finger's noise (stream ``noise_stream``)."""
@@ -208,7 +210,7 @@ def simulate_step(
         raise InputError("the step carries no object pose: make it with plan() or step_for()")
     targets = perturbation.finger_targets(targets, rate, noise_stream)
     result = sim.run(None if continue_from_current else perturbation.start_pose(
-        step.start_pose), targets, rate, keep_trace=keep_trace)
+        step.start_pose), targets, rate, keep_trace=keep_trace, signals=signals)
     t = step.transition
     cmp = compare(sim.poly, t.skill, result, predicted=step.end_world,
                   predicted_pose=step.end_pose if check_position else None,

@@ -16,6 +16,7 @@ tool tomorrow: :mod:`nonprehensile.sim.driver`). It gives every driver the same 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -107,6 +108,7 @@ class Judge:
         self.poly = poly
         self.scale = scale
         self.params = params
+        self._model = model  # mj_contactForce reads the contacts' solver parameters
         m = model
         self.body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
         self.obj_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
@@ -212,6 +214,31 @@ class Judge:
         if ground:
             pairs.add(ContactPair(Ground(), self.ground_element(r, t)))
         return frozenset(pairs), finger_table, other_contact
+
+    def forces_and_slip(self, data: Any, n_fingers: int) -> tuple[FloatArray, float]:
+        """Each fingertip's normal force on the object now (N, shape (n_fingers,)), and the
+        object's slip on the table (m/s: the largest horizontal speed of its points touching
+        the table; NaN when it touches none)."""
+        force = np.zeros(n_fingers)
+        slip = math.nan
+        f6 = np.zeros(6)
+        r = data.xmat[self.body].reshape(3, 3)
+        v = data.qvel[self.dadr:self.dadr + 3]  # the free joint: world linear velocity
+        w = r @ data.qvel[self.dadr + 3:self.dadr + 6]  # and body-frame angular velocity
+        origin = data.xpos[self.body]
+        con = data.contact
+        for i in range(data.ncon):
+            a, b = int(con.geom1[i]), int(con.geom2[i])
+            if self.obj_geom not in (a, b) or con.dist[i] > 1e-4:
+                continue
+            other = b if a == self.obj_geom else a
+            if other in self.finger_geoms:
+                mujoco.mj_contactForce(self._model, data, i, f6)
+                force[self.finger_geoms[other] - 1] += abs(float(f6[0]))
+            elif other == self.table:
+                speed = float(np.hypot(*(v + np.cross(w, con.pos[i] - origin))[:2]))
+                slip = speed if math.isnan(slip) else max(slip, speed)
+        return force, slip
 
     def finger_object_contact(self, data: Any) -> bool:
         """Whether any fingertip touches the object now (transits measure it)."""

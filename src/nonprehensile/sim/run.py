@@ -43,6 +43,7 @@ __all__ = [
     "Simulator",
     "default_scale",
     "pose_of_state",
+    "signal_columns",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -57,6 +58,15 @@ def default_scale(poly: Polyhedron) -> float:
             f"model {poly.name!r} has units {poly.units!r}; the simulation knows "
             f"{sorted(UNIT_METRES)}: give the scale (metres per model unit) explicitly"
         ) from None
+
+
+def signal_columns(n_fingers: int) -> dict[str, slice]:
+    """Where a trace kept with ``signals=True`` (:meth:`Simulator.run`) holds them:
+    ``"error"`` (m) and ``"force"`` (N), one column per finger, and ``"slip"`` (m/s)."""
+    first = 8 + 3 * n_fingers
+    return {"error": slice(first, first + n_fingers),
+            "force": slice(first + n_fingers, first + 2 * n_fingers),
+            "slip": slice(first + 2 * n_fingers, first + 2 * n_fingers + 1)}
 
 
 def pose_of_state(poly: Polyhedron, state: State, position: Sequence[float] = (0.0, 0.0),
@@ -182,11 +192,18 @@ class Simulator:
         park = self.scale * self.poly.diameter * 3.0 + 0.05
         return np.array([[park * k, park, park] for k in range(1, self.n_fingers + 1)])
 
-    def trace_row(self, now: float) -> FloatArray:
-        """``[t, x, y, z, qw, qx, qy, qz, finger qpos ...]`` now (see :meth:`run`)."""
+    def trace_row(self, now: float, target: FloatArray | None = None) -> FloatArray:
+        """``[t, x, y, z, qw, qx, qy, qz, finger qpos ...]`` now (see :meth:`run`); given
+        the fingertips' commanded ``target`` (shape (n_fingers, 3)), followed by the signals
+        of :func:`signal_columns`."""
         d = self.data
-        return np.concatenate(([now], d.qpos[self._qadr:self._qadr + 7],
-                               d.qpos[self._finger_qadr]))
+        row = np.concatenate(([now], d.qpos[self._qadr:self._qadr + 7],
+                              d.qpos[self._finger_qadr]))
+        if target is None:
+            return row
+        error = np.linalg.norm(self.driver.tips(d) - target, axis=1)
+        force, slip = self.judge.forces_and_slip(d, self.n_fingers)
+        return np.concatenate((row, error, force, [slip]))
 
     def check_targets(self, targets: Mapping[int, FloatArray], rate: float) -> int:
         """Validate fingertip targets (see :meth:`run`); returns their number of frames."""
@@ -242,6 +259,7 @@ class Simulator:
         *,
         settle: float | None = None,
         keep_trace: int = 0,
+        signals: bool = False,
     ) -> SimResult:
         """Drive the fingertips through ``targets`` with the object starting at ``start``,
         open loop.
@@ -263,6 +281,12 @@ class Simulator:
             If > 0, keep the object's and fingers' poses every this many steps in
             ``SimResult.trace`` (for rendering): rows ``[t, x, y, z, qw, qx, qy, qz,
             finger xyz ...]``.
+        signals : bool
+            With ``keep_trace``, each trace row also holds, after the finger positions
+            (columns :func:`signal_columns`): each fingertip's tracking error (m, from its
+            commanded target), its normal contact force on the object (N), and the object's
+            slip (m/s: the largest horizontal speed of its points touching the table; NaN
+            when it touches none).
 
         Raises
         ------
@@ -272,7 +296,8 @@ class Simulator:
         wall0 = time.perf_counter()
         p = self.params
         n_frames = self.check_targets(targets, rate)
-        ctrl = self.driver.controls(self.resample(targets, rate, n_frames))
+        resampled = self.resample(targets, rate, n_frames)
+        ctrl = self.driver.controls(resampled)
         n_move = len(ctrl) - 1
         m, d = self.model, self.data
         if start is not None:
@@ -293,10 +318,12 @@ class Simulator:
             if i % CONTACT_EVERY == 0:
                 log.observe(d, i * p.timestep)
             if keep_trace and i % keep_trace == 0:
-                trace.append(self.trace_row(i * p.timestep))
+                trace.append(self.trace_row(i * p.timestep,
+                                            resampled[i] if signals else None))
         # settle: the fingers hold their last targets; stop once the object is still
         settle_s = p.settle if settle is None else float(settle)
-        j, settled = self.settle(settle_s, log, n_move * p.timestep, keep_trace, trace)
+        j, settled = self.settle(settle_s, log, n_move * p.timestep, keep_trace, trace,
+                                 resampled[-1] if signals else None)
         now = (n_move + j) * p.timestep
         log.close(d, now)
         return SimResult(
@@ -306,10 +333,12 @@ class Simulator:
         )
 
     def settle(self, seconds: float, log: EventLog, t0: float, keep_trace: int = 0,
-               trace: list[FloatArray] | None = None) -> tuple[int, bool]:
+               trace: list[FloatArray] | None = None,
+               target: FloatArray | None = None) -> tuple[int, bool]:
         """Step with the controls held until the object is still for
         :data:`~nonprehensile.sim.judge.STILL_TIME` (at most ``seconds``); returns the steps
-        taken and whether it came to rest."""
+        taken and whether it came to rest. ``target``: the held targets, for the trace's
+        signals (:meth:`trace_row`)."""
         p = self.params
         m, d, judge = self.model, self.data, self.judge
         n_settle = round(seconds / p.timestep)
@@ -328,5 +357,5 @@ class Simulator:
                 else:
                     still = 0
             if keep_trace and trace is not None and j % keep_trace == 0:
-                trace.append(self.trace_row(now))
+                trace.append(self.trace_row(now, target))
         return j, False

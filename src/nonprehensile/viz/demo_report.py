@@ -20,7 +20,7 @@ from nonprehensile.inference import Expansion
 from nonprehensile.planning import Plan
 from nonprehensile.references import ClusteredMotions
 from nonprehensile.skills.contacts import format_event
-from nonprehensile.viz.report import HtmlFigure, Section, figure_to_png, write_report
+from nonprehensile.viz.report import Cell, HtmlFigure, Section, figure_to_png, write_report
 
 __all__ = ["REPORT_SECTIONS", "ReportContext", "collector_spared", "write_demo_report"]
 
@@ -146,7 +146,7 @@ def object_section(ctx: ReportContext) -> Section:
     poly, summary = ctx.ds.poly, ctx.summary
     png = figure_to_png(object_figure(poly, tables=False))
     labels, a = poly.adjacency_matrix()
-    tables: list[tuple[list[str], list[list[str]]]] = []
+    tables: list[tuple[Sequence[str | Cell], Sequence[Sequence[str | Cell]]]] = []
     if len(labels) <= 40:
         tables.append((["A", *labels], [[f, *[str(k) if k else "-" for k in a[i]]]
                                          for i, f in enumerate(labels)]))
@@ -171,16 +171,22 @@ def object_section(ctx: ReportContext) -> Section:
 def inference_section(ctx: ReportContext) -> Section:
     """The expanded state-transition graph (every skill) and the skill graphs."""
     from nonprehensile.viz import skill_graphs_figure, state_graph_figure
-    from nonprehensile.viz.graphs import MAX_DRAWN_STATES, transition_matrix_html
+    from nonprehensile.viz.graphs import (
+        MAX_DRAWN_STATES,
+        transition_matrix_html,
+        transitions_svg,
+    )
 
     exp, summary = ctx.exp, ctx.summary
-    caption = ("State-transition graph: demonstrated arcs bold, inferred arcs thin (every "
-               "skill drawn)")
+    caption = ("State-transition graph, one panel per skill: each skill is one maneuver "
+               "applied wherever it applies, so its arcs form cycles (rolling a cube around a "
+               "belt: four states) or chains; the demonstrated arc is bold black, the others "
+               "inferred. Rest the pointer on an arc for its transition")
     graph: list[tuple[bytes | HtmlFigure, str]]
     if len(exp.graph.states) <= MAX_DRAWN_STATES:
-        # the matrix as a table the page lays out: drawn, its 48 tick labels and cells cost
-        # matplotlib about 0.09 s (issue 16)
-        graph = [(figure_to_png(state_graph_figure(exp, matrix=False)), caption),
+        # both drawn by the browser: the panels' 168 labeled states cost matplotlib 0.2 s,
+        # the matrix's 48 tick labels and cells 0.09 s (issue 16)
+        graph = [(HtmlFigure(transitions_svg(exp)), caption),
                  (HtmlFigure(transition_matrix_html(exp)),
                   "Transition matrix: rows the start states, columns the end states; a cell "
                   "holds a stripe per skill realising the transition, outlined where it was "
@@ -225,33 +231,52 @@ def motion_section(ctx: ReportContext) -> Section:
             title=title, labels=motions.labels[rows])), title))
     ds = ctx.summary["dataset"]
 
-    def score(a: dict[str, Any], key: str) -> str:
-        return f"{a[key]:.2f}" if key in a else "-"
-
     rows = [[f"{a['from']} -> {a['to']}", ", ".join(a["skills"]), ", ".join(a["labels"]),
-             str(a["segments"]), str(a["clusters"]), score(a, "ari_vs_skill"),
-             score(a, "ari_vs_skill_as_streamed"), score(a, "ari_vs_skill_and_mentor")]
-            for a in arcs]
+             str(a["segments"]), str(a["clusters"]), ari_cell(a)] for a in arcs]
     return Section(
         "Demonstrations and motion clusters (Section VI, Fig. 12)",
         [f"{plural(ds['demonstrations'], 'demonstration')} by "
          f"{plural(len(ds['mentors']), 'mentor')}, cut at their "
          f"contact events into {plural(ds['segments'], 'segment')} registered to the skill "
          "graphs' arcs, then streamed, 10 at a time and skill after skill, into an incremental "
-         "clusterer on a Hilbert-curve index, arc by arc, with no closing recalibration (the "
-         "ARI as registered scores the ids each segment got on arrival). "
-         "Where two skills share their contact events, the clusterer is asked for two clusters "
-         "and the adjusted Rand index (ARI, 1 is perfect) says how well they separate the "
-         "skills: on the arcs where the skills move differently (quarter circle or straight "
-         "pull, lift-over or twist-over) they should, on the others (the same approach) they "
-         "cannot. Where one skill has an arc, the clusterer picks the number of clusters: the "
-         "mentors' styles (last column). Clusters are numbered from 1 on each arc, in the "
-         "order of their first segment, here, in the histograms and in the plan."],
+         "clusterer on a Hilbert-curve index, arc by arc. Where skills share an arc (the same "
+         "contact events), the clusterer is asked for one cluster per skill; where one skill "
+         "has it, it picks the number (the mentors' styles). Clusters are numbered from 1 on "
+         "each arc, in the order of their first segment, here, in the histograms and in the "
+         "plan."],
         [(traj_png, "Fingertip trajectories of two skills with the same contact events"),
          *[(png, f"Hilbert keys of {title}, coloured by cluster") for png, title in hists]],
-        [(["arc", "skills", "motions", "segments", "clusters", "ARI vs skill",
-           "ARI vs skill, as registered", "ARI vs skill x mentor"], rows)],
+        [(["arc", "skills", "motions", "segments", "clusters", ARI_HEADER], rows)],
+        notes=[ARI_NOTE],
     )
+
+
+#: The motion table's one score column: its header, with what the score is as a tooltip.
+ARI_HEADER = Cell(
+    "clusters match the skills? (ARI: 1 exactly, 0 chance)",
+    "Adjusted Rand index of the arc's clusters against the skills of its segments: 1 when "
+    "the clusters are exactly the skills, about 0 when they are no better than chance. Only "
+    "arcs shared by skills that move differently can reach 1.")
+#: The note under the motion table.
+ARI_NOTE = ("Rest the pointer on a score for the other two: the ARI of the ids each segment "
+            "got when it arrived (the stream without hindsight), and the ARI against skill "
+            "and mentor together (clusters that split a skill by mentor are right there).")
+
+
+def ari_cell(arc: dict[str, Any]) -> Cell:
+    """The motion table's score of one arc (see :data:`ARI_HEADER`): the ARI against the
+    skills and what to expect of it, the other two scores in its tooltip."""
+    mentor = f"ARI against skill x mentor: {arc['ari_vs_skill_and_mentor']:.2f}"
+    if "ari_vs_skill" not in arc:
+        return Cell(f"- (one skill; {plural(arc['clusters'], 'cluster')}: its mentors' styles)",
+                    mentor)
+    value = arc["ari_vs_skill"]
+    # the words read the number: 1 is the same partition, 0 what chance gives
+    reading = ("exactly the skills" if value >= 0.995 else "mostly the skills" if value >= 0.5
+               else "partly" if value >= 0.15 else "no better than chance")
+    return Cell(f"{value:.2f}: {reading}",
+                f"as registered (each segment's id on arrival): "
+                f"{arc['ari_vs_skill_as_streamed']:.2f}; {mentor}")
 
 
 def plan_section(ctx: ReportContext) -> Section:
@@ -290,8 +315,10 @@ def plan_section(ctx: ReportContext) -> Section:
          ". Each step lists where the agent stands, its contact events and, for each motion, "
          "the reference finger trajectory: the medoid of the skill's main cluster, in the "
          "world frame."],
-        [(film, "Plan filmstrip: the object's pose at each step in 3-D, the reference finger "
-                "paths and the agent's position")],
+        [(film, "Plan filmstrip: the object where each step starts (its bottom face red, "
+                "the IDs of the faces turned to you), the reference finger paths and the "
+                "agent, on axes in metres. `nonprehensile plan ... --html FILE` draws the same "
+                "as a view you can rotate.")],
         [(["step", "transition", "agent", "event", "contacts", "then", "reference motion"],
           rows)],
     )

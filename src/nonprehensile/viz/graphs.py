@@ -7,6 +7,7 @@ Matplotlib (the ``viz`` extra) is imported only inside these functions, which bu
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -403,3 +404,314 @@ def skill_graphs_figure(graphs: Sequence[nx.MultiDiGraph]) -> Figure:
     for r, g in enumerate(graphs):
         plot_skill_graph(g, fig.add_axes((0.01, (n - 1 - r + 0.02) / n, 0.98, 0.9 / n)))
     return fig
+
+
+def skill_components(exp: Expansion, skill: str) -> list[tuple[list[State], bool]]:
+    """The arcs of one skill in the expanded graph, as chains: ``(states, closed)`` pairs.
+
+    A skill is one world-fixed maneuver applied wherever it applies, so it takes each state
+    to at most one state and comes from at most one: its arcs fall apart into cycles
+    (``closed``: the last state leads back to the first; rolling a cube around one of its
+    belts is a cycle of four) and open chains (ending where the maneuver leaves the state
+    set). Chains come in the order of their first state in the graph; a cycle starts at its
+    first state in that order.
+
+    Raises
+    ------
+    InputError
+        The skill has no arc, or its arcs are not chains (a state left twice by the skill:
+        not the output of :func:`~nonprehensile.inference.expand`).
+    """
+    order = {s: i for i, s in enumerate(exp.graph.states)}
+    nxt: dict[State, State] = {}
+    prev: dict[State, State] = {}
+    for t in exp.transitions:
+        if t.skill.name != skill:
+            continue
+        if t.start in nxt or t.end in prev:
+            raise InputError(f"skill {skill!r} leaves or enters a state twice ({t.start} -> "
+                             f"{t.end}): its arcs are not one maneuver's")
+        nxt[t.start] = t.end
+        prev[t.end] = t.start
+    if not nxt:
+        raise InputError(f"skill {skill!r} has no arc in the graph; its skills are "
+                         f"{', '.join(_skill_names(exp))}")
+
+    def rank(s: State) -> int:
+        return order.get(s, len(order))
+
+    seen: set[State] = set()
+    chains: list[tuple[list[State], bool]] = []
+    # open chains first from their heads (states the skill does not enter), then cycles
+    for head in sorted((s for s in nxt if s not in prev), key=rank):
+        chain = [head]
+        while chain[-1] in nxt:
+            chain.append(nxt[chain[-1]])
+        seen.update(chain)
+        chains.append((chain, False))
+    for s in sorted(nxt, key=rank):
+        if s in seen:
+            continue
+        cycle = [s]
+        while nxt[cycle[-1]] != s:
+            cycle.append(nxt[cycle[-1]])
+        seen.update(cycle)
+        chains.append((cycle, True))
+    chains.sort(key=lambda c: min(rank(s) for s in c[0]))
+    return chains
+
+
+#: Per-skill panels, in inches (data units are inches there): the gap between neighbouring
+#: states along a chain, and the room a state's label needs around its node.
+_SPACING = 0.62
+_LABEL_W, _LABEL_H = 0.55, 0.36
+_CELL_GAP = 0.15
+
+
+def _chain_layout(chains: Sequence[tuple[list[State], bool]], max_width: float
+                  ) -> tuple[dict[State, tuple[float, float]], float, float]:
+    """Each chain on its own ellipse (wider than tall: labels are), packed row by row in at
+    most ``max_width`` inches; returns the positions and the packed width and height."""
+    import math
+
+    cells = []
+    for states, _ in chains:
+        k = len(states)
+        rx = max({3: 0.48, 4: 0.8}.get(k, 0.55), 1.3 * k * _SPACING / (2 * math.pi))
+        ry = (0.6 if k == 4 else 0.62) * rx
+        # a chain of four sits on the ellipse's corners, three on its top and lower corners
+        phase = math.pi / 4 if k == 4 else math.pi / 2
+        pts = [(rx * math.cos(phase + 2 * math.pi * i / k),
+                ry * math.sin(phase + 2 * math.pi * i / k)) for i in range(k)]
+        xs, ys = [p[0] for p in pts], [p[1] for p in pts]
+        w = max(xs) - min(xs) + _LABEL_W + _CELL_GAP
+        h = max(ys) - min(ys) + _LABEL_H + 0.12
+        cells.append((states, pts, min(xs), max(ys), w, h))
+    pos: dict[State, tuple[float, float]] = {}
+    x = y = row_h = width = 0.0
+    for states, pts, x0, y1, w, h in cells:
+        if x > 0 and x + w > max_width + 1e-9:
+            x, y, row_h = 0.0, y - row_h, 0.0
+        for s, (px, py) in zip(states, pts, strict=True):
+            pos[s] = (x + (_LABEL_W + _CELL_GAP) / 2 + px - x0,
+                      y - (_LABEL_H + 0.12) / 2 - (y1 - py))
+        x += w
+        width = max(width, x)
+        row_h = max(row_h, h)
+    return pos, width, -(y - row_h)
+
+
+def plot_skill_arcs(exp: Expansion, skill: str, ax: Axes, *, color: Any = None,
+                    max_width: float = 4.6) -> tuple[float, float]:
+    """One skill's arcs of the expanded graph (a small multiple of :func:`transitions_figure`).
+
+    Each chain of the skill (:func:`skill_components`) is drawn on its own ellipse: a state
+    per node, the skill's arc from each state to the next; the demonstrated arc bold black,
+    states outside the state set in dashed boxes. The axes' limits are set to the drawing
+    (data units are inches at ``max_width`` inches a row); returns its width and height.
+    """
+    chains = skill_components(exp, skill)
+    pos, width, height = _chain_layout(chains, max_width)
+    # states the graph only reaches (outside the state set): no transition starts there
+    inside = {t.start for t in exp.transitions}
+    demonstrated = {(t.start, t.end) for t in exp.transitions
+                    if t.skill.name == skill and t.demonstrated}
+    color = color if color is not None else "0.2"
+    # equal scales: the axes' own aspect, its limits centred on the drawing
+    _, _, w, h = ax.get_position().bounds
+    fig: Any = ax.get_figure(root=True)
+    fw, fh = fig.get_size_inches()
+    aw, ah = w * fw, h * fh
+    scale = max(width / aw, height / ah, 1.0)
+    cx, cy = width / 2, -height / 2
+    ax.set_xlim(cx - scale * aw / 2, cx + scale * aw / 2)
+    ax.set_ylim(cy - scale * ah / 2, cy + scale * ah / 2)
+    arcs = []
+    for states, closed in chains:
+        pairs = list(itertools.pairwise(states))
+        if closed:
+            pairs.append((states[-1], states[0]))
+        for a, b in pairs:
+            shown = (a, b) in demonstrated
+            rad = 0.45 if len(states) == 2 else 0.18
+            arcs.append((pos[a], pos[b], rad, "black" if shown else color,
+                         2.8 if shown else 1.3, 1.0))
+    draw_arcs(ax, arcs, shrink=15, head=4.5)
+    for s, (x, y) in pos.items():
+        ax.text(x, y, str(s), ha="center", va="center", fontsize=9.5, zorder=4,
+                bbox={"boxstyle": "round,pad=0.2", "fc": "white",
+                      "ec": "0.3", "lw": 0.6, "ls": "-" if s in inside else "--"})
+    ax.set_axis_off()
+    return width, height
+
+
+def transitions_figure(exp: Expansion, *, skills: Sequence[str] | None = None,
+                       per_row: int = 3, page_width: float = 14.2) -> Figure:
+    """The expanded state-transition graph as small multiples: one panel per skill.
+
+    Drawn at once, a graph of every skill's arcs is a hairball (168 arcs on the cube's 24
+    states); split by skill, each panel shows one maneuver applied wherever it applies:
+    its arcs form cycles and chains (:func:`skill_components`), each on its own ellipse,
+    the demonstrated arc bold black. A fixed layout (no layout engine: issue 16).
+
+    Parameters
+    ----------
+    exp : Expansion
+    skills : sequence of str, optional
+        The skills to draw, in order (default every skill of the graph).
+    per_row : int
+        Panels on a row.
+    page_width : float
+        Width of the figure, inches.
+    """
+    import math
+
+    names = _skill_names(exp)
+    wanted = list(skills) if skills is not None else names
+    for s in wanted:
+        if s not in names:
+            raise InputError(f"no skill {s!r} in the graph; its skills are {', '.join(names)}")
+    colors = _skill_colors(names)
+    maneuver = {t.skill.name: t.skill.maneuver for t in exp.transitions}
+    cols = max(1, min(per_row, len(wanted)))
+    rows = max(1, math.ceil(len(wanted) / cols))
+    panel_w = page_width / cols
+    chains = {s: skill_components(exp, s) for s in wanted}
+    # each row of panels as tall as its tallest drawing (one scale for all)
+    tall = [_chain_layout(chains[s], panel_w - 0.1)[2] + 0.1 for s in wanted]
+    heights = [max(tall[r * cols:(r + 1) * cols]) for r in range(rows)]
+    head = 0.45
+    fw, fh = panel_w * cols, sum(heights) + head * rows
+    fig = new_figure(figsize=(fw, fh))
+    for n, skill in enumerate(wanted):
+        r, c = divmod(n, cols)
+        top = 1 - (sum(heights[:r]) + head * r) / fh
+        panel_h = heights[r]
+        ax = fig.add_axes((c * panel_w / fw, top - (head + panel_h) / fh, panel_w / fw,
+                           panel_h / fh))
+        plot_skill_arcs(exp, skill, ax, color=colors[skill], max_width=panel_w - 0.1)
+        cycles = [st for st, closed in chains[skill] if closed]
+        opened = [st for st, closed in chains[skill] if not closed]
+        kinds = []
+        if cycles:
+            kinds.append(f"{len(cycles)} cycle{'s' if len(cycles) > 1 else ''}")
+        if opened:
+            kinds.append(f"{len(opened)} chain{'s' if len(opened) > 1 else ''}")
+        size = "/".join(str(k) for k in sorted({len(st) for st, _ in chains[skill]}))
+        fig.text((c + 0.5) * panel_w / fw, top - 0.06 / fh,
+                 f"{skill} ({maneuver.get(skill, '?')}): {' + '.join(kinds)} of {size} states",
+                 ha="center", va="top", fontsize=10, color=colors[skill], fontweight="bold")
+    return fig
+
+
+def transitions_svg(exp: Expansion, *, skills: Sequence[str] | None = None,
+                    per_row: int = 3, page_px: float = 1150.0) -> str:
+    """:func:`transitions_figure` as inline SVG markup, for the report.
+
+    The same panels and layout, drawn by the browser: the cube's 168 labeled states cost
+    matplotlib about 0.2 s to draw; as SVG they cost the report nothing (issue 16). Each arc
+    is a ``path`` whose ``title`` names its transition; each panel is a ``g`` with
+    ``data-skill``. Every text is escaped.
+    """
+    import html
+    import math
+
+    from matplotlib.colors import to_hex
+
+    names = _skill_names(exp)
+    wanted = list(skills) if skills is not None else names
+    for s in wanted:
+        if s not in names:
+            raise InputError(f"no skill {s!r} in the graph; its skills are {', '.join(names)}")
+    colors = {k: to_hex(c) for k, c in _skill_colors(names).items()}
+    maneuver = {t.skill.name: t.skill.maneuver for t in exp.transitions}
+    # states the graph only reaches (outside the state set): no transition starts there
+    inside = {t.start for t in exp.transitions}
+    cols = max(1, min(per_row, len(wanted)))
+    ppi = 80.0  # px per layout inch: the report's figures' dpi
+    panel_w = page_px / cols
+    head = 30.0
+    layouts = {s: _chain_layout(skill_components(exp, s), panel_w / ppi - 0.1)
+               for s in wanted}
+    rows = math.ceil(len(wanted) / cols)
+    heights = [max(layouts[s][2] for s in wanted[r * cols:(r + 1) * cols]) * ppi + 8
+               for r in range(rows)]
+    hw, hh = _LABEL_W * ppi / 2 - 2, 10.0  # half the drawn box of a label
+
+    def cut(p: tuple[float, float], toward: tuple[float, float]) -> tuple[float, float]:
+        """Where the curve leaving ``p`` towards ``toward`` crosses p's box (plus a gap)."""
+        ux, uy = toward[0] - p[0], toward[1] - p[1]
+        n = math.hypot(ux, uy) or 1.0
+        ux, uy = ux / n, uy / n
+        s = min(hw / abs(ux) if abs(ux) > 1e-9 else math.inf,
+                hh / abs(uy) if abs(uy) > 1e-9 else math.inf) + 3.0
+        return p[0] + s * ux, p[1] + s * uy
+
+    parts = []
+    markers = "".join(
+        f'<marker id="nph-head-{i}" viewBox="0 0 10 10" refX="9" refY="5" markerWidth="7" '
+        f'markerHeight="7" markerUnits="userSpaceOnUse" orient="auto-start-reverse">'
+        f'<path d="M0,0 L10,5 L0,10 z" fill="{c}"/></marker>'
+        for i, c in enumerate([*(colors[s] for s in wanted), "#000000"]))
+    parts.append(f"<defs>{markers}</defs>")
+    for n, skill in enumerate(wanted):
+        r, c = divmod(n, cols)
+        x0 = c * panel_w
+        y0 = sum(heights[:r]) + head * (r + 1)
+        pos, width, _ = layouts[skill]
+        dx = x0 + (panel_w - width * ppi) / 2
+        chains = skill_components(exp, skill)
+        demonstrated = {(t.start, t.end) for t in exp.transitions
+                        if t.skill.name == skill and t.demonstrated}
+        px = {s: (dx + x * ppi, y0 - y * ppi) for s, (x, y) in pos.items()}
+        cycles = sum(closed for _, closed in chains)
+        opened = len(chains) - cycles
+        kinds = " + ".join(k for k in (
+            f"{cycles} cycle{'s' if cycles != 1 else ''}" if cycles else "",
+            f"{opened} chain{'s' if opened != 1 else ''}" if opened else "") if k)
+        size = "/".join(str(k) for k in sorted({len(st) for st, _ in chains}))
+        heading = f"{skill} ({maneuver.get(skill, '?')}): {kinds} of {size} states"
+        g = [f'<g data-skill="{html.escape(skill, quote=True)}">',
+             f'<text x="{x0 + panel_w / 2:.1f}" y="{y0 - 12:.1f}" text-anchor="middle" '
+             f'font-weight="bold" font-size="13" fill="{colors[skill]}">'
+             f"{html.escape(heading)}</text>"]
+        for states, closed in chains:
+            # a light card behind each chain sets it apart from its neighbours
+            xs = [px[s][0] for s in states]
+            ys = [px[s][1] for s in states]
+            g.append(f'<rect x="{min(xs) - hw - 4:.1f}" y="{min(ys) - hh - 4:.1f}" '
+                     f'width="{max(xs) - min(xs) + 2 * hw + 8:.1f}" '
+                     f'height="{max(ys) - min(ys) + 2 * hh + 8:.1f}" rx="8" fill="#f5f5f5"/>')
+            pairs = list(itertools.pairwise(states))
+            if closed:
+                pairs.append((states[-1], states[0]))
+            rad = 0.45 if len(states) == 2 else 0.18
+            for a, b in pairs:
+                (ax_, ay), (bx, by) = px[a], px[b]
+                # matplotlib's arc3 in screen coordinates (y down): the control point turned
+                # the other way, so the curves bulge outwards as in the PNG
+                cx = (ax_ + bx) / 2 - rad * (by - ay)
+                cy = (ay + by) / 2 + rad * (bx - ax_)
+                s0, s1 = cut((ax_, ay), (cx, cy)), cut((bx, by), (cx, cy))
+                shown = (a, b) in demonstrated
+                colour = "#000000" if shown else colors[skill]
+                head_id = len(wanted) if shown else n
+                title = html.escape(f"{a} -> {b} by {skill}"
+                                    + (" (demonstrated)" if shown else " (inferred)"))
+                g.append(f'<path d="M{s0[0]:.1f},{s0[1]:.1f} Q{cx:.1f},{cy:.1f} '
+                         f'{s1[0]:.1f},{s1[1]:.1f}" fill="none" stroke="{colour}" '
+                         f'stroke-width="{3 if shown else 1.4}" '
+                         f'marker-end="url(#nph-head-{head_id})"><title>{title}</title></path>')
+        for node, (x, y) in px.items():
+            dash = "" if node in inside else ' stroke-dasharray="3,2"'
+            g.append(f'<rect x="{x - hw:.1f}" y="{y - hh:.1f}" width="{2 * hw:.1f}" '
+                     f'height="{2 * hh:.1f}" rx="4" fill="white" stroke="#555"{dash}/>'
+                     f'<text x="{x:.1f}" y="{y + 4.5:.1f}" text-anchor="middle" '
+                     f'font-size="13">{html.escape(str(node))}</text>')
+        g.append("</g>")
+        parts.append("".join(g))
+    total_h = sum(heights) + head * rows
+    return (f'<svg class="transitions" xmlns="http://www.w3.org/2000/svg" '
+            f'width="{page_px:.0f}" height="{total_h:.0f}" '
+            f'viewBox="0 0 {page_px:.0f} {total_h:.0f}" font-family="sans-serif">'
+            + "".join(parts) + "</svg>")

@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = [
+    "check_faces",
     "default_view",
     "object_figure",
     "plot_adjacency",
@@ -556,12 +557,13 @@ def object_figure(
     show_vertices: bool = False,
     figsize: tuple[float, float] | None = None,
     tables: bool = True,
+    faces: Iterable[str] | None = None,
 ) -> Figure:
     """The whole object model on one figure: two opposite labeled views, ``A`` and ``Delta``.
 
     A model of more than :data:`DETAIL_LIMIT` faces is drawn simplified: both views shaded,
-    without labels or tables (thousands of labels are unreadable and take minutes to draw;
-    ``object show --json`` lists them).
+    without tables, and labeled only where ``faces`` names faces (thousands of labels are
+    unreadable and take minutes to draw; ``object show --json`` lists them).
 
     Top: the object from ``view`` and from exactly the opposite side; each face is labeled in
     the view it faces (its ID and its edge numbers), so every face ID and every edge number
@@ -582,6 +584,10 @@ def object_figure(
         Width and height in inches; default sized to the number of faces.
     tables : bool
         Draw ``A`` and ``Delta`` below the views (a report shows them as HTML tables).
+    faces : iterable of str, optional
+        Label these faces only (their IDs and edge numbers, in the view each faces; on a
+        large model they are also drawn in orange); default every face, or none above
+        :data:`DETAIL_LIMIT` faces.
 
     Returns
     -------
@@ -592,19 +598,23 @@ def object_figure(
     ------
     InputError
         If matplotlib is missing, ``poly`` is not an object model or the view is not two
-        angles.
+        angles; a face in ``faces`` that the model lacks (named, with the fix).
     """
 
     poly = _check_poly(poly)
+    chosen = None if faces is None else check_faces(poly, faces)
     first = default_view(poly) if view is None else _check_view(view)
     second = _opposite(first)
     if len(poly.faces) > DETAIL_LIMIT or not tables:
         return _plain_figure(poly, first, second, figsize, labels=len(poly.faces) <= DETAIL_LIMIT,
-                             show_vertices=show_vertices)
+                             show_vertices=show_vertices, chosen=chosen)
     v_dir = view_direction(first)
     # every face in exactly one view: the first takes the faces facing it, the second the rest
     front = [f for f in poly.faces if float(poly.normals[f] @ v_dir) > 0.0]
     back = [f for f in poly.faces if f not in front]
+    if chosen is not None:
+        front = [f for f in front if f in chosen]
+        back = [f for f in back if f in chosen]
 
     n = len(poly.faces)
     table_height = 1.2 + 0.32 * n
@@ -612,15 +622,16 @@ def object_figure(
         figsize = (max(12.0, 4.0 + 0.5 * n), 6.0 + table_height)
     fig = new_figure(figsize=figsize, layout="constrained")
     grid = fig.add_gridspec(2, 2, height_ratios=[6.0, table_height], width_ratios=[1.2, 1.0])
-    for col, (v, faces) in enumerate(((first, front), (second, back))):
+    for col, (v, labeled) in enumerate(((first, front), (second, back))):
         ax = fig.add_subplot(grid[0, col], projection="3d")
         plot_object(
-            poly, ax, view=v, labeled_faces=faces, show_vertices=show_vertices, legend=col == 0
+            poly, ax, view=v, labeled_faces=labeled, show_vertices=show_vertices,
+            legend=col == 0
         )
         side = "first view" if col == 0 else "opposite view"
         ax.set_title(
-            f"{side} (elev {v[0]:g}°, azim {v[1]:g}°): faces {', '.join(faces)}", fontsize=11
-        )
+            f"{side} (elev {v[0]:g}°, azim {v[1]:g}°): faces {', '.join(labeled) or 'none'}",
+            fontsize=11)
     plot_adjacency(poly, fig.add_subplot(grid[1, 0]))
     plot_delta(poly, fig.add_subplot(grid[1, 1]))
     virtual = ""
@@ -638,32 +649,71 @@ def object_figure(
 DETAIL_LIMIT = 40
 
 
+def check_faces(poly: Polyhedron, faces: Iterable[str]) -> list[str]:
+    """The faces named, in the model's order.
+
+    Raises
+    ------
+    InputError
+        A face the model lacks (naming a few it has), or no face at all.
+    """
+    wanted = [str(f).strip() for f in faces]
+    wanted = [f for f in wanted if f]
+    unknown = [f for f in wanted if f not in poly.faces]
+    if unknown:
+        known = list(poly.faces)
+        shown = ", ".join(known[:12]) + (" ..." if len(known) > 12 else "")
+        raise InputError(f"{poly.name}: no face {', '.join(map(repr, unknown))}; its faces "
+                         f"are {shown} (`nonprehensile object show` lists them)")
+    if not wanted:
+        raise InputError("no face to label: give face IDs separated by commas, e.g. a,b,c")
+    return [f for f in poly.faces if f in set(wanted)]
+
+
 def _plain_figure(
     poly: Polyhedron, first: tuple[float, float], second: tuple[float, float],
     figsize: tuple[float, float] | None, *, labels: bool, show_vertices: bool,
+    chosen: list[str] | None = None,
 ) -> Figure:
-    """Two opposite views without tables; shaded, unlabeled, one collection per view when the
-    model is large (a collection per face, or a label per edge, is what takes minutes)."""
+    """Two opposite views without tables; shaded, one collection per view when the model is
+    large (a collection per face, or a label per edge, is what takes minutes), its
+    ``chosen`` faces orange and labeled."""
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     n = len(poly.faces)
     fig = new_figure(figsize=figsize or (11.0, 5.4))
     for col, v in enumerate((first, second)):
         ax: Any = fig.add_axes((0.01 + 0.5 * col, 0.02, 0.48, 0.84), projection="3d")
+        v_dir = view_direction(v)
+        facing = [f for f in poly.faces if float(poly.normals[f] @ v_dir) > 0.0]
         if labels:
-            v_dir = view_direction(v)
-            faces = [f for f in poly.faces if float(poly.normals[f] @ v_dir) > 0.0]
-            plot_object(poly, ax, view=v, labeled_faces=faces, show_vertices=show_vertices,
+            shown = facing if chosen is None else [f for f in facing if f in chosen]
+            plot_object(poly, ax, view=v, labeled_faces=shown, show_vertices=show_vertices,
                         legend=col == 0)
         else:
             light = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
             names = list(poly.faces)
             shade = np.array([0.35 + 0.55 * max(float(poly.normals[f] @ light), 0.0)
                               for f in names])
+            colors = np.c_[0.55 * shade, 0.7 * shade, shade]
+            picked = set(chosen or ())
+            for i, f in enumerate(names):
+                if f in picked:  # the chosen faces in a light orange, labels readable on it
+                    lit = 0.75 + 0.25 * shade[i]
+                    colors[i] = (lit, 0.72 * lit, 0.4 * lit)
             coll = Poly3DCollection([poly.vertices[list(poly.faces[f])] for f in names],
-                                    facecolors=np.c_[0.55 * shade, 0.7 * shade, shade],
-                                    edgecolors="none")
+                                    facecolors=colors, edgecolors="none")
             ax.add_collection3d(coll)
+            ax.computed_zorder = False  # the labels over the solid
+            for f in (f for f in facing if f in picked):
+                c = poly.face_centroids[f]
+                ax.text(c[0], c[1], c[2], f, gid=f"face:{f}", fontsize=12, fontweight="bold",
+                        ha="center", va="center", zorder=5, bbox=_LABEL_BOX)
+                for k in range(1, poly.n_edges(f) + 1):
+                    p = _edge_label_point(poly, f, k, _LABEL_OFFSET)
+                    ax.text(p[0], p[1], p[2], str(k), gid=f"edge:{f}:{k}", fontsize=8,
+                            color=_EDGE_NUMBER_COLOR, ha="center", va="center", zorder=4,
+                            bbox=_LABEL_BOX)
             ax.set_proj_type("ortho")
             ax.view_init(elev=v[0], azim=v[1])
             ax.set_axis_off()
@@ -676,7 +726,12 @@ def _plain_figure(
             ax.set_box_aspect(tuple(float(x) for x in span))
         side = "first view" if col == 0 else "opposite view"
         ax.set_title(f"{side} (elev {v[0]:g}°, azim {v[1]:g}°)", fontsize=12)
-    what = ("labels and tables omitted: `object show --json` lists every face, edge and A"
-            if not labels else "edge numbers run clockwise seen from outside")
+    if labels or chosen:
+        what = "edge numbers run clockwise seen from outside"
+        if chosen:
+            what = f"faces {', '.join(chosen)} labeled (orange); {what}"
+    else:
+        what = ("labels omitted (label some with --faces a,b,...): `object show --json` "
+                "lists every face, edge and A")
     fig.suptitle(f"Object model of {poly.name!r}: {n} faces; {what}", fontsize=13)
     return fig

@@ -16,9 +16,10 @@ import numpy as np
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import Plan
 from nonprehensile.viz._figures import new_figure
-from nonprehensile.viz.report import Section, figure_pixels, png_bytes
+from nonprehensile.viz.report import Section, figure_pixels, figure_to_png, png_bytes
 
-__all__ = ["FRAME_SIZE", "filmstrip_figure", "filmstrip_png", "physics_section"]
+__all__ = ["FRAME_SIZE", "down_element", "filmstrip_figure", "filmstrip_png",
+           "physics_section", "signals_figure"]
 
 
 #: Pixels of one filmstrip frame: six to a row fill the report's page at its 80 dpi.
@@ -82,6 +83,118 @@ def filmstrip_png(frames: Sequence[Any], captions: Sequence[str], *, per_row: in
     return png_bytes(pixels)
 
 
+def down_element(poly: Polyhedron, rotation: Any, *, tilt_deg: float = 3.0) -> str:
+    """What the object stands on under ``rotation``: its bottom face (``"a"``), or, tipped
+    over more than ``tilt_deg``, the edge (``"E(a,b)"``) or vertex (``"V(a,b,c)"``) lowest.
+
+    The edge or vertex is the one whose vertices lie within 1 % of the object's diameter of
+    the lowest vertex (the object pivots on it).
+    """
+    import math
+
+    rot = np.asarray(rotation, dtype=float)
+    faces = poly.face_ids
+    normals_z = np.array([(rot @ poly.normals[f])[2] for f in faces])
+    i = int(np.argmin(normals_z))
+    if math.degrees(math.acos(float(np.clip(-normals_z[i], -1.0, 1.0)))) <= tilt_deg:
+        return faces[i]
+    z = poly.vertices @ rot[2]
+    low = np.flatnonzero(z <= z.min() + 0.01 * poly.diameter)
+    common = frozenset.intersection(*(poly.vertex_faces[int(v)] for v in low))
+    if len(low) == 2 and len(common) == 2:
+        return f"E({','.join(sorted(common))})"
+    if len(low) == 1:
+        return f"V({','.join(sorted(poly.vertex_faces[int(low[0])]))})"
+    return faces[i]  # several low vertices without one edge: nearest face down
+
+
+def _quat_matrix(q: Any) -> Any:
+    """A rotation matrix from MuJoCo's unit quaternion ``[w, x, y, z]``."""
+    w, x, y, z = (float(v) for v in q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def signals_figure(traces: Sequence[Any], *, n_fingers: int, motion_end: Sequence[float],
+                   titles: Sequence[str],
+                   events: Sequence[Sequence[tuple[float, str]]] = ()) -> Any:
+    """Per-step plots of what the execution did: one column per step, three rows.
+
+    Rows: each finger's tracking error (mm, its distance from the commanded target), its
+    normal contact force on the object (N), and the object's slip on the table (mm/s, the
+    largest horizontal speed of its points on the table; gaps where it is off the table).
+    Each row shares one scale across the steps; the settling after the motion is shaded,
+    and the times at which the reference motion expects the skill's contact events are
+    dotted lines, named at the top. A fixed layout (issue 16).
+
+    Parameters
+    ----------
+    traces : sequence of array
+        Per step, a trace kept with ``signals=True`` (:meth:`Simulator.run`).
+    n_fingers : int
+        Fingers in the scene (the trace's columns).
+    motion_end : sequence of float
+        Per step, when the reference motion ends (s).
+    titles : sequence of str
+        Per step, its panel title.
+    events : sequence of sequence of (float, str)
+        Per step, its skill's contact events: when the reference motion expects each, and
+        its id.
+    """
+    from nonprehensile.sim.run import signal_columns
+
+    cols = signal_columns(n_fingers)
+    n = len(traces)
+    rows = (("error", "tracking error (mm)", 1000.0), ("force", "contact force (N)", 1.0),
+            ("slip", "object slip (mm/s)", 1000.0))
+    width, height = min(14.2, 1.2 + 4.2 * n), 6.2
+    fig = new_figure(figsize=(width, height))
+    left, right, bottom, top = 0.9 / width, 0.2 / width, 0.55 / height, 0.62 / height
+    gap_x, gap_y = 0.35 / width, 0.3 / height
+    w = (1 - left - right - gap_x * (n - 1)) / n
+    h = (1 - bottom - top - gap_y * 2) / 3
+    colors = ("#d62728", "#1f77b4", "#2ca02c", "#9467bd", "#ff7f0e")
+    limits = {}
+    for key, _, unit in rows:
+        values = np.concatenate([np.asarray(tr)[:, cols[key]].ravel() * unit for tr in traces])
+        values = values[np.isfinite(values)]
+        limits[key] = float(values.max()) * 1.1 if values.size and values.max() > 0 else 1.0
+    for c, tr in enumerate(traces):
+        tr = np.asarray(tr)
+        t = tr[:, 0]
+        for r, (key, label, unit) in enumerate(rows):
+            ax = fig.add_axes((left + c * (w + gap_x), 1 - top - (r + 1) * h - r * gap_y, w, h))
+            ax.axvspan(motion_end[c], t[-1], color="0.92", lw=0)
+            for k, (e, name) in enumerate(events[c] if c < len(events) else ()):
+                ax.axvline(e, color="0.45", lw=0.8, ls=":")
+                if r == 0:  # named once, above the column, staggered where close
+                    ax.text(e, 1.02 + 0.13 * (k % 2), name, transform=ax.get_xaxis_transform(),
+                            ha="center", va="bottom", fontsize=8, color="0.3")
+            data = tr[:, cols[key]] * unit
+            for k in range(data.shape[1]):
+                ax.plot(t, data[:, k], color=colors[k % len(colors)], lw=1.3,
+                        label=f"R{k + 1}" if key != "slip" else None)
+            ax.set_xlim(0.0, t[-1])
+            ax.set_ylim(0.0, limits[key])
+            ax.tick_params(labelsize=9)
+            if c == 0:
+                ax.set_ylabel(label, fontsize=9)
+            else:
+                ax.set_yticklabels([])
+            if r == 2:
+                ax.set_xlabel("time in the step (s)", fontsize=9)
+            else:
+                ax.set_xticklabels([])
+            if r == 0:
+                ax.set_title(titles[c], fontsize=10, y=1.3)
+                if c == 0 and data.shape[1] > 1:
+                    ax.legend(fontsize=8, loc="upper right", frameon=False)
+    return fig
+
+
 def physics_section(
     poly: Polyhedron, plan: Plan, *, scale: float, fingers: Mapping[str, str],
 ) -> tuple[Section, list[dict[str, Any]]]:
@@ -103,10 +216,24 @@ def physics_section(
     # one continuous simulation, open loop; each step keeps its trace for the pictures
     for i, step in enumerate(plan.steps):
         o = simulate_step(sim, step, fingers=fingers, continue_from_current=i > 0,
-                          label={"step": i + 1}, keep_trace=10)
+                          label={"step": i + 1}, keep_trace=10, signals=True)
         outcomes.append(o)
         traces.append(o.result.trace)
     records = [o.to_dict() for o in outcomes]
+    from nonprehensile.sim.run import signal_columns
+
+    cols = signal_columns(n)
+    for r, tr in zip(records, traces, strict=True):
+        if tr is None:
+            continue
+        slip = tr[:, cols["slip"]]
+        # the largest of each signal over the step, for programs (the figure shows them all)
+        r["signals"] = {
+            "max_tracking_error_m": round(float(tr[:, cols["error"]].max()), 6),
+            "max_contact_force_n": round(float(tr[:, cols["force"]].max()), 4),
+            "max_slip_m_per_s": (round(float(np.nanmax(slip)), 6)
+                                 if np.isfinite(slip).any() else None),
+        }
     ok = sum(o.success for o in outcomes)
     paras = [
         f"Each of the {len(plan.steps)} steps was executed in one continuous MuJoCo "
@@ -141,11 +268,37 @@ def physics_section(
                                width=FRAME_SIZE[0], height=FRAME_SIZE[1]) if shown
                  else (None, ""))
     frames: list[Any] = got or []
-    captions = [f"step {i + 1}, t = {t:.2f} s" for i, _, times in shown for t in times]
+    captions = []
+    for i, tr, times in shown:
+        for t in times:
+            row = tr[int(np.clip(np.searchsorted(tr[:, 0], t), 0, len(tr) - 1))]
+            captions.append(f"step {i + 1}, {t:.2f} s, down: "
+                            f"{down_element(poly, _quat_matrix(row[4:8]))}")
     if frames:
         section.figures.append((filmstrip_png(frames, captions),
-                                "Filmstrip of the simulated plan (offscreen MuJoCo rendering)."))
+                                "Filmstrip of the simulated plan (offscreen MuJoCo rendering); "
+                                "each frame names what the object stands on: its bottom face, "
+                                "or the edge E(f,g) or vertex V(...) it pivots on."))
     else:
         section.paragraphs.append(f"No pictures: {note or 'nothing to draw'}; the physics "
                                   "above does not need them.")
+    if shown:
+        from nonprehensile.sim.execute import step_targets
+
+        expected = [step_targets(plan.steps[i], fingers)[2] for i, _, _ in shown]
+        ends = [times[-1] for times in expected]
+        titles = [f"step {i + 1}: {plan.steps[i].transition.skill.name} "
+                  f"({'as predicted' if outcomes[i].success else 'NOT as predicted'})"
+                  for i, _, _ in shown]
+        events = [list(zip(times, (e.id for e in plan.steps[i].transition.skill.events),
+                           strict=False)) for (i, _, _), times in zip(shown, expected, strict=True)]
+        fig = signals_figure([tr for _, tr, _ in shown], n_fingers=n, motion_end=ends,
+                             titles=titles, events=events)
+        section.figures.append((figure_to_png(fig), (
+            "What the execution did, step by step: each fingertip's distance from its "
+            "commanded target (tracking error), its normal force on the object, and how fast "
+            "the object's points on the table slide (slip; a roll pivots on an edge, which "
+            "should not slide). Dotted: when the reference motion expects each of the skill's "
+            "contact events; grey: settling after the motion, the fingers holding their last "
+            "targets.")))
     return section, records

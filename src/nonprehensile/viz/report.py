@@ -24,7 +24,7 @@ if TYPE_CHECKING:
     from matplotlib.text import Text
     from numpy.typing import NDArray
 
-__all__ = ["MIN_TEXT_PX", "PAGE_WIDTH_PX", "HtmlFigure", "Section", "figure_pixels",
+__all__ = ["MIN_TEXT_PX", "PAGE_WIDTH_PX", "Cell", "HtmlFigure", "Section", "figure_pixels",
            "figure_to_png", "png_bytes", "readable", "render_report", "write_report"]
 
 _STYLE = """
@@ -40,6 +40,7 @@ th, td { border: 1px solid #ccc; padding: .25em .6em; text-align: left; vertical
 th { background: #f0f0f0; }
 code { background: #f4f4f4; padding: 0 .2em; }
 .note { color: #555; font-size: .9em; }
+td[title], th[title] { text-decoration: underline dotted #888; cursor: help; }
 table.meta { font-size: .85em; } table.meta th { font-weight: normal; color: #555; }
 table.matrix { font-size: .75em; margin: 0; }
 table.matrix th, table.matrix td { padding: 0 .2em; border: 1px solid #e4e4e4; }
@@ -75,6 +76,15 @@ class HtmlFigure:
     markup: str
 
 
+@dataclass(frozen=True)
+class Cell:
+    """A table cell with a tooltip: ``text`` shown, ``title`` when the pointer rests on it
+    (both plain text, escaped when rendered). Cells with a tooltip are underlined dotted."""
+
+    text: str
+    title: str
+
+
 @dataclass
 class Section:
     """One section of the report.
@@ -86,14 +96,18 @@ class Section:
         Plain text (escaped when rendered).
     figures : list of (bytes or HtmlFigure, str)
         PNG data (or a figure in HTML) and a caption.
-    tables : list of (list of str, list of list of str)
-        Header and rows, plain text.
+    tables : list of (list of str or Cell, list of list of str or Cell)
+        Header and rows, plain text (a :class:`Cell` adds a tooltip).
+    notes : list of str
+        Plain text shown small under the tables (what a column means, say).
     """
 
     title: str
     paragraphs: list[str] = field(default_factory=list)
     figures: list[tuple[bytes | HtmlFigure, str]] = field(default_factory=list)
-    tables: list[tuple[list[str], list[list[str]]]] = field(default_factory=list)
+    tables: list[tuple[Sequence[str | Cell], Sequence[Sequence[str | Cell]]]] = field(
+        default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
 
 #: Width of the page's content, px: a wider image is shown scaled down to it.
@@ -236,11 +250,16 @@ def png_bytes(pixels: NDArray[np.uint8], level: int = PNG_COMPRESS_LEVEL) -> byt
             + chunk(b"IDAT", zlib.compress(rows.tobytes(), level)) + chunk(b"IEND", b""))
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join(
-        "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows
-    )
+def _cell(tag: str, c: str | Cell) -> str:
+    if isinstance(c, Cell):
+        return (f'<{tag} title="{html.escape(c.title, quote=True)}">{html.escape(c.text)}'
+                f"</{tag}>")
+    return f"<{tag}>{html.escape(c)}</{tag}>"
+
+
+def _table(header: Sequence[str | Cell], rows: Sequence[Sequence[str | Cell]]) -> str:
+    head = "".join(_cell("th", h) for h in header)
+    body = "".join("<tr>" + "".join(_cell("td", c) for c in row) + "</tr>" for row in rows)
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
@@ -265,6 +284,7 @@ def render_report(title: str, intro: str, sections: Sequence[Section],
         parts += [f"<p>{html.escape(p)}</p>" for p in sec.paragraphs]
         for header, rows in sec.tables:
             parts.append(_table(header, rows))
+        parts += [f'<p class="note">{html.escape(n)}</p>' for n in sec.notes]
         for png, caption in sec.figures:
             if isinstance(png, HtmlFigure):
                 parts.append(f"<figure>{png.markup}<figcaption>{html.escape(caption)}"
