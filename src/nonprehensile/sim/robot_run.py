@@ -96,12 +96,14 @@ class RobotSimulator(Simulator):
         return np.array(self._home_tips)
 
     def run(self, start: ObjectPose | None, targets: Mapping[int, FloatArray], rate: float,
-            *, settle: float | None = None, keep_trace: int = 0) -> SimResult:
+            *, settle: float | None = None, keep_trace: int = 0,
+            signals: bool = False) -> SimResult:
         """As :meth:`Simulator.run`; a new ``start`` also places the arms anew (and clears
         :attr:`robot_log`), ``start=None`` carries on from where the arms are."""
         if start is not None:
             self.robot_driver.reset()
-        return super().run(start, targets, rate, settle=settle, keep_trace=keep_trace)
+        return super().run(start, targets, rate, settle=settle, keep_trace=keep_trace,
+                           signals=signals)
 
     def describe(self) -> dict[str, Any]:
         """The robots, base poses, controller, gains, rates and limits (JSON)."""
