@@ -366,10 +366,13 @@ def plan_view(poly: Polyhedron, result: Plan, *, scale: float = 1.0,
             hovertext=(f"agent: turned {agent.rotate_deg:g} deg, at ({agent.translate[0]:.3g}, "
                        f"{agent.translate[1]:.3g}) {units}"), hoverinfo="text"))
     fig = go.Figure(traces)
+    has_paths = any(ref is not None for s in steps for *_, ref in s.motions)
+    paths = ("the reference finger paths" if has_paths
+             else "no finger paths (plan with reference motions: --dataset)")
     title = (f"Plan {result.start} -> {result.goal}: the object where each step starts (bottom "
-             "face red), the reference finger paths,<br>the agent (orange triangle, pointing "
-             "along its x axis)<br><sub>drag to rotate, scroll to zoom; click a step in the "
-             "legend to hide it</sub>")
+             f"face red), {paths},<br>the agent (orange triangle, pointing along its x axis)"
+             "<br><sub>drag to rotate, scroll to zoom; click a step in the legend to hide it"
+             "</sub>")
     fig.update_layout(**_layout(title))
     fig.update_scenes(xaxis_title=f"x ({units})", yaxis_title=f"y ({units})",
                       zaxis_title=f"z ({units})")
