@@ -34,7 +34,10 @@ CORE_RANKS: dict[str, int] = {
     "io": 7,             # model and skills files
     "demonstrations": 8,  # recordings and datasets
     "planning": 9,       # plans (paper VII)
-    "control": 10,       # the controller's decisions while a plan executes
+    "step_paths": 10,    # a plan step's reference finger paths as a controller tracks them
+    "observation": 10,   # what a controller observes (sensor model, contacts from geometry)
+    "control": 11,       # the controller's decisions while a plan executes
+    "transit": 11,       # collision-free, bounded fingertip motions between steps
     "references": 11,    # the edge joining motion clusters, demonstrations and the planner
 }
 

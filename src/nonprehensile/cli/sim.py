@@ -223,10 +223,18 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
 @click.argument("skills_file", type=click.Path(dir_okay=False))
 @click.option("--dataset", default="cube", show_default=True,
               help="Demonstrations (a folder, or `cube`) giving the reference motions.")
-@click.option("--reference", type=click.Choice(["demonstration", "cluster"]),
-              default="demonstration", show_default=True,
-              help="Each skill's motion: its medoid demonstration whole, or each arc's "
-                   "cluster medoid (as the planner picks them).")
+@click.option("--reference", type=click.Choice(["cluster", "demonstration"]),
+              default="cluster", show_default=True,
+              help="Each skill's motion: each arc's cluster medoid, the planner's own "
+                   "references; or the skill's medoid demonstration taken whole.")
+@click.option("--position-tol", type=float, default=0.010, show_default=True,
+              help="A final position within this many metres of where the exact maneuver "
+                   "puts the object.")
+@click.option("--loop", type=click.Choice(["open", "closed"]), default="open",
+              show_default=True,
+              help="open: each reference runs where the object is predicted; closed: each "
+                   "transition executed by the event-driven controller (transits, retries, "
+                   "the final position correction; no re-plan: a transition is one step).")
 @step_option
 @states_option
 @angle_tol_option
@@ -234,12 +242,16 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
 @_perturbation_options
 @json_option
 @handle_errors
-def simulate_infer(skills_file: str, dataset: str, reference: str, step: float | None,
-                   states_file: str | None, angle_tol: float, as_json: bool, tol_deg: float,
-                   **kw: Any) -> None:
-    """Every demonstrated and inferred transition: predicted vs simulated final state."""
+def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol: float,
+                   loop: str, step: float | None, states_file: str | None, angle_tol: float,
+                   as_json: bool, tol_deg: float, **kw: Any) -> None:
+    """Every demonstrated and inferred transition: predicted vs simulated final state and
+    position."""
     params = _params(kw)
-    pert = _perturbation(kw)
+    pert = _perturbation(kw, observed=loop == "closed")
+    if not (position_tol == position_tol and 0.0 < position_tol <= 1.0):  # not NaN
+        raise InputError(f"--position-tol must be a number of metres in (0, 1], got "
+                         f"{position_tol!r}")
     sim = _sim()
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
@@ -268,11 +280,24 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
         n = max(max(fingers_of(t.skill), default=1) for t in exp.transitions)
         simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
         records = []
+        if loop == "closed":
+            from nonprehensile.control import ControlConfig
+            from nonprehensile.planning import Offset, Plan
+            from nonprehensile.sim.closed_loop import execute_plan, transition_record
+
+            cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol)
         for i, t in enumerate(exp.transitions):
             st = step_for(poly, t, motions=motions, scale=ds.scale, angle_tol=angle_tol)
-            records.append(simulate_step(simulator, st, fingers=ds.fingers, angle_tol=tol_deg,
-                                         check_position=False, perturbation=pert,
-                                         noise_stream=f"finger/transition{i}").to_dict())
+            if loop == "closed":
+                ex = execute_plan(simulator, Plan(st.start_world, st.end_world, Offset(),
+                                                  (st,)),
+                                  fingers=ds.fingers, config=cfg, perturbation=pert)
+                records.append(transition_record(ex, st))
+            else:
+                records.append(simulate_step(
+                    simulator, st, fingers=ds.fingers, angle_tol=tol_deg,
+                    position_tol=position_tol, perturbation=pert,
+                    noise_stream=f"finger/transition{i}").to_dict())
             bars("simulating", i + 1, len(exp.transitions))
     if not as_json:
         out.print(_rate_table(f"{poly.name}: transitions simulated", records,
@@ -291,10 +316,22 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
 @click.option("--dataset", default="cube", show_default=True,
               help="Demonstrations (a folder, or `cube`) giving the reference motions.")
 @click.option("--position-tol", type=float, default=0.010, show_default=True,
-              help="A final position within this many metres of the plan's prediction.")
+              help="A final position within this many metres of the goal position.")
+@click.option("--loop", type=click.Choice(["closed", "open"]), default="closed",
+              show_default=True,
+              help="closed: event-driven, each arc anchored on the observed object, re-plans "
+                   "when a step ends elsewhere; open: each step's reference runs where the "
+                   "plan predicts the object.")
+@click.option("--observation-rate", type=float, default=120.0, show_default=True,
+              metavar="HZ", help="Closed loop: the object tracker's sample rate.")
+@click.option("--latency", type=float, default=0.0, show_default=True, metavar="S",
+              help="Closed loop: the tracker's latency, seconds.")
+@click.option("--max-replans", type=int, default=8, show_default=True,
+              help="Closed loop: retries and re-plans allowed in one execution.")
 @click.option("--record", "record", type=click.Path(file_okay=False), default=None,
               help="Also write the executed steps to this new folder as a LeRobot v3.0 "
-                   "dataset (one episode per step; docs/dataset.md#executions-as-datasets).")
+                   "dataset (one episode per executed step; "
+                   "docs/dataset.md#executions-as-datasets).")
 @click.option("--record-fps", type=bounded(float, 1.0, 1e4), default=100.0,
               show_default=True,
               help="Frame rate of --record (a divisor of the physics rate keeps its values).")
@@ -308,11 +345,14 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, step: float |
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       position: tuple[float, float], dataset: str, position_tol: float,
+                      loop: str, observation_rate: float, latency: float, max_replans: int,
                       record: str | None, record_fps: float,
                       step: float | None, states_file: str | None, angle_tol: float,
                       as_json: bool, tol_deg: float, **kw: Any) -> None:
-    """Plan as `plan` does, then execute the plan step by step in one simulation, open
-    loop (with --robot or --robot-xml: by a robot arm)."""
+    """Plan as `plan` does, then execute the plan in one continuous simulation, closed loop
+    (default) or open loop, with transits between steps; the goal is the plan's last state at
+    the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
+    it (docs/robot.md)."""
     robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
@@ -320,15 +360,20 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                          "yet (drop --robot, or --record)")
     robot = load_robot(robot_kw) if use_robot else None
     params = _params(kw)
-    pert = _perturbation(kw)
+    pert = _perturbation(kw, observed=loop == "closed")
     sim = _sim()
     _check_record(record)
+    from nonprehensile.control import ControlConfig, replanner
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
+    from nonprehensile.observation import ObservationModel
     from nonprehensile.pipeline import motions_from_dataset
     from nonprehensile.planning import plan
-    from nonprehensile.sim.execute import fingers_of, simulate_plan
+    from nonprehensile.sim.closed_loop import execute_plan, scene_fingers
 
+    # bad settings are refused before any work (one line, exit 2)
+    cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
+    obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
@@ -336,74 +381,103 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
     result = plan(poly, exp, start, goal, position=position, motions=motions,
                   angle_tol=angle_tol, scale=ds.scale)
+    if not result.steps:
+        raise InputError(f"the object already rests in {goal}: nothing to execute")
     extra: dict[str, Any] = {}
-    bounds = [0]
     if use_robot:
         from nonprehensile.sim.robot_run import RobotSimulator
 
         arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
-                                      robot)
+                                     robot)
         simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params)
+        if simulator.n_fingers < scene_fingers(result, exp):
+            raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
+                             f"has {simulator.n_fingers} fingertip site(s)")
         extra["robot"] = simulator.describe()
         extra["placement"] = placement.to_dict() if placement is not None else None
+    else:
+        simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=scene_fingers(result, exp),
+                                  params=params)
     with progress_bar("simulating", as_json) as bar:
-        n = max((max(fingers_of(s.transition.skill), default=1)
-                 for s in result.steps), default=1)
-        if not use_robot:
-            simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=n, params=params)
-
-        def progress(i: int, total: int) -> None:
-            if use_robot:
-                bounds.append(len(simulator.robot_log.time))
-            bar(i, total)
-
-        outcomes = simulate_plan(poly, result, scale=ds.scale, fingers=ds.fingers,
-                                 sim=simulator, progress=progress, angle_tol=tol_deg,
-                                 position_tol=position_tol, perturbation=pert,
-                                 keep_trace=1 if record else 0)
-    records = [o.to_dict() for o in outcomes]
+        ex = execute_plan(simulator, result, fingers=ds.fingers,
+                          loop="closed" if loop == "closed" else "open",
+                          replan=replanner(poly, exp, goal, motions=motions, scale=ds.scale,
+                                           angle_tol=tol_deg),
+                          config=cfg, observation=obs_model, perturbation=pert,
+                          keep_trace=1 if record else 0)
+        bar(1, 1)
+    doc = ex.to_dict()
+    records = doc["steps"]
     if use_robot:
         log = simulator.robot_log
-        for i, r in enumerate(records):
-            r["robot"] = log.metrics(bounds[i], bounds[i + 1]).to_dict()
+        for (_, t0, t1), r in zip(ex.step_traces, records, strict=False):
+            r["robot"] = log.metrics(*log.window(t0, t1)).to_dict()
         extra["robot_metrics"] = log.metrics().to_dict()
     recorded = None
     if record:
         from nonprehensile.export import write_episodes
-        from nonprehensile.sim.episodes import plan_episodes
+        from nonprehensile.sim.episodes import step_episode
 
-        episodes = plan_episodes(poly, result, outcomes, n_fingers=n, fingers=ds.fingers,
-                                 fps=record_fps)
+        episodes = [step_episode(poly, st, o, n_fingers=simulator.n_fingers,
+                                 fingers=ds.fingers, fps=record_fps,
+                                 meta={"plan": f"{start} -> {goal}", "step": i + 1,
+                                       "n_steps": len(ex.executed), "loop": loop})
+                    for i, (st, o) in enumerate(ex.executed)]
         write_episodes(episodes, record, extra_info={
             "source": "simulate plan", "object": poly.name, "scale_m_per_unit": ds.scale,
-            "plan": f"{start} -> {goal}", "params": params.to_dict()})
+            "plan": f"{start} -> {goal}", "loop": loop, "params": params.to_dict()})
         recorded = {"output": record, "n_episodes": len(episodes),
                     "n_frames": sum(e.n_frames for e in episodes), "fps": record_fps}
         if not as_json:
             err.print(f"recorded {len(episodes)} episodes ({recorded['n_frames']} frames at "
                       f"{record_fps:g} fps) to {record}", markup=False)
     if not as_json:
-        t = Table(title=f"plan {start} -> {goal} simulated")
+        t = Table(title=f"plan {start} -> {goal} executed, {loop} loop")
         for c in ("step", "skill", "predicted", "simulated", "theta error", "position error",
-                  "events in order", "ok"):
+                  "outcome", "observed events"):
             t.add_column(c)
         for r in records:
             simd = r["simulated"]
-            t.add_row(str(r["step"]), r["skill"], str(State.from_dict(r["predicted"])),
+            events = " -> ".join(e["event"] for e in r["observed"] if "event" in e)
+            t.add_row(str(r["step"]), r["skill"], str(State.from_dict(r["to"])),
                       str(State.from_dict(simd)) if simd else "-",
                       "-" if r["theta_error_deg"] is None else f"{r['theta_error_deg']:.1f} deg",
-                      "-" if r["position_error_m"] is None
-                      else f"{1000 * r['position_error_m']:.1f} mm",
-                      "yes" if r["chain_ok"] else "missing " + ",".join(r["missing_events"]),
-                      "yes" if r["success"] else "NO")
+                      f"{1000 * r['position_error_m']:.1f} mm",
+                      r["outcome"] + (f": {r['reason']}" if r["reason"] else ""), events or "-")
         out.print(t)
         if use_robot:
             out.print(robot_table(records, extra))
-    _finish(records, as_json, "steps", {"params": params.to_dict(),
-                                        "perturbation": pert.to_dict(),
-                                        "plan": result.to_dict(), **extra,
-                                        **({"record": recorded} if recorded else {})})
-
+        for rp in doc["replans"]:
+            out.print(f"re-planned after step {rp['after_step']} ({rp['reason']}): "
+                      + ("; ".join(rp.get("steps", [])) or rp.get("error", "")))
+        for c in doc["corrections"]:
+            if c["kind"] == "turn":
+                after = c["theta_error_after_deg"]
+                out.print(f"turned the object by pushing face {c['face']} off its centre: "
+                          f"theta {c['theta_error_before_deg']:+.1f} -> "
+                          + ("?" if after is None else f"{after:+.1f}") + " deg from the goal")
+            else:
+                out.print(f"slid the object {1000 * c['moved_m']:.1f} mm by pushing face "
+                          f"{c['face']}: {1000 * c['error_after_m']:.1f} mm from the goal "
+                          "position")
+        lim = doc["limits"]
+        out.print(f"fingertips: at most {lim['commanded_max_speed']:.2f} m/s and "
+                  f"{lim['commanded_max_accel']:.1f} m/s^2 commanded; "
+                  f"{lim['transit_finger_object_contact_s']:.3f} s of contact in transits")
+        fs = doc["final_state"]
+        pe = doc["position_error_m"]
+        verdict = (f"reached {goal}" if ex.success else f"FAILED: {ex.reason}")
+        out.print(f"{verdict} (final {State.from_dict(fs) if fs else 'no resting state'}, "
+                  f"{1000 * pe:.1f} mm from the goal position)")
+    if as_json:
+        emit_json({"loop": loop, "success": ex.success, "execution": doc, "records": records,
+                   "n": len(records), "n_success": sum(r["success"] for r in records),
+                   "params": params.to_dict(), "perturbation": pert.to_dict(),
+                   "observation": obs_model.to_dict(), "control": cfg.to_dict(),
+                   "plan": result.to_dict(), **extra,
+                   **({"record": recorded} if recorded else {})})
+    if not ex.success:
+        sys.exit(1)
 
 
 def _check_record(record: str | None) -> None:

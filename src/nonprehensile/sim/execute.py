@@ -36,8 +36,7 @@ from nonprehensile.sim.compare import (
 )
 from nonprehensile.sim.distribution import NO_PERTURBATION, Perturbation
 from nonprehensile.sim.run import SimResult, Simulator, pose_of_state
-from nonprehensile.skills.contacts import Finger
-from nonprehensile.skills.skill import Skill
+from nonprehensile.step_paths import fingers_of, marker_index, smooth_markers, step_targets
 
 __all__ = [
     "DemonstrationLibrary",
@@ -46,6 +45,7 @@ __all__ = [
     "replay_demonstration",
     "simulate_plan",
     "simulate_step",
+    "smooth_markers",
     "step_targets",
 ]
 
@@ -72,20 +72,6 @@ class Outcome:
                 "simulation": self.result.to_dict()}
 
 
-def fingers_of(skill: Skill) -> list[int]:
-    """The finger numbers a skill names."""
-    return sorted({el.index for e in skill.events for p in e.pairs
-                   for el in (p.x, p.y) if isinstance(el, Finger)})
-
-
-def _marker(fingers: Mapping[str, str], k: int, names: tuple[str, ...] | list[str]) -> int:
-    name = fingers.get(f"R{k}")
-    if name is None or name not in names:
-        raise InputError(f"finger R{k} has no tip marker among {list(names)} (the dataset's "
-                         f"fingers map {dict(fingers)})")
-    return list(names).index(name)
-
-
 def replay_demonstration(
     sim: Simulator, dataset: Dataset, demo: Demonstration, *,
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG, smooth: int = 9,
@@ -110,7 +96,7 @@ def replay_demonstration(
                     pos[:, j, a] = np.interp(np.arange(len(col)), np.flatnonzero(ok), col[ok])
     if smooth > 1:
         pos = smooth_markers(pos, smooth)
-    targets = {k: pos[:, _marker(dataset.fingers, k, traj.marker_names)]
+    targets = {k: pos[:, marker_index(dataset.fingers, k, traj.marker_names)]
                for k in fingers_of(demo.skill)}
     targets = perturbation.finger_targets(targets, traj.rate, noise_stream)
     start = perturbation.start_pose(pose_of_state(dataset.poly, demo.initial, (0.0, 0.0),
@@ -122,73 +108,6 @@ def replay_demonstration(
     label = {"file": demo.file, "skill": demo.skill.name, "mentor": demo.mentor,
              "from": demo.initial.to_dict(), "to": demo.final.to_dict()}
     return Outcome(label, result, cmp)
-
-
-def _ease(s: FloatArray) -> FloatArray:
-    """Minimum-jerk profile from 0 to 1."""
-    return np.asarray(s**3 * (10.0 - 15.0 * s + 6.0 * s**2))
-
-
-def smooth_markers(pos: FloatArray, n: int) -> FloatArray:
-    """Centred moving average over ``n`` frames along axis 0 (ends padded by repetition)."""
-    k = np.ones(n) / n
-    pad = np.concatenate([np.repeat(pos[:1], n // 2, axis=0), pos,
-                          np.repeat(pos[-1:], n - 1 - n // 2, axis=0)])
-    flat = pad.reshape(len(pad), -1)
-    out = np.column_stack([np.convolve(flat[:, j], k, mode="valid")
-                           for j in range(flat.shape[1])])
-    return out.reshape(pos.shape)
-
-
-def step_targets(
-    step: PlanStep, fingers: Mapping[str, str] = DEFAULT_FINGERS, smooth: int = 9,
-) -> tuple[dict[int, FloatArray], float, list[float]]:
-    """The fingertip targets of a step: its reference motions one after the other.
-
-    Returns
-    -------
-    targets : dict of int to array, shape (n_frames, 3)
-    rate : float
-    event_times : list of float
-        Expected time of each skill event (the arcs' boundaries).
-
-    Raises
-    ------
-    InputError
-        If an arc has no reference motion, or the arcs' rates differ.
-    """
-    skill = step.transition.skill
-    wanted = fingers_of(skill)
-    chunks: dict[int, list[FloatArray]] = {k: [] for k in wanted}
-    rate = None
-    times = [0.0]
-    total = 0
-    for source, target, _, ref in step.motions:
-        if ref is None:
-            raise InputError(f"skill {skill.name!r} has no reference motion for its arc "
-                             f"{source} -> {target}: give demonstrations of it (--dataset)")
-        if rate is not None and abs(ref.rate - rate) > 1e-9:
-            raise InputError(f"the reference motions of {skill.name!r} differ in rate "
-                             f"({rate:g} and {ref.rate:g} Hz)")
-        rate = ref.rate
-        skip = 0 if total == 0 else 1  # arcs share their boundary frame
-        for k in wanted:
-            p = np.array(ref.positions[:, _marker(fingers, k, ref.marker_names)])
-            if chunks[k]:
-                # consecutive arcs' references may be medoids of different demonstrations,
-                # whose fingers were at slightly different places at the shared event: start
-                # where the previous arc ended and blend into this arc's own path, so the
-                # fingertip never jumps
-                gap = chunks[k][-1][-1] - p[0]
-                w = 1.0 - _ease(np.linspace(0.0, 1.0, len(p)))
-                p = p + np.outer(w, gap)
-            chunks[k].append(p[skip:])
-        total += len(ref.positions) - skip
-        times.append((total - 1) / ref.rate)
-    assert rate is not None
-    # the references are measured paths: filtered as a tracking controller would
-    return ({k: smooth_markers(np.concatenate(v), smooth) if smooth > 1 else np.concatenate(v)
-             for k, v in chunks.items()}, rate, times)
 
 
 def simulate_step(

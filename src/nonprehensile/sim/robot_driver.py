@@ -155,6 +155,12 @@ class RobotLog:
             len(ik),
         )
 
+    def window(self, t0: float, t1: float) -> tuple[int, int]:
+        """The control steps recorded between simulated times ``t0`` and ``t1`` (s), as
+        ``(start, stop)`` for :meth:`metrics` (times increase within one execution)."""
+        t = np.asarray(self.time)
+        return int(np.searchsorted(t, t0 - 1e-9)), int(np.searchsorted(t, t1 + 1e-9))
+
     def joint_rows(self) -> FloatArray:
         """``[t, q_ref..., qd_ref...]`` per control step, shape (n, 1 + 2 n_joints)."""
         if not self.time:
@@ -245,9 +251,13 @@ class RobotArms:
         (n_fingers, 3)), or at the joint positions of an actuator row (shape (model.nu,):
         what :meth:`controls` gives), the first time after a :meth:`reset`; later calls
         leave the arm where it is (no teleport)."""
-        if self.placed:
-            return
         sc = self.scene
+        if self.placed and np.abs(data.qpos[sc.qadr] - self.ik.q).max() < 0.05:
+            return
+        # not placed, or the data was reset under the arm (an executor's mj_resetData): the
+        # arm is placed anew and its records start again
+        if self.placed:
+            self.reset()
         arr = np.asarray(targets, dtype=np.float64)
         if (arr.size == 3 * self.n_fingers and arr.size != sc.model.nu) or arr.ndim == 2:
             row = self.solve(arr.reshape(self.n_fingers, 3))
@@ -299,7 +309,7 @@ class RobotArms:
             self._touch = self.judge.finger_object_contact(d)
             self._other = self.judge.contacts(d)[2]
         err = np.linalg.norm(self.tips(d) - targets, axis=1).max()
-        log.time.append(self._n * self.dt)
+        log.time.append(float(d.time))
         self._n += 1
         log.error.append(float(err))
         log.q.append(np.array(d.qpos[sc.qadr]))

@@ -163,7 +163,8 @@ def object_section(ctx: ReportContext) -> Section:
          f"{plural(summary['states']['count'], 'state')} at a "
          f"{summary['states']['step']:g}-degree step form "
          f"{plural(summary['states']['classes'], 'geometric-equivalence class', 'geometric-equivalence classes')}."],  # noqa: E501
-        [(png, "The labeled object from two opposite sides")],
+        [(png, "The labeled object from two opposite sides; `nonprehensile object figure MODEL "
+               "--html FILE` draws it as a view you can rotate")],
         tables,
     )
 

@@ -1,0 +1,919 @@
+"""The skill graph as an event-driven controller: the decisions of closed-loop execution.
+
+A plan step is a chain of contact events joined by arcs of finger motion (paper Section IV);
+a controller can watch exactly that chain. For each step (:class:`StepMonitor`):
+
+1. **Anchor.** The arc's reference motion is placed on the object where it is *observed*:
+   at the step's start and at every contact event, the planar transform (a turn about the
+   vertical and a horizontal shift) that carries the event's ground element (the face, edge
+   or vertex on the table) from where the plan predicted it to where it is observed moves
+   the next arc's reference (:func:`anchor_transform`). The fingertip blends from where it
+   is into the moved reference (minimum jerk), so it never jumps.
+2. **Run until the arc's end event is observed**, read from the observations by geometry
+   (:func:`~nonprehensile.observation.observed_contacts`, confirmed over
+   ``ControlConfig.confirm``): the next arc starts then, early or late, never on time
+   alone. An arc whose reference ends before its event is seen *seeks* it (an approach goes
+   on slowly along its last direction for at most ``reach``), then waits ``grace``; past
+   that the step is aborted with the reason.
+3. **Watch for what the skill does not expect**: the object sliding on its face while the
+   arc should tip it (``slide_tol``), falling back onto its start face after it pivoted,
+   or resting on an element no event of the skill names (tipped too far): the step is
+   aborted at once, with the reason.
+4. **Read the state** from the observed pose once the object is still (``still_time``).
+
+What to do after a step (:func:`after_step`): the next step when the object rests in the
+predicted state; otherwise a re-plan from the observed state and position, bounded
+(``max_replans``), a skill that made the object slide instead of tip being avoided in the
+new plan (it needs more table friction than there is; a different skill for the same
+maneuver, or another route). At the end of the plan, an object resting in the goal state but
+off the goal position is slid there by short pushes low on a side face
+(:func:`correction_pushes`). A step or plan that fails is reported as failed, never
+continued silently.
+
+Pure core: no simulator; :mod:`nonprehensile.sim.closed_loop` runs this in MuJoCo.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, Literal
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from nonprehensile.errors import ContactError, GeometryError, InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.inference import Expansion
+from nonprehensile.observation import Observation, observed_contacts
+from nonprehensile.planning import MotionLibrary, ObjectPose, Plan, PlanStep, plan
+from nonprehensile.skills.contacts import (
+    ContactEvent,
+    ContactPair,
+    Edge,
+    Face,
+    Finger,
+    Ground,
+    ObjectElement,
+    Vertex,
+    normalize_event,
+)
+from nonprehensile.states import State, angle_diff, state_of_pose
+from nonprehensile.step_paths import ease, fingers_of, resample, step_targets, with_stop
+
+__all__ = [
+    "ArcSpec",
+    "ControlConfig",
+    "Decision",
+    "PlanarTransform",
+    "StepMonitor",
+    "StepSpec",
+    "after_step",
+    "anchor_transform",
+    "correction_pushes",
+    "raised",
+    "replanner",
+    "snap_state",
+    "step_spec",
+    "turn_push",
+]
+
+FloatArray = NDArray[np.float64]
+Pairs = frozenset[ContactPair]
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """Settings of the closed-loop controller (SI units; every one can be overridden).
+
+    Attributes
+    ----------
+    confirm : float
+        An observed contact set must hold this long (s) to be an event.
+    contact_tol : float
+        A fingertip within its radius plus this (m) of the object touches it.
+    ground_tol : float
+        Vertices within this (m) of the lowest one, and of the table, rest on it.
+    slide_tol : float
+        The object may slide this far (m) on its face during an arc that should tip it.
+    anomaly_time : float
+        An unexpected contact (resting on an element no later event names, falling back)
+        must last this long (s) to abort the step: a landing face's edges touch first for a
+        few milliseconds as it lands.
+    grace : float
+        Time (s) an arc may run past its reference before its end event is missing.
+    reach : float
+        How far (m) an approach goes on past its reference seeking the contact ...
+    reach_speed : float
+        ... at this speed (m/s).
+    still_time : float
+        The observed object must keep still this long (s) for its state to be read ...
+    still_tol : float
+        ... its centre of mass within this (m, plus the observation noise) of its mean.
+    max_settle : float
+        Longest wait (s) for the object to come to rest after a step.
+    max_replans : int
+        Retries and re-plans allowed in one execution.
+    max_tries : int
+        Tries of one step while the object stays in its start state ...
+    slow_retry : float
+        ... each retry this many times slower than the last.
+    clearance : float
+        Margin (m) between fingertip and object during transits.
+    max_speed : float
+        Fingertip speed bound (m/s) of every commanded motion.
+    max_accel : float
+        Fingertip acceleration bound (m/s^2): the demonstrations' own references reach
+        about 16 m/s^2 after filtering, at the physics step; transits use half.
+    angle_tol, position_tol : float
+        A state within ``angle_tol`` degrees (and, at the goal, ``position_tol`` m) is
+        reached.
+    correct_position : bool
+        Slide the object onto the goal position at the end of the plan.
+    correction_tol : float
+        Position error (m) left alone at the end; larger errors are slid away.
+    max_corrections : int
+        Correction pushes allowed.
+    """
+
+    confirm: float = 0.015
+    contact_tol: float = 0.0015
+    ground_tol: float = 0.0015
+    slide_tol: float = 0.012
+    anomaly_time: float = 0.08
+    grace: float = 0.4
+    reach: float = 0.008
+    reach_speed: float = 0.03
+    still_time: float = 0.08
+    still_tol: float = 0.0005
+    max_settle: float = 2.0
+    max_replans: int = 8
+    max_tries: int = 2
+    slow_retry: float = 1.25
+    clearance: float = 0.015
+    max_speed: float = 0.45
+    max_accel: float = 20.0
+    angle_tol: float = 5.0
+    position_tol: float = 0.010
+    correct_position: bool = True
+    correction_tol: float = 0.003
+    max_corrections: int = 4
+
+    def __post_init__(self) -> None:
+        for name, value in asdict(self).items():
+            if isinstance(value, bool):
+                continue
+            ok = isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
+            if name in ("max_speed", "max_accel", "reach_speed", "still_time",
+                        "slow_retry") and ok:
+                ok = value > 0
+            if name == "max_speed" and ok:
+                ok = value <= 0.5  # the issue's bound on every fingertip
+            if name in ("max_replans", "max_tries", "max_corrections") and ok:
+                ok = isinstance(value, int) and value <= 100  # bounded work
+            if not ok:
+                extra = {"max_speed": " and <= 0.5 m/s", "max_replans": ", whole, <= 100",
+                         "max_tries": ", whole, <= 100",
+                         "max_corrections": ", whole, <= 100"}.get(name, "")
+                raise InputError(f"control setting {name} must be a finite number >= 0"
+                                 f"{extra}, got {value!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return asdict(self)
+
+
+# ------------------------------------------------------------------------ planar anchor
+@dataclass(frozen=True)
+class PlanarTransform:
+    """A turn by ``yaw`` (radians, counterclockwise seen from above) about the vertical
+    through ``center`` (x, y), then a horizontal ``shift``; heights are kept."""
+
+    yaw: float = 0.0
+    center: tuple[float, float] = (0.0, 0.0)
+    shift: tuple[float, float] = (0.0, 0.0)
+
+    def apply(self, points: FloatArray) -> FloatArray:
+        """The transform of points of shape (..., 3)."""
+        p = np.array(points, dtype=np.float64)
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        x = p[..., 0] - self.center[0]
+        y = p[..., 1] - self.center[1]
+        p[..., 0] = c * x - s * y + self.center[0] + self.shift[0]
+        p[..., 1] = s * x + c * y + self.center[1] + self.shift[1]
+        return p
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form (degrees, metres)."""
+        return {"yaw_deg": round(math.degrees(self.yaw), 4),
+                "shift_m": [round(v, 6) for v in self.shift]}
+
+
+def _element_vertices(poly: Polyhedron, element: ObjectElement) -> list[int]:
+    if isinstance(element, Face):
+        return list(poly.faces[element.id])
+    if isinstance(element, Edge):
+        return list(poly.edges[element.faces])
+    if isinstance(element, Vertex):
+        return poly.shared_vertices(element.faces)[:1]
+    raise InputError(f"no vertices for {element}")  # pragma: no cover - elements only
+
+
+def anchor_transform(poly: Polyhedron, element: ObjectElement | None,
+                     predicted: ObjectPose, observed: ObjectPose) -> PlanarTransform:
+    """The planar transform that carries ``element`` (on the table) from the predicted pose
+    to the observed one: a 2-D least-squares fit of its vertices (a face's, an edge's two);
+    a single vertex (or no element) keeps the turn of the best vertical-axis fit of the two
+    rotations and matches the point (the centre of mass without an element)."""
+    idx = _element_vertices(poly, element) if element is not None else []
+    a = predicted.to_world(poly.vertices[idx])[:, :2] if idx else predicted.com[None, :2]
+    b = observed.to_world(poly.vertices[idx])[:, :2] if idx else observed.com[None, :2]
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    if len(a) >= 2:
+        h = (a - ca).T @ (b - cb)
+        yaw = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    else:
+        rel = observed.rotation @ predicted.rotation.T
+        yaw = math.atan2(rel[1, 0] - rel[0, 1], rel[0, 0] + rel[1, 1])
+    return PlanarTransform(yaw, (float(ca[0]), float(ca[1])),
+                           (float(cb[0] - ca[0]), float(cb[1] - ca[1])))
+
+
+# --------------------------------------------------------------------------- step specs
+@dataclass(frozen=True)
+class ArcSpec:
+    """One arc of a step as the controller runs it.
+
+    Attributes
+    ----------
+    source, target : str
+        Event ids.
+    positions : array, shape (n_frames, n_used, 3)
+        The arc's reference (world, at the plan's predicted poses), fingers ``used`` of the
+        step, sampled at the step's rate.
+    anchor : ObjectElement or None
+        The ground element of the source event (what the arc is anchored on).
+    anchor_end : bool
+        Whether that element is predicted at the step's end pose (else its start pose).
+    seeks : bool
+        The target event adds a finger contact: an approach, which seeks it past its end.
+    tips : bool
+        The target event has the object on another ground element: the arc should tip it.
+    releases : bool
+        The target event has fewer finger contacts: past its end the arc lets go by
+        moving the fingertips straight up.
+    """
+
+    source: str
+    target: str
+    positions: FloatArray
+    anchor: ObjectElement | None
+    anchor_end: bool
+    seeks: bool
+    tips: bool
+    releases: bool = False
+
+
+@dataclass(frozen=True)
+class StepSpec:
+    """A plan step prepared for the controller (:func:`step_spec`)."""
+
+    step: PlanStep
+    used: tuple[int, ...]
+    rate: float
+    arcs: tuple[ArcSpec, ...]
+    events: tuple[Pairs, ...]
+    event_ids: tuple[str, ...]
+    grounds: tuple[ObjectElement | None, ...]
+    start_pose: ObjectPose
+    end_pose: ObjectPose
+    targets: Mapping[int, FloatArray] = field(repr=False)
+    event_times: tuple[float, ...] = ()
+
+    @property
+    def end_state(self) -> State:
+        """The predicted final state (world)."""
+        return self.step.end_world
+
+    @property
+    def skill(self) -> str:
+        """The step's skill name."""
+        return self.step.transition.skill.name
+
+    @property
+    def source_skill(self) -> str:
+        """The demonstrated skill behind the step (a reverse shares its name)."""
+        return self.step.transition.source.name.removesuffix(":reverse")
+
+
+def _norm_pairs(event: ContactEvent, poly: Polyhedron) -> Pairs:
+    try:
+        return normalize_event(event, poly).pairs
+    except ContactError:
+        return event.pairs
+
+
+def _ground_of(pairs: Pairs) -> ObjectElement | None:
+    for p in pairs:
+        if isinstance(p.x, Ground) and not isinstance(p.y, (Ground, Finger)):
+            return p.y
+        if isinstance(p.y, Ground) and not isinstance(p.x, (Ground, Finger)):
+            return p.x
+    return None
+
+
+def _fingers_in(pairs: Pairs) -> set[int]:
+    return {el.index for p in pairs for el in (p.x, p.y) if isinstance(el, Finger)}
+
+
+def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
+              smooth: int = 9) -> StepSpec:
+    """Prepare a plan step: its filtered reference split back into arcs, each arc's anchor
+    element, and what each arc should do (seek a contact, tip the object).
+
+    Raises
+    ------
+    InputError
+        A step without poses or reference motions.
+    """
+    if step.start_pose is None or step.end_pose is None:
+        raise InputError("the step carries no object pose: make it with plan() or step_for()")
+    skill = step.transition.skill
+    targets, rate, times = step_targets(step, fingers, smooth)
+    used = tuple(fingers_of(skill))
+    stacked = np.stack([targets[k] for k in used], axis=1)
+    events = tuple(_norm_pairs(e, poly) for e in skill.events)
+    grounds = tuple(_ground_of(e) for e in events)
+    start_face, end_face = Face(step.transition.start.face), Face(step.transition.end.face)
+    # which predicted pose each event's ground element is read at: the start pose until the
+    # object has left its start face (an edge or vertex pivot stays where it was), the end
+    # pose once it rests on its end face (or, for a turn on one face, at the last event)
+    at_end = []
+    moved = False
+    for i, g in enumerate(grounds):
+        if isinstance(g, (Edge, Vertex)):
+            moved = True
+            at_end.append(False)
+        elif g == end_face and (moved or g != start_face or i == len(grounds) - 1):
+            at_end.append(True)
+        else:
+            at_end.append(False)
+    frames = [round(t * rate) for t in times]
+    n_ref = len(stacked)
+    stacked = with_stop(stacked, rate)  # the last arc comes to rest
+    targets = {k: stacked[:, j] for j, k in enumerate(used)}
+    arcs = []
+    for i, (source, target, _, _) in enumerate(step.motions):
+        a = frames[i]
+        b = min(frames[i + 1], n_ref - 1) if i < len(step.motions) - 1 else len(stacked) - 1
+        src, tgt = events[i], events[i + 1]
+        # an arc cut at its event is still moving: should the event come late, the
+        # fingertip comes to rest along its way rather than stopping dead
+        piece = np.asarray(stacked[a:b + 1])
+        if i < len(step.motions) - 1:
+            piece = with_stop(piece, rate)
+        arcs.append(ArcSpec(
+            source, target, piece, grounds[i], at_end[i],
+            seeks=bool(_fingers_in(tgt) - _fingers_in(src)),
+            tips=grounds[i + 1] is not None and grounds[i + 1] != grounds[i],
+            releases=bool(_fingers_in(src) - _fingers_in(tgt)),
+        ))
+    return StepSpec(step, used, rate, tuple(arcs), events, tuple(e.id for e in skill.events),
+                    grounds, step.start_pose, step.end_pose, targets, tuple(times))
+
+
+def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
+    """The step with a single finger's contact moved up its face: every arc's reference
+    raised so that the fingertip touches ``finger_radius + 2 mm`` below the object's top
+    (another contact point on the same face). Pushed higher, a tipping push needs less table
+    friction: with a push at height ``h`` on a cube of width ``w`` whose pad lifts the face
+    by friction ``mu_f``, it tips before sliding when the table's friction exceeds
+    ``(w / 2) / (h + mu_f w / 2)``. Skills of several fingers (a pinch) are left as they are.
+    """
+    if len(spec.used) != 1 or not spec.arcs:
+        return spec
+    top = float(spec.start_pose.to_world(poly.vertices)[:, 2].max())
+    z_touch = float(spec.arcs[0].positions[-1, 0, 2])
+    dz = top - finger_radius - 0.002 - z_touch
+    if dz <= 0.0:
+        return spec
+    lift = np.array([0.0, 0.0, dz])
+    arcs = tuple(replace(a, positions=a.positions + lift) for a in spec.arcs)
+    return replace(spec, arcs=arcs, targets={k: v + lift for k, v in spec.targets.items()})
+
+
+# ----------------------------------------------------------------------- the step monitor
+@dataclass(frozen=True)
+class Decision:
+    """What the controller asks after an observation.
+
+    Attributes
+    ----------
+    segment : array, shape (n, n_fingers, 3) or None
+        New fingertip targets from now, one per physics step (the last is held); None keeps
+        the current ones.
+    done : bool
+        The step is over (``outcome`` says how).
+    outcome : {"", "finished", "aborted"}
+    reason : str
+    """
+
+    segment: FloatArray | None = None
+    done: bool = False
+    outcome: Literal["", "finished", "aborted"] = ""
+    reason: str = ""
+
+
+class StepMonitor:
+    """The event-driven execution of one plan step.
+
+    Call :meth:`begin` with the first observation, then :meth:`update` with every new
+    one; each returns a :class:`Decision`. :attr:`log` keeps every observed event, anchor
+    and anomaly (JSON-ready).
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    spec : StepSpec
+    config : ControlConfig
+    dt : float
+        Period of the targets the monitor returns (the physics step), s.
+    finger_radius : float
+        m, for reading finger contacts.
+    rest : array, shape (n_fingers, 3)
+        Where every finger of the scene waits when the step does not use it.
+    noise : float
+        The observations' position noise (m): widens the stillness test.
+    """
+
+    def __init__(self, poly: Polyhedron, spec: StepSpec, config: ControlConfig, *,
+                 dt: float, finger_radius: float, rest: FloatArray,
+                 noise: float = 0.0) -> None:
+        self.poly = poly
+        self.spec = spec
+        self.cfg = config
+        self.dt = dt
+        self.radius = finger_radius
+        self.rest = np.asarray(rest, dtype=np.float64)
+        self.noise = noise
+        self.log: list[dict[str, Any]] = []
+        self.arc = 0
+        self.phase: Literal["run", "seek", "settle", "over"] = "run"
+        self._t0 = 0.0  # the step's start (controller time)
+        self._arc_t0 = 0.0
+        self._arc_com = np.zeros(2)
+        self._candidate: Pairs | None = None
+        self._since = 0.0
+        self.current: Pairs | None = None
+        self._pivoted = False
+        self._odd: tuple[str, float] | None = None  # an unexpected contact, and since when
+        self._settle_t0 = 0.0
+        self._window: list[tuple[float, FloatArray, FloatArray]] = []
+        self.final_pose: ObjectPose | None = None
+        self.final_state: State | None = None
+        self._planes = (np.array([poly.normals[f] for f in poly.face_ids]),
+                        np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
+                                  for f in poly.face_ids]))
+        self._seek_dir = np.zeros((len(spec.used), 3))
+
+    # ---------------------------------------------------------------------------- helpers
+    def _full(self, used_path: FloatArray) -> FloatArray:
+        """Targets of every finger: the used ones along ``used_path``, the others at rest."""
+        n = len(used_path)
+        out = np.repeat(self.rest[None], n, axis=0)
+        for j, k in enumerate(self.spec.used):
+            out[:, k - 1] = used_path[:, j]
+        return out
+
+    def _arc_segment(self, obs: Observation, command: FloatArray) -> FloatArray:
+        """The current arc's reference anchored on the observed pose, blended from the
+        commanded point, at the physics step."""
+        arc = self.spec.arcs[self.arc]
+        predicted = self.spec.end_pose if arc.anchor_end else self.spec.start_pose
+        tf = anchor_transform(self.poly, arc.anchor, predicted, obs.pose)
+        ref = tf.apply(arc.positions)
+        now = np.asarray(command, dtype=np.float64)[[k - 1 for k in self.spec.used]]
+        gap = now - ref[0]
+        n = len(ref)
+        # the blend must respect the speed bound: stretched over enough frames
+        need = 2.0 * float(np.linalg.norm(gap, axis=1).max()) / self.cfg.max_speed
+        m = max(n, math.ceil(need * self.spec.rate) + 1)
+        if m > n:  # a long gap: hold the first reference frame longer while blending in
+            ref = np.concatenate([np.repeat(ref[:1], m - n, axis=0), ref])
+        w = 1.0 - ease(np.linspace(0.0, 1.0, len(ref)))
+        path = ref + w[:, None, None] * gap[None]
+        if len(path) >= 2:
+            self._seek_dir = path[-1] - path[-2]
+        self.log.append({"time": round(obs.time - self._t0, 4), "anchor": arc.source,
+                         "arc": f"{arc.source}->{arc.target}", **tf.to_dict()})
+        return self._full(resample(path, self.spec.rate, self.dt))
+
+    def _abort(self, obs: Observation, reason: str) -> Decision:
+        self.phase = "over"
+        self.log.append({"time": round(obs.time - self._t0, 4), "anomaly": reason})
+        return Decision(done=True, outcome="aborted", reason=reason)
+
+    @property
+    def expected_duration(self) -> float:
+        """The reference's length (s)."""
+        return sum((len(a.positions) - 1) / self.spec.rate for a in self.spec.arcs)
+
+    # ------------------------------------------------------------------------------- api
+    def begin(self, obs: Observation, command: FloatArray) -> Decision:
+        """Start the step's first arc from the observation ``obs``; ``command`` is where the
+        fingertips are being held (shape (n_fingers, 3))."""
+        self._t0 = self._arc_t0 = obs.time
+        self._arc_com = obs.pose.com[:2].copy()
+        return Decision(segment=self._arc_segment(obs, command))
+
+    def update(self, obs: Observation, command: FloatArray) -> Decision:
+        """React to a new observation (``command``: the fingertips' current targets)."""
+        if self.phase == "over":
+            return Decision(done=True)
+        pairs = observed_contacts(self.poly, obs, finger_radius=self.radius,
+                                  tol=self.cfg.contact_tol, ground_tol=self.cfg.ground_tol,
+                                  planes=self._planes)
+        if pairs != self._candidate:
+            self._candidate, self._since = pairs, obs.time
+        if self.phase == "settle":
+            return self._settle(obs)
+        new = (self._candidate != self.current
+               and obs.time - self._since >= self.cfg.confirm - 1e-9)
+        if new:
+            assert self._candidate is not None
+            self.current = self._candidate
+            got = self._on_event(obs, self.current, command)
+            if got is not None:
+                return got
+        if self._odd is not None and self.phase in ("run", "seek") \
+                and obs.time - self._odd[1] >= self.cfg.anomaly_time:
+            return self._abort(obs, self._odd[0])
+        ground = _ground_of(self.current) if self.current is not None else None
+        arc = self.spec.arcs[self.arc]
+        if arc.tips and ground is not None and ground == self.spec.grounds[self.arc] \
+                and isinstance(ground, Face) and not self._pivoted:
+            slid = float(np.hypot(*(obs.pose.com[:2] - self._arc_com)))
+            if slid > self.cfg.slide_tol:
+                return self._abort(obs, f"slides instead of tipping: moved "
+                                        f"{1000 * slid:.1f} mm on face {ground} during "
+                                        f"{arc.source}->{arc.target}")
+        elapsed = obs.time - self._arc_t0
+        length = (len(arc.positions) - 1) / self.spec.rate
+        if self.phase == "run" and elapsed > length and (arc.seeks or arc.releases):
+            self.phase = "seek"
+            step = self._seek_dir
+            if arc.releases:  # let go: straight up, away from the object
+                step = np.tile([0.0, 0.0, 1.0], (len(self.spec.used), 1))
+            norm = float(np.linalg.norm(step, axis=1).max())
+            if norm > 1e-9:
+                direction = step / norm
+                t_seek = self.cfg.reach / self.cfg.reach_speed
+                s = np.arange(round(t_seek / self.dt) + 1) * self.dt * self.cfg.reach_speed
+                start = np.asarray(command, dtype=np.float64)[[k - 1 for k in self.spec.used]]
+                path = start[None] + s[:, None, None] * direction[None]
+                return Decision(segment=self._full(path))
+        limit = length + self.cfg.grace + (
+            self.cfg.reach / self.cfg.reach_speed if arc.seeks or arc.releases else 0.0)
+        if elapsed > limit:
+            seen = " ∧ ".join(str(p) for p in ContactEvent("", self.current).ordered_pairs) \
+                if self.current else "nothing"
+            return self._abort(obs, f"event {arc.target!r} not observed within "
+                                    f"{limit:.2f} s of {arc.source!r} (observed {seen})")
+        return Decision()
+
+    def _on_event(self, obs: Observation, pairs: Pairs, command: FloatArray
+                  ) -> Decision | None:
+        spec = self.spec
+        t = round(self._since - self._t0, 4)
+        ahead = range(self.arc + 1, len(spec.events))
+        j = next((j for j in ahead if spec.events[j] == pairs), None)
+        entry: dict[str, Any] = {
+            "time": t, "contacts": [str(p) for p in ContactEvent("", pairs).ordered_pairs]}
+        if j is not None:
+            entry["event"] = spec.event_ids[j]
+        entry["moved_mm"] = round(1000 * float(np.hypot(*(obs.pose.com[:2]
+                                                          - self._arc_com))), 2)
+        self.log.append(entry)
+        ground = _ground_of(pairs)
+        if isinstance(ground, (Edge, Vertex)):
+            self._pivoted = True
+        if j is not None:
+            self._odd = None
+            if j == len(spec.events) - 1:  # the last event: the motion is over
+                self.phase = "settle"
+                self._settle_t0 = obs.time
+                self._window = []
+                return None
+            self.arc = j
+            self.phase = "run"
+            self._arc_t0 = obs.time
+            self._arc_com = obs.pose.com[:2].copy()
+            # blend from the commanded points, not the observed tips: a compliant pad in
+            # contact is commanded inside the object, and that press must not be let go
+            return Decision(segment=self._arc_segment(obs, command))
+        # not an event ahead: is it something the skill does not expect? (it must last
+        # ``anomaly_time`` to abort the step)
+        odd = None
+        if ground is None:
+            pass
+        elif self._pivoted and ground == spec.grounds[0] and isinstance(
+                spec.grounds[self.arc], (Edge, Vertex)):
+            odd = f"fell back onto {ground} after pivoting"
+        elif ground not in set(spec.grounds[self.arc:]):
+            faces = {g.id for g in spec.grounds[self.arc:] if isinstance(g, Face)}
+            # an edge or vertex of a face still to come is a wobble (a landing face's edge
+            # touching first, a pad pressing a corner down): the state read at the end
+            # catches a real roll-over; a face no event names is an anomaly
+            if not (isinstance(ground, (Edge, Vertex)) and faces & set(ground.faces)):
+                odd = (f"the object rests on {ground}, which no later event of "
+                       f"{spec.skill!r} names (tipped too far or over)")
+        if odd is None:
+            self._odd = None
+        elif self._odd is None or self._odd[0] != odd:
+            self._odd = (odd, self._since)
+        return None
+
+    def watch_rest(self, now: float) -> None:
+        """After an abort: watch the object come to rest and read its state (the next
+        :meth:`update` calls finish the step once it is still)."""
+        self.phase = "settle"
+        self._settle_t0 = now
+        self._window = []
+
+    def _settle(self, obs: Observation) -> Decision:
+        self._window.append((obs.time, obs.pose.com.copy(), obs.pose.rotation.copy()))
+        horizon = obs.time - self.cfg.still_time
+        while len(self._window) > 2 and self._window[1][0] <= horizon:
+            self._window.pop(0)
+        times = [w[0] for w in self._window]
+        if times[-1] - times[0] >= self.cfg.still_time - 1e-9:
+            coms = np.array([w[1] for w in self._window])
+            spread = float(np.linalg.norm(coms - coms.mean(axis=0), axis=1).max())
+            if spread <= self.cfg.still_tol + 3.0 * self.noise:
+                return self._finish(obs, coms.mean(axis=0),
+                                    [w[2] for w in self._window], settled=True)
+        if obs.time - self._settle_t0 > self.cfg.max_settle:
+            coms = np.array([w[1] for w in self._window])
+            return self._finish(obs, coms.mean(axis=0), [w[2] for w in self._window],
+                                settled=False)
+        return Decision()
+
+    def _finish(self, obs: Observation, com: FloatArray, rots: Sequence[FloatArray],
+                settled: bool) -> Decision:
+        rot = Rotation.from_matrix(np.array(rots)).mean().as_matrix()
+        s = obs.pose.scale
+        trans = com - s * (rot @ self.poly.com)
+        self.final_pose = ObjectPose(rot, trans, com, s)
+        self.final_state = observed_state(self.poly, rot)
+        self.phase = "over"
+        self.log.append({"time": round(obs.time - self._t0, 4),
+                         "observed_state": (self.final_state.to_dict()
+                                            if self.final_state else None),
+                         "observed_position": [round(float(v), 6) for v in com[:2]],
+                         "settled": settled})
+        return Decision(done=True, outcome="finished",
+                        reason="" if settled else "the object did not come to rest")
+
+
+def observed_state(poly: Polyhedron, rotation: FloatArray, tilt_deg: float = 3.0
+                   ) -> State | None:
+    """The state an observed orientation rests in, or None (on an edge, or tilted)."""
+    try:
+        return state_of_pose(poly, rotation, tol=tilt_deg)
+    except GeometryError:
+        return None
+
+
+# ------------------------------------------------------------------ after a step / a plan
+@dataclass(frozen=True)
+class NextAction:
+    """What the executor does after a step.
+
+    Attributes
+    ----------
+    action : {"next", "retry", "replan", "done", "fail"}
+    reason : str
+    avoid : frozenset of str
+        Skills (demonstrated names) the re-plan must avoid.
+    slow : float
+        A retry runs the step's reference this many times slower ...
+    higher : bool
+        ... and a single finger's contact higher on its face (:func:`raised`).
+    """
+
+    action: Literal["next", "retry", "replan", "done", "fail"]
+    reason: str = ""
+    avoid: frozenset[str] = frozenset()
+    slow: float = 1.0
+    higher: bool = False
+
+
+def snap_state(observed: State, candidates: Sequence[State], angle_tol: float) -> State:
+    """The candidate on the observed face nearest in ``theta``, if within ``angle_tol``
+    degrees (the plan's own states, so a re-plan keeps the plan's frame); else ``observed``.
+    """
+    near = [c for c in candidates if c.face == observed.face
+            and abs(angle_diff(c.theta, observed.theta)) <= angle_tol]
+    return min(near, key=lambda c: abs(angle_diff(c.theta, observed.theta))) \
+        if near else observed
+
+
+def same_state(a: State | None, b: State, angle_tol: float) -> bool:
+    """Same bottom face, theta within ``angle_tol`` degrees."""
+    return a is not None and a.face == b.face and abs(angle_diff(a.theta, b.theta)) <= angle_tol
+
+
+def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal: State,
+               *, replans: int, avoid: frozenset[str], last: bool,
+               config: ControlConfig, tries: int = 0) -> NextAction:
+    """Decide what follows a step from the state the object was observed to rest in.
+
+    * the predicted state: the next step (or, after the last, done);
+    * the goal itself (reached early): done;
+    * no resting state: fail;
+    * still the step's start state (it slid, was kicked away, never tipped): the same step
+      again, anchored anew, its single finger's contact higher on the face (:func:`raised`)
+      and its reference ``config.slow_retry`` times slower (a higher, slower push), at most
+      ``config.max_tries`` times in all; then a re-plan avoiding the skill;
+    * another state: re-plan from it. Retries and re-plans together are at most
+      ``config.max_replans``.
+    """
+    if same_state(observed, goal, config.angle_tol):
+        return NextAction("done")
+    if same_state(observed, spec.end_state, config.angle_tol):
+        return NextAction("done" if last else "next")
+    if observed is None:
+        return NextAction("fail", "the object came to rest on no face of the model")
+    if replans >= config.max_replans:
+        return NextAction("fail", f"ended in {observed} instead of {spec.end_state} with "
+                                  f"{replans} re-plans spent ({monitor_reason or 'no anomaly'})")
+    start = spec.step.start_world
+    # the object did not do what the skill is for: still on its start face (a turn in
+    # place: still at its start theta); a small turn of it is put right before a re-plan
+    stayed = observed.face == start.face and (
+        start.face != spec.end_state.face
+        or abs(angle_diff(observed.theta, start.theta)) <= config.angle_tol)
+    why = f": {monitor_reason}" if monitor_reason else ""
+    if stayed and tries + 1 < config.max_tries:
+        return NextAction("retry", f"still in {observed}{why}",
+                          avoid, config.slow_retry ** (tries + 1), higher=True)
+    # a skill that left the object where it was (it slid, or never tipped), slower too, will
+    # not do better on this table: the re-plan avoids it (another skill, or another route)
+    name = spec.source_skill
+    more = frozenset({name}) if stayed else frozenset()
+    return NextAction("replan", f"ended in {observed} instead of {spec.end_state}"
+                                + (f": {monitor_reason}" if monitor_reason else ""),
+                      avoid | more)
+
+
+@dataclass(frozen=True)
+class Push:
+    """One correction push: the fingertip moves from ``start`` along ``direction``
+    (unit, horizontal) pressing the face ``face`` at height ``start[2]`` until the object
+    has moved ``distance`` (m) that way."""
+
+    face: str
+    start: FloatArray
+    direction: FloatArray
+    distance: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {"face": self.face, "start": [round(float(v), 6) for v in self.start],
+                "direction": [round(float(v), 4) for v in self.direction],
+                "distance_m": round(self.distance, 6)}
+
+
+def correction_pushes(poly: Polyhedron, pose: ObjectPose, target: Sequence[float], *,
+                      finger_radius: float, clearance: float, tol: float) -> list[Push]:
+    """Pushes that slide the object's centre of mass onto ``target`` (x, y).
+
+    Each side face whose outward normal is horizontal can be pushed low (at the fingertip's
+    radius plus 2 mm, or a quarter of the object's height if higher), which slides the object
+    along minus that normal without tipping it as long as ``friction * height < half width``
+    (a 5 cm cube pushed 10 mm up tips only above friction 2.5). The displacement is split
+    over the one or two faces whose inward normals best span it (non-negative weights).
+    """
+    d = np.array([float(target[0]), float(target[1])]) - pose.com[:2]
+    dist = float(np.hypot(*d))
+    if dist <= tol:
+        return []
+    world = pose.to_world(poly.vertices)
+    height = float(world[:, 2].max() - world[:, 2].min())
+    side = []
+    for f in poly.face_ids:
+        n = pose.rotation @ poly.normals[f]
+        if abs(n[2]) < 0.1:
+            side.append((f, n[:2] / float(np.hypot(*n[:2]))))
+    best: tuple[float, list[tuple[str, FloatArray, float]]] | None = None
+    for i, (fa, na) in enumerate(side):
+        for fb, nb in [*side[i + 1:], (fa, na)]:
+            m = np.column_stack([-na, -nb]) if fb != fa else -na[:, None]
+            w, *_ = np.linalg.lstsq(m, d, rcond=None)
+            if (w < -1e-9).any():
+                continue
+            resid = float(np.linalg.norm(m @ w - d))
+            total = float(w.sum())
+            key = resid + 1e-3 * total
+            if best is None or key < best[0]:
+                pushes = [(fa, na, float(w[0]))] + ([(fb, nb, float(w[1]))]
+                                                     if fb != fa else [])
+                best = (key, [p for p in pushes if p[2] > 1e-4])
+    if best is None:
+        return []
+    out = []
+    z = max(finger_radius + 0.002, 0.25 * height)
+    for f, n, amount in best[1]:
+        c = pose.to_world(poly.face_centroids[f][None])[0]
+        face_dist = float(n @ (c[:2] - pose.com[:2]))
+        xy = pose.com[:2] + n * (face_dist + finger_radius + clearance)
+        out.append(Push(f, np.array([xy[0], xy[1], z]), np.array([-n[0], -n[1], 0.0]),
+                        amount))
+    return out
+
+
+#: Cost given to a skill a re-plan must avoid (one transition costs 1): any route without it
+#: wins, and the skill is used again only where nothing else reaches the goal.
+AVOID_COST = 1000.0
+
+
+def replanner(poly: Polyhedron, expansion: Expansion, goal: State, *,
+              motions: MotionLibrary | None, scale: float,
+              costs: Mapping[str, float] | None = None,
+              angle_tol: float = 5.0) -> Callable[[State, tuple[float, float],
+                                                   frozenset[str]], Plan]:
+    """A re-planner for :func:`nonprehensile.sim.closed_loop.execute_plan`: from an
+    observed state and position to ``goal``.
+
+    The observed ``theta`` is snapped to the nearest state of the model on the same face
+    when within ``angle_tol`` degrees (the step's reference is anchored on the observed pose
+    anyway); skills to avoid cost :data:`AVOID_COST`.
+    """
+    states = expansion.graph.states
+
+    def replan(observed: State, position: tuple[float, float],
+               avoid: frozenset[str]) -> Plan:
+        near = [s for s in states if s.face == observed.face
+                and abs(angle_diff(s.theta, observed.theta)) <= angle_tol]
+        start = min(near, key=lambda s: abs(angle_diff(s.theta, observed.theta))) \
+            if near else observed
+        c = dict(costs or {})
+        c.update(dict.fromkeys(avoid, AVOID_COST))
+        return plan(poly, expansion, start, goal, position=position, motions=motions,
+                    scale=scale, costs=c or None)
+
+    return replan
+
+
+@dataclass(frozen=True)
+class TurnPush:
+    """A push off the centre-of-mass line that turns the object about the vertical: the
+    fingertip presses face ``face`` at ``start`` (beside the face, ``offset`` m along it from
+    the line through the centre of mass) moving along ``direction``; a push at an offset
+    ``e`` along the face's tangent ``t = z x n`` turns the object by the torque ``F e``
+    (counterclockwise seen from above for ``e > 0``)."""
+
+    face: str
+    start: FloatArray
+    direction: FloatArray
+    offset: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {"face": self.face, "start": [round(float(v), 6) for v in self.start],
+                "direction": [round(float(v), 4) for v in self.direction],
+                "offset_m": round(self.offset, 5)}
+
+
+def turn_push(poly: Polyhedron, pose: ObjectPose, turn_deg: float, toward: Sequence[float],
+              *, finger_radius: float, clearance: float) -> TurnPush | None:
+    """A push that turns the object by ``turn_deg`` (its sign: counterclockwise positive),
+    on the side face whose push also moves the centre of mass most toward ``toward`` (x, y);
+    None if the object shows no side face. The contact sits at half the face's half-width
+    from the centre line, low on the face (as :func:`correction_pushes`)."""
+    world = pose.to_world(poly.vertices)
+    height = float(world[:, 2].max() - world[:, 2].min())
+    goal = np.array([float(toward[0]), float(toward[1])]) - pose.com[:2]
+    best: tuple[float, str, FloatArray] | None = None
+    for f in poly.face_ids:
+        n3 = pose.rotation @ poly.normals[f]
+        if abs(n3[2]) >= 0.1:
+            continue
+        n = n3[:2] / float(np.hypot(*n3[:2]))
+        score = float(-n @ goal)
+        if best is None or score > best[0]:
+            best = (score, f, n)
+    if best is None:
+        return None
+    _, f, n = best
+    t = np.array([-n[1], n[0]])
+    pts = world[list(poly.faces[f])][:, :2] - pose.com[:2]
+    along = pts @ t
+    half = float(min(along.max(), -along.min()))
+    e = math.copysign(max(0.0, 0.5 * half), turn_deg)
+    face_dist = float(n @ (pts.mean(axis=0)))
+    xy = pose.com[:2] + n * (face_dist + finger_radius + clearance) + t * e
+    z = max(finger_radius + 0.002, 0.25 * height)
+    return TurnPush(f, np.array([xy[0], xy[1], z]), np.array([-n[0], -n[1], 0.0]), e)

@@ -1,0 +1,304 @@
+"""Observations: what a controller sees of the object and its fingertips.
+
+One interface for every source: the simulator's ground truth today
+(:class:`~nonprehensile.sim.observe.SimObserver`), a motion-capture tracker's rigid body or
+object markers later. An :class:`Observation` is the object's pose and the fingertips'
+positions at one time; an :class:`ObservationModel` says how a real sensor degrades them
+(rate, latency, position and orientation noise, fingertip noise) and an
+:class:`ObservationStream` applies it to a stream of true samples, seeded.
+
+The contact events a controller acts on are read from an observation by geometry alone
+(:func:`observed_contacts`): the object's element lowest on the table, and for each fingertip
+the face, edge or vertex its sphere touches. A controller never reads the simulator's contact
+list; the judge (:mod:`nonprehensile.sim.judge`) does, for the records.
+
+Pure core: no simulator import.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from nonprehensile.errors import InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.planning import ObjectPose
+from nonprehensile.skills.contacts import (
+    ContactPair,
+    Edge,
+    Face,
+    Finger,
+    Ground,
+    ObjectElement,
+    Vertex,
+)
+
+__all__ = [
+    "Observation",
+    "ObservationModel",
+    "ObservationStream",
+    "element_at",
+    "ground_element",
+    "observed_contacts",
+]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Observation:
+    """The object's pose and the fingertips' centres as a sensor reports them.
+
+    Attributes
+    ----------
+    time : float
+        When the sample was taken (s, the controller's clock), not when it arrived.
+    pose : ObjectPose
+        The object's pose (world, metres).
+    tips : array, shape (n_fingers, 3)
+        Fingertip centres (world, metres).
+    """
+
+    time: float
+    pose: ObjectPose
+    tips: FloatArray
+
+
+@dataclass(frozen=True)
+class ObservationModel:
+    """How a sensor degrades the truth.
+
+    Attributes
+    ----------
+    rate : float
+        Samples per second (a motion-capture system: 100-240 Hz).
+    latency : float
+        Seconds from a sample's time to its arrival.
+    position_noise : float
+        Standard deviation (m) of the object's position, per axis (tracking noise).
+    angle_noise_deg : float
+        Standard deviation (degrees) of the object's orientation, as a random rotation vector.
+        A rigid body fitted to markers ``b`` metres apart with ``s`` m of marker noise has
+        about ``degrees(s / b)``; None derives it so from ``position_noise`` and a 5 cm
+        baseline.
+    finger_noise : float
+        Standard deviation (m) of each fingertip position, per axis.
+    """
+
+    rate: float = 120.0
+    latency: float = 0.0
+    position_noise: float = 0.0
+    angle_noise_deg: float | None = None
+    finger_noise: float = 0.0
+
+    def __post_init__(self) -> None:
+        limits = {"rate": (1.0, 1e5), "latency": (0.0, 1.0), "position_noise": (0.0, 0.05),
+                  "finger_noise": (0.0, 0.05)}
+        for name, (lo, hi) in limits.items():
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                    or not lo <= v <= hi:
+                raise InputError(f"observation {name} must be a number in [{lo:g}, {hi:g}], "
+                                 f"got {v!r}")
+            object.__setattr__(self, name, float(v))
+        a = self.angle_noise_deg
+        if a is None:
+            object.__setattr__(self, "angle_noise_deg",
+                               math.degrees(self.position_noise / 0.05))
+        elif isinstance(a, bool) or not isinstance(a, (int, float)) or not math.isfinite(a) \
+                or not 0.0 <= a <= 30.0:
+            raise InputError(f"observation angle_noise_deg must be a number in [0, 30], "
+                             f"got {a!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {"rate": self.rate, "latency": self.latency,
+                "position_noise": self.position_noise,
+                "angle_noise_deg": self.angle_noise_deg, "finger_noise": self.finger_noise}
+
+
+#: A perfect sensor at 120 Hz (the paper's OptiTrack V120).
+PERFECT = ObservationModel()
+
+
+class ObservationStream:
+    """Turns true samples into what the sensor reports, in order.
+
+    :meth:`push` a true sample whenever :meth:`due` says one is due (the sensor's rate);
+    :meth:`latest` gives the newest degraded sample that has arrived (``latency`` old).
+
+    Parameters
+    ----------
+    model : ObservationModel
+    rng : numpy.random.Generator
+        Draws the noise (seeded by the caller: same seed, same observations).
+    """
+
+    def __init__(self, model: ObservationModel, rng: np.random.Generator) -> None:
+        self.model = model
+        self.rng = rng
+        self.period = 1.0 / model.rate
+        self._next = 0.0
+        self._queue: deque[Observation] = deque()
+        self._latest: Observation | None = None
+
+    def due(self, now: float) -> bool:
+        """Whether the sensor takes a sample at ``now``."""
+        return now >= self._next - 1e-9
+
+    def push(self, now: float, pose: ObjectPose, tips: FloatArray) -> None:
+        """Record the true pose and tips at ``now`` (degraded by the model)."""
+        m = self.model
+        self._next = max(self._next + self.period, now + 0.5 * self.period)
+        rot, trans = pose.rotation, pose.translation
+        if m.position_noise > 0 or (m.angle_noise_deg or 0.0) > 0:
+            dr = Rotation.from_rotvec(self.rng.normal(
+                0.0, math.radians(m.angle_noise_deg or 0.0), 3)).as_matrix()
+            com = pose.com + self.rng.normal(0.0, m.position_noise, 3)
+            # the noisy rotation turns the body about its (noisy) centre of mass
+            trans = com - dr @ (pose.com - pose.translation)
+            pose = ObjectPose(dr @ rot, trans, com, pose.scale)
+        tips = np.array(tips, dtype=np.float64)
+        if m.finger_noise > 0:
+            tips = tips + self.rng.normal(0.0, m.finger_noise, tips.shape)
+        self._queue.append(Observation(now, pose, tips))
+
+    def latest(self, now: float) -> Observation | None:
+        """The newest sample that has arrived by ``now``, or None before the first."""
+        lat = self.model.latency
+        q = self._queue
+        while q and q[0].time + lat <= now + 1e-9:
+            self._latest = q.popleft()
+        return self._latest
+
+
+# ---------------------------------------------------------------- contacts from geometry
+def _planes(poly: Polyhedron) -> tuple[FloatArray, FloatArray]:
+    normals = np.array([poly.normals[f] for f in poly.face_ids])
+    offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
+                        for f in poly.face_ids])
+    return normals, offsets
+
+
+def element_at(poly: Polyhedron, x: FloatArray, tol: float,
+               planes: tuple[FloatArray, FloatArray] | None = None) -> ObjectElement:
+    """The face, edge or vertex of the model at a point on (or near) its surface.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    x : array, shape (3,)
+        A point in the model frame (model units).
+    tol : float
+        Face planes within this distance (model units) of the point count: one face names a
+        face, two an edge ``E(f,g)``, three or more the vertex ``V(...)`` they share.
+    planes : (normals, offsets), optional
+        The face planes, precomputed.
+    """
+    normals, offsets = planes if planes is not None else _planes(poly)
+    d = normals @ x - offsets
+    near = [poly.face_ids[i] for i in np.flatnonzero(d > -tol)]
+    if not near:
+        near = [poly.face_ids[int(np.argmax(d))]]
+    if len(near) == 1:
+        return Face(near[0])
+    if len(near) == 2 and frozenset(near) in poly.edges:
+        return Edge(frozenset(near))
+    shared = poly.shared_vertices(near) if len(near) >= 3 else []
+    if shared:
+        return Vertex(poly.vertex_faces[shared[0]])
+    return Face(poly.face_ids[int(np.argmax(d))])
+
+
+def ground_element(poly: Polyhedron, rotation: FloatArray, translation: FloatArray,
+                   scale: float, tol: float,
+                   planes: tuple[FloatArray, FloatArray] | None = None) -> ObjectElement:
+    """The face, edge or vertex of the posed object lowest on the table.
+
+    Vertices within ``tol`` (metres) of the lowest one count: three or more on one face name
+    that face, two on one edge that edge, else the lowest vertex.
+    """
+    z = scale * (poly.vertices @ rotation[2]) + translation[2]
+    low = np.flatnonzero(z < z.min() + tol)
+    vf = poly.vertex_faces
+    common = frozenset.intersection(*(vf[i] for i in low))
+    if len(low) >= 3 and len(common) == 1:
+        return Face(next(iter(common)))
+    if len(low) >= 3:  # several vertices low, no single face: the lowest face's plane
+        normals = planes[0] if planes is not None else _planes(poly)[0]
+        return Face(poly.face_ids[int(np.argmin(normals @ rotation[2]))])
+    if len(low) == 2 and len(common) == 2:
+        return Edge(common)
+    return Vertex(vf[int(np.argmin(z))])
+
+
+def observed_contacts(
+    poly: Polyhedron, obs: Observation, *, finger_radius: float, tol: float,
+    ground_tol: float, fingers: tuple[int, ...] | None = None,
+    planes: tuple[FloatArray, FloatArray] | None = None,
+) -> frozenset[ContactPair]:
+    """The contact pairs an observation shows, by geometry.
+
+    The ground touches the element lowest on the table (:func:`ground_element`, within
+    ``ground_tol`` m) when that element is within ``ground_tol`` of the table plane ``z = 0``.
+    A fingertip touches the object when its centre is within ``finger_radius + tol`` (m) of
+    the object's surface (outside, or pressed inside as a compliant pad is); the element is
+    named from the surface point nearest it (:func:`element_at`, ``tol``).
+
+    Parameters
+    ----------
+    fingers : tuple of int, optional
+        Finger numbers of the rows of ``obs.tips`` (default 1..n).
+    """
+    planes = planes if planes is not None else _planes(poly)
+    pose = obs.pose
+    s = pose.scale
+    pairs: set[ContactPair] = set()
+    z = s * (poly.vertices @ pose.rotation[2]) + pose.translation[2]
+    if float(z.min()) < ground_tol:
+        pairs.add(ContactPair(Ground(), ground_element(poly, pose.rotation, pose.translation,
+                                                       s, ground_tol, planes)))
+    normals, offsets = planes
+    numbers = fingers if fingers is not None else tuple(range(1, len(obs.tips) + 1))
+    for k, tip in zip(numbers, obs.tips, strict=True):
+        x = pose.rotation.T @ (np.asarray(tip) - pose.translation) / s  # model frame
+        d = normals @ x - offsets  # signed distances to the face planes, model units
+        top = float(d.max())
+        if top * s > finger_radius + tol:  # a lower bound of the distance: surely apart
+            continue
+        if top > 0:
+            y = _nearest_on_hull(x, d, planes)
+            dist = float(np.linalg.norm(x - y)) * s
+        else:  # pressed inside (a compliant pad): nearest the plane it is least inside
+            y = x - normals[int(np.argmax(d))] * top
+            dist = top * s
+        if dist <= finger_radius + tol:
+            pairs.add(ContactPair(Finger(k), element_at(poly, y, tol / s, planes)))
+    return frozenset(pairs)
+
+
+def _nearest_on_hull(x: FloatArray, d: FloatArray,
+                     planes: tuple[FloatArray, FloatArray]) -> FloatArray:
+    """The point of the convex polyhedron nearest ``x`` (model frame, outside it), by
+    projecting in turn onto the face planes it lies outside of.
+
+    Exact off a face, and off an edge or vertex whose faces meet at right angles (a box);
+    between oblique faces a few rounds come within a fraction of the tolerance. Written by
+    hand: a general convex distance (GJK) is more than the contact naming needs, and this
+    runs at the observation rate.
+    """
+    normals, offsets = planes
+    idx = np.flatnonzero(d > 0)
+    y = np.array(x, dtype=np.float64)
+    for _ in range(3 if len(idx) > 1 else 1):
+        for i in idx:
+            over = float(normals[i] @ y - offsets[i])
+            if over > 0:
+                y = y - normals[i] * over
+    return y

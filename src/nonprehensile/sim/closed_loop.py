@@ -1,0 +1,741 @@
+"""Execute a plan in MuJoCo, closed loop (event-driven) or open loop, transits included.
+
+:func:`execute_plan` runs a whole plan in one continuous simulation:
+
+* **closed loop** (the default): before each step the fingertips transit (retreat, clear
+  the observed object by a margin, approach) to the step's first reference point anchored on
+  the observed object; the step runs under a :class:`~nonprehensile.control.StepMonitor`
+  (each arc re-anchored at its contact event, run until its end event is observed, aborted
+  on an anomaly); the state is read from the observed pose once it is still; a state other
+  than the predicted one is re-planned from (:func:`~nonprehensile.control.after_step`); at
+  the end, the object is slid onto the goal position if it rests off it
+  (:func:`~nonprehensile.control.correction_pushes`);
+* **open loop**: the same transits, planned on the poses the plan predicts; each step's
+  reference runs for its duration where the plan predicts the object, then the object
+  settles; nothing is observed.
+
+The controller sees the scene only through :class:`~nonprehensile.sim.observe.SimObserver`
+(noise, latency, rate); the judge (:mod:`nonprehensile.sim.judge`) reads MuJoCo's contacts
+and the true final state for the records and the verdict. The inner loop writes the
+driver's precomputed controls and calls ``mj_step``; contacts are read every
+:data:`~nonprehensile.sim.judge.CONTACT_EVERY` steps and the controller runs only when an
+observation arrives.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import lfilter
+
+from nonprehensile.control import (
+    ControlConfig,
+    Decision,
+    StepMonitor,
+    after_step,
+    anchor_transform,
+    correction_pushes,
+    observed_state,
+    raised,
+    snap_state,
+    step_spec,
+    turn_push,
+)
+from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS
+from nonprehensile.inference import Expansion
+from nonprehensile.observation import Observation, ObservationModel
+from nonprehensile.planning import ObjectPose, Plan, PlanStep
+from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, DEFAULT_POSITION_TOL, compare
+from nonprehensile.sim.distribution import FINGER_NOISE_TIME, NO_PERTURBATION, Perturbation
+from nonprehensile.sim.execute import Outcome
+from nonprehensile.sim.judge import CONTACT_EVERY, EventLog, SimEvent
+from nonprehensile.sim.observe import SimObserver
+from nonprehensile.sim.run import SimResult, Simulator
+from nonprehensile.states import State, angle_diff
+from nonprehensile.step_paths import fingers_of, resample
+from nonprehensile.transit import limits_of, straight, transit
+
+__all__ = ["Execution", "execute_plan", "scene_fingers", "transition_record"]
+
+FloatArray = NDArray[np.float64]
+Replanner = Callable[[State, tuple[float, float], frozenset[str]], Plan]
+#: Cross-fade (s) from the running targets into new ones, so the commanded velocity never
+#: jumps.
+CROSSFADE = 0.06
+
+
+def scene_fingers(plan: Plan, expansion: Expansion | None = None) -> int:
+    """How many fingertips a scene needs for every step of ``plan`` (and, given the
+    expansion, for any skill a re-plan may turn to)."""
+    skills = [s.transition.skill for s in plan.steps]
+    if expansion is not None:
+        skills += [t.skill for t in expansion.transitions]
+    return max((max(fingers_of(s), default=1) for s in skills), default=1)
+
+
+@dataclass
+class Execution:
+    """What an execution did (mutable while it runs; :meth:`to_dict` for JSON).
+
+    ``success`` is the judge's verdict on the true final pose: the goal's face, ``theta``
+    within the angle tolerance and the centre of mass within the position tolerance of the
+    goal position (the plan's predicted end). With ``keep_trace``, ``executed`` holds every
+    executed step (re-planned ones included) with an
+    :class:`~nonprehensile.sim.execute.Outcome` whose trace and events start at the step's
+    first arc (what ``simulate plan --record`` writes).
+    """
+
+    loop: str
+    goal: State
+    goal_position: tuple[float, float]
+    success: bool = False
+    reason: str = ""
+    final_state: State | None = None
+    final_pose: ObjectPose | None = None
+    theta_error: float | None = None
+    position_error: float | None = None
+    steps: list[dict[str, Any]] = field(default_factory=list)
+    replans: list[dict[str, Any]] = field(default_factory=list)
+    corrections: list[dict[str, Any]] = field(default_factory=list)
+    transits: list[dict[str, Any]] = field(default_factory=list)
+    commanded_speed: float = 0.0
+    commanded_accel: float = 0.0
+    tip_speed: float = 0.0
+    transit_contact_s: float = 0.0
+    finger_table: bool = False
+    sim_time: float = 0.0
+    wall_time: float = 0.0
+    n_steps: int = 0
+    trace: FloatArray | None = None
+    step_traces: list[tuple[int, float, float]] = field(default_factory=list)
+    executed: list[tuple[PlanStep, Outcome]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {
+            "loop": self.loop,
+            "success": self.success,
+            "reason": self.reason,
+            "goal": self.goal.to_dict(),
+            "goal_position": [round(v, 6) for v in self.goal_position],
+            "final_state": self.final_state.to_dict() if self.final_state else None,
+            "final_position": (None if self.final_pose is None
+                               else [round(v, 6) for v in self.final_pose.position]),
+            "theta_error_deg": None if self.theta_error is None else round(self.theta_error, 3),
+            "position_error_m": (None if self.position_error is None
+                                 else round(self.position_error, 5)),
+            "steps": self.steps,
+            "replans": self.replans,
+            "retries": sum(1 for r in self.replans if r.get("retry")),
+            "corrections": self.corrections,
+            "transits": self.transits,
+            "limits": {"commanded_max_speed": round(self.commanded_speed, 4),
+                       "commanded_max_accel": round(self.commanded_accel, 3),
+                       "fingertip_max_speed": round(self.tip_speed, 4),
+                       "transit_finger_object_contact_s": round(self.transit_contact_s, 4),
+                       "finger_table_contact": self.finger_table},
+            "sim_seconds": round(self.sim_time, 4),
+            "wall_seconds": round(self.wall_time, 4),
+            "physics_steps": self.n_steps,
+        }
+
+
+class _Runner:
+    """The MuJoCo side of one execution: the step loop, the observer and the records."""
+
+    def __init__(self, sim: Simulator, observation: ObservationModel,
+                 tracker_rng: np.random.Generator, finger_rng: np.random.Generator,
+                 finger_noise: float, keep_trace: int) -> None:
+        self.sim = sim
+        self.m, self.d = sim.model, sim.data
+        self.dt = sim.params.timestep
+        self.observer = SimObserver(sim, observation, tracker_rng)
+        self.rng = finger_rng
+        self.finger_noise = finger_noise
+        self._noise_state = np.zeros((sim.n_fingers, 3))
+        self.t = 0.0
+        self.n = 0
+        self.log = EventLog(sim.judge)
+        self.command = sim.park()
+        self.commanded: list[FloatArray] = []
+        self.tip_speed = 0.0
+        self.keep_trace = keep_trace
+        self.trace: list[FloatArray] = []
+        self.contact_reads = 0  # fingertip-object contacts read during transits
+        self._tail: FloatArray | None = None
+
+    # ------------------------------------------------------------------------- noise
+    def _noisy(self, seg: FloatArray) -> FloatArray:
+        """Commanded targets plus the fingertip's position error (Gauss-Markov)."""
+        if self.finger_noise <= 0:
+            return seg
+        n = len(seg)
+        a = math.exp(-self.dt / FINGER_NOISE_TIME)
+        w = self.rng.standard_normal((n, *seg.shape[1:])) * self.finger_noise * math.sqrt(
+            1.0 - a * a)
+        out, zf = lfilter([1.0], [1.0, -a], w, axis=0, zi=(a * self._noise_state)[None])
+        self._noise_state = out[-1]
+        del zf
+        return np.asarray(seg + out)
+
+    # -------------------------------------------------------------------------- loop
+    def drive(
+        self,
+        segment: FloatArray,
+        *,
+        react: Callable[[Observation, FloatArray], Decision] | None = None,
+        transit_leg: bool = False,
+        max_time: float = 30.0,
+        hold: float = 0.0,
+    ) -> Decision | None:
+        """Drive the fingertips along ``segment`` (targets every physics step).
+
+        Without ``react``: until the segment has run, then ``hold`` more seconds. With it:
+        it is called on every new observation and may replace the targets (cross-faded in)
+        or end the drive (its :class:`Decision` is returned), at most ``max_time``.
+        """
+        sim, m, d, dt = self.sim, self.m, self.d, self.dt
+        judge, observer, log = sim.judge, self.observer, self.log
+        seg = np.asarray(segment, dtype=np.float64)
+        if self._tail is not None:  # the last drive stopped mid-motion: fade out of it
+            seg = self._crossfade(self._tail, 0, seg)
+            self._tail = None
+        ctrl = sim.driver.controls(self._noisy(seg))
+        self.commanded.append(seg)
+        i = 0
+        n_extra = round(hold / dt)
+        t_end = self.t + max_time
+        step = mujoco.mj_step
+        ctrl_view = d.ctrl
+        # the free fingertips' joint velocities are their speeds (a robot's driver has none)
+        finger_dofs = getattr(sim.driver, "dadr", None)
+        trace_every = self.keep_trace
+        while True:
+            if i < len(ctrl):
+                ctrl_view[:] = ctrl[i]
+            step(m, d)
+            i += 1
+            self.n += 1
+            self.t += dt
+            if self.n % CONTACT_EVERY == 0:
+                log.observe(d, self.t)
+                if transit_leg and judge.finger_object_contact(d):
+                    self.contact_reads += 1
+                if finger_dofs is not None:
+                    v = d.qvel[finger_dofs].reshape(-1, 3)
+                    sp = float(np.sqrt((v * v).sum(axis=1)).max())
+                    if sp > self.tip_speed:
+                        self.tip_speed = sp
+            if trace_every and self.n % trace_every == 0:
+                self.trace.append(sim.trace_row(self.t))
+            if react is not None:
+                obs = observer.sample(self.t)
+                if obs is not None:
+                    cur = seg[min(i, len(seg) - 1)]
+                    dec = react(obs, cur)
+                    if dec.segment is not None:
+                        new = self._crossfade(seg, i, dec.segment)
+                        self.commanded[-1] = seg[:i]
+                        self.commanded.append(new)
+                        seg, i = new, 0
+                        ctrl = sim.driver.controls(self._noisy(seg))
+                    if dec.done:
+                        self._stop(seg, i)
+                        return dec
+                if self.t >= t_end:
+                    self._stop(seg, i)
+                    return Decision(done=True, outcome="aborted",
+                                    reason=f"no decision within {max_time:g} s")
+            elif i >= len(ctrl) + n_extra:
+                self.command = seg[-1]
+                return None
+
+    def _stop(self, seg: FloatArray, i: int) -> None:
+        """End a drive at sample ``i`` of ``seg``; the next drive fades out of its rest."""
+        self.commanded[-1] = seg[:i]
+        j = min(i, len(seg) - 1)
+        self.command = seg[j]
+        self._tail = seg[j:] if len(seg) - j > 1 else None
+
+    def _crossfade(self, old: FloatArray, i: int, new: FloatArray) -> FloatArray:
+        """``new`` with its first :data:`CROSSFADE` seconds faded in from ``old``'s
+        continuation (held at its end), so position and velocity stay continuous."""
+        n = max(2, round(CROSSFADE / self.dt))
+        if len(new) < n:  # a short hold: long enough to fade into
+            new = np.concatenate([new, np.repeat(new[-1:], n - len(new), axis=0)])
+        rest = old[i:i + n]
+        if len(rest) < n:
+            rest = np.concatenate([rest, np.repeat(old[-1:], n - len(rest), axis=0)])
+        s = np.linspace(0.0, 1.0, n)
+        w = (s**3 * (10.0 - 15.0 * s + 6.0 * s**2))[:, None, None]
+        out = np.array(new, dtype=np.float64)
+        out[:n] = (1.0 - w) * rest + w * new[:n]
+        return out
+
+    def wait_observation(self) -> Observation:
+        """Hold the fingertips until an observation arrives (latency included)."""
+        got: list[Observation] = []
+
+        def react(obs: Observation, cmd: FloatArray) -> Decision:
+            got.append(obs)
+            return Decision(done=True)
+
+        self.drive(np.array([self.command]), react=react, max_time=5.0)
+        return got[-1] if got else self._truth()
+
+    def _truth(self) -> Observation:
+        sim = self.sim
+        return Observation(self.t, sim.pose(), sim.driver.tips(sim.data))
+
+
+def _retreat_target(sim: Simulator, pose: ObjectPose, command: FloatArray,
+                    used: tuple[int, ...], clearance: float) -> FloatArray:
+    """Where fingertips go to get out of the way: straight up above the object."""
+    top = float(pose.to_world(sim.poly.vertices)[:, 2].max())
+    out = np.array(command, dtype=np.float64)
+    for k in used:
+        out[k - 1, 2] = max(out[k - 1, 2], top + sim.params.finger_radius + 3 * clearance)
+    return out
+
+
+def execute_plan(
+    sim: Simulator,
+    plan: Plan,
+    *,
+    fingers: Mapping[str, str] = DEFAULT_FINGERS,
+    loop: Literal["closed", "open"] = "closed",
+    replan: Replanner | None = None,
+    config: ControlConfig | None = None,
+    observation: ObservationModel | None = None,
+    perturbation: Perturbation = NO_PERTURBATION,
+    angle_tol: float = DEFAULT_ANGLE_TOL_DEG,
+    position_tol: float = DEFAULT_POSITION_TOL,
+    keep_trace: int = 0,
+) -> Execution:
+    """Execute ``plan`` in one continuous simulation (see the module's docstring).
+
+    Parameters
+    ----------
+    sim : Simulator
+        A scene with at least :func:`scene_fingers` fingertips.
+    plan : Plan
+        From :func:`nonprehensile.planning.plan`, with reference motions.
+    fingers : mapping
+        Finger name -> tip marker name of the references.
+    loop : {"closed", "open"}
+    replan : callable, optional
+        ``replan(state, position, avoid) -> Plan`` from an observed state and position
+        avoiding the named skills; without it a step that ends elsewhere fails the
+        execution (closed loop).
+    config : ControlConfig, optional
+    observation : ObservationModel, optional
+        The sensor (closed loop): rate, latency, noise; default a perfect one at 120 Hz.
+        A perturbation's tracking noise, when not zero, sets its position noise.
+    perturbation : Perturbation
+        Where the object really starts (its start error), the tracker's noise and the
+        fingertips' position error (a Gauss-Markov process per axis, as
+        :func:`~nonprehensile.sim.distribution.finger_noise`), seeded by its noise seed.
+    angle_tol, position_tol : float
+        The goal's tolerances (degrees, m).
+    keep_trace : int
+        Keep a trace row every this many physics steps (for rendering).
+    """
+    wall0 = time.perf_counter()
+    cfg = config or ControlConfig(angle_tol=angle_tol, position_tol=position_tol)
+    obs_model = observation or ObservationModel()
+    if perturbation.tracking_noise > 0:
+        obs_model = replace(obs_model, position_noise=perturbation.tracking_noise,
+                            angle_noise_deg=None)
+    if not plan.steps:
+        raise ValueError("the plan has no step to execute")
+    first = plan.steps[0]
+    last = plan.steps[-1]
+    assert first.start_pose is not None and last.end_pose is not None
+    ex = Execution(loop, plan.goal, last.end_pose.position)
+    p = sim.params
+    run = _Runner(sim, obs_model, perturbation.rng("tracker"), perturbation.rng("finger"),
+                  perturbation.finger_noise, keep_trace)
+    m, d = sim.model, sim.data
+    mujoco.mj_resetData(m, d)
+    sim.set_pose(perturbation.start_pose(first.start_pose))
+    # the fingertips start out of the way, above the object's start
+    home = np.array(sim.park())
+    c0 = first.start_pose.com
+    top = float(first.start_pose.to_world(sim.poly.vertices)[:, 2].max())
+    for k in range(sim.n_fingers):
+        home[k] = [c0[0] + 0.03 * k, c0[1], top + p.finger_radius + 0.05]
+    sim.driver.place(d, home)
+    mujoco.mj_forward(m, d)
+    run.command = home
+    rest = home.copy()
+
+    def do_transit(pose: ObjectPose, target: FloatArray, used: tuple[int, ...],
+                   label: str) -> None:
+        moving = np.zeros(sim.n_fingers, dtype=bool)
+        moving[[k - 1 for k in used]] = True
+        # fingers the step does not use go home
+        goal = np.where(moving[:, None], target, rest)
+        moving |= np.linalg.norm(run.command - rest, axis=1) > 1e-9
+        path = transit(sim.poly, pose, run.command, goal, dt=run.dt,
+                       clearance=cfg.clearance, finger_radius=p.finger_radius,
+                       max_speed=cfg.max_speed, max_accel=cfg.max_accel / 2,
+                       moving=moving)
+        before, t0 = run.contact_reads, run.t
+        run.drive(path, transit_leg=True)
+        ex.transits.append({
+            "before": label, "seconds": round(run.t - t0, 4),
+            "length_m": round(float(np.linalg.norm(np.diff(path, axis=0), axis=2)
+                                    .sum(axis=0).max()), 4),
+            "finger_object_contact_s": round((run.contact_reads - before) * CONTACT_EVERY
+                                             * run.dt, 4)})
+
+    steps = list(plan.steps)
+    avoid: frozenset[str] = frozenset()
+    index = 0
+    tries = 0
+    slow = 1.0
+    higher = False
+    while index < len(steps):
+        step = steps[index]
+        spec = step_spec(sim.poly, step, fingers)
+        if higher:  # a retry: the contact higher on its face ...
+            spec = raised(spec, sim.poly, p.finger_radius)
+        if slow != 1.0:  # ... and the reference played slower
+            spec = replace(spec, rate=spec.rate / slow)
+        number = len(ex.steps) + 1
+        t_step = run.t
+        n_events = len(run.log.events)
+        record: dict[str, Any] = {
+            "step": number, "skill": spec.skill,
+            "source": step.transition.source.name,
+            "demonstrated": step.transition.demonstrated,
+            "from": step.start_world.to_dict(), "to": step.end_world.to_dict(),
+            "predicted_position": [round(v, 6) for v in spec.end_pose.position]}
+        if loop == "open":
+            first_pts = np.array(rest)
+            for j, k in enumerate(spec.used):
+                first_pts[k - 1] = spec.arcs[0].positions[0, j]
+            do_transit(spec.start_pose, first_pts, spec.used, f"step {number}")
+            t_begin = run.t
+            targets = np.repeat(rest[None], len(spec.arcs[0].positions), axis=0)
+            ref = np.stack([spec.targets[k] for k in spec.used], axis=1)
+            targets = np.repeat(rest[None], len(ref), axis=0)
+            targets[:, [k - 1 for k in spec.used]] = ref
+            # faded in from rest as the closed loop's first arc is
+            run.drive(run._crossfade(np.array([run.command]), 0,
+                                     resample(targets, spec.rate, run.dt)))
+            j, settled = sim.settle(p.settle, run.log, run.t, keep_trace, run.trace)
+            run.t += j * run.dt
+            run.n += j
+            record.update(outcome="finished" if settled else "unsettled", reason="",
+                          observed=[])
+            observed_end: State | None = sim.state()
+        else:
+            obs = run.wait_observation()
+            # the approach's first point, anchored on the object as observed
+            tf = anchor_transform(sim.poly, spec.arcs[0].anchor, spec.start_pose, obs.pose)
+            first_pts = np.array(rest)
+            for j, k in enumerate(spec.used):
+                first_pts[k - 1] = tf.apply(spec.arcs[0].positions[0, j])
+            do_transit(obs.pose, first_pts, spec.used, f"step {number}")
+            obs = run.wait_observation()
+            mon = StepMonitor(sim.poly, spec, cfg, dt=run.dt, finger_radius=p.finger_radius,
+                              rest=rest, noise=obs_model.position_noise)
+            t_begin = run.t
+            dec = mon.begin(obs, run.command)
+            assert dec.segment is not None
+            budget = mon.expected_duration + 3.0 * cfg.grace + cfg.max_settle + 2.0
+            end = run.drive(run._crossfade(np.array([run.command]), 0, dec.segment),
+                            react=mon.update, max_time=budget)
+            reason = end.reason if end is not None else ""
+            if end is not None and end.outcome == "aborted":
+                # get out of the way and let the object come to rest, then look
+                pose_now = run.wait_observation().pose
+                # let go first (straight up off the object: the fingertip may still press
+                # it), then move clear as a transit
+                off = np.array(run.command)
+                for k in spec.used:
+                    off[k - 1, 2] += p.finger_radius + cfg.clearance
+                run.drive(straight(run.command, off, dt=run.dt, max_speed=0.1,
+                                   max_accel=cfg.max_accel / 2))
+                up = _retreat_target(sim, pose_now, run.command, spec.used, cfg.clearance)
+                do_transit(pose_now, up, spec.used, f"recovery after step {number}")
+                mon.watch_rest(run.t)
+                run.drive(np.array([run.command]), react=mon.update,
+                          max_time=cfg.max_settle + 0.5)
+            record.update(outcome=end.outcome if end is not None else "", reason=reason,
+                          observed=mon.log)
+            observed_end = mon.final_state
+        truth = sim.state()
+        record["simulated_events"] = [
+            {"time": round(e.time - t_step, 4),
+             "contacts": [str(q) for q in e.event.ordered_pairs]}
+            for e in run.log.events[n_events:]]
+        record["simulated"] = truth.to_dict() if truth else None
+        record["observed_state"] = observed_end.to_dict() if observed_end else None
+        pos_err = math.dist(sim.pose().position, spec.end_pose.position)
+        record["position_error_m"] = round(pos_err, 5)
+        record["theta_error_deg"] = (round(angle_diff(truth.theta, spec.end_state.theta), 3)
+                                     if truth is not None and truth.face == spec.end_state.face
+                                     else None)
+        record["success"] = bool(truth is not None and truth.face == spec.end_state.face
+                                 and abs(angle_diff(truth.theta, spec.end_state.theta))
+                                 <= cfg.angle_tol)
+        record["sim_seconds"] = round(run.t - t_step, 4)
+        ex.steps.append(record)
+        ex.step_traces.append((number, t_step, run.t))
+        if keep_trace:
+            ex.executed.append((step, _outcome(sim, run, step, spec, record, t_begin,
+                                               n_events, cfg)))
+        if loop == "open":
+            index += 1
+            continue
+        nxt = after_step(spec, record["reason"], observed_end, plan.goal,
+                         replans=len(ex.replans), avoid=avoid,
+                         last=index == len(steps) - 1, config=cfg, tries=tries)
+        record["next"] = nxt.action
+        if nxt.action != "retry":
+            tries, slow, higher = 0, 1.0, False
+        if nxt.action == "replan" and replan is None:
+            ex.reason = f"step {number} ({spec.skill}): {nxt.reason} (no re-planner given)"
+            break
+        if nxt.action == "next":
+            index += 1
+        elif nxt.action == "retry":
+            tries += 1
+            slow, higher = nxt.slow, nxt.higher
+            ex.replans.append({"after_step": number, "retry": True, "reason": nxt.reason,
+                               "slower": round(slow, 3), "higher": higher,
+                               "steps": [f"{spec.skill}: {step.start_world} -> "
+                                         f"{step.end_world}"]})
+        elif nxt.action == "done":
+            break
+        elif nxt.action == "fail" or replan is None:
+            ex.reason = f"step {number} ({spec.skill}): {nxt.reason}"
+            break
+        else:
+            assert observed_end is not None
+            avoid = nxt.avoid
+            # in the plan's own frame: turned onto the nearest of its states on the observed
+            # face when it is off by more than the tolerance (a re-plan keeps the agent's
+            # frame, so a turned object would miss the goal's theta), then snapped to it
+            frame = [x for s in steps for x in (s.start_world, s.end_world)]
+            near = snap_state(observed_end, frame, 45.0)
+            if near is not observed_end and abs(angle_diff(
+                    observed_end.theta, near.theta)) > cfg.angle_tol / 2:
+                _align(sim, run, ex, cfg, rest, do_transit, near.theta,
+                       sim.pose().position)
+                look = run.wait_observation()
+                observed_end = observed_state(sim.poly, look.pose.rotation) or observed_end
+                mon.final_pose = look.pose
+            observed_end = snap_state(observed_end, frame, cfg.angle_tol)
+            here = mon.final_pose.position if mon.final_pose is not None else \
+                sim.pose().position
+            entry: dict[str, Any] = {"after_step": number, "reason": nxt.reason,
+                                     "from": observed_end.to_dict(),
+                                     "position": [round(v, 6) for v in here],
+                                     "avoid": sorted(avoid)}
+            try:
+                new_plan = replan(observed_end, here, avoid)
+            except Exception as exc:  # no plan: reported, never continued
+                entry["error"] = str(exc)
+                ex.replans.append(entry)
+                ex.reason = f"re-plan after step {number} failed: {exc}"
+                break
+            entry["steps"] = [f"{s.transition.skill.name}: {s.start_world} -> {s.end_world}"
+                              for s in new_plan.steps]
+            ex.replans.append(entry)
+            if not new_plan.steps:
+                break
+            steps = list(new_plan.steps)
+            index = 0
+    # at the end: slide the object onto the goal position if it rests off it
+    if loop == "closed" and not ex.reason and cfg.correct_position:
+        for _ in range(2):  # sliding may turn it a little: look again
+            _align(sim, run, ex, cfg, rest, do_transit, plan.goal.theta, ex.goal_position)
+            _correct(sim, run, ex, cfg, rest, do_transit)
+    # park the fingers and let everything come to rest before the verdict
+    if loop == "closed":
+        pose_now = sim.pose()
+        up = _retreat_target(sim, pose_now, run.command, tuple(range(1, sim.n_fingers + 1)),
+                             cfg.clearance)
+        do_transit(pose_now, up, tuple(range(1, sim.n_fingers + 1)), "end")
+    j, _ = sim.settle(p.settle, run.log, run.t)
+    run.t += j * run.dt
+    run.n += j
+    truth = sim.state()
+    pose = sim.pose()
+    ex.final_state, ex.final_pose = truth, pose
+    ex.position_error = math.dist(pose.position, ex.goal_position)
+    if truth is not None and truth.face == plan.goal.face:
+        ex.theta_error = angle_diff(truth.theta, plan.goal.theta)
+    ex.success = bool(truth is not None and truth.face == plan.goal.face
+                      and ex.theta_error is not None and abs(ex.theta_error) <= cfg.angle_tol
+                      and ex.position_error <= cfg.position_tol)
+    if not ex.success and not ex.reason:
+        ex.reason = (f"ended in {truth}" if truth is not None else "rests on no face") + (
+            f", {1000 * ex.position_error:.1f} mm from the goal position")
+    cmd = [c for c in run.commanded if len(c)]
+    allcmd = np.concatenate(cmd) if cmd else np.zeros((0, sim.n_fingers, 3))
+    ex.commanded_speed, ex.commanded_accel = limits_of(allcmd, run.dt)
+    ex.tip_speed = run.tip_speed
+    ex.transit_contact_s = sum(t["finger_object_contact_s"] for t in ex.transits)
+    ex.finger_table = run.log.finger_table
+    ex.sim_time, ex.n_steps = run.t, run.n
+    ex.wall_time = time.perf_counter() - wall0
+    ex.trace = np.array(run.trace) if run.trace else None
+    return ex
+
+
+def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
+             rest: FloatArray, do_transit: Callable[..., None]) -> None:
+    """Slide the object onto the goal position by pushes low on its side faces, each run
+    until the observed object has moved as far as asked (or a timeout)."""
+    p = sim.params
+    for _ in range(cfg.max_corrections):
+        obs = run.wait_observation()
+        st = observed_state(sim.poly, obs.pose.rotation)
+        if st is None or st.face != ex.goal.face:
+            return
+        pushes = correction_pushes(sim.poly, obs.pose, ex.goal_position,
+                                   finger_radius=p.finger_radius, clearance=cfg.clearance,
+                                   tol=cfg.correction_tol)
+        if not pushes:
+            return
+        push = max(pushes, key=lambda q: q.distance)  # the largest part first
+        target = np.array(rest)
+        target[0] = push.start
+        do_transit(obs.pose, target, (1,), "correction")
+        obs = run.wait_observation()
+        origin = obs.pose.com[:2].copy()
+        speed = 0.03
+        length = push.distance + p.finger_radius + cfg.clearance + 0.015
+        n = round(length / speed / run.dt) + 1
+        s = np.arange(n) * run.dt * speed
+        path = np.repeat(run.command[None], n, axis=0)
+        path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
+        entry = {"kind": "slide", **push.to_dict()}
+
+        def react(o: Observation, cmd: FloatArray, origin: FloatArray = origin,
+                  push: Any = push) -> Decision:
+            moved = float((o.pose.com[:2] - origin) @ push.direction[:2])
+            if moved >= push.distance - 0.0005:
+                return Decision(done=True, outcome="finished")
+            return Decision()
+
+        dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
+                        max_time=length / speed + 0.5)
+        back = np.array(run.command)
+        back[0, :2] -= push.direction[:2] * (p.finger_radius + cfg.clearance)
+        run.drive(straight(run.command, back, dt=run.dt, max_speed=0.1,
+                           max_accel=cfg.max_accel / 2))
+        obs = run.wait_observation()
+        entry["moved_m"] = round(float((obs.pose.com[:2] - origin) @ push.direction[:2]), 5)
+        entry["outcome"] = dec.outcome if dec is not None else ""
+        entry["error_after_m"] = round(math.dist(obs.pose.com[:2], ex.goal_position), 5)
+        ex.corrections.append(entry)
+
+
+def _yaw_error(poly: Any, pose: ObjectPose, theta: float) -> float | None:
+    """Observed theta minus ``theta`` (degrees), or None when it rests on no face."""
+    st = observed_state(poly, pose.rotation)
+    return None if st is None else angle_diff(st.theta, theta)
+
+
+def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
+           rest: FloatArray, do_transit: Callable[..., None], theta: float,
+           toward: tuple[float, float], tol_deg: float = 1.5) -> None:
+    """Turn the object about the vertical onto ``theta`` by pushes off its centre line
+    (:func:`~nonprehensile.control.turn_push`), each run until the observed turn is done."""
+    p = sim.params
+    for _ in range(3):
+        obs = run.wait_observation()
+        err0 = _yaw_error(sim.poly, obs.pose, theta)
+        if err0 is None or abs(err0) <= tol_deg:
+            return
+        push = turn_push(sim.poly, obs.pose, -err0, toward, finger_radius=p.finger_radius,
+                         clearance=cfg.clearance)
+        if push is None:
+            return
+        target = np.array(rest)
+        target[0] = push.start
+        do_transit(obs.pose, target, (1,), "turn")
+        speed = 0.02
+        length = p.finger_radius + cfg.clearance + 0.03
+        n = round(length / speed / run.dt) + 1
+        s = np.arange(n) * run.dt * speed
+        path = np.repeat(run.command[None], n, axis=0)
+        path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
+
+        def react(o: Observation, cmd: FloatArray, err0: float = err0) -> Decision:
+            e = _yaw_error(sim.poly, o.pose, theta)
+            if e is None:
+                return Decision(done=True, outcome="aborted", reason="tilted")
+            if abs(e) <= 0.3 or e * err0 < 0:
+                return Decision(done=True, outcome="finished")
+            return Decision()
+
+        dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
+                        max_time=length / speed + 0.5)
+        back = np.array(run.command)
+        back[0, :2] -= push.direction[:2] * (p.finger_radius + cfg.clearance)
+        run.drive(straight(run.command, back, dt=run.dt, max_speed=0.1,
+                           max_accel=cfg.max_accel / 2))
+        obs = run.wait_observation()
+        after = _yaw_error(sim.poly, obs.pose, theta)
+        ex.corrections.append({"kind": "turn", **push.to_dict(),
+                               "theta_error_before_deg": round(err0, 3),
+                               "theta_error_after_deg": None if after is None
+                               else round(after, 3),
+                               "outcome": dec.outcome if dec is not None else ""})
+
+
+def transition_record(ex: Execution, step: PlanStep) -> dict[str, Any]:
+    """One transition executed as a one-step plan, as a record of ``simulate infer``: the
+    verdict, the comparison's keys (``chain_ok``: every skill event observed in order on
+    the first attempt) and the execution in full."""
+    events = [e["event"] for e in (ex.steps[0]["observed"] if ex.steps else [])
+              if "event" in e]
+    want = [e.id for e in step.transition.skill.events][1:]
+    it = iter(events)
+    missing = [w for w in want if w not in it]
+    return {
+        "success": ex.success, "skill": step.transition.skill.name,
+        "source": step.transition.source.name, "demonstrated": step.transition.demonstrated,
+        "from": step.start_world.to_dict(), "to": step.end_world.to_dict(),
+        "predicted": step.end_world.to_dict(),
+        "simulated": ex.final_state.to_dict() if ex.final_state else None,
+        "theta_error_deg": None if ex.theta_error is None else round(ex.theta_error, 3),
+        "position_error_m": (None if ex.position_error is None
+                             else round(ex.position_error, 5)),
+        "chain_ok": not missing, "missing_events": missing,
+        "simulation": {"wall_seconds": round(ex.wall_time, 4),
+                       "sim_seconds": round(ex.sim_time, 4)},
+        "execution": ex.to_dict(),
+    }
+
+
+def _outcome(sim: Simulator, run: _Runner, step: PlanStep, spec: Any, record: dict[str, Any],
+             t_begin: float, n_events: int, cfg: ControlConfig) -> Outcome:
+    """One executed step as the open-loop executor's :class:`Outcome` (trace and events
+    from the step's first arc, times from there; the judge's comparison)."""
+    rows = np.array([r for r in run.trace if t_begin - 1e-9 <= r[0] <= run.t + 1e-9])
+    if len(rows):
+        rows[:, 0] -= t_begin
+    events = tuple(SimEvent(e.time - t_begin, e.event) for e in run.log.events[n_events:]
+                   if e.time >= t_begin - 1e-9)
+    res = SimResult(sim.pose(), sim.state(), events, record["outcome"] == "finished",
+                    run.t - t_begin, 0.0, round((run.t - t_begin) / run.dt),
+                    run.log.finger_table, rows if len(rows) else None)
+    cmp = compare(sim.poly, step.transition.skill, res, predicted=step.end_world,
+                  predicted_pose=step.end_pose, event_times=spec.event_times,
+                  angle_tol=cfg.angle_tol, position_tol=cfg.position_tol)
+    label = {k: record[k] for k in ("step", "skill", "source", "demonstrated", "from", "to")}
+    return Outcome(label, res, cmp)

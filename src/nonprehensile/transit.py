@@ -1,0 +1,152 @@
+"""Transit motions: how the fingertips get from one place to the next without touching.
+
+Between two steps (and before the first) a fingertip **retreats** from the object, **moves
+clear** of the object's posed hull by a margin (up to a safe height above it, across, and
+down), and **approaches** the next reference's first point. Each leg is a rest-to-rest
+minimum-jerk motion timed so that its peak speed and acceleration stay within the given
+bounds (a minimum-jerk leg of length ``L`` and duration ``T`` peaks at ``1.875 L / T`` and
+``5.774 L / T^2``). Several fingers move together, each on its own legs, all legs timed
+by the slowest finger.
+
+Pure core: numpy only.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.planning import ObjectPose
+from nonprehensile.step_paths import ease
+
+__all__ = ["PEAK_ACCEL", "PEAK_SPEED", "hull_distance", "limits_of", "straight", "transit"]
+
+FloatArray = NDArray[np.float64]
+
+#: Peak speed and acceleration of a rest-to-rest minimum-jerk leg, per length / duration
+#: (``L / T``) and per ``L / T^2``.
+PEAK_SPEED = 1.875
+PEAK_ACCEL = 5.7735
+
+
+def hull_distance(poly: Polyhedron, pose: ObjectPose, points: FloatArray) -> FloatArray:
+    """Lower bound of each point's distance (m) to the posed object (the largest signed
+    distance to its face planes: exact off a face, smaller off an edge or vertex; negative
+    inside). ``points`` has shape (..., 3)."""
+    p = np.asarray(points, dtype=np.float64)
+    x = (p - pose.translation) @ pose.rotation / pose.scale  # model frame
+    normals = np.array([poly.normals[f] for f in poly.face_ids])
+    offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
+                        for f in poly.face_ids])
+    return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
+
+
+def _leg(a: FloatArray, b: FloatArray, n: int) -> FloatArray:
+    s = ease(np.linspace(0.0, 1.0, n))
+    return np.asarray(a[:, None, :] + s[None, :, None] * (b - a)[:, None, :])
+
+
+def transit(
+    poly: Polyhedron,
+    pose: ObjectPose,
+    start: FloatArray,
+    end: FloatArray,
+    *,
+    dt: float,
+    clearance: float,
+    finger_radius: float,
+    max_speed: float,
+    max_accel: float,
+    moving: FloatArray | None = None,
+) -> FloatArray:
+    """Fingertip targets from ``start`` to ``end`` clear of the object.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    pose : ObjectPose
+        Where the object is (the observed pose in closed loop, the predicted one open loop).
+    start, end : array, shape (n_fingers, 3)
+        Fingertip centres now and where the next motion begins (world, m).
+    dt : float
+        Sample period of the result (the physics step), s.
+    clearance : float
+        Margin (m) between the fingertip's surface and the object's hull along the way.
+    finger_radius : float
+    max_speed, max_accel : float
+        Bounds (m/s, m/s^2) on every fingertip's speed and acceleration.
+    moving : array of bool, shape (n_fingers,), optional
+        Fingers that move (others hold ``start``); default all.
+
+    Returns
+    -------
+    array, shape (n_samples, n_fingers, 3)
+        Targets every ``dt``, from ``start`` to ``end`` (both included).
+    """
+    start = np.asarray(start, dtype=np.float64)
+    end = np.asarray(end, dtype=np.float64)
+    nf = len(start)
+    mv = np.ones(nf, dtype=bool) if moving is None else np.asarray(moving, dtype=bool)
+    end = np.where(mv[:, None], end, start)
+    top = float(pose.to_world(poly.vertices)[:, 2].max())
+    safe = top + finger_radius + clearance
+    # waypoints per finger: retreat (straight away from the object to the margin, then up
+    # to the safe height), across at the safe height, down onto the end point
+    need = clearance + finger_radius
+    ways = [start]
+    d0 = hull_distance(poly, pose, start)
+    out = start.copy()
+    for k in range(nf):
+        # a fingertip above the object goes straight up; one beside it first backs away
+        if mv[k] and d0[k] < need and start[k, 2] < top:
+            away = start[k, :2] - pose.com[:2]
+            norm = float(np.hypot(*away))
+            if norm > 1e-9:
+                out[k, :2] += away / norm * (need - d0[k])
+    ways.append(out)
+    up = ways[-1].copy()
+    up[:, 2] = np.where(mv, np.maximum(up[:, 2], safe), up[:, 2])
+    ways.append(up)
+    across = end.copy()
+    across[:, 2] = np.where(mv, np.maximum(end[:, 2], safe), end[:, 2])
+    # a straight line between the two safe points may not be clear (the end point beside the
+    # object, low): the safe height clears the whole hull
+    ways += [across, end]
+    legs = []
+    for a, b in itertools.pairwise(ways):
+        length = float(np.linalg.norm(b - a, axis=1).max())
+        if length < 1e-6:
+            continue
+        t = max(PEAK_SPEED * length / max_speed, math.sqrt(PEAK_ACCEL * length / max_accel))
+        n = max(2, math.ceil(t / dt) + 1)
+        legs.append(_leg(a, b, n).transpose(1, 0, 2))
+    if not legs:
+        return np.asarray(np.stack([start, end]))
+    return np.asarray(np.concatenate([legs[0], *(leg[1:] for leg in legs[1:])]))
+
+
+def straight(start: FloatArray, end: FloatArray, *, dt: float, max_speed: float,
+             max_accel: float) -> FloatArray:
+    """One rest-to-rest minimum-jerk leg from ``start`` to ``end`` (shape (n_fingers, 3)),
+    within the bounds; shape (n_samples, n_fingers, 3)."""
+    a = np.asarray(start, dtype=np.float64)
+    b = np.asarray(end, dtype=np.float64)
+    length = float(np.linalg.norm(b - a, axis=1).max())
+    t = max(PEAK_SPEED * length / max_speed, math.sqrt(PEAK_ACCEL * length / max_accel))
+    n = max(2, math.ceil(t / dt) + 1)
+    return np.asarray(_leg(a, b, n).transpose(1, 0, 2))
+
+
+def limits_of(targets: FloatArray, dt: float) -> tuple[float, float]:
+    """Peak speed (m/s) and acceleration (m/s^2) of targets of shape (n, n_fingers, 3)
+    sampled every ``dt``."""
+    t = np.asarray(targets, dtype=np.float64)
+    if len(t) < 3:
+        return 0.0, 0.0
+    v = np.diff(t, axis=0) / dt
+    a = np.diff(v, axis=0) / dt
+    return float(np.linalg.norm(v, axis=-1).max()), float(np.linalg.norm(a, axis=-1).max())
