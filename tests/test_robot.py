@@ -233,3 +233,21 @@ def test_place_base_and_cli_joint_trajectories(tmp_path: Path) -> None:
     assert np.all(q >= np.array(panda.Q_MIN) - 1e-9) and np.all(q <= np.array(panda.Q_MAX))
     assert np.all(np.abs(arr[:, 8:]) <= np.array(panda.DQ_MAX) + 1e-9)
     assert meta["ik_tip_error_max_m"] < 0.005
+
+
+def test_closed_loop_main_plan_by_the_panda() -> None:
+    """The main plan, closed loop with transits, by the bundled Panda at a fixed base: the
+    goal is reached and nothing but the fingertip touches the cube or the table."""
+    res = CliRunner().invoke(main, [
+        "simulate", "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to", "e:110",
+        "--step", "90", "--dataset", "cube", "--robot", "panda", "--base", "0.53", "-0.51",
+        "112.5", "--json"])
+    assert res.exit_code == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["success"] and doc["loop"] == "closed"
+    assert doc["robot"]["robots"][0]["base"]["yaw_deg"] == 112.5
+    whole = doc["robot_metrics"]
+    assert whole["other_contact_s"] == 0.0
+    for r in doc["records"]:
+        assert r["robot"]["tracking_error_contact_max_m"] < 0.004
+    assert doc["execution"]["limits"]["transit_finger_object_contact_s"] == 0.0

@@ -375,6 +375,13 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
     obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
+    if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
+        from nonprehensile.sim.execute import fingers_of
+
+        n_tips = len(robot.tip_sites)
+        skills = [s for s in skills if max(fingers_of(s), default=1) <= n_tips]
+        if not skills:
+            raise InputError(f"every skill needs more than the robot's {n_tips} fingertip(s)")
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
