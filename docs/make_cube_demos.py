@@ -18,7 +18,8 @@ from nonprehensile.sim.record import record_dataset
 
 
 def main(out_dir: str) -> None:
-    recorded, stats = record_dataset(_bundled_skills(), seed=DEFAULT_SEED,
+    # the bundled model is the unit cube; the takes are of a 5 cm cube (scale 0.05)
+    recorded, stats = record_dataset(_bundled_skills(), seed=DEFAULT_SEED, scale=0.05,
                                      with_object_markers=False, max_attempts=100)
     save_dataset(replace(recorded, object_markers={}), out_dir, markers=DEFAULT_MARKERS)
     for name, st in stats.items():

@@ -43,7 +43,7 @@ from nonprehensile.skills import (
 CUBE = cube()
 OCTA = octahedron()
 
-# The events of the spec's example skill (shared/spec/files-and-cli.md, "Skills file"),
+# The events of the spec's example skill (docs/files.md, "Skills file"),
 # copied verbatim.
 SPEC_EVENTS = [
     {"id": "rest", "contacts": ["(G,a)"]},

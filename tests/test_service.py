@@ -121,6 +121,11 @@ def test_uploads_register_to_clusters_idempotently(service: dict[str, Any]) -> N
     assert all(s["arc"].startswith("rolling-g0-") for s in last["segments"])
     assert all(isinstance(s["cluster"], int) for s in last["segments"])
     assert replies[0]["segments"][0]["cluster"] is None  # before the first clustering
+    # ... and the reply says why, and when the clusters will be named (issue 24)
+    first = replies[0]["segments"][0]
+    assert first["pending"].startswith("not clustered yet: arc ")
+    assert "holds 1 sample(s)" in first["pending"] and "GET /clusters" in first["pending"]
+    assert "pending" not in last["segments"][0]
     # the same upload again: one copy, the same reply
     e = entries("push-roll", "ben", 3)[-1]
     again = c.post("/demonstrations", **form(e), headers=auth["ben"])

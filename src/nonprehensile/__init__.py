@@ -49,9 +49,19 @@ if TYPE_CHECKING:
         rotation_group,
         tetrahedron,
     )
+    from nonprehensile.geometry.units import in_metres
     from nonprehensile.inference import Expansion, cross_check, expand
     from nonprehensile.io import load_model, read_model, read_skills, read_states, write_model
-    from nonprehensile.maneuvers import Maneuver, classify, roll, rotate, tumble
+    from nonprehensile.maneuvers import (
+        Maneuver,
+        ManeuverOption,
+        classify,
+        maneuvers_from,
+        roll,
+        roll_directions,
+        rotate,
+        tumble,
+    )
     from nonprehensile.planning import NoPlanError, Plan, plan
     from nonprehensile.skills import ContactEvent, ContactPair, parse_event
     from nonprehensile.skills.skill import Skill, skill_graph
@@ -75,6 +85,7 @@ __all__ = [
     "InputError",
     "Maneuver",
     "ManeuverError",
+    "ManeuverOption",
     "MeshError",
     "ModelError",
     "NoPlanError",
@@ -97,8 +108,10 @@ __all__ = [
     "equivalent",
     "expand",
     "from_mesh",
+    "in_metres",
     "is_stable",
     "load_model",
+    "maneuvers_from",
     "octahedron",
     "parse_event",
     "plan",
@@ -107,6 +120,7 @@ __all__ = [
     "read_skills",
     "read_states",
     "roll",
+    "roll_directions",
     "rotate",
     "rotation_group",
     "skill_graph",
@@ -129,6 +143,7 @@ _LAZY = {
     "equivalence_classes": "nonprehensile.equivalence",
     "equivalent": "nonprehensile.equivalence",
     "from_mesh": "nonprehensile.geometry",
+    "in_metres": "nonprehensile.geometry.units",
     "octahedron": "nonprehensile.geometry",
     "prism": "nonprehensile.geometry",
     "rotation_group": "nonprehensile.geometry",
@@ -142,8 +157,11 @@ _LAZY = {
     "read_states": "nonprehensile.io",
     "write_model": "nonprehensile.io",
     "Maneuver": "nonprehensile.maneuvers",
+    "ManeuverOption": "nonprehensile.maneuvers",
     "classify": "nonprehensile.maneuvers",
+    "maneuvers_from": "nonprehensile.maneuvers",
     "roll": "nonprehensile.maneuvers",
+    "roll_directions": "nonprehensile.maneuvers",
     "rotate": "nonprehensile.maneuvers",
     "tumble": "nonprehensile.maneuvers",
     "NoPlanError": "nonprehensile.planning",

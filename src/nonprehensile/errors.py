@@ -19,6 +19,7 @@ __all__ = [
     "MeshError",
     "ModelError",
     "NonprehensileError",
+    "RecordError",
     "SkillError",
     "StateError",
     "StoreError",
@@ -89,3 +90,15 @@ class GeometryError(NonprehensileError):
 
 class ManeuverError(InputError):
     """A maneuver cannot be carried out (no such edge, passes through the ground, ...)."""
+
+
+class RecordError(InputError):
+    """Some skill of a skills file could not be recorded in physics.
+
+    ``failures`` maps each such skill's name to its one-line reason (the commonest ways its
+    takes failed, with counts, and what to change).
+    """
+
+    def __init__(self, message: str, failures: dict[str, str]) -> None:
+        super().__init__(message)
+        self.failures = failures

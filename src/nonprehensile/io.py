@@ -25,6 +25,7 @@ from nonprehensile.bounds import (
 )
 from nonprehensile.errors import InputError, ModelError, SkillError, StateError
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
+from nonprehensile.geometry.units import check_units
 from nonprehensile.skills.skill import Skill, skill_from_dict, skill_to_dict
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State
 
@@ -197,8 +198,10 @@ def model_from_dict(
     if not isinstance(virtual, list) or not all(isinstance(f, str) for f in virtual):
         raise ModelError("'virtual_faces' must be a list of face IDs", source=source)
     units = data.get("units", "m")
-    if not isinstance(units, str):
-        raise ModelError(f"'units' must be a string, got {units!r}", source=source)
+    try:
+        check_units(units, what="'units'")
+    except ModelError as exc:
+        raise ModelError(str(exc), source=source) from None
     if rtol is None:
         rtol = data.get("rtol", DEFAULT_RTOL)
         if isinstance(rtol, bool) or not isinstance(rtol, (int, float)):
@@ -295,7 +298,7 @@ def read_skills(
     rtol: float | None = None,
     angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> tuple[Polyhedron, list[Skill]]:
-    """Read a skills file (``shared/spec/files-and-cli.md``) and its object model.
+    """Read a skills file (docs/files.md) and its object model.
 
     ``object`` is a path relative to the skills file, a bundled model name, or the model
     inline. Every skill is validated against the model.

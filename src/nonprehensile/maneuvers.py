@@ -22,6 +22,7 @@ from nonprehensile.states import (
     DEFAULT_ANGLE_TOL,
     State,
     angle_diff,
+    is_stable,
     state_of_pose,
     state_pose,
 )
@@ -29,9 +30,12 @@ from nonprehensile.states import (
 __all__ = [
     "MANEUVER_TYPES",
     "Maneuver",
+    "ManeuverOption",
     "ManeuverType",
     "classify",
+    "final_states",
     "ground_clearance",
+    "maneuvers_from",
     "move_pose",
     "pivot_point",
     "roll",
@@ -401,3 +405,130 @@ def move_pose(
     rot = q @ np.asarray(rotation, dtype=float)
     t = q @ (np.asarray(translation, dtype=float) - pivot) + pivot
     return np.asarray(rot), np.asarray(t)
+
+
+@dataclass(frozen=True)
+class ManeuverOption:
+    """One maneuver available from a state, as a skill's author needs it.
+
+    Attributes
+    ----------
+    maneuver : Maneuver
+        The exact maneuver (its ``end`` is the final state to write in a skill).
+    element : str
+        What stays on the ground, in the skills file's notation: ``E(f,g)`` (rolling), the
+        bottom face (rotating), ``V(f,g,...)`` (tumbling).
+    edge : int or None
+        Rolling: the edge number on the bottom face.
+    vertex : int or None
+        Tumbling: the pivot vertex (index into the model's vertices).
+    direction : float or None
+        World direction (degrees from ``+x``, counterclockwise from above) in which the
+        centre of mass travels; None for a rotation (it stays put).
+    stable : bool
+        Whether the object rests on the final face (else it goes on tipping).
+    """
+
+    maneuver: Maneuver
+    element: str
+    edge: int | None
+    vertex: int | None
+    direction: float | None
+    stable: bool
+
+    def to_dict(self) -> dict[str, object]:
+        """JSON-friendly form."""
+        return {"kind": self.maneuver.kind, "from": self.maneuver.start.to_dict(),
+                "to": self.maneuver.end.to_dict(), "element": self.element, "edge": self.edge,
+                "vertex": self.vertex, "direction": self.direction, "stable": self.stable,
+                "angle": self.maneuver.angle, "axis": list(self.maneuver.axis)}
+
+
+def _travel(poly: Polyhedron, m: Maneuver) -> float | None:
+    """Direction (degrees) in which the centre of mass moves on the table, None if it does
+    not."""
+    r0, t0 = state_pose(poly, m.start)
+    r1, t1 = move_pose(poly, m, r0, t0)
+    d = (r1 @ poly.com + t1) - (r0 @ poly.com + t0)
+    if math.hypot(d[0], d[1]) <= poly.atol:
+        return None
+    return math.degrees(math.atan2(d[1], d[0])) % 360.0
+
+
+def maneuvers_from(
+    poly: Polyhedron,
+    state: State,
+    *,
+    step: float = 90.0,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> list[ManeuverOption]:
+    """Every roll, rotation and tumble from ``state`` (what ``nonprehensile maneuvers`` lists).
+
+    * Rolling: over each edge of the bottom face (its final state is exact).
+    * Rotating: by every multiple of ``step`` degrees.
+    * Tumbling: over each vertex of the bottom face, onto each other face through it: the
+      shortest motion (a turn about a horizontal axis) onto a face that shares no edge with
+      the bottom face, and onto any face through the vertex every final theta that is a
+      multiple of ``step`` and whose motion stays clear of the ground (the paper's Fig. 9
+      tumble of a cube, ``a:0 -> d:90``), leaving out the rolls' own final states.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    state : State
+        The initial state (its face must be a face of ``poly``).
+    step : float
+        Rotation and tumbling angles on this grid, degrees (0 < step <= 360).
+    angle_tol : float
+        Angle tolerance, degrees.
+
+    Returns
+    -------
+    list of ManeuverOption
+        Rolls by edge number, rotations by angle, tumbles by vertex and final state.
+    """
+    if not (isinstance(step, (int, float)) and math.isfinite(step) and 0 < step <= 360):
+        raise ManeuverError(f"step must be a number of degrees in (0, 360], got {step!r}")
+    f = state.face
+    poly.loop(f)
+    out: list[ManeuverOption] = []
+    dirs = roll_directions(poly, state)
+    rolled: list[State] = []
+    for k in range(1, poly.n_edges(f) + 1):
+        m = roll(poly, state, edge=k, angle_tol=angle_tol)
+        rolled.append(m.end)
+        out.append(ManeuverOption(m, f"E({f},{poly.neighbor(f, k)})", k, None, dirs[k],
+                                  is_stable(poly, m.end.face)))
+    grid = [i * step for i in range(math.ceil(360.0 / step - 1e-9))]
+    for a in grid:
+        if abs(angle_diff(a, 0.0)) > angle_tol:
+            m = rotate(poly, state, a)
+            out.append(ManeuverOption(m, f, None, None, None, True))
+    for v in poly.loop(f):
+        faces = sorted(poly.vertex_faces[v] - {f})
+        element = "V(" + ",".join(sorted(poly.vertex_faces[v])) + ")"
+        seen: list[State] = []
+        for g in faces:
+            tries: list[float | None] = [] if g in poly.adjacency[f] else [None]
+            tries += grid
+            for theta in tries:
+                try:
+                    m = tumble(poly, state, v, g, theta=theta, angle_tol=angle_tol)
+                except ManeuverError:
+                    continue
+                if any(m.end.isclose(e, angle_tol) for e in rolled + seen):
+                    continue
+                seen.append(m.end)
+                out.append(ManeuverOption(m, element, None, v, _travel(poly, m),
+                                          is_stable(poly, g)))
+    return out
+
+
+def final_states(
+    poly: Polyhedron, start: State, kind: str, face: str, *, step: float = 90.0,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
+) -> list[ManeuverOption]:
+    """The maneuvers of type ``kind`` from ``start`` that end on ``face`` (the right final
+    states for a skill whose stated one is wrong)."""
+    return [o for o in maneuvers_from(poly, start, step=step, angle_tol=angle_tol)
+            if o.maneuver.kind == kind and o.maneuver.end.face == face]

@@ -1,7 +1,7 @@
 """States of an object resting on the ground: the paper's ``{F_b, theta}`` (Section II).
 
 A state is a face on the ground and the orientation ``theta`` of that face's edge 1, projected
-on the ground and counted counterclockwise seen from above from ``+x`` (``shared/spec``).
+on the ground and counted counterclockwise seen from above from ``+x`` (docs/object-model.md).
 This module gives the value type, the pose (a rigid transform) of a state and the state of a
 pose, static stability, and state sets.
 """

@@ -2,7 +2,7 @@
 
 Every command that prints a result takes ``--json`` and then prints exactly one JSON document
 on stdout; messages go to stderr. Exit codes: 0 success, 2 bad input (the message names the
-file and the culprit), 1 anything else (``shared/spec/files-and-cli.md``).
+file and the culprit), 1 anything else (docs/files.md).
 
 This package's ``__init__`` imports only :mod:`click`: ``nonprehensile --version`` and
 ``--help`` must not pay for numpy, scipy, networkx, scikit-learn or matplotlib. Each command
@@ -31,7 +31,9 @@ from __future__ import annotations
 
 import atexit
 import importlib
+import inspect
 import os
+import re
 import sys
 import threading
 from collections.abc import Sequence
@@ -39,19 +41,24 @@ from typing import Any, NoReturn
 
 import click
 
-__all__ = ["COMMANDS", "LazyGroup", "main", "run"]
+__all__ = ["COMMANDS", "HelpGroup", "LazyGroup", "first_sentence", "main", "run"]
 
 #: Command name -> ("module:attribute" of the click command, its one-line help).
 COMMANDS: dict[str, tuple[str, str]] = {
     "cluster": ("nonprehensile.cli.cluster:cluster_group",
                 "Cluster demonstrated trajectories on a Hilbert-curve index, in a store."),
     "dataset": ("nonprehensile.cli.dataset:dataset_group",
-                "Demonstration datasets: generate a synthetic one, or show one."),
+                "Demonstration datasets: check and show one, annotate recordings, draw "
+                "trajectories, generate a synthetic one."),
     "demo": ("nonprehensile.cli.demo:demo",
              "The main job: the whole pipeline on a dataset, ending in an HTML report."),
     "infer": ("nonprehensile.cli.infer:infer_cmd",
               "Infer undemonstrated transitions of SKILLS_FILE over a state set (paper "
               "Section V)."),
+    "maneuvers": ("nonprehensile.cli.maneuvers:maneuvers_cmd",
+                  "Every roll, rotation and tumble of MODEL from a state: what stays on the "
+                  "ground (edge or vertex), the direction the object travels, and the final "
+                  "state to write in a skill."),
     "object": ("nonprehensile.cli.object:object_group",
                "Object models: show one, or make one from a mesh."),
     "plan": ("nonprehensile.cli.plan:plan_cmd",
@@ -104,7 +111,41 @@ def check_arguments(args: list[str]) -> None:
             )
 
 
-class LazyGroup(click.Group):
+#: Words ending in a full stop that do not end a sentence ("the paper's Fig. 12").
+ABBREVIATIONS = frozenset({"Fig", "Figs", "e.g", "i.e", "cf", "vs", "etc", "Sec", "Eq", "No",
+                           "approx"})
+
+
+def first_sentence(text: str) -> str:
+    """The first sentence of a help text, whole (click's own cuts it at "Fig." and at 45
+    characters, which left group listings saying "the paper's Fig.")."""
+    para = " ".join(inspect.cleandoc(text).split("\n\n")[0].split())
+    for m in re.finditer(r"\.(?=\s|$)", para):
+        word = para[:m.start()].rsplit(" ", 1)[-1].lstrip("(")
+        if word not in ABBREVIATIONS:
+            return para[:m.end()]
+    return para
+
+
+class HelpGroup(click.Group):
+    """A click group whose ``--help`` lists each command with its whole first sentence."""
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = []
+        for name in self.list_commands(ctx):
+            cmd = self.get_command(ctx, name)
+            if cmd is None or cmd.hidden:
+                continue
+            rows.append((name, cmd.short_help or first_sentence(cmd.help or "")))
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+HelpGroup.group_class = type  # subgroups are HelpGroups too
+
+
+class LazyGroup(HelpGroup):
     """A click group whose commands are imported the first time they are used.
 
     ``--help`` lists the commands with the one-line help of :data:`COMMANDS` and imports
@@ -131,7 +172,8 @@ class LazyGroup(click.Group):
             if name in COMMANDS:
                 rows.append((name, COMMANDS[name][1]))
             elif not self.commands[name].hidden:
-                rows.append((name, self.commands[name].get_short_help_str(formatter.width)))
+                cmd = self.commands[name]
+                rows.append((name, cmd.short_help or first_sentence(cmd.help or "")))
         if rows:
             with formatter.section("Commands"):
                 formatter.write_dl(rows)

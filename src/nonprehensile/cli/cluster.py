@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from rich.table import Table
 
 from nonprehensile.bounds import check_path
+from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import emit_json, handle_errors, out, progress_bar
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
@@ -232,7 +233,7 @@ arrays_option = click.option("--arrays", default=None, type=click.Path(dir_okay=
 json_option = click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 
 
-@click.group("cluster")
+@click.group("cluster", cls=HelpGroup)
 def cluster_group() -> None:
     """Cluster demonstrated trajectories on a Hilbert-curve index, in a store.
 

@@ -1,6 +1,6 @@
 """What every command module of the command line shares: consoles, errors, JSON output.
 
-Exit codes (``shared/spec/files-and-cli.md``): 0 success, 2 bad input (the message names the
+Exit codes (docs/files.md): 0 success, 2 bad input (the message names the
 file and the culprit), 1 anything else.
 """
 
@@ -9,13 +9,14 @@ from __future__ import annotations
 import functools
 import json
 import math
+import os
 import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
-from rich.console import Console
+from rich.console import Console, ConsoleDimensions
 from rich.progress import (
     BarColumn,
     MofNCompleteColumn,
@@ -48,8 +49,29 @@ if TYPE_CHECKING:
 else:  # click < 8.2 has no type parameters at run time
     _ParamBase = click.ParamType
 
-out = Console(soft_wrap=True, emoji=False, highlight=False)
-err = Console(stderr=True, soft_wrap=True, emoji=False, highlight=False)
+#: Width of output that goes to a file or a pipe (no terminal to fit): tables are printed
+#: whole, never squeezed to 80 columns and cut ("nonprehensile states cube | less").
+PIPED_WIDTH = 10_000
+
+
+class _Console(Console):
+    """A console as wide as the terminal, or :data:`PIPED_WIDTH` when the output is not a
+    terminal (``COLUMNS`` still decides when it is set)."""
+
+    @property
+    def size(self) -> ConsoleDimensions:
+        dims = super().size
+        if self.is_terminal or self._width is not None or "COLUMNS" in os.environ:
+            return dims
+        return ConsoleDimensions(PIPED_WIDTH, dims.height)
+
+    @size.setter
+    def size(self, new_size: tuple[int, int]) -> None:
+        self._width, self._height = new_size
+
+
+out = _Console(soft_wrap=True, emoji=False, highlight=False)
+err = _Console(stderr=True, soft_wrap=True, emoji=False, highlight=False)
 
 
 def fmt_num(x: float) -> str:

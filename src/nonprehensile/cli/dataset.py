@@ -1,7 +1,7 @@
 """``nonprehensile dataset``: generate, inspect and draw demonstration datasets.
 
 Registered on the main group by :mod:`nonprehensile.cli`. Progress bars and messages go to
-stderr; ``--json`` prints one JSON document on stdout (``shared/spec/files-and-cli.md``).
+stderr; ``--json`` prints one JSON document on stdout (docs/files.md).
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ from typing import Any
 import click
 from rich.table import Table
 
+from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, out, progress_bar
 from nonprehensile.demonstrations.dataset import (
     DEFAULT_GAP_LIMIT,
@@ -40,9 +41,10 @@ from nonprehensile.errors import DemonstrationError
 __all__ = ["dataset_group"]
 
 
-@click.group("dataset")
+@click.group("dataset", cls=HelpGroup)
 def dataset_group() -> None:
-    """Demonstration datasets: generate a synthetic one, or show one."""
+    """Demonstration datasets: check and show one, annotate recordings, draw trajectories,
+    generate a synthetic one."""
 
 
 @dataset_group.command("synth")
@@ -163,14 +165,15 @@ def show_cmd(directory: str, arcs: bool, as_json: bool) -> None:
         return
     if not ds.demonstrations:
         out.print(f"[bold]{root}[/]: no demonstrations of its {len(ds.skills)} skills; "
-                  "no problems")
+                  "nothing to check")
         return
     out.print(
         f"[bold]{root}[/]: {_n(summary['n_demonstrations'], 'demonstration')} of "
         f"{_n(len(ds.skills), 'skill')} on {summary['object']} (scale {ds.scale:g} m per unit), "
         f"{summary['rate_hz']:g} Hz, markers {', '.join(summary['markers'])} "
         f"({summary['units']}), {100 * summary['occluded_fraction']:.2f} % of samples "
-        f"occluded; loaded in {summary['load_seconds']:.2f} s; no problems"
+        f"occluded; loaded in {summary['load_seconds']:.2f} s; no problems found; not "
+        f"checked: {'; '.join(summary['not_checked'])}"
     )
     t = Table(title="Skills")
     for col in ("skill", "maneuver", "demos", "mentors", "duration s (mean, min-max)"):
@@ -207,7 +210,7 @@ def show_cmd(directory: str, arcs: bool, as_json: bool) -> None:
               help="Skill to draw (repeat; default: the tumbling pair of Fig. 12).")
 @click.option("--marker", default=None, help="Marker to draw (default: the R1 tip marker).")
 @click.option("--color-by", type=click.Choice(["skill", "mentor"]), default="skill",
-              show_default=True)
+              show_default=True, help="Colour each trajectory by its skill or its mentor.")
 @handle_errors
 def figure_cmd(
     directory: str, output: str, skills: tuple[str, ...], marker: str | None, color_by: str

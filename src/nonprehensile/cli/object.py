@@ -11,6 +11,7 @@ from typing import Any
 import click
 from rich.table import Table
 
+from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import emit_json, err, fmt_num, handle_errors, out
 from nonprehensile.cli.options import (
     json_option,
@@ -30,7 +31,7 @@ __all__ = ["STREAM_ROWS", "adjacency_table", "object_group", "object_summary"]
 STREAM_ROWS = 500
 
 
-@click.group("object")
+@click.group("object", cls=HelpGroup)
 def object_group() -> None:
     """Object models: show one, or make one from a mesh."""
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import click
 
+from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import emit_json, err, handle_errors, out
 from nonprehensile.errors import InputError
 
@@ -35,11 +36,12 @@ _STORE_HELP = ("The service's database: a postgresql://user@host:port/db URL, or
 store_option = click.option("--store", required=True, metavar="STORE", help=_STORE_HELP)
 
 
-@click.group("serve", invoke_without_command=True)
+@click.group("serve", cls=HelpGroup, invoke_without_command=True)
 @click.option("--store", default=None, metavar="STORE", help=_STORE_HELP)
 @click.option("--host", default="127.0.0.1", show_default=True,
               help="Address to listen on (127.0.0.1: this machine only).")
-@click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True)
+@click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True,
+              help="TCP port to listen on.")
 @click.option("--dataset", default="cube", show_default=True,
               help="Dataset folder (or bundled name) whose skills file and settings "
                    "(scale, markers, fingers, gap limit) every upload uses.")

@@ -13,7 +13,9 @@ from typing import Any
 
 import click
 from rich.table import Table
+from rich.text import Text
 
+from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import (
     bounded,
     emit_json,
@@ -176,7 +178,7 @@ def _rate_table(title: str, records: list[dict[str, Any]], keys: Sequence[str]) 
     return t
 
 
-@click.group("simulate")
+@click.group("simulate", cls=HelpGroup)
 def simulate_group() -> None:
     """Execute demonstrations, inferred transitions and plans in the MuJoCo simulation."""
 
@@ -499,37 +501,76 @@ def _check_record(record: str | None) -> None:
 @simulate_group.command("record")
 @click.argument("skills_file", type=click.Path(dir_okay=False))
 @click.argument("out_dir", type=click.Path(file_okay=False))
-@click.option("--n-per-skill", type=int, default=30, show_default=True)
-@click.option("--scale", type=float, default=0.05, show_default=True,
-              help="Metres per model unit.")
-@click.option("--seed", type=int, default=20190520, show_default=True)
-@click.option("--max-attempts", type=int, default=60, show_default=True,
-              help="Takes a mentor may try for one demonstration.")
+@click.option("--n-per-skill", type=bounded(int, 1, 1000), default=30, show_default=True,
+              help="Demonstrations to record of each skill (the mentors take turns).")
+@click.option("--only", "only", multiple=True, metavar="SKILL",
+              help="Record this skill only (repeatable); the dataset still lists every skill.")
+@click.option("--keep-going", is_flag=True,
+              help="When a skill cannot be recorded, record the others, write what succeeded, "
+                   "list what did not and exit 1 (without it: nothing is written, exit 2).")
+@click.option("--scale", type=bounded(float, 1e-6, 100.0), default=None,
+              help="Metres per model unit, overriding the model's own `units` (default: from "
+                   "them; the bundled cube is the unit cube, recorded at --scale 0.05).")
+@click.option("--seed", type=bounded(int, 0, 2**63 - 1), default=20190520, show_default=True,
+              help="Seed of the mentors' draws and the tracker noise.")
+@click.option("--max-attempts", type=bounded(int, 1, 10_000), default=60, show_default=True,
+              help="Takes a mentor may try for one demonstration before the skill is given "
+                   "up (each failed take's reason is kept and summed up).")
 @click.option("--format", "trajectory_format", type=click.Choice(["c3d", "csv"]),
-              default="c3d", show_default=True)
+              default="c3d", show_default=True,
+              help="Recording files to write: C3D, or Motive CSV (with the object's rigid "
+                   "body).")
 @_physics_options
 @json_option
 @handle_errors
-def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, scale: float, seed: int,
-                    max_attempts: int, trajectory_format: str, as_json: bool, tol_deg: float,
-                    **kw: Any) -> None:
+def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tuple[str, ...],
+                    keep_going: bool, scale: float | None, seed: int, max_attempts: int,
+                    trajectory_format: str, as_json: bool, tol_deg: float, **kw: Any) -> None:
     """Record a dataset of demonstrations from the physics itself: fingers push the
-    simulated object; poses and contact events are read from physics."""
+    simulated object; poses and contact events are read from physics.
+
+    The simulation is in SI: the model's `units` give the scale (--scale overrides), and the
+    mentors' paths scale with the object's size, so the same object in metres and in
+    millimetres records the same takes. A take that fails is tried again; each failed take's
+    reason is kept, and a skill that cannot be recorded is reported with its commonest
+    reasons, counts and what to change.
+    """
     del tol_deg
     params = _params(kw)
+    from nonprehensile.errors import RecordError
     from nonprehensile.sim.record import record_dataset, write_recorded
 
+    failures: dict[str, str] = {}
     with progress_bar("recording", as_json) as bar:
-        ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
-                                   scale=scale, params=params, max_attempts=max_attempts,
-                                   progress=bar)
-    path = write_recorded(ds, out_dir, trajectory_format)
-    doc = {"annotations": str(path), "demonstrations": len(ds.demonstrations),
-           "takes": stats, "params": params.to_dict()}
+        try:
+            ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
+                                       scale=scale, params=params, max_attempts=max_attempts,
+                                       only=only or None, keep_going=keep_going,
+                                       progress=bar)
+        except RecordError as exc:
+            raise InputError(f"{skills_file}: {exc}; nothing was written (--keep-going "
+                             "records the other skills)") from None
+    failures = {k: v["failed"] for k, v in stats.items() if "failed" in v}
+    path = write_recorded(ds, out_dir, trajectory_format) if ds.demonstrations else None
+    doc = {"annotations": str(path) if path is not None else None,
+           "demonstrations": len(ds.demonstrations), "takes": stats,
+           "failed": failures, "scale": ds.scale, "params": params.to_dict()}
     if as_json:
         emit_json(doc)
-        return
-    for name, st in stats.items():
-        out.print(f"{name}: {st['kept']} kept of {st['tried']} takes "
-                  f"({st['fragile']} fragile)")
-    out.print(f"wrote {len(ds.demonstrations)} demonstrations to {out_dir}")
+    else:
+        for name, st in stats.items():
+            line = (f"{name}: {st['kept']} kept of {st['tried']} takes "
+                    f"({st['fragile']} fragile)")
+            if st["reasons"] and name not in failures:
+                top = ", ".join(f"{n} x {k}" for k, n in list(st["reasons"].items())[:3])
+                line += f"; failed takes: {top}"
+            out.print(line)
+        for line in failures.values():
+            err.print(Text.assemble(("not recorded: ", "bold red"), line))
+        if ds.demonstrations:
+            out.print(f"wrote {len(ds.demonstrations)} demonstrations to {out_dir} "
+                      f"(scale {ds.scale:g} m per model unit)")
+        else:
+            out.print(f"nothing written to {out_dir}: no skill could be recorded")
+    if failures:
+        sys.exit(1)

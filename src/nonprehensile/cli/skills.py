@@ -10,6 +10,7 @@ from typing import Any
 import click
 from rich.table import Table
 
+from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import emit_json, err, handle_errors, out
 from nonprehensile.cli.options import (
     angle_tol_option,
@@ -25,7 +26,7 @@ from nonprehensile.states import State
 __all__ = ["skill_graphs_summary", "skills_group"]
 
 
-@click.group("skills")
+@click.group("skills", cls=HelpGroup)
 def skills_group() -> None:
     """Demonstrated skills: contact events, motions and skill graphs."""
 

@@ -66,6 +66,7 @@ __all__ = [
     "dataset_path",
     "dataset_summary",
     "load_dataset",
+    "not_checked",
     "save_dataset",
 ]
 
@@ -475,7 +476,13 @@ def _events(
     item: Mapping[str, Any], skill: Skill | None, where: tuple[str, int], out: _Collector
 ) -> list[EventTime] | None:
     raw = item.get("events")
-    if not isinstance(raw, list) or not raw:
+    want = [e.id for e in skill.events] if skill is not None else None
+    if isinstance(raw, list) and not raw:
+        out.add(*where, "'events' is empty: give the time of each event of the skill, in order"
+                        + (f" ({want}), e.g. [{{\"id\": \"{want[0]}\", \"time\": 0.0}}, ...]"
+                           if want else "") + "; or let `dataset annotate` find them")
+        return None
+    if not isinstance(raw, list):
         out.add(*where, f"'events' must be a list of {{\"id\": ..., \"time\": ...}}, got {raw!r}")
         return None
     events: list[EventTime] = []
@@ -496,8 +503,7 @@ def _events(
         return None
     # a wrong chain or order is reported, and the times are still checked against the
     # recording, so that one pass lists every problem of the demonstration
-    if skill is not None:
-        want = [e.id for e in skill.events]
+    if skill is not None and want is not None:
         got = [e.id for e in events]
         if got != want:
             out.add(*where, f"events {got} do not match the chain of skill {skill.name!r}, "
@@ -724,15 +730,20 @@ def check_dataset(
             continue
         missing = [m for m in settings.markers if m not in traj.marker_names]
         if missing:
+            has = list(traj.marker_names)
+            listed = (", ".join(has[:12]) + (f", ... ({len(has) - 12} more)" if len(has) > 12
+                                             else "")) if has else "no markers"
             out.add(*where, f"marker(s) {missing} are not in the recording, which has "
-                            f"{list(traj.marker_names)}; rename them or fix 'markers'/'fingers'/"
-                            "'object_markers'")
+                            f"{listed}; rename them in the file or name the recording's own "
+                            "markers in 'markers'/'fingers'/'object_markers'")
         if settings.rigid_body_name is not None and settings.rigid_body_name not in [
                 b.name for b in traj.rigid_bodies]:
             out.add(*where, f"rigid body {settings.rigid_body_name!r} ('rigid_body') is not in the "
                             f"recording, which has {[b.name for b in traj.rigid_bodies] or 'none'}")
         ignored.update(dict.fromkeys(m for m in traj.marker_names if m not in settings.markers))
         own = [m for m in traj.marker_names if m in settings.markers]
+        if not own:
+            continue  # none of the annotations' markers: said above; nothing else to check
         if order is None and not missing:
             # the dataset's marker order: the first complete recording's. Every other one is
             # put in it, whatever order its file exports them in, so that the same marker
@@ -999,4 +1010,18 @@ def dataset_summary(dataset: Dataset) -> dict[str, Any]:
         "skills": skills,
         "mentors": mentors_doc,
         "problems": [],
+        "not_checked": not_checked(dataset),
     }
+
+
+def not_checked(dataset: Dataset) -> list[str]:
+    """What loading could not check in this dataset (said beside "no problems")."""
+    out = []
+    if not dataset.object_markers:
+        out.append("the initial states against the object's pose (the annotations name no "
+                   "'object_markers'" + (", and a rigid body's pose is not compared with "
+                                         "the model)" if dataset.rigid_body else ")"))
+    out.append("the event times against the object's motion and the fingers' contacts "
+               "(`dataset annotate` finds them in recordings that track the object; "
+               "`simulate dataset` replays them in physics)")
+    return out

@@ -11,10 +11,12 @@ Model of a demonstration
   a rotation by ``angle`` about ``axis`` through the pivot (a point of the pivot edge for
   rolling, the pivot vertex for tumbling, the centre of mass for rotating), with a
   minimum-jerk profile, during the one arc that carries it (see :func:`event_progress`).
-* Finger ``R1`` is the index finger, ``R2`` the thumb. While a finger is in contact (from the
-  event that first names it to the first event that no longer does) its contact point is a
-  point of the named element, in the object's frame; the tip marker is that point moved
-  outward along the element's normal by the mentor's marker offset (a marker sits on the
+* Finger ``R1`` is the index finger, ``R2`` the thumb. The landing event may leave out a
+  finger that held the object as it started to move (a topple that falls ahead of it): the
+  finger rides with the object to the landing and lets go there. While a finger is in contact
+  (from the event that first names it to the first event that no longer does) its contact
+  point is a point of the named element, in the object's frame; the tip marker is that point
+  moved outward along the element's normal by the mentor's marker offset (a marker sits on the
   nail side of the pad, 0.5 to 2 mm proud). So at each event time every named finger's tip
   lies on the named face, edge or vertex of the object in its pose at that time, on the
   outside: what ``tests/test_synth.py`` checks.
@@ -91,6 +93,7 @@ __all__ = [
     "default_object_markers",
     "event_progress",
     "object_motion",
+    "object_size",
     "synthesize",
     "synthesize_dataset",
     "synthesize_demonstration",
@@ -127,13 +130,13 @@ _UP = np.array([0.0, 0.0, 1.0])
 # base durations (s) of an arc by kind, before a mentor's speed and timing are applied
 _BASE = {"free": 0.6, "hold": 0.3, "move": 0.9}
 _LEAD, _TAIL = 0.1, 0.25  # hover before the first event, retreat after the last (s)
-_FACE_MARGIN = 0.08  # keep chosen contact points this far (model units) inside a face
+_FACE_MARGIN = 0.08  # keep chosen contact points this far (object sizes) inside a face
 #: A hook for a straight pull sits this share of the mentor's grip offset from the face's
 #: middle: hooked far from the middle, the drag to the rolling edge loses the cube before its
 #: tipping point (physics: ben's grip, 14 mm off, tipped it in 2 takes of 20; halved, 20 of 20)
 _PULL_GRIP = 0.5
 _TWIST_DEG = 160.0  # how far the wrist turns about the pinch during a twist-over
-#: Where a tumbling skill's pinch holds each face, model units from the face's centre (up the
+#: Where a tumbling skill's pinch holds each face, object sizes from the face's centre (up the
 #: slope, across: the mirror image on the opposite face), by its moving arc's label: the pinch
 #: line lies above and behind the centre of mass, so that the object hangs from it the way
 #: the tumble turns it and keeps its pivot vertex on the table (found in physics; a pinch
@@ -153,7 +156,8 @@ class MentorStyle:
     speed : float
         Speed factor: arc durations are divided by it.
     amplitude : float
-        Scale of approach and retreat distances and of the bow of free paths.
+        Scale of approach and retreat distances and of the bow of free paths, in object
+        sizes (:func:`object_size`).
     timing : tuple of float, length 3
         Duration weights of free arcs (approach), holding arcs (contact, object still) and
         moving arcs (the object turns): the share of time spent in each.
@@ -162,8 +166,8 @@ class MentorStyle:
     knuckle_offset_mm : tuple of float, length 3
         Placement offset of the knuckle markers, mm (world x, y, z).
     grip : tuple of float, length 2
-        Where on a face the mentor puts a finger, model units from the face's centre along
-        (its up-slope direction, the horizontal across it).
+        Where on a face the mentor puts a finger, in object sizes (:func:`object_size`) from
+        the face's centre along (its up-slope direction, the horizontal across it).
     """
 
     name: str
@@ -308,10 +312,13 @@ def event_progress(skill: Skill) -> list[float]:
             f"cannot synthesize skill {skill.name!r}: no finger touches the object when it "
             f"starts to move (event {skill.events[i].id!r})"
         )
-    if skill.maneuver != "rotating" and a != b:
+    # fingers may let go as the object lands (a topple: it falls ahead of the finger), so
+    # the landing event may name fewer of them, never others
+    if skill.maneuver != "rotating" and any(b.get(k, a.get(k)) != a.get(k) for k in {*a, *b}):
         raise InputError(
             f"cannot synthesize skill {skill.name!r}: the fingers holding the object change "
-            f"while it moves ({skill.events[i].id!r} -> {skill.events[i + 1].id!r})"
+            f"while it moves ({skill.events[i].id!r} -> {skill.events[i + 1].id!r}); the "
+            "landing event may leave a finger out (it lets go), not add or move one"
         )
     return lam
 
@@ -332,6 +339,18 @@ def _smooth(s: FloatArray) -> FloatArray:
     """Minimum-jerk profile 10 s^3 - 15 s^4 + 6 s^5 (zero speed and acceleration at ends)."""
     s = np.clip(s, 0.0, 1.0)
     return np.asarray(s**3 * (10.0 - 15.0 * s + 6.0 * s**2))
+
+
+def object_size(poly: Polyhedron) -> float:
+    """The object's size: the edge of the cube of its volume (1 for the unit cube), in model
+    units.
+
+    Every distance of a mentor's path that is not a physical constant of the hand (marker
+    offsets and pad, in mm) is a multiple of it, so that the same object written in metres
+    and in millimetres gets the same path in SI, and a small object a tight one. Rounded to
+    12 significant digits, so that the unit cube's is exactly 1.
+    """
+    return float(f"{float(np.cbrt(poly.volume)):.12g}")
 
 
 def _element_frame(poly: Polyhedron, el: ObjectElement) -> tuple[FloatArray, FloatArray]:
@@ -360,13 +379,14 @@ def _place_on_face(poly: Polyhedron, face: str, target: FloatArray) -> FloatArra
     """``target`` (in the face's plane) pulled toward the centre until it is well inside."""
     c = np.asarray(poly.face_centroids[face])
     n = poly.normals[face]
+    size = object_size(poly)
     n_all, h_all = _planes(poly)
     others = [i for i, f in enumerate(poly.faces) if f != face]
     d = target - c
     d = d - (d @ n) * n
     for s in np.linspace(1.0, 0.0, 41):
         x = c + s * d
-        if np.all(n_all[others] @ x - h_all[others] <= -_FACE_MARGIN):
+        if np.all(n_all[others] @ x - h_all[others] <= -_FACE_MARGIN * size):
             return np.asarray(x)
     return c
 
@@ -477,7 +497,8 @@ def _contacts(
                 elif moved or not isinstance(el, Face):
                     pts[i] = prev  # the finger rides with the object (or holds an edge/vertex)
                 else:  # holding a still object: the pad creeps a little
-                    pts[i] = _place_on_face(poly, el.id, prev + rng.normal(0.0, 0.04, 3))
+                    creep = rng.normal(0.0, 0.04 * object_size(poly), 3)
+                    pts[i] = _place_on_face(poly, el.id, prev + creep)
             if i < last and lam[i] != lam[i + 1] and labels[i] == "straight-pull":
                 # the pull must start where the face is nearest the rolling edge
                 pts[i] = _pull_start(poly, el, motion, pts[i], skill)
@@ -503,7 +524,9 @@ def _first_point(
     up, across = mentor.grip
     if grip is not None:  # a tumbling pinch: the skill's grip, shifted by the mentor's
         up, across = grip[0] + (up - 0.2) / 3.0, grip[1] + across / 3.0
-    off = up * u + across * (1 if finger == 1 else -1) * v + rng.normal(0.0, 0.03, 3)
+    size = object_size(poly)
+    off = (size * (up * u + across * (1 if finger == 1 else -1) * v)
+           + rng.normal(0.0, 0.03 * size, 3))
     return _place_on_face(poly, el.id, poly.face_centroids[el.id] + off)
 
 
@@ -688,6 +711,7 @@ def synthesize_demonstration(
 
     tips: dict[int, FloatArray] = {}
     normals: dict[int, FloatArray] = {}
+    size = object_size(poly)
     tip_off = mentor.tip_offset_mm / (scale * 1000.0)
     for k, c in contacts.items():
         tips[k], normals[k] = _finger_path(
@@ -700,7 +724,8 @@ def synthesize_demonstration(
             ref = fingers_named[0]
             off = 0.5 * normals[ref] + _UP
             off /= np.linalg.norm(off, axis=1, keepdims=True)
-            tips[k] = tips[ref] + 0.6 * off + 0.1 * np.array([0.0, 1.0 if k == 2 else -1.0, 0.0])
+            tips[k] = tips[ref] + size * (
+                0.6 * off + 0.1 * np.array([0.0, 1.0 if k == 2 else -1.0, 0.0]))
             normals[k] = normals[ref]
     pos = np.empty((n_frames, 4, 3))
     place = np.asarray(mentor.knuckle_offset_mm) / (scale * 1000.0)
@@ -712,7 +737,7 @@ def synthesize_demonstration(
             back = _wrist_twist(back, normals[k], wrist)
         back /= np.linalg.norm(back, axis=1, keepdims=True)
         pos[:, 2 * j] = tips[k]
-        pos[:, 2 * j + 1] = tips[k] + 0.45 * back + place
+        pos[:, 2 * j + 1] = tips[k] + 0.45 * size * back + place
     pos *= scale * 1000.0  # model units -> mm
     pos += gen.normal(0.0, noise_mm, pos.shape)
     longest = max(2, gap_limit // 2)
@@ -771,7 +796,7 @@ def _finger_path(
     i_make, i_break = c.first, c.last
     w_make = _free_dir(nrm[np.searchsorted(times, t_ev[i_make])])
     w_break = _free_dir(nrm[min(n - 1, np.searchsorted(times, t_ev[i_break]))])
-    amp = mentor.amplitude
+    amp = mentor.amplitude * object_size(poly)
     for w, t_contact, t_far, towards in (
         (w_make, t_ev[i_make], t_ev[max(i_make - 1, 0)], True),
         (w_break, t_ev[i_break], min(times[-1], t_ev[i_break] + _TAIL / mentor.speed), False),
@@ -793,7 +818,7 @@ def _finger_path(
         # p + (1 - s)(far - p) + bow sin(pi s) w: always on the outer side of the contact plane
         world[span] = (p + np.outer(1.0 - s, far - p)
                        + bow * np.outer(np.sin(np.pi * s), w))
-        drift = np.outer(np.sin(times[before] * 2.1), rng.normal(0.0, 0.01, 3))
+        drift = np.outer(np.sin(times[before] * 2.1), rng.normal(0.0, 0.01 * object_size(poly), 3))
         world[before] = far + drift
     # before contact and after release, the normal is the one at making / breaking contact
     nrm[times < t_ev[i_make]] = nrm[np.searchsorted(times, t_ev[i_make])]

@@ -34,6 +34,7 @@ from nonprehensile.geometry.polyhedron import (
     corner_heights,
     vertex_diameter,
 )
+from nonprehensile.geometry.units import check_units
 
 __all__ = [
     "box",
@@ -445,6 +446,7 @@ def convex_hull(
     try:
         rtol = check_tolerance(rtol, "rtol")
         angle = check_tolerance(angle, "merge angle", allow_zero=True)
+        units = check_units(units)
     except InputError as exc:
         raise MeshError(str(exc)) from None
     if angle >= 90:
@@ -453,6 +455,43 @@ def convex_hull(
         raise MeshError(f"max_faces must be an integer >= 4, got {max_faces!r}")
     return _hull_model(p, name=name, rtol=rtol, angle=angle, max_faces=max_faces,
                        center_of_mass=center_of_mass, units=units)
+
+
+def typed_decimals(p: FloatArray) -> FloatArray:
+    """Single-precision coordinates (STL, most GLB) read as the decimals they were written as.
+
+    A file that stores float32 holds 0.04 as 0.0399999991: read as such, the same part
+    written in metres and in millimetres (40, exact) is not the same object in SI. Each
+    coordinate becomes the shortest decimal (6 to 9 significant digits) that gives the same
+    float32, as every float32 printer shows it. Data that is not all float32 is returned as
+    it is.
+
+    Parameters
+    ----------
+    p : array, shape (n, 3)
+
+    Returns
+    -------
+    array, shape (n, 3)
+    """
+    f32 = p.astype(np.float32)
+    if not np.array_equal(f32.astype(np.float64), p):
+        return p
+    out = p.copy()
+    nz = p != 0.0
+    x, want = p[nz], f32[nz]
+    e = np.floor(np.log10(np.abs(x)))
+    res, done = x.copy(), np.zeros(x.shape, dtype=bool)
+    for digits in (6, 7, 8, 9):  # float32 always round-trips through 9 significant digits
+        d = digits - 1 - e
+        up = d >= 0
+        cand = np.where(up, np.rint(x * 10.0 ** np.where(up, d, 0)) / 10.0 ** np.where(up, d, 0),
+                        np.rint(x / 10.0 ** np.where(up, 0, -d)) * 10.0 ** np.where(up, 0, -d))
+        ok = ~done & (cand.astype(np.float32) == want)
+        res[ok] = cand[ok]
+        done |= ok
+    out[nz] = res
+    return out
 
 
 def from_mesh(
@@ -510,6 +549,10 @@ def from_mesh(
     path = Path(path)
     notes = [] if notes is None else notes
     try:
+        units = check_units(units)
+    except ModelError as exc:
+        raise MeshError(f"{path}: {exc}") from None
+    try:
         import trimesh  # optional dependency: only mesh files need it
     except ImportError:
         raise MeshError(
@@ -565,6 +608,7 @@ def from_mesh(
     if filled:
         notes.append(f"{path.name}: filled small holes in the mesh to close it")
     pts = np.asarray(mesh.vertices, dtype=float) if len(mesh.vertices) >= 4 else pts
+    pts = typed_decimals(pts)
     closed = len(mesh.faces) > 0 and bool(mesh.is_watertight)
     pieces = int(mesh.body_count) if len(mesh.faces) else 1
     why = ""

@@ -1,6 +1,6 @@
 """The object model of the paper's Section III: a convex polyhedron with labeled faces.
 
-Conventions (``shared/spec/conventions.md``):
+Conventions (docs/object-model.md):
 
 * each face is a loop of vertex indices listed clockwise when the face is viewed from outside;
 * edge ``k`` (1-based) of a face runs from loop vertex ``k`` to loop vertex ``k + 1``;

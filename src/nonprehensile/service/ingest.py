@@ -452,11 +452,25 @@ class Registry:
             "JOIN np_samples s ON s.store = u.arc AND s.id = u.sample "
             "WHERE u.hash = %s ORDER BY u.step", (digest,)
         ).fetchall()
+        held = dict(conn.execute(
+            "SELECT store, count(*) FROM np_samples GROUP BY store").fetchall()) if any(
+            label < 0 for *_, label in segs) else {}
+
+        def pending(arc: str) -> dict[str, str]:
+            # a fresh arc collects its first batch before anything is clustered: say so
+            # (``cluster`` is null until then) and when the clusters will be named
+            k = self.template.arc_skills.get(arc, 1)
+            need = max(self.init_size, 3, k + 1)
+            return {"pending": f"not clustered yet: arc {arc!r} holds {held.get(arc, 0)} "
+                               f"sample(s) and is first clustered at {need}; then replies "
+                               "name the cluster (GET /clusters lists them)"}
+
         return {
             "upload": digest, "mentor": row[0], "file": row[1], "skill": row[2],
             "kind": row[3], "withdrawn": bool(row[4]),
             "segments": [{"step": st, "arc": arc, "sample": int(sample),
-                          "cluster": None if label < 0 else int(label)}
+                          "cluster": None if label < 0 else int(label),
+                          **(pending(arc) if label < 0 else {})}
                          for st, arc, sample, label in segs],
         }
 

@@ -25,8 +25,10 @@ dropouts follow the kinematic generator's mentor styles.
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,19 +50,28 @@ from nonprehensile.demonstrations.synth import (
     event_progress,
     synthesize_demonstration,
 )
-from nonprehensile.errors import InputError, NonprehensileError
+from nonprehensile.errors import InputError, NonprehensileError, RecordError
 from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.geometry.units import in_metres
 from nonprehensile.io import read_skills
 from nonprehensile.maneuvers import classify, move_pose
 from nonprehensile.sim.compare import Comparison, compare
 from nonprehensile.sim.execute import fingers_of, smooth_markers
-from nonprehensile.sim.run import SimResult, Simulator, pose_of_state
+from nonprehensile.sim.run import SimResult, Simulator, default_scale, pose_of_state
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 from nonprehensile.skills.contacts import Finger
 from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State
 
-__all__ = ["OBJECT_BODY", "object_markers_of", "record_dataset", "record_demonstration"]
+__all__ = [
+    "OBJECT_BODY",
+    "TakeFailed",
+    "TakeReason",
+    "object_markers_of",
+    "record_dataset",
+    "record_demonstration",
+    "what_to_change",
+]
 
 FloatArray = NDArray[np.float64]
 Progress = Callable[[int, int], None]
@@ -69,19 +80,138 @@ Progress = Callable[[int, int], None]
 OBJECT_BODY = "object"
 
 
+@dataclasses.dataclass(frozen=True)
+class TakeReason:
+    """Why one take failed, as physics showed it.
+
+    Attributes
+    ----------
+    kind : str
+        ``"stayed"`` (the object never left its initial face), ``"pushed"`` (it slid on it
+        without tipping), ``"untouched"`` (no finger ever touched it), ``"turned"`` (it
+        ended on the right face at another angle), ``"elsewhere"`` (on another face),
+        ``"no-rest"`` (not at rest on a face), ``"events"`` (it moved as the skill says but
+        some event never happened in order), ``"slid"`` (off its pivot), ``"fragile"`` (it
+        worked, but not with another draw of tracker noise) or ``"unfit"`` (the synthetic
+        mentor cannot make the skill's motion).
+    key : str
+        What takes failing alike share (counted together).
+    text : str
+        This take's detail, e.g. ``"ended in a:359.3"``.
+    """
+
+    kind: str
+    key: str
+    text: str
+    events: tuple[str, ...] = ()
+
+
 class TakeFailed(NonprehensileError):
     """A take in which the simulated object did not do what the skill says (``fragile``: it
-    did, but not again with another draw of tracker noise)."""
+    did, but not again with another draw of tracker noise); ``reason`` says what physics did.
+    """
 
-    def __init__(self, message: str, fragile: bool = False) -> None:
+    def __init__(self, message: str, fragile: bool = False,
+                 reason: TakeReason | None = None) -> None:
         super().__init__(message)
         self.fragile = fragile
+        self.reason = reason or TakeReason("fragile" if fragile else "unfit", message, message)
+
+
+def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
+            max_slip: float, moved: float) -> TakeReason:
+    """What a failed attempt did, named so that attempts failing alike share a key
+    (``moved``: how far the centre of mass went on the table, metres)."""
+    got = res.final_state
+    if not cmp.success:
+        if got is None:
+            return TakeReason("no-rest", "did not come to rest on a face",
+                              "did not come to rest on a face")
+        text = f"ended in {got}"
+        if got.face == skill.initial.face and skill.maneuver != "rotating":
+            if moved > max_slip:
+                return TakeReason("pushed", f"slid on face {got.face} without tipping",
+                                  f"{text}, {1000 * moved:.0f} mm away")
+            first = next((e.id for e in skill.events
+                          if any(isinstance(q.x, Finger) for q in e.pairs)), None)
+            if first is not None and first in cmp.missing:
+                return TakeReason("untouched", f"never left face {got.face}, never touched",
+                                  f"{text}; event {first!r} never happened")
+            return TakeReason("stayed", f"never left its initial face {got.face}", text)
+        if got.face == skill.final.face:
+            return TakeReason("turned", f"ended on face {got.face} at another angle",
+                              f"{text} (skill: {skill.final})")
+        return TakeReason("elsewhere", f"ended on face {got.face}", text)
+    if not cmp.chain_ok:
+        text = f"events {list(cmp.missing)} missing"
+        return TakeReason("events", text, text, tuple(cmp.missing))
+    return TakeReason("slid", "slid off its pivot",
+                      f"slid {1000 * slip:.1f} mm (at most {1000 * max_slip:g} mm allowed)")
+
+
+def what_to_change(skill: Skill, reason: TakeReason) -> str:
+    """Advice for the commonest way a skill's takes fail (one sentence)."""
+    see = f"`nonprehensile maneuvers MODEL --from {skill.initial}`"
+    if reason.kind == "pushed":
+        return ("the push slid the object along the table instead of tipping it over its "
+                "pivot: a push this low on a flat object slides it; push higher on the face "
+                "(a hook on the far face, as roll-arc does), or more table friction "
+                "(--friction) or less finger friction (--finger-friction) tips it")
+    if reason.kind == "stayed":
+        return ("the fingers touched the object but did not tip it (it barely moved): it is "
+                "too heavy for the push (--mass, --stiffness, --force-limit), or the finger "
+                "pushes too close to the pivot's height to turn it")
+    if reason.kind == "untouched":
+        return ("the fingertips never touched the object where the skill says: the face is "
+                "too small or too far for a pad of --finger-radius, or the path misses it")
+    if reason.kind == "turned":
+        return (f"it reached face {skill.final.face} but turned on the way: more table "
+                f"friction (--friction) holds it; if every take ends at the same angle, the "
+                f"skill's final theta may be wrong ({see} lists the final states)")
+    if reason.kind == "elsewhere":
+        return (f"it went on past {skill.final} (or fell another way): the push carries it "
+                f"too far, or {skill.final.face} is not a stable face; {see} lists where each "
+                "maneuver ends and whether it is stable")
+    if reason.kind == "no-rest":
+        return "the object was still moving or balanced on an edge when the take ended"
+    if reason.kind == "events":
+        named = [e for e in skill.events if e.id in reason.events]
+        contacts = "; ".join(f"{e.id!r}: {e}" for e in named)
+        return ("physics made the maneuver but not these events in order (" + contacts
+                + "): write them as physics makes them; an object that falls ahead of the "
+                "finger lands without it, so end the moving arc on the landing with the "
+                "ground alone (pivot, then e.g. (G,face): a topple), or leave the event out")
+    if reason.kind == "slid":
+        return ("the pivot slid along the table: more table friction (--friction), or a "
+                "second finger holding the object down on its pivot")
+    if reason.kind == "fragile":
+        return ("takes work only for some draws of tracker noise: the skill is marginal in "
+                "physics; a firmer grip or more friction makes it reliable")
+    return "the synthetic mentor cannot make this skill's motion; see the reason"
+
+
+def _summary(reasons: Counter[TakeReason], top: int = 3) -> str:
+    """The commonest failure keys with counts, e.g. ``41 x events ['landed'] missing``."""
+    by_key: Counter[str] = Counter()
+    example: dict[str, str] = {}
+    for r, n in reasons.items():
+        by_key[r.key] += n
+        example.setdefault(r.key, r.text)
+    parts = []
+    for key, n in by_key.most_common(top):
+        detail = example[key]
+        parts.append(f"{n} x {key}" + (f" (e.g. {detail})" if detail != key else ""))
+    rest = sum(by_key.values()) - sum(n for _, n in by_key.most_common(top))
+    return ", ".join(parts) + (f", {rest} other" if rest else "")
 
 
 def object_markers_of(poly: Polyhedron) -> dict[str, tuple[float, float, float]]:
     """Three markers fixed on the object (model frame): at three vertices of its largest face
     that is not a bottom face in the usual states, pulled 10 % toward the face's centre."""
-    top = max(poly.faces, key=lambda f: (poly.face_areas[f], f))
+    # areas compared to 9 digits: equal faces stay equal whatever the units (a tie broken
+    # by rounding noise would put the markers elsewhere in millimetres than in metres)
+    big = max(poly.face_areas.values())
+    top = max(poly.faces, key=lambda f: (round(poly.face_areas[f] / big, 9), f))
     loop = poly.faces[top]
     c = poly.face_centroids[top]
     picks = [loop[0], loop[len(loop) // 3], loop[(2 * len(loop)) // 3]]
@@ -194,7 +324,7 @@ def record_demonstration(
     r_end, t_end = move_pose(poly, m, start.rotation, start.translation, scale)
     exact = scale * (r_end @ poly.com) + t_end
     best: tuple[float, FloatArray, SimResult, Comparison] | None = None
-    why = ""
+    why: TakeReason | None = None
     for _ in range(corrections + 1):
         # the mentor aims the hand at ``aim`` and, seeing where the object ends, corrects the
         # aim by the error (the same take otherwise: same draw of the mentor's variations);
@@ -205,7 +335,8 @@ def record_demonstration(
                 poly, intended, plan_style, np.random.default_rng(draw), rate=rate,
                 scale=scale, noise_mm=0.0, dropouts=0.0, gap_limit=gap_limit)
         except InputError as exc:
-            raise TakeFailed(f"take of {skill.name!r} by {mentor.name}: {exc}") from None
+            raise TakeFailed(f"take of {skill.name!r} by {mentor.name}: {exc}",
+                             reason=TakeReason("unfit", str(exc), str(exc))) from None
         pos = traj.positions / 1000.0  # metres
         names = list(traj.marker_names)
         targets = tumbling_hand(
@@ -221,16 +352,17 @@ def record_demonstration(
             err = abs(cmp.theta_error or 0.0)
             if best is None or err < best[0]:
                 best = (err, pos, res, cmp)
-        elif not why:
-            why = ("ended in " + str(res.final_state) if not cmp.success else
-                   f"events {list(cmp.missing)} missing" if not cmp.chain_ok else
-                   f"slid {1000 * slip:.1f} mm")
+        elif why is None:
+            moved = float(np.hypot(*(np.asarray(res.final_pose.com[:2])
+                                     - np.asarray(start.com[:2]))))
+            why = _reason(skill, cmp, res, slip, max_slip, moved)
         if cmp.theta_error is None or abs(cmp.theta_error) > 30.0 or (
                 best is not None and best[0] <= aim_tol_deg):
             break
         aim = State(aim.face, aim.theta - cmp.theta_error)
     if best is None:
-        raise TakeFailed(f"take of {skill.name!r} by {mentor.name}: {why}")
+        assert why is not None
+        raise TakeFailed(f"take of {skill.name!r} by {mentor.name}: {why.text}", reason=why)
     _, pos, res, cmp = best
     if robust:
         # a take that works only by chance is not kept: the same hand motion, measured with
@@ -240,8 +372,11 @@ def record_demonstration(
                   for k, p in tips.items()}
         again = compare(poly, skill, sim.run(start, shaken, rate))
         if not again.success:
-            raise TakeFailed(f"take of {skill.name!r} by {mentor.name}: not robust (with "
-                             f"other tracker noise it ends in {again.simulated})", fragile=True)
+            text = f"with other tracker noise it ends in {again.simulated}"
+            raise TakeFailed(f"take of {skill.name!r} by {mentor.name}: not robust ({text})",
+                             fragile=True,
+                             reason=TakeReason("fragile", "fragile (not robust to tracker "
+                                               "noise)", text))
     assert res.trace is not None
     # the recording lasts until the object is at rest, the fingers holding their last place
     n = max(len(pos), int(np.ceil(res.sim_time * rate)) + 1)
@@ -282,7 +417,7 @@ def record_dataset(
     seed: int = 20190520,
     n_per_skill: int = 30,
     mentors: Sequence[MentorStyle] = DEFAULT_MENTORS,
-    scale: float = 0.05,
+    scale: float | None = None,
     params: SimParams = DEFAULT_PARAMS,
     rate: float = 120.0,
     noise_mm: float = 0.5,
@@ -292,39 +427,70 @@ def record_dataset(
     max_slip: float = 0.006,
     max_attempts: int = 60,
     only: Sequence[str] | None = None,
+    keep_going: bool = False,
     with_object_markers: bool = True,
     progress: Progress | None = None,
-) -> tuple[Dataset, dict[str, dict[str, int]]]:
+) -> tuple[Dataset, dict[str, dict[str, Any]]]:
     """Record ``n_per_skill`` physics takes of every skill of a skills file.
 
-    ``only`` restricts the takes to those skills (the dataset keeps every skill);
-    ``with_object_markers=False`` leaves the object markers out (smaller files).
+    The simulation runs in SI: the model is converted to metres once
+    (:func:`~nonprehensile.geometry.units.in_metres`, from its ``units`` unless ``scale``
+    overrides), and the mentors' paths scale with the object's size, so that the same object
+    written in metres and in millimetres records the same takes.
+
+    Parameters
+    ----------
+    scale : float, optional
+        Metres per model unit; default from the model's ``units``.
+    only : sequence of str, optional
+        Record these skills only (the dataset keeps every skill); an unknown name is an
+        error naming the skills.
+    keep_going : bool
+        When a skill cannot be recorded, go on with the others and return what succeeded
+        (``stats[name]["failed"]`` says why) instead of raising.
+    with_object_markers : bool
+        ``False`` leaves the object markers out (smaller files).
 
     Returns
     -------
     dataset : Dataset
-    attempts : dict
-        Per skill: takes kept, takes tried (how hard the skill is in physics) and takes that
-        worked once but not again with other tracker noise (``fragile``, not kept).
+        In the model's own units, with ``scale`` metres per unit.
+    stats : dict
+        Per recorded skill: takes kept, takes tried (how hard the skill is in physics), takes
+        that worked once but not again with other tracker noise (``fragile``, not kept),
+        ``reasons`` (why takes failed: ``{reason: count}``, commonest first) and, for a skill
+        that could not be recorded, ``failed`` (one line: the commonest reasons with counts
+        and what to change).
 
     Raises
     ------
-    InputError
-        A skill for which no take succeeds in ``max_attempts`` tries.
+    RecordError
+        A skill for which no take succeeds in ``max_attempts`` tries (unless ``keep_going``);
+        its message gives, per such skill, the commonest reasons and what to change.
     """
     if isinstance(n_per_skill, bool) or not isinstance(n_per_skill, int) or n_per_skill < 1:
         raise InputError(f"n_per_skill must be a whole number >= 1, got {n_per_skill!r}")
     rng = np.random.default_rng(seed)
     poly, skills = read_skills(skills_file)
+    names = [s.name for s in skills]
+    unknown = [n for n in (only or ()) if n not in names]
+    if unknown:
+        raise InputError(f"{skills_file}: no skill named {unknown}; its skills are {names}")
+    if scale is None:
+        scale = default_scale(poly)
+    si = in_metres(poly, scale)
     n_f = max(max(fingers_of(s), default=1) for s in skills)
-    sim = Simulator(poly, scale=scale, n_fingers=max(n_f, 1), params=params)
+    sim = Simulator(si, scale=1.0, n_fingers=max(n_f, 1), params=params)
     markers = object_markers_of(poly) if with_object_markers else {}
+    markers_si = object_markers_of(si) if with_object_markers else {}
     demos: list[Demonstration] = []
-    stats: dict[str, dict[str, int]] = {}
+    stats: dict[str, dict[str, Any]] = {}
+    failures: dict[str, str] = {}
     chosen = [s for s in skills if only is None or s.name in only]
     total = n_per_skill * len(chosen)
     for skill in chosen:
-        tried = fragile = 0
+        tried = fragile = kept = 0
+        reasons: Counter[TakeReason] = Counter()
         for j in range(n_per_skill):
             mentor = mentors[j % len(mentors)]
             for _ in range(max_attempts):
@@ -333,21 +499,35 @@ def record_dataset(
                     traj, events = record_demonstration(
                         sim, skill, mentor, rng, rate=rate, noise_mm=noise_mm,
                         dropouts=dropouts, gap_limit=gap_limit, press_mm=press_mm,
-                        max_slip=max_slip, markers=markers)
+                        max_slip=max_slip, markers=markers_si)
                     break
                 except TakeFailed as exc:
                     fragile += exc.fragile
+                    reasons[exc.reason] += 1
                     continue
             else:
-                raise InputError(f"no physics take of skill {skill.name!r} by {mentor.name} "
-                                 f"succeeded in {max_attempts} tries; the skill may be "
-                                 "impossible as written (check which faces the fingers touch)")
+                commonest = max(reasons, key=lambda r: (
+                    sum(n for q, n in reasons.items() if q.key == r.key), reasons[r]))
+                failures[skill.name] = (
+                    f"{skill.name}: no take by {mentor.name} succeeded in {max_attempts} tries "
+                    f"({_summary(reasons)}); what to change: "
+                    f"{what_to_change(skill, commonest)}")
+                break
             name = f"{skill.name}_{mentor.name}_{j // len(mentors):02d}.c3d"
             demos.append(Demonstration(name, skill, mentor.name, skill.initial, skill.final,
                                        events, traj))
+            kept += 1
             if progress is not None:
                 progress(len(demos), total)
-        stats[skill.name] = {"kept": n_per_skill, "tried": tried, "fragile": fragile}
+        by_key: Counter[str] = Counter()
+        for r, n in reasons.items():
+            by_key[r.key] += n
+        stats[skill.name] = {"kept": kept, "tried": tried, "fragile": fragile,
+                             "reasons": dict(by_key.most_common())}
+        if skill.name in failures:
+            stats[skill.name]["failed"] = failures[skill.name]
+            if not keep_going:
+                raise RecordError(failures[skill.name], dict(failures))
     ds = Dataset(poly, tuple(skills), tuple(demos), float(scale), gap_limit,
                  dict(DEFAULT_FINGERS), None, markers)
     return ds, stats

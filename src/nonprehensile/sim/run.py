@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.geometry.units import UNIT_METRES
 from nonprehensile.planning import ObjectPose
 from nonprehensile.sim.driver import FingerDriver, FreeFingertips
 from nonprehensile.sim.judge import (
@@ -34,7 +35,7 @@ from nonprehensile.sim.judge import (
     Judge,
     SimEvent,
 )
-from nonprehensile.sim.scene import DEFAULT_PARAMS, UNIT_METRES, SimParams, scene_xml
+from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams, scene_xml
 from nonprehensile.states import State, state_pose
 
 __all__ = [

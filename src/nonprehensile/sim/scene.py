@@ -33,9 +33,6 @@ __all__ = ["DEFAULT_PARAMS", "SimParams", "convexity_error", "scene_xml", "solid
 
 FloatArray = NDArray[np.float64]
 
-#: Length of one model unit in metres, by the model's ``units``.
-UNIT_METRES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "in": 0.0254, "ft": 0.3048}
-
 
 @dataclass(frozen=True)
 class SimParams:

@@ -9,7 +9,7 @@ logical AND of its pairs, e.g. the paper's ``(R_1, c) ∧ (R_2, d)``. An element
 * the edge shared by faces ``f`` and ``g``, written ``E(f,g)`` (:class:`Edge`),
 * the vertex shared by faces ``f, g, h, ...``, written ``V(f,g,h,...)`` (:class:`Vertex`).
 
-Written forms (``shared/spec/files-and-cli.md``, "Skills file")
+Written forms (docs/files.md, "Skills file")
 ----------------------------------------------------------------
 * A pair is ``(X,Y)``, e.g. ``(R1,f)``, ``(G,E(a,d))``, ``(R2,V(a,b,c))``; spaces around the
   punctuation are allowed. An event is a list of such strings (the skills file) or one string

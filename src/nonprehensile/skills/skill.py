@@ -21,7 +21,7 @@ from nonprehensile.equivalence import apply_to_state
 from nonprehensile.errors import ContactError, ManeuverError, SkillError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.symmetry import Symmetry, rotation_group
-from nonprehensile.maneuvers import MANEUVER_TYPES, ManeuverType, classify
+from nonprehensile.maneuvers import MANEUVER_TYPES, ManeuverType, classify, maneuvers_from
 from nonprehensile.skills.contacts import (
     ContactEvent,
     Edge,
@@ -229,27 +229,47 @@ def check_skill(
             )
     _check_rest(skill, poly, skill.events[0], skill.initial, "initial")
     _check_rest(skill, poly, skill.events[-1], skill.final, "final")
-    kind = _geometric_kind(skill.name, poly, skill.initial, skill.final, angle_tol)
+    kind = _geometric_kind(skill, poly, angle_tol)
     if kind != skill.maneuver:
         raise SkillError(
             f"skill {skill.name!r} says its maneuver is {skill.maneuver}, but the geometry of "
-            f"{skill.initial} -> {skill.final} makes it {kind}"
+            f"{skill.initial} -> {skill.final} makes it {kind}; "
+            + _right_finals(poly, skill.initial, skill.final.face, skill.maneuver, angle_tol)
         )
 
 
-def _geometric_kind(
-    name: str, poly: Polyhedron, initial: State, final: State, angle_tol: float
-) -> ManeuverType:
+def _right_finals(poly: Polyhedron, initial: State, face: str, kind: str | None,
+                  angle_tol: float) -> str:
+    """Which final states the maneuvers from ``initial`` onto ``face`` really reach (of type
+    ``kind`` when given), for a skill whose final state is wrong."""
+    opts = [o for o in maneuvers_from(poly, initial, angle_tol=angle_tol)
+            if kind is None or o.maneuver.kind == kind]
+    onto = [o for o in opts if o.maneuver.end.face == face]
+    what = kind or "a maneuver"
+    if onto:
+        listed = ", ".join(f"{o.maneuver.end} ({o.maneuver.kind} over {o.element})"
+                           for o in onto[:6])
+        return (f"{what} from {initial} onto face {face!r} ends in {listed}: write that final "
+                f"state (`nonprehensile maneuvers MODEL --from {initial}` lists them all)")
+    ends = ", ".join(sorted({str(o.maneuver.end) for o in opts})[:12])
+    return (f"no {what} from {initial} lands on face {face!r}; it reaches {ends} "
+            f"(`nonprehensile maneuvers MODEL --from {initial}` lists them all)")
+
+
+def _geometric_kind(skill: Skill, poly: Polyhedron, angle_tol: float) -> ManeuverType:
     try:
-        return classify(poly, initial, final, angle_tol=angle_tol).kind
+        return classify(poly, skill.initial, skill.final, angle_tol=angle_tol).kind
     except ManeuverError as exc:
-        raise SkillError(f"skill {name!r}: {exc}") from None
+        raise SkillError(
+            f"skill {skill.name!r}: {exc}; "
+            + _right_finals(poly, skill.initial, skill.final.face, skill.maneuver, angle_tol)
+        ) from None
 
 
 def skill_from_dict(
     data: Any, poly: Polyhedron, *, angle_tol: float = DEFAULT_ANGLE_TOL
 ) -> Skill:
-    """Read one skill of the skills file (``shared/spec/files-and-cli.md``) and validate it.
+    """Read one skill of the skills file (docs/files.md) and validate it.
 
     ``maneuver`` may be omitted (it is then read from the geometry); ``invertible`` defaults
     to false; a motion may carry a ``label``.
@@ -307,7 +327,12 @@ def skill_from_dict(
         raise SkillError(f"skill {name!r}: 'invertible' must be true or false")
     maneuver = data.get("maneuver")
     if maneuver is None:
-        maneuver = _geometric_kind(name, poly, initial, final, angle_tol)
+        try:
+            maneuver = classify(poly, initial, final, angle_tol=angle_tol).kind
+        except ManeuverError as exc:
+            raise SkillError(f"skill {name!r}: {exc}; "
+                             + _right_finals(poly, initial, final.face, None, angle_tol)
+                             ) from None
     skill = Skill(name, initial, final, tuple(events), tuple(motions), maneuver, invertible)
     check_skill(skill, poly, angle_tol=angle_tol)
     return skill
