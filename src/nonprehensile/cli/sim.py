@@ -574,3 +574,12 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
             out.print(f"nothing written to {out_dir}: no skill could be recorded")
     if failures:
         sys.exit(1)
+
+
+def _register() -> None:
+    from nonprehensile.cli.robustness import robustness_cmd
+
+    simulate_group.add_command(robustness_cmd)
+
+
+_register()
