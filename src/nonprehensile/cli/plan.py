@@ -32,6 +32,7 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
+from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, wants_robot
 from nonprehensile.errors import InputError
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
@@ -100,6 +101,29 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
         out.print(t)
 
 
+def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, result: Any,
+                  out_dir: str, doc: dict[str, Any]) -> list[Any]:
+    """The robot's joint trajectories of the plan, per step and whole (CSV + JSON)."""
+    from nonprehensile.sim.ik import IKConfig
+    from nonprehensile.sim.placement import joint_trajectory, write_joint_trajectories
+    from nonprehensile.sim.robot_run import describe_robots
+    from nonprehensile.sim.robot_scene import build_robot_scene
+    from nonprehensile.sim.scene import DEFAULT_PARAMS
+
+    arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, DEFAULT_PARAMS,
+                                 robot)
+    cfg = IKConfig()
+    trajectories = joint_trajectory(arms, poly, ds.scale, result, ds.fingers, ik_config=cfg)
+    scene = build_robot_scene(poly, scale=ds.scale, arms=arms, params=DEFAULT_PARAMS)
+    meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg)
+    meta["placement"] = placement.to_dict() if placement is not None else None
+    meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
+                    "the object at each step's planned start pose; `simulate plan --robot` "
+                    "executes it in physics")
+    doc["robot"] = meta
+    return write_joint_trajectories(trajectories, out_dir, meta)
+
+
 @click.command("plan")
 @click.argument("skills_file", type=click.Path(dir_okay=False))
 @click.option("--from", "start", required=True, callback=parse_state,
@@ -120,6 +144,7 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
               help="Demonstrations (a dataset folder, or `cube`) to attach reference motions.")
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
               help="Write each step's reference trajectories here (C3D and CSV).")
+@robot_options
 @click.option("--robustness", "rates_file", type=click.Path(dir_okay=False), default=None,
               help="Success rates measured across the physics distribution (`simulate "
                    "robustness -o FILE`): they become arc costs, and transitions below "
@@ -147,9 +172,14 @@ def plan_cmd(
     dataset: str | None, out_dir: str | None, rates_file: str | None,
     robustness_threshold: float, robustness_loop: str | None, robustness_weight: float,
     html_out: str | None, rtol: float | None, atol: float | None, angle_tol: float,
-    as_json: bool,
+    as_json: bool, **robot_kw: Any,
 ) -> None:
     """Plan transitions, contact events and finger motions from --from to --to."""
+    use_robot = wants_robot(robot_kw)
+    if use_robot and (out_dir is None or dataset is None):
+        raise InputError("--robot writes the plan's joint trajectories: give --dataset and "
+                         "--out DIR too")
+    robot = load_robot(robot_kw) if use_robot else None
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
@@ -184,6 +214,8 @@ def plan_cmd(
     doc = result.to_dict()
     if out_dir is not None:
         written = write_plan_motions(result, out_dir)
+        if use_robot:
+            written += _write_joints(robot_kw, robot, poly, ds, result, out_dir, doc)
         doc["files"] = [str(p) for p in written]
         err.print(f"wrote {len(written)} files to {out_dir}")
     if html_out is not None:

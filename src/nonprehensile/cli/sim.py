@@ -38,6 +38,7 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
+from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, robot_table, wants_robot
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -358,6 +359,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @angle_tol_option
 @_physics_options
 @_perturbation_options
+@robot_options
 @json_option
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
@@ -368,7 +370,14 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       as_json: bool, tol_deg: float, **kw: Any) -> None:
     """Plan as `plan` does, then execute the plan in one continuous simulation, closed loop
     (default) or open loop, with transits between steps; the goal is the plan's last state at
-    the position the plan predicts for it."""
+    the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
+    it (docs/robot.md)."""
+    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
+    use_robot = wants_robot(robot_kw)
+    if use_robot and record:
+        raise InputError("--record writes free-fingertip episodes; it does not take a robot "
+                         "yet (drop --robot, or --record)")
+    robot = load_robot(robot_kw) if use_robot else None
     params = _params(kw)
     pert = _perturbation(kw, observed=loop == "closed")
     sim = _sim()
@@ -385,6 +394,13 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
     obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
+    if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
+        from nonprehensile.sim.execute import fingers_of
+
+        n_tips = len(robot.tip_sites)
+        skills = [s for s in skills if max(fingers_of(s), default=1) <= n_tips]
+        if not skills:
+            raise InputError(f"every skill needs more than the robot's {n_tips} fingertip(s)")
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
@@ -393,9 +409,22 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                   angle_tol=angle_tol, scale=ds.scale)
     if not result.steps:
         raise InputError(f"the object already rests in {goal}: nothing to execute")
-    with progress_bar("simulating", as_json) as bar:
+    extra: dict[str, Any] = {}
+    if use_robot:
+        from nonprehensile.sim.robot_run import RobotSimulator
+
+        arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
+                                     robot)
+        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params)
+        if simulator.n_fingers < scene_fingers(result, exp):
+            raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
+                             f"has {simulator.n_fingers} fingertip site(s)")
+        extra["robot"] = simulator.describe()
+        extra["placement"] = placement.to_dict() if placement is not None else None
+    else:
         simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=scene_fingers(result, exp),
                                   params=params)
+    with progress_bar("simulating", as_json) as bar:
         ex = execute_plan(simulator, result, fingers=ds.fingers,
                           loop="closed" if loop == "closed" else "open",
                           replan=replanner(poly, exp, goal, motions=motions, scale=ds.scale,
@@ -405,6 +434,11 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         bar(1, 1)
     doc = ex.to_dict()
     records = doc["steps"]
+    if use_robot:
+        log = simulator.robot_log
+        for (_, t0, t1), r in zip(ex.step_traces, records, strict=False):
+            r["robot"] = log.metrics(*log.window(t0, t1)).to_dict()
+        extra["robot_metrics"] = log.metrics().to_dict()
     recorded = None
     if record:
         from nonprehensile.export import write_episodes
@@ -437,6 +471,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       f"{1000 * r['position_error_m']:.1f} mm",
                       r["outcome"] + (f": {r['reason']}" if r["reason"] else ""), events or "-")
         out.print(t)
+        if use_robot:
+            out.print(robot_table(records, extra))
         for rp in doc["replans"]:
             out.print(f"re-planned after step {rp['after_step']} ({rp['reason']}): "
                       + ("; ".join(rp.get("steps", [])) or rp.get("error", "")))
@@ -464,7 +500,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                    "n": len(records), "n_success": sum(r["success"] for r in records),
                    "params": params.to_dict(), "perturbation": pert.to_dict(),
                    "observation": obs_model.to_dict(), "control": cfg.to_dict(),
-                   "plan": result.to_dict(),
+                   "plan": result.to_dict(), **extra,
                    **({"record": recorded} if recorded else {})})
     if not ex.success:
         sys.exit(1)
@@ -501,12 +537,18 @@ def _check_record(record: str | None) -> None:
               default="c3d", show_default=True,
               help="Recording files to write: C3D, or Motive CSV (with the object's rigid "
                    "body).")
+@click.option("--physics-distribution", "under_distribution", is_flag=True,
+              help="Record every take in its own sample of the physics distribution "
+                   "(docs/physics.md) instead of one scene: friction, mass, fingertip, "
+                   "stiffness, force limit and contact softness vary take by take (seeded "
+                   "by --seed).")
 @_physics_options
 @json_option
 @handle_errors
 def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tuple[str, ...],
                     keep_going: bool, scale: float | None, seed: int, max_attempts: int,
-                    trajectory_format: str, as_json: bool, tol_deg: float, **kw: Any) -> None:
+                    trajectory_format: str, under_distribution: bool, as_json: bool,
+                    tol_deg: float, **kw: Any) -> None:
     """Record a dataset of demonstrations from the physics itself: fingers push the
     simulated object; poses and contact events are read from physics.
 
@@ -524,10 +566,15 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
     failures: dict[str, str] = {}
     with progress_bar("recording", as_json) as bar:
         try:
+            dist = None
+            if under_distribution:
+                from nonprehensile.sim.distribution import PhysicsDistribution
+
+                dist = PhysicsDistribution(base=params)
             ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
                                        scale=scale, params=params, max_attempts=max_attempts,
                                        only=only or None, keep_going=keep_going,
-                                       progress=bar)
+                                       progress=bar, distribution=dist)
         except RecordError as exc:
             raise InputError(f"{skills_file}: {exc}; nothing was written (--keep-going "
                              "records the other skills)") from None
