@@ -9,11 +9,16 @@ from typing import Any
 import click
 from rich.table import Table
 
+from nonprehensile.cli.options import number
 from nonprehensile.errors import InputError
 
 __all__ = ["load_robot", "robot_arms", "robot_options", "robot_table", "wants_robot"]
 
 F = Callable[..., Any]
+
+#: --base: a place on the table within an arm's reach of the object, and a heading.
+_BASE_XY = number(-10.0, 10.0, unit="m")
+_BASE_YAW = number(-360.0, 360.0, unit="degrees")
 
 
 def robot_options(fn: F) -> F:
@@ -29,7 +34,7 @@ def robot_options(fn: F) -> F:
         click.option("--tip-site", "tip_sites", multiple=True, metavar="NAME",
                      help="A fingertip site of --robot-xml, one per finger R1, R2, ... "
                           "(repeatable)."),
-        click.option("--base", "base", type=(float, float, float), default=None,
+        click.option("--base", "base", type=(_BASE_XY, _BASE_XY, _BASE_YAW), default=None,
                      metavar="X Y YAW",
                      help="The robot base on the table: x, y (m) and heading (degrees); "
                           "default: searched for reach and joint-limit margin."),
