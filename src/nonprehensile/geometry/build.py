@@ -64,9 +64,10 @@ MAX_PRISM_SIDES = 1_000_000
 #: Point sets from this size on are large: a Qhull run over them takes seconds, so the
 #: builder retries as few times as it can (:func:`_hull_model`).
 LARGE_HULL = 50_000
-#: Most triangles a hull may have to be built into a model: 200,000 take about 10 s and
-#: 1 GB; a 1.3-million-triangle sphere took 90 s of CPU and 3.3 GB (docs/benchmarks.md).
-MAX_HULL_TRIANGLES = 200_000
+#: Most triangles a hull may have to be built into a model: a 327,680-triangle sphere takes
+#: about 15 s and 1.3 GB; a 1.3-million-triangle one took 90 s of CPU and 3.3 GB
+#: (docs/benchmarks.md).
+MAX_HULL_TRIANGLES = 400_000
 #: Most faces :func:`convex_hull` may be asked to facet a curved object into.
 MAX_FACES = 10_000_000
 
