@@ -9,6 +9,7 @@ from __future__ import annotations
 import sys
 from collections import defaultdict
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import click
@@ -375,6 +376,10 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
     # bad settings are refused before any work (one line, exit 2)
     cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
+    if use_robot:  # an arm's fingertip accelerates less than a free 20 g sphere
+        from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL
+
+        cfg = replace(cfg, max_accel=ROBOT_MAX_ACCEL)
     obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
     if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for

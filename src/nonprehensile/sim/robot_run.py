@@ -27,7 +27,14 @@ from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
-__all__ = ["RobotSimulator", "describe_robots"]
+__all__ = ["ROBOT_MAX_ACCEL", "RobotSimulator", "describe_robots"]
+
+#: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
+#: fingertip (``ControlConfig.max_accel``; transits use half of it). The free fingertips'
+#: 20 m/s^2 asks the Panda's shoulder for more than its 87 N m for ~20 ms on the first
+#: transit (measured: joint 2 at its torque limit for 24 ms); at 4 m/s^2 no joint reaches a
+#: limit over the main plan.
+ROBOT_MAX_ACCEL = 4.0
 
 FloatArray = NDArray[np.float64]
 
