@@ -34,7 +34,14 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
-from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, robot_table, wants_robot
+from nonprehensile.cli.robot import (
+    control_every,
+    load_robot,
+    robot_arms,
+    robot_options,
+    robot_table,
+    wants_robot,
+)
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -356,7 +363,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     (default) or open loop, with transits between steps; the goal is the plan's last state at
     the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
     it (docs/robot.md)."""
-    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
+    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
+                                       "control_rate")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
@@ -403,7 +411,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
         arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
                                      robot)
-        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params)
+        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params,
+                                   control_every=control_every(robot_kw, params.timestep))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")
