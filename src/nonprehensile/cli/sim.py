@@ -534,12 +534,18 @@ def _check_record(record: str | None) -> None:
               default="c3d", show_default=True,
               help="Recording files to write: C3D, or Motive CSV (with the object's rigid "
                    "body).")
+@click.option("--physics-distribution", "under_distribution", is_flag=True,
+              help="Record every take in its own sample of the physics distribution "
+                   "(docs/physics.md) instead of one scene: friction, mass, fingertip, "
+                   "stiffness, force limit and contact softness vary take by take (seeded "
+                   "by --seed).")
 @_physics_options
 @json_option
 @handle_errors
 def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tuple[str, ...],
                     keep_going: bool, scale: float | None, seed: int, max_attempts: int,
-                    trajectory_format: str, as_json: bool, tol_deg: float, **kw: Any) -> None:
+                    trajectory_format: str, under_distribution: bool, as_json: bool,
+                    tol_deg: float, **kw: Any) -> None:
     """Record a dataset of demonstrations from the physics itself: fingers push the
     simulated object; poses and contact events are read from physics.
 
@@ -557,10 +563,15 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
     failures: dict[str, str] = {}
     with progress_bar("recording", as_json) as bar:
         try:
+            dist = None
+            if under_distribution:
+                from nonprehensile.sim.distribution import PhysicsDistribution
+
+                dist = PhysicsDistribution(base=params)
             ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
                                        scale=scale, params=params, max_attempts=max_attempts,
                                        only=only or None, keep_going=keep_going,
-                                       progress=bar)
+                                       progress=bar, distribution=dist)
         except RecordError as exc:
             raise InputError(f"{skills_file}: {exc}; nothing was written (--keep-going "
                              "records the other skills)") from None
