@@ -9,6 +9,7 @@ from __future__ import annotations
 import sys
 from collections import defaultdict
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import click
@@ -38,7 +39,14 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
-from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, robot_table, wants_robot
+from nonprehensile.cli.robot import (
+    control_every,
+    load_robot,
+    robot_arms,
+    robot_options,
+    robot_table,
+    wants_robot,
+)
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -372,7 +380,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     (default) or open loop, with transits between steps; the goal is the plan's last state at
     the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
     it (docs/robot.md)."""
-    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
+    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
+                                       "control_rate")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
@@ -392,6 +401,10 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
     # bad settings are refused before any work (one line, exit 2)
     cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
+    if use_robot:  # an arm's fingertip accelerates less than a free 20 g sphere
+        from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL
+
+        cfg = replace(cfg, max_accel=ROBOT_MAX_ACCEL)
     obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
     if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
@@ -415,7 +428,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
         arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
                                      robot)
-        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params)
+        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params,
+                                   control_every=control_every(robot_kw, params.timestep))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")
