@@ -23,6 +23,7 @@ from nonprehensile.cli.options import (
     step_option,
 )
 from nonprehensile.errors import InputError
+from nonprehensile.geometry.units import metres_per_unit
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
 from nonprehensile.pipeline import motions_from_dataset, write_plan_motions
@@ -128,7 +129,8 @@ def plan_cmd(
     if html_out is not None and not html_out.lower().endswith((".html", ".htm")):
         raise InputError(f"--html {html_out}: the 3-D view is an HTML file; name it .html")
     motions = None
-    scale = 1.0
+    # world positions in metres: from the model's units, or the dataset's recorded scale
+    scale = metres_per_unit(poly.units)
     markers: list[str] | None = None
     if dataset is not None:
         with stage_bars(as_json) as bars:

@@ -152,6 +152,10 @@ def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
 def what_to_change(skill: Skill, reason: TakeReason) -> str:
     """Advice for the commonest way a skill's takes fail (one sentence)."""
     see = f"`nonprehensile maneuvers MODEL --from {skill.initial}`"
+    if reason.kind == "pushed" and skill.maneuver == "tumbling":
+        return ("the pinch carried the object along the table instead of tipping it over its "
+                "pivot vertex: pinch above the centre of mass so that it hangs from the "
+                "pinch, or more table friction (--friction) keeps the vertex in place")
     if reason.kind == "pushed":
         return ("the push slid the object along the table instead of tipping it over its "
                 "pivot: a push this low on a flat object slides it; push higher on the face "
