@@ -6,10 +6,11 @@ of ``shared/realdata/meshes`` (read by path, never copied into the repository). 
 the command line, as a user runs it:
 
 1. ``object from-mesh MESH --units U``;
-2. ``maneuvers MODEL --from a:0 --json``, and skills written from its rows by the rule of
-   :mod:`benchmarks.own_objects` (every roll, the 90-degree rotation, the two tumbles with the
-   smallest turn): a roll whose object falls past its balance point (a turn above 90 degrees)
-   is written as a topple, its landing without the finger;
+2. ``maneuvers MODEL --from S --json`` (S: the model's first stable state), and skills
+   written from its rows by the rule of :mod:`benchmarks.own_objects` (every roll, the
+   90-degree rotation, the two tumbles with the smallest turn; those ending on a stable
+   face): a roll whose object falls past its balance point (a turn above 90 degrees) is
+   written as a topple, its landing without the finger;
 3. ``simulate record SKILLS OUT --keep-going --json`` with no ``--scale``: what physics
    records of each skill, and for a skill it cannot, the commonest reasons with counts;
 4. the same object in m and in mm: the same skills kept, and the recorded marker positions
@@ -83,7 +84,7 @@ def write_skills(model: Path, start: str, out: Path) -> list[str]:
 
     poly = read_model(model)
     rows = json.loads(cli("maneuvers", str(model), "--from", start, "--json").stdout)
-    rows = rows["maneuvers"]
+    rows = [r for r in rows["maneuvers"] if r["stable"]]  # a skill ends at rest
     chosen = [r for r in rows if r["kind"] == "rolling"]
     chosen += [r for r in rows if r["kind"] == "rotating" and abs(r["angle"] - 90.0) < 1e-6]
     chosen += sorted((r for r in rows if r["kind"] == "tumbling"), key=lambda r: r["angle"])[:2]
