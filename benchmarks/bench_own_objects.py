@@ -101,6 +101,8 @@ def write_skills(model: Path, start: str, out: Path) -> list[str]:
             sk["motions"] = [*sk["motions"][:2],
                              {"from": ev[2]["id"], "to": ev[4]["id"], "label": "follow"}]
             sk["name"] = name.replace("roll", "topple")
+        while sk["name"] in {k["name"] for k in skills}:  # two tumbles onto one state
+            sk["name"] += "'"
         skills.append(sk)
     out.write_text(json.dumps({"object": str(model), "skills": skills}, indent=1))
     return [s["name"] for s in skills]
