@@ -141,9 +141,10 @@ def same_takes(a: Path, b: Path, size_m: float) -> tuple[bool, float]:
 
 
 def plan_and_simulate(skills: Path, rec: Path, recorded: list[str], tmp: Path,
-                      start: str = "a:0") -> dict[str, Any]:
-    """Plan from ``start`` to the farthest state the recorded skills reach (<= 3 steps),
-    then execute the plan in physics."""
+                      start: str = "a:0", n_goals: int = 5) -> list[dict[str, Any]]:
+    """Plan from ``start`` to the states the recorded skills reach (at most 3 steps away,
+    the farthest first, ``n_goals`` of them), then execute each plan in physics, open and
+    closed loop."""
     import networkx as nx
 
     doc = json.loads(skills.read_text())
@@ -155,20 +156,28 @@ def plan_and_simulate(skills: Path, rec: Path, recorded: list[str], tmp: Path,
     for t in inf["transitions"]:
         g.add_edge(f"{t['from']['face']}:{t['from']['theta']:g}",
                    f"{t['to']['face']}:{t['to']['theta']:g}")
-    src = start if start in g else f"{start.split(':')[0]}:{float(start.split(':')[1]):g}"
-    if src not in g:
-        return {"goal": None, "why": "the recorded skills leave no transition from " + start}
-    dist = nx.single_source_shortest_path_length(g, src, cutoff=3)
-    goal = max(dist, key=lambda s: (dist[s], s))
-    common = [str(mine), "--from", start, "--to", goal, "--step", "90", "--dataset", str(rec)]
-    p = cli("plan", *common, "--json")
-    if p.returncode != 0:
-        return {"goal": goal, "plan": p.stderr.strip()}
-    out: dict[str, Any] = {"goal": goal, "steps": len(json.loads(p.stdout)["steps"])}
-    for loop in ("open", "closed"):
-        s = cli("simulate", "plan", *common, "--loop", loop, "--json")
-        last = s.stderr.strip().splitlines()[-1] if s.stderr.strip() else ""
-        out[loop] = "reached the goal" if s.returncode == 0 else last
+    if start not in g:
+        return [{"goal": None, "why": f"the recorded skills leave no transition from {start}"}]
+    dist = nx.single_source_shortest_path_length(g, start, cutoff=3)
+    goals = sorted((s for s in dist if s != start), key=lambda s: (-dist[s], s))[:n_goals]
+    out = []
+    for goal in goals:
+        common = [str(mine), "--from", start, "--to", goal, "--step", "90", "--dataset",
+                  str(rec)]
+        p = cli("plan", *common, "--json")
+        if p.returncode != 0:
+            out.append({"goal": goal, "plan": p.stderr.strip()})
+            continue
+        row: dict[str, Any] = {"goal": goal, "steps": len(json.loads(p.stdout)["steps"])}
+        for loop in ("open", "closed"):
+            s = cli("simulate", "plan", *common, "--loop", loop, "--json")
+            res = json.loads(s.stdout)["execution"]
+            row[loop] = ("reached" if res["success"] else
+                         f"failed: {res.get('reason') or 'ended in ' + str(res['final_state'])}")
+            if res["success"]:
+                row[loop] += (f" ({res['theta_error_deg']:+.1f} deg, "
+                              f"{1000 * res['position_error_m']:.1f} mm)")
+        out.append(row)
     return out
 
 
@@ -213,9 +222,9 @@ def main() -> None:
                   f"positions equal within 1e-6 of its size: {ok} (worst {worst:.2g})")
             for key in (f"{name}_m", f"{name}_mm"):
                 r = recorded[key]
-                plan = plan_and_simulate(r["skills"], tmp / f"rec_{key}", r["kept"], tmp,
-                                         r["start"])
-                print(f"   {key}: plan {r['start']} -> {plan.get('goal')}: {plan}")
+                for row in plan_and_simulate(r["skills"], tmp / f"rec_{key}", r["kept"], tmp,
+                                             r["start"]):
+                    print(f"   {key}: plan {r['start']} -> {row.pop('goal')}: {row}")
 
 
 if __name__ == "__main__":
