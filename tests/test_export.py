@@ -18,12 +18,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from nonprehensile.demonstrations.dataset import load_dataset, save_dataset
 from nonprehensile.demonstrations.synth import synthesize_dataset
 from nonprehensile.errors import InputError
 from nonprehensile.export import dataset_episodes, export_dataset
 from nonprehensile.export.episodes import (
+    Episode,
     continuous_quaternions,
     resample_positions,
     resample_quaternions,
@@ -282,3 +284,51 @@ def test_cli_record_refuses_an_existing_folder_before_simulating(tmp_path: Path)
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "--record folder exists" in lines[0], r.stderr
+
+
+@st.composite
+def _episodes(draw: st.DrawFn) -> list[Episode]:
+    n_fingers = draw(st.integers(1, 3))
+    with_pose = draw(st.booleans())
+    out = []
+    for i in range(draw(st.integers(1, 4))):
+        n = draw(st.integers(1, 30))
+        rng = np.random.default_rng(draw(st.integers(0, 2**31)))
+        tips = rng.normal(0, 0.1, (n, n_fingers, 3))
+        quat = rng.normal(size=(n, 4))
+        pose = np.concatenate([rng.normal(0, 0.1, (n, 3)), continuous_quaternions(quat)],
+                              axis=1) if with_pose else None
+        names = tuple(f"e{k}" for k in range(draw(st.integers(1, 4))))
+        out.append(Episode(
+            task=draw(st.sampled_from(["a: x -> y", "b ∧ c: a:0 -> d:90", "t"])), fps=30.0,
+            fingertips=tips, action=np.roll(tips, -1, axis=0),
+            finger_names=tuple(f"R{k + 1}" for k in range(n_fingers)), object_pose=pose,
+            skill_names=(f"s{i % 2}",), skill=np.zeros(n, np.int64), event_names=names,
+            event=rng.integers(-1, len(names), n), meta={"mentor": f"m{i}", "n": i}))
+    return out
+
+
+@settings(max_examples=15, deadline=None)
+@given(eps=_episodes())
+def test_any_episodes_round_trip(tmp_path_factory: pytest.TempPathFactory,
+                                 eps: list[Episode]) -> None:
+    out = write_lerobot(eps, tmp_path_factory.mktemp("rt") / "x")
+    back = read_lerobot(out)
+    f = back.frames
+    assert back.info["total_frames"] == sum(e.n_frames for e in eps) == len(f["index"])
+    events = back.labels("event_index")
+    start = 0
+    for i, e in enumerate(eps):
+        sl = slice(start, start + e.n_frames)
+        state = e.fingertips.reshape(e.n_frames, -1)
+        if e.object_pose is not None:
+            state = np.concatenate([e.object_pose, state], axis=1)
+        assert np.array_equal(f["observation.state"][sl], state.astype(np.float32))
+        assert np.array_equal(f["action"][sl], e.action.reshape(e.n_frames, -1)
+                              .astype(np.float32))
+        assert [events[j] if j >= 0 else None for j in f["event_index"][sl]] == [
+            e.event_names[j] if j >= 0 else None for j in e.event]
+        assert back.tasks[f["task_index"][sl][0]] == e.task
+        assert back.episodes[i]["mentor"] == e.meta["mentor"]
+        assert back.episodes[i]["length"] == e.n_frames
+        start += e.n_frames

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 from nonprehensile.demonstrations.annotate import annotate_dataset
 from nonprehensile.demonstrations.dataset import dataset_path, load_dataset, save_dataset
@@ -235,3 +236,39 @@ def test_cli_bag_without_the_named_topic_is_one_line_exit_2(tracked: Path,
         assert len(lines) == 1, r.stderr
         assert "take00" in lines[0] and "/mocap/thumb" in lines[0]
     assert not (folder / "out.json").exists()
+
+
+_SPEC = st.one_of(st.text(max_size=4), st.just("/a"), st.integers(),
+                 st.dictionaries(st.sampled_from(["tf", "parent", "x"]), st.text(max_size=3),
+                                 max_size=2))
+_VALUE = st.one_of(st.none(), st.integers(-5, 5), st.floats(allow_nan=True),
+                   st.text(max_size=4), st.dictionaries(st.text(max_size=3), _SPEC, max_size=3))
+
+
+@settings(max_examples=40, deadline=None)
+@given(raw=st.one_of(st.none(), st.integers(), st.text(max_size=5),
+                     st.dictionaries(st.sampled_from(["topics", "rate", "clock", "other"]),
+                                     _VALUE, max_size=3)))
+def test_any_ros_set_up_is_read_or_refused_with_a_message(raw: object) -> None:
+    try:
+        setup = parse_ros_setup(raw)
+    except InputError as exc:
+        assert "'ros'" in str(exc)
+        return
+    assert setup.sources and setup.clock in ("bag", "header")
+    assert parse_ros_setup(setup.to_dict()) == setup
+
+
+def test_cli_shows_and_annotates_a_bag_dataset(tracked: Path, tmp_path: Path) -> None:
+    folder = _bag_dataset(tracked, tmp_path / "bags", [0, 1], body="cube", body_as="tf")
+    r = subprocess.run([sys.executable, "-m", "nonprehensile.cli", "dataset", "show",
+                        str(folder), "--json"], capture_output=True, text=True, check=False)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["n_demonstrations"] == 2
+    _strip(folder)
+    r = subprocess.run([sys.executable, "-m", "nonprehensile.cli", "dataset", "annotate",
+                        str(folder), "-o", str(folder / "annotations.json"), "--json"],
+                       capture_output=True, text=True, check=False)
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["n_annotated"] == 2
+    assert load_dataset(folder).demonstrations[0].file == "take00"

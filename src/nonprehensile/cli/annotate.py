@@ -38,12 +38,16 @@ __all__ = ["annotate_cmd"]
               help="Tolerance of resting poses against the skills' states, degrees.")
 @click.option("--no-fit", is_flag=True,
               help="Time events at the threshold crossings, not by the smooth-onset fit.")
+@click.option("--motions", default=None,
+              help="A motion library (a dataset folder, or `cube`) whose clusters name the "
+                   "skill where skills share their events and states (default: the folder's "
+                   "own recordings that name their skill).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON document.")
 @handle_errors
 def annotate_cmd(
     directory: str, output: str, pad_radius: float, contact_mm: tuple[float, float],
     ground_mm: tuple[float, float], min_duration: float, state_tol: float, no_fit: bool,
-    as_json: bool,
+    motions: str | None, as_json: bool,
 ) -> None:
     """Find the contact events, states and skill of every recording in DIRECTORY.
 
@@ -51,7 +55,9 @@ def annotate_cmd(
     markers and how the object is tracked ("object": a rigid body or object markers). The
     complete annotations (skill, initial, final, events with times) go to OUTPUT, ready for
     `dataset show` and `demo --dataset`; recordings whose events fit no skill are left out
-    and a new skill is proposed for them. Every doubtful call is listed.
+    and a new skill is proposed for them. Skills with the same events and states are told
+    apart by their motion (--motions, or the recordings that name their skill). Every
+    doubtful call is listed.
     """
     root = Path(directory)
     dest = Path(output)
@@ -70,9 +76,18 @@ def annotate_cmd(
         )
     except InputError as exc:
         raise InputError(f"bad option: {exc}") from None
+    from nonprehensile.naming import MotionNamer
+
+    namer = None
+    if motions is not None:
+        from nonprehensile.demonstrations.dataset import dataset_path, load_dataset
+
+        with progress_bar("motion library", as_json) as update:
+            namer = MotionNamer(load_dataset(dataset_path(motions), progress=update))
     with progress_bar("annotating", as_json) as update:
         report = annotate_dataset(root, relative_to=dest.parent, params=params,
-                                  progress=update)
+                                  progress=update, namer=namer,
+                                  namer_from=None if namer is not None else MotionNamer)
     if source is not None and dest.resolve() == source.resolve():
         # the input lists recordings the output may leave out: keep it beside
         keep = source.with_name(f"{source.stem}.recordings{source.suffix}")

@@ -51,14 +51,14 @@ from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from nonprehensile.demonstrations.dataset import EventTime
+from nonprehensile.demonstrations.dataset import Dataset, Demonstration, EventTime
 from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
-from nonprehensile.demonstrations.tracking import object_setup
+from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup
 from nonprehensile.errors import DemonstrationError, GeometryError, ManeuverError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.maneuvers import classify
@@ -83,6 +83,7 @@ __all__ = [
     "DetectionParams",
     "FrameLabels",
     "RecordingAnnotation",
+    "SkillNamer",
     "annotate_dataset",
     "annotate_recording",
     "contact_states",
@@ -800,7 +801,8 @@ def annotate_recording(
         if len(candidates) > 1:
             doubts.append(f"skills {[s.name for s in candidates]} have these same events and "
                           f"states (they differ in their finger motion only): chose "
-                          f"{skill.name!r}; the motion model tells them apart")
+                          f"{skill.name!r}; the motion model tells them apart (name some "
+                          "recordings' skill, or give a motion library: --motions)")
         idx = picks[skill.name]
         for j in sorted(set(range(len(norm))) - set(idx)):
             doubts.append(f"contact state {_fmt_state(norm[j].pairs)} from "
@@ -1028,12 +1030,26 @@ class AnnotationReport:
         }
 
 
+class SkillNamer(Protocol):
+    """Breaks ties between skills with the same events and states (``annotate_dataset``'s
+    ``namer``; :class:`nonprehensile.naming.MotionNamer` asks the motion model)."""
+
+    def name(
+        self, poly: Polyhedron, skills: Sequence[Skill], traj: MarkerTrajectory,
+        pose: PoseTrajectory, result: RecordingAnnotation, scale: float, gap: int,
+    ) -> RecordingAnnotation:
+        """``result`` with one of its ``candidates`` named, or with a doubt saying why not."""
+        ...
+
+
 def annotate_dataset(
     path: str | Path,
     *,
     relative_to: str | Path | None = None,
     params: DetectionParams | None = None,
     progress: Callable[[int, int], None] | None = None,
+    namer: SkillNamer | None = None,
+    namer_from: Callable[[Dataset], SkillNamer] | None = None,
 ) -> AnnotationReport:
     """Annotate a folder whose annotations list only the recordings and the set-up.
 
@@ -1056,6 +1072,13 @@ def annotate_dataset(
     params : DetectionParams, optional
         Thresholds; ``gap_limit`` defaults to the annotations'.
     progress : callable (done, total) -> None, optional
+    namer : SkillNamer, optional
+        Asked to name the skill where several have the events and states found and the
+        recording names none (:class:`nonprehensile.naming.MotionNamer`: the motion model).
+    namer_from : callable (Dataset) -> SkillNamer, optional
+        Without ``namer``: made from the folder's own named recordings (those whose entry
+        names its skill, with the events found), when some recording's tie is left, and
+        asked as ``namer`` is.
 
     Raises
     ------
@@ -1155,6 +1178,8 @@ def annotate_dataset(
             pose = setup.pose(traj, scale)
             res = annotate_recording(poly, skills, traj, pose, fingers, scale, p,
                                      hand_markers=hand)
+            if namer is not None and hint is None and len(res.candidates) > 1:
+                res = namer.name(poly, skills, traj, pose, res, scale, p.gap_limit)
         except DemonstrationError as exc:
             res = RecordingAnnotation((), (), None, None, None, doubts=(
                 f"cannot annotate it: {exc}",))
@@ -1163,6 +1188,8 @@ def annotate_dataset(
         done.append(AnnotatedRecording(file, mentor, res))
     if progress is not None:
         progress(len(todo), len(todo))
+    if namer is None and namer_from is not None:
+        done = _name_from_own(done, todo, namer_from, poly, skills, setup, scale, p, settings)
 
     entries = []
     for r in done:
@@ -1192,6 +1219,90 @@ def annotate_dataset(
                               "recordings": []}
         proposals[key]["recordings"].append(r.file)
     return AnnotationReport(doc, tuple(done), tuple(proposals.values()))
+
+
+def canonical_recording(
+    poly: Polyhedron, traj: MarkerTrajectory, pose: PoseTrajectory, initial: State,
+    scale: float, gap: int, markers: Sequence[str],
+) -> MarkerTrajectory:
+    """The recording's ``markers`` moved rigidly so that the object's pose at the start (the
+    mean over the first 0.1 s) is ``initial`` as :func:`~nonprehensile.states.state_pose`
+    puts it (scaled): the frame datasets are calibrated to, where recordings of different
+    labs (and a motion library) can be compared. Metres.
+
+    Raises
+    ------
+    DemonstrationError
+        A marker not in the recording, or the object never tracked.
+    """
+    from scipy.spatial.transform import Rotation
+
+    from nonprehensile.states import state_pose
+
+    t = traj.to_units("m")
+    absent = [m for m in markers if m not in t.marker_names]
+    if absent:
+        raise DemonstrationError(f"marker(s) {absent} are not in the recording")
+    p = pose.to_units("m").filled(gap)
+    edge = max(2, round(0.1 * traj.rate))
+    ok = np.flatnonzero(p.valid[:edge])
+    if not len(ok):
+        ok = np.flatnonzero(p.valid)[:edge]
+    if not len(ok):
+        raise DemonstrationError(f"the object ({pose.name!r}) is not tracked in any frame")
+    r0 = Rotation.from_quat(p.quaternions[ok]).mean()
+    p0 = p.positions[ok].mean(axis=0)
+    rc, pc = state_pose(poly, initial)
+    m = Rotation.from_matrix(rc) * r0.inv()
+    x = t.positions[:, [t.marker_names.index(n) for n in markers]]
+    flat = x.reshape(-1, 3)
+    moved = m.apply(np.nan_to_num(flat - p0)) + pc * scale
+    moved[np.isnan(flat).any(axis=1)] = np.nan
+    return MarkerTrajectory(moved.reshape(x.shape), tuple(markers), t.rate, "m")
+
+
+def _name_from_own(
+    done: list[AnnotatedRecording],
+    todo: list[tuple[int, str, str, str | None, MarkerTrajectory]],
+    namer_from: Callable[[Dataset], SkillNamer],
+    poly: Polyhedron,
+    skills: Sequence[Skill],
+    setup: ObjectSetup,
+    scale: float,
+    p: DetectionParams,
+    settings: Any,
+) -> list[AnnotatedRecording]:
+    """Break the ties left with a namer made from the folder's own named recordings."""
+    tied = [i for i, (r, t) in enumerate(zip(done, todo, strict=True))
+            if t[3] is None and len(r.result.candidates) > 1]
+    skill_of = {s.name: s for s in skills}
+    wanted = {c for i in tied for c in done[i].result.candidates}
+    hand = [m for m in settings.markers if m not in setup.marker_names]
+    named = []
+    for r, t in zip(done, todo, strict=True):
+        if t[3] is None or r.result.skill != t[3] or r.result.skill not in wanted:
+            continue
+        sk = skill_of[r.result.skill]
+        # the hand's markers in the calibrated frame, as the tied recordings are compared
+        try:
+            moved = canonical_recording(poly, t[4], setup.pose(t[4], scale), sk.initial,
+                                        scale, p.gap_limit, hand)
+        except DemonstrationError:  # the object not tracked at the start: not a reference
+            continue
+        named.append(Demonstration(r.file, sk, r.mentor, sk.initial, sk.final,
+                                   r.result.events, moved))
+    if not tied or not named:
+        return done
+    library = Dataset(poly, tuple(skills), tuple(named), scale, settings.gap,
+                      dict(settings.fingers))
+    namer = namer_from(library)
+    out = list(done)
+    for i in tied:
+        r, traj = done[i], todo[i][4]
+        res = namer.name(poly, skills, traj, setup.pose(traj, scale), r.result, scale,
+                         p.gap_limit)
+        out[i] = AnnotatedRecording(r.file, r.mentor, res)
+    return out
 
 
 def _apply_hint(
