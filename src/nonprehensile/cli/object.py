@@ -205,7 +205,9 @@ _MERGE_ANGLE = number(0.0, 90.0, high_open=True, unit="degrees")
               "convex hull of its points.")
 @click.option("--allow-open", is_flag=True, hidden=True,
               help="Accepted for compatibility: open meshes are used unless --strict.")
-@click.option("--units", default="m", show_default=True, help="Length units of the mesh.")
+@click.option("--units", default="m", show_default=True,
+              help="Length units of the mesh: m, dm, cm, mm, um, in or ft (the model stores "
+                   "them; physics converts with them).")
 @json_option
 @handle_errors
 def object_from_mesh(
