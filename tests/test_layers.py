@@ -33,6 +33,7 @@ CORE_RANKS: dict[str, int] = {
     "inference": 7,      # undemonstrated transitions (paper V)
     "io": 7,             # model and skills files
     "demonstrations": 8,  # recordings and datasets
+    "success_rates": 8,  # measured success rates of transitions (physics' verdict as data)
     "planning": 9,       # plans (paper VII)
     "step_paths": 10,    # a plan step's reference finger paths as a controller tracks them
     "observation": 10,   # what a controller observes (sensor model, contacts from geometry)

@@ -195,3 +195,37 @@ def test_object_html_renders_offline_in_chromium(tmp_path: Path) -> None:
     # plotly drew its scene: the SVG layers around the WebGL canvas, and the title
     assert 'class="main-svg"' in dom and "gl-container" in dom
     assert "every face labeled" in dom
+
+
+def test_figure_of_a_large_model_says_how_to_find_faces(tmp_path: Path) -> None:
+    from nonprehensile.geometry.build import prism
+    from nonprehensile.io import write_model
+    from nonprehensile.viz.labeled_object import DETAIL_LIMIT
+
+    model = tmp_path / "p.json"
+    write_model(prism(DETAIL_LIMIT + 8), model)
+    code, _, err = run("object", "figure", str(model), "-o", str(tmp_path / "p.png"))
+    assert code == 0 and "--faces" in err and "--html" in err
+    code, _, err = run("object", "figure", str(model), "-o", str(tmp_path / "q.png"),
+                       "--faces", "a,b")
+    assert code == 0 and "note:" not in err
+    # a small model's picture labels every face: no note
+    code, _, err = run("object", "figure", str(EXAMPLE), "-o", str(tmp_path / "c.png"))
+    assert code == 0 and "note:" not in err
+
+
+def test_plan_html_shows_where_the_agent_is_relocated(tmp_path: Path) -> None:
+    """a:0 -> f:180 at no relocation cost turns the agent before its second step."""
+    skills = Path(__file__).parents[1] / "examples" / "cube_skills.json"
+    out = tmp_path / "plan.html"
+    code, stdout, _ = run("plan", str(skills), "--from", "a:0", "--to", "f:180", "--step", "90",
+                          "--relocation-cost", "0", "--html", str(out), "--json")
+    assert code == 0
+    doc = json.loads(stdout)
+    moved = [i for i, s in enumerate(doc["steps"], start=1) if s["relocated"] and i > 1]
+    assert moved and doc["relocations"] == len(moved)
+    traces = embedded_figure(out.read_text())
+    labels = [t["text"][0] for t in traces if str(t.get("name")).endswith(": agent label")]
+    assert labels == [f"agent {i}" + (" (relocated)" if i in moved else "")
+                      for i in range(1, len(doc["steps"]) + 1)]
+    assert sum(str(t.get("name")).endswith(": relocation") for t in traces) == len(moved)

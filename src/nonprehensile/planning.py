@@ -6,7 +6,9 @@ Given an initial state and a goal state of the object:
    table), find the offset (a rotation of the agent about the vertical, and a translation) that
    maps it onto a model state;
 2. plan the transitions with Dijkstra's algorithm over the expanded state-transition graph
-   (cost: one per transition, or a cost per skill such as duration or failure rate);
+   (cost: one per transition, or a cost per skill such as duration; with measured success
+   rates, :class:`RobustnessCosts`, each arc's cost grows with its failures and transitions
+   below a threshold are avoided);
 3. for each transition, the adapted skill: its contact events with mapped faces, edges and
    vertices;
 4. for each motion arc, the reference finger trajectory (from a :class:`MotionLibrary`),
@@ -40,9 +42,12 @@ from nonprehensile.inference import Expansion, InferredTransition
 from nonprehensile.maneuvers import Maneuver, classify, move_pose, tumble
 from nonprehensile.skills.skill import events_to_dicts
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State, StateIndex, angle_diff, state_pose
+from nonprehensile.success_rates import LOOPS, Rate, SuccessRates, TransitionKey
 
 __all__ = [
     "DEFAULT_RELOCATION_COST",
+    "DEFAULT_ROBUSTNESS_THRESHOLD",
+    "AvoidedTransition",
     "MotionLibrary",
     "NoPlanError",
     "ObjectPose",
@@ -50,6 +55,7 @@ __all__ = [
     "Plan",
     "PlanStep",
     "ReferenceMotion",
+    "RobustnessCosts",
     "find_offset",
     "plan",
     "step_for",
@@ -61,6 +67,94 @@ FloatArray = NDArray[np.float64]
 DEFAULT_RELOCATION_COST = 0.5
 #: Most search nodes the planner expands before giving up (a very fine --states set).
 MAX_SEARCH_NODES = 2_000_000
+#: Transitions measured below this success rate are avoided (:class:`RobustnessCosts`).
+DEFAULT_ROBUSTNESS_THRESHOLD = 0.8
+
+
+@dataclass(frozen=True)
+class AvoidedTransition:
+    """A transition the planner did not use because physics says it fails too often."""
+
+    key: TransitionKey
+    rate: Rate | None
+    loop: str
+    reason: str
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {"skill": self.key.skill, "from": self.key.start.to_dict(),
+                "to": self.key.end.to_dict(), "loop": self.loop,
+                "success": None if self.rate is None else self.rate.to_dict(),
+                "reason": self.reason}
+
+
+@dataclass(frozen=True)
+class RobustnessCosts:
+    """Measured success rates as arc costs (``plan --robustness FILE``).
+
+    An arc measured at ``k`` successes of ``n`` executions under ``loop`` costs its skill's
+    cost plus ``weight * -ln((k + 1) / (n + 2))``: with independent steps, the sum of ``-ln p``
+    over a plan is ``-ln`` of the probability that every step succeeds, so the planner trades
+    steps against the chance of getting there; Laplace's ``(k + 1) / (n + 2)`` keeps a perfect
+    count from being free and a failed one from being infinite. An arc whose rate ``k / n`` is
+    below ``threshold`` is avoided. An arc that was not measured counts as ``0 / 0``: the
+    rule gives it 1/2 (``ln 2`` more than its plain cost: a measured 18/20 beats it, a
+    measured 8/20 does not), or it is avoided when ``avoid_unmeasured``.
+
+    Parameters
+    ----------
+    rates : SuccessRates
+    loop : {"closed", "open"}
+        Whose rates to use (the rates file may hold both).
+    threshold : float
+        In [0, 1].
+    weight : float
+        Cost per unit of ``-ln p`` (>= 0).
+    avoid_unmeasured : bool
+    """
+
+    rates: SuccessRates
+    loop: str = "closed"
+    threshold: float = DEFAULT_ROBUSTNESS_THRESHOLD
+    weight: float = 1.0
+    avoid_unmeasured: bool = False
+
+    def __post_init__(self) -> None:
+        if self.loop not in LOOPS:
+            raise InputError(f"the robustness loop must be one of {list(LOOPS)}, got "
+                             f"{self.loop!r}")
+        if self.loop not in self.rates.loops():
+            raise InputError(f"the success rates hold no {self.loop}-loop measurement (they "
+                             f"hold {self.rates.loops() or 'none'}); choose one they hold")
+        for name, v, hi in (("threshold", self.threshold, 1.0), ("weight", self.weight, 1e6)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not \
+                    (math.isfinite(v) and 0.0 <= v <= hi):
+                raise InputError(f"the robustness {name} must be a number in [0, {hi:g}], "
+                                 f"got {v!r}")
+
+    def judge(self, start: State, end: State, skill: str) -> tuple[float | None, Rate | None]:
+        """The extra cost of an arc (None: avoid it) and its measured rate."""
+        r = self.rates.get(TransitionKey.of(skill, start, end), self.loop)
+        if r is None or r.n == 0:
+            # nothing measured: Laplace's rule with no count, 1/2
+            return (None if self.avoid_unmeasured else self.weight * math.log(2.0)), None
+        if r.rate < self.threshold:
+            return None, r
+        return -self.weight * math.log(r.smoothed), r
+
+    def avoided(self, graph: nx.MultiDiGraph) -> list[AvoidedTransition]:
+        """Every arc of ``graph`` this avoids, and why."""
+        out = []
+        for u, v, skill in sorted(graph.edges(keys=True), key=lambda e: (e[2], e[0], e[1])):
+            extra, r = self.judge(u, v, skill)
+            if extra is not None:
+                continue
+            why = (f"not measured ({self.loop} loop) and unmeasured transitions are avoided"
+                   if r is None else
+                   f"succeeded {r} {self.loop} loop, below the threshold "
+                   f"{100 * self.threshold:g} %")
+            out.append(AvoidedTransition(TransitionKey.of(skill, u, v), r, self.loop, why))
+        return out
 
 
 class NoPlanError(InputError):
@@ -221,9 +315,11 @@ class PlanStep:
     agent: Offset | None = None
     relocated: bool = False
     relocation_cost: float = 0.0
+    success_rate: Rate | None = None
 
     def to_dict(self, *, with_positions: bool = False) -> dict[str, Any]:
-        """The spec's JSON form of a step."""
+        """The spec's JSON form of a step (with ``success_rate`` when the plan used measured
+        rates)."""
         t = self.transition
         motions = []
         for source, target, label, ref in self.motions:
@@ -253,6 +349,8 @@ class PlanStep:
                 "from": self.start_pose.to_dict() if self.start_pose is not None else None,
                 "to": self.end_pose.to_dict() if self.end_pose is not None else None,
             },
+            **({"success_rate": self.success_rate.to_dict()}
+               if self.success_rate is not None else {}),
         }
 
 
@@ -264,6 +362,7 @@ class Plan:
     goal: State
     offset: Offset
     steps: tuple[PlanStep, ...] = field(default_factory=tuple)
+    robustness: dict[str, Any] | None = None
 
     @property
     def cost(self) -> float:
@@ -284,6 +383,7 @@ class Plan:
             "cost": self.cost,
             "relocations": self.relocations,
             "steps": [s.to_dict(with_positions=with_positions) for s in self.steps],
+            **({"robustness": self.robustness} if self.robustness is not None else {}),
         }
 
 
@@ -339,17 +439,25 @@ def find_offset(
 
 
 def _arc_cost(
-    data: Mapping[str, Any], costs: Mapping[str, float] | None, default: float
-) -> tuple[float, str]:
-    """Cheapest parallel arc: (cost, skill); demonstrated arcs win ties, then names."""
+    data: Mapping[str, Any], costs: Mapping[str, float] | None, default: float,
+    robustness: RobustnessCosts | None = None, ends: tuple[State, State] | None = None,
+) -> tuple[float, str] | None:
+    """Cheapest parallel arc: (cost, skill); demonstrated arcs win ties, then names. None
+    when ``robustness`` avoids every one of them."""
     best = None
     for skill, d in data.items():
         t = d["transition"]
         c = float(costs.get(_demonstrated_name(t.skill), default)) if costs else default
+        if robustness is not None and ends is not None:
+            extra, _ = robustness.judge(ends[0], ends[1], skill)
+            if extra is None:
+                continue
+            c += extra
         key = (c, not t.demonstrated, skill)
         if best is None or key < best:
             best = key
-    assert best is not None
+    if best is None:
+        return None
     return best[0], best[2]
 
 
@@ -388,6 +496,7 @@ def plan(
     angle_tol: float = DEFAULT_ANGLE_TOL,
     scale: float = 1.0,
     relocation_cost: float = DEFAULT_RELOCATION_COST,
+    robustness: RobustnessCosts | None = None,
 ) -> Plan:
     """Plan the transitions, contact events and finger motions from ``start`` to ``goal``.
 
@@ -415,6 +524,11 @@ def plan(
     relocation_cost : float
         Cost of relocating the agent between two steps (turning about the vertical and
         moving to the object). Its first placement, before the first step, is free.
+    robustness : RobustnessCosts, optional
+        Measured success rates: each arc's cost grows with its failures and arcs below the
+        threshold are avoided. The plan's ``robustness`` then lists the avoided transitions
+        with their rates, each step carries its own rate, and, when the rates changed the
+        route, ``without_rates`` names the steps the plan would have taken without them.
 
     Returns
     -------
@@ -423,7 +537,8 @@ def plan(
     Raises
     ------
     NoPlanError
-        If the goal cannot be reached; it lists the reachable states.
+        If the goal cannot be reached; it lists the reachable states (and, with
+        ``robustness``, the avoided transitions a route would need).
     """
     scale = float(scale)
     if not (math.isfinite(scale) and scale > 0):
@@ -442,8 +557,16 @@ def plan(
                             angle_tol=angle_tol)
     poly.loop(goal.face)
     if start.isclose(goal, angle_tol):
-        return Plan(start, goal, offset, ())
-    moves = _search(graph, start, goal, costs, default_cost, relocation_cost, angle_tol)
+        return Plan(start, goal, offset, (), _robustness_doc(robustness, graph, [], None))
+    try:
+        moves = _search(graph, start, goal, costs, default_cost, relocation_cost, angle_tol,
+                        robustness)
+    except NoPlanError as exc:
+        if robustness is None:
+            raise
+        _explain_avoided(exc, graph, start, goal, costs, default_cost, relocation_cost,
+                         angle_tol, robustness)
+        raise
     steps: list[PlanStep] = []
     agent = offset
     here = offset.translate  # where the object's centre of mass is on the table
@@ -459,11 +582,72 @@ def plan(
         t = expansion.adapted(u, v, skill)
         step, rot, trans, com = _make_step(poly, t, agent, rot, trans, com, scale, motions,
                                            cost, angle_tol)
+        rate = robustness.judge(u, v, skill)[1] if robustness is not None else None
         steps.append(replace(step, agent=agent, relocated=relocated,
-                             relocation_cost=relocation_cost if relocated and k > 0 else 0.0))
+                             relocation_cost=relocation_cost if relocated and k > 0 else 0.0,
+                             success_rate=rate))
         assert step.end_pose is not None
         here = step.end_pose.position
-    return Plan(start, goal, steps[0].agent or offset, tuple(steps))
+    blind = None
+    if robustness is not None:
+        blind = _search(graph, start, goal, costs, default_cost, relocation_cost, angle_tol,
+                        None)
+    return Plan(start, goal, steps[0].agent or offset, tuple(steps),
+                _robustness_doc(robustness, graph, moves, blind))
+
+
+def _move_doc(move: tuple[State, State, str, float, float, bool],
+              robustness: RobustnessCosts) -> dict[str, Any]:
+    u, v, skill = move[0], move[1], move[2]
+    rate = robustness.judge(u, v, skill)[1]
+    return {"skill": skill, "from": u.to_dict(), "to": v.to_dict(),
+            "success": None if rate is None else rate.to_dict()}
+
+
+def _robustness_doc(
+    robustness: RobustnessCosts | None, graph: nx.MultiDiGraph,
+    moves: Sequence[tuple[State, State, str, float, float, bool]],
+    blind: Sequence[tuple[State, State, str, float, float, bool]] | None,
+) -> dict[str, Any] | None:
+    """What the measured rates did to the plan (model-frame transitions)."""
+    if robustness is None:
+        return None
+    avoided = robustness.avoided(graph)
+    rates = [robustness.judge(u, v, sk)[1] for u, v, sk, *_ in moves]
+    doc: dict[str, Any] = {
+        "loop": robustness.loop, "threshold": robustness.threshold,
+        "weight": robustness.weight, "avoid_unmeasured": robustness.avoid_unmeasured,
+        "measured": {k: v for k, v in robustness.rates.meta.items()
+                     if k in ("seed", "samples", "dataset", "step", "distribution_name")},
+        "avoided": [a.to_dict() for a in avoided],
+        "unmeasured_steps": sum(r is None for r in rates),
+        # the chance that every step succeeds, if steps fail independently (measured steps)
+        "estimated_success": (math.prod(r.rate for r in rates if r is not None)
+                              if any(r is not None for r in rates) else None),
+    }
+    if blind is not None and [m[:3] for m in blind] != [m[:3] for m in moves]:
+        doc["without_rates"] = [_move_doc(m, robustness) for m in blind]
+    return doc
+
+
+def _explain_avoided(
+    exc: NoPlanError, graph: nx.MultiDiGraph, start: State, goal: State,
+    costs: Mapping[str, float] | None, default_cost: float, relocation_cost: float,
+    angle_tol: float, robustness: RobustnessCosts,
+) -> None:
+    """When only avoided transitions lead to the goal, raise saying which."""
+    try:
+        blind = _search(graph, start, goal, costs, default_cost, relocation_cost, angle_tol,
+                        None)
+    except NoPlanError:
+        return
+    needed = [m for m in blind if robustness.judge(m[0], m[1], m[2])[0] is None]
+    names = "; ".join(f"{m[2]} {m[0]} -> {m[1]} ({robustness.judge(m[0], m[1], m[2])[1]})"
+                      for m in needed)
+    raise NoPlanError(
+        f"{exc}; without the success rates a plan exists, through transitions below the "
+        f"robustness threshold {100 * robustness.threshold:g} % ({robustness.loop} loop): "
+        f"{names}; lower --robustness-threshold to allow them", exc.reachable) from None
 
 
 def _norm(theta: float) -> float:
@@ -480,6 +664,7 @@ def _search(
     default_cost: float,
     relocation_cost: float,
     angle_tol: float,
+    robustness: RobustnessCosts | None = None,
 ) -> list[tuple[State, State, str, float, float, bool]]:
     """Dijkstra over (world state, agent rotation): a transition of the expanded graph is a
     move from any world state that the agent, turned by ``phi``, sees as its start; turning
@@ -492,7 +677,10 @@ def _search(
     for u, v in set(graph.edges()):
         if u == v:
             continue
-        c, skill = _arc_cost(graph.get_edge_data(u, v), costs, default_cost)
+        got = _arc_cost(graph.get_edge_data(u, v), costs, default_cost, robustness, (u, v))
+        if got is None:
+            continue
+        c, skill = got
         by_face.setdefault(u.face, []).append((u, v, skill, c))
     for arcs in by_face.values():
         arcs.sort(key=lambda a: (a[0], a[1], a[2]))

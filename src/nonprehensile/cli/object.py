@@ -169,9 +169,15 @@ def object_figure_cmd(model: str, output: str | None, html_out: str | None,
         err.print(f"wrote {html_out}")
     if output is not None:
         from nonprehensile.viz import object_figure, save_figure
+        from nonprehensile.viz.labeled_object import DETAIL_LIMIT
 
         save_figure(object_figure(poly, faces=faces), output, dpi=100)
         err.print(f"wrote {output}")
+        if faces is None and len(poly.faces) > DETAIL_LIMIT:
+            err.print(f"note: {poly.name} has {len(poly.faces)} faces, more than the picture "
+                      f"labels ({DETAIL_LIMIT}): label some with --faces a,b,..., or see every "
+                      "face labeled in a rotatable view with --html FILE", markup=False,
+                      highlight=False)
 
 
 @object_group.command("from-mesh")

@@ -11,7 +11,15 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli.common import emit_json, err, fmt_num, handle_errors, out, stage_bars
+from nonprehensile.cli.common import (
+    bounded,
+    emit_json,
+    err,
+    fmt_num,
+    handle_errors,
+    out,
+    stage_bars,
+)
 from nonprehensile.cli.options import (
     angle_tol_option,
     atol_option,
@@ -22,11 +30,17 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
+from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, wants_robot
 from nonprehensile.errors import InputError
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
 from nonprehensile.pipeline import motions_from_dataset, write_plan_motions
-from nonprehensile.planning import DEFAULT_RELOCATION_COST, plan
+from nonprehensile.planning import (
+    DEFAULT_RELOCATION_COST,
+    DEFAULT_ROBUSTNESS_THRESHOLD,
+    RobustnessCosts,
+    plan,
+)
 from nonprehensile.states import State
 
 __all__ = ["plan_cmd", "print_plan"]
@@ -85,6 +99,29 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
         out.print(t)
 
 
+def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, result: Any,
+                  out_dir: str, doc: dict[str, Any]) -> list[Any]:
+    """The robot's joint trajectories of the plan, per step and whole (CSV + JSON)."""
+    from nonprehensile.sim.ik import IKConfig
+    from nonprehensile.sim.placement import joint_trajectory, write_joint_trajectories
+    from nonprehensile.sim.robot_run import describe_robots
+    from nonprehensile.sim.robot_scene import build_robot_scene
+    from nonprehensile.sim.scene import DEFAULT_PARAMS
+
+    arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, DEFAULT_PARAMS,
+                                 robot)
+    cfg = IKConfig()
+    trajectories = joint_trajectory(arms, poly, ds.scale, result, ds.fingers, ik_config=cfg)
+    scene = build_robot_scene(poly, scale=ds.scale, arms=arms, params=DEFAULT_PARAMS)
+    meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg)
+    meta["placement"] = placement.to_dict() if placement is not None else None
+    meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
+                    "the object at each step's planned start pose; `simulate plan --robot` "
+                    "executes it in physics")
+    doc["robot"] = meta
+    return write_joint_trajectories(trajectories, out_dir, meta)
+
+
 @click.command("plan")
 @click.argument("skills_file", type=click.Path(dir_okay=False))
 @click.option("--from", "start", required=True, callback=parse_state,
@@ -104,6 +141,19 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
               help="Demonstrations (a dataset folder, or `cube`) to attach reference motions.")
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
               help="Write each step's reference trajectories here (C3D and CSV).")
+@robot_options
+@click.option("--robustness", "rates_file", type=click.Path(dir_okay=False), default=None,
+              help="Success rates measured across the physics distribution (`simulate "
+                   "robustness -o FILE`): they become arc costs, and transitions below "
+                   "--robustness-threshold are avoided.")
+@click.option("--robustness-threshold", type=bounded(float, 0.0, 1.0),
+              default=DEFAULT_ROBUSTNESS_THRESHOLD, show_default=True,
+              help="Avoid transitions whose measured success rate is below this.")
+@click.option("--robustness-loop", type=click.Choice(["closed", "open"]), default=None,
+              help="Whose rates to use (default: closed loop if the file holds it).")
+@click.option("--robustness-weight", type=bounded(float, 0.0, 1e6), default=1.0,
+              show_default=True,
+              help="Cost per unit of -ln(success rate) added to a transition's cost.")
 @click.option("--html", "html_out", default=None, type=click.Path(dir_okay=False),
               help="Write a rotatable 3-D view of the plan: one self-contained HTML file "
               "(plotly.js embedded, opens offline) with the object's pose at each step, the "
@@ -116,10 +166,17 @@ def print_plan(plan_doc: dict[str, Any]) -> None:
 def plan_cmd(
     skills_file: str, start: State, goal: State, step: float | None, states_file: str | None,
     position: tuple[float, float], costs: dict[str, float] | None, relocation_cost: float,
-    dataset: str | None, out_dir: str | None, html_out: str | None, rtol: float | None,
-    atol: float | None, angle_tol: float, as_json: bool,
+    dataset: str | None, out_dir: str | None, rates_file: str | None,
+    robustness_threshold: float, robustness_loop: str | None, robustness_weight: float,
+    html_out: str | None, rtol: float | None, atol: float | None, angle_tol: float,
+    as_json: bool, **robot_kw: Any,
 ) -> None:
     """Plan transitions, contact events and finger motions from --from to --to."""
+    use_robot = wants_robot(robot_kw)
+    if use_robot and (out_dir is None or dataset is None):
+        raise InputError("--robot writes the plan's joint trajectories: give --dataset and "
+                         "--out DIR too")
+    robot = load_robot(robot_kw) if use_robot else None
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
@@ -127,6 +184,18 @@ def plan_cmd(
         raise InputError("--out writes reference trajectories: give --dataset too")
     if html_out is not None and not html_out.lower().endswith((".html", ".htm")):
         raise InputError(f"--html {html_out}: the 3-D view is an HTML file; name it .html")
+    robustness = None
+    if rates_file is not None:
+        from nonprehensile.success_rates import read_success_rates
+
+        rates = read_success_rates(rates_file)
+        if rates.object != poly.name:
+            raise InputError(f"{rates_file}: its rates were measured on object "
+                             f"{rates.object!r}, not on {poly.name!r}")
+        if not rates.loops():
+            raise InputError(f"{rates_file}: holds no measured transition")
+        robustness = RobustnessCosts(rates, robustness_loop or rates.loops()[0],
+                                     robustness_threshold, robustness_weight)
     motions = None
     scale = 1.0
     markers: list[str] | None = None
@@ -137,10 +206,13 @@ def plan_cmd(
         scale = ds.scale
         markers = list(ds.fingers.values())
     result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
-                  angle_tol=angle_tol, scale=scale, relocation_cost=relocation_cost)
+                  angle_tol=angle_tol, scale=scale, relocation_cost=relocation_cost,
+                  robustness=robustness)
     doc = result.to_dict()
     if out_dir is not None:
         written = write_plan_motions(result, out_dir)
+        if use_robot:
+            written += _write_joints(robot_kw, robot, poly, ds, result, out_dir, doc)
         doc["files"] = [str(p) for p in written]
         err.print(f"wrote {len(written)} files to {out_dir}")
     if html_out is not None:
@@ -154,3 +226,34 @@ def plan_cmd(
         emit_json(doc)
         return
     print_plan(doc)
+    if doc.get("robustness") is not None:
+        print_robustness(doc["robustness"])
+
+
+def print_robustness(rob: dict[str, Any]) -> None:
+    """What the measured success rates did to a plan."""
+    avoided = rob["avoided"]
+    by_skill: dict[str, int] = {}
+    for a in avoided:
+        by_skill[a["skill"]] = by_skill.get(a["skill"], 0) + 1
+    est = rob.get("estimated_success")
+    out.print(
+        f"success rates ({rob['loop']} loop): {len(avoided)} transition(s) avoided below "
+        f"{100 * rob['threshold']:g} %"
+        + (f" ({', '.join(f'{k}: {v}' for k, v in sorted(by_skill.items()))})"
+           if by_skill else "")
+        + (f"; every step succeeding: {100 * est:.0f} % (the measured rates' product)"
+           if est is not None else "")
+        + (f"; {rob['unmeasured_steps']} step(s) not measured" if rob["unmeasured_steps"]
+           else ""))
+    for a in avoided[:20]:
+        out.print(f"  avoided {a['skill']} {State.from_dict(a['from'])} -> "
+                  f"{State.from_dict(a['to'])}: {a['reason']}", markup=False)
+    if len(avoided) > 20:
+        out.print(f"  ... and {len(avoided) - 20} more (--json lists them all)")
+    if "without_rates" in rob:
+        steps = ", ".join(f"{m['skill']} {State.from_dict(m['from'])} -> "
+                          f"{State.from_dict(m['to'])}"
+                          + (f" ({100 * m['success']['rate']:.0f} %)" if m["success"] else "")
+                          for m in rob["without_rates"])
+        out.print(f"without the rates the plan would be: {steps}", markup=False)

@@ -33,6 +33,7 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
+from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, robot_table, wants_robot
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -341,6 +342,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @angle_tol_option
 @_physics_options
 @_perturbation_options
+@robot_options
 @json_option
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
@@ -351,7 +353,14 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       as_json: bool, tol_deg: float, **kw: Any) -> None:
     """Plan as `plan` does, then execute the plan in one continuous simulation, closed loop
     (default) or open loop, with transits between steps; the goal is the plan's last state at
-    the position the plan predicts for it."""
+    the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
+    it (docs/robot.md)."""
+    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
+    use_robot = wants_robot(robot_kw)
+    if use_robot and record:
+        raise InputError("--record writes free-fingertip episodes; it does not take a robot "
+                         "yet (drop --robot, or --record)")
+    robot = load_robot(robot_kw) if use_robot else None
     params = _params(kw)
     pert = _perturbation(kw, observed=loop == "closed")
     sim = _sim()
@@ -368,6 +377,13 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
     obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
+    if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
+        from nonprehensile.sim.execute import fingers_of
+
+        n_tips = len(robot.tip_sites)
+        skills = [s for s in skills if max(fingers_of(s), default=1) <= n_tips]
+        if not skills:
+            raise InputError(f"every skill needs more than the robot's {n_tips} fingertip(s)")
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
@@ -376,9 +392,22 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                   angle_tol=angle_tol, scale=ds.scale)
     if not result.steps:
         raise InputError(f"the object already rests in {goal}: nothing to execute")
-    with progress_bar("simulating", as_json) as bar:
+    extra: dict[str, Any] = {}
+    if use_robot:
+        from nonprehensile.sim.robot_run import RobotSimulator
+
+        arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
+                                     robot)
+        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params)
+        if simulator.n_fingers < scene_fingers(result, exp):
+            raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
+                             f"has {simulator.n_fingers} fingertip site(s)")
+        extra["robot"] = simulator.describe()
+        extra["placement"] = placement.to_dict() if placement is not None else None
+    else:
         simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=scene_fingers(result, exp),
                                   params=params)
+    with progress_bar("simulating", as_json) as bar:
         ex = execute_plan(simulator, result, fingers=ds.fingers,
                           loop="closed" if loop == "closed" else "open",
                           replan=replanner(poly, exp, goal, motions=motions, scale=ds.scale,
@@ -388,6 +417,11 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         bar(1, 1)
     doc = ex.to_dict()
     records = doc["steps"]
+    if use_robot:
+        log = simulator.robot_log
+        for (_, t0, t1), r in zip(ex.step_traces, records, strict=False):
+            r["robot"] = log.metrics(*log.window(t0, t1)).to_dict()
+        extra["robot_metrics"] = log.metrics().to_dict()
     recorded = None
     if record:
         from nonprehensile.export import write_episodes
@@ -420,6 +454,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                       f"{1000 * r['position_error_m']:.1f} mm",
                       r["outcome"] + (f": {r['reason']}" if r["reason"] else ""), events or "-")
         out.print(t)
+        if use_robot:
+            out.print(robot_table(records, extra))
         for rp in doc["replans"]:
             out.print(f"re-planned after step {rp['after_step']} ({rp['reason']}): "
                       + ("; ".join(rp.get("steps", [])) or rp.get("error", "")))
@@ -447,7 +483,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                    "n": len(records), "n_success": sum(r["success"] for r in records),
                    "params": params.to_dict(), "perturbation": pert.to_dict(),
                    "observation": obs_model.to_dict(), "control": cfg.to_dict(),
-                   "plan": result.to_dict(),
+                   "plan": result.to_dict(), **extra,
                    **({"record": recorded} if recorded else {})})
     if not ex.success:
         sys.exit(1)
@@ -538,3 +574,12 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
             out.print(f"nothing written to {out_dir}: no skill could be recorded")
     if failures:
         sys.exit(1)
+
+
+def _register() -> None:
+    from nonprehensile.cli.robustness import robustness_cmd
+
+    simulate_group.add_command(robustness_cmd)
+
+
+_register()

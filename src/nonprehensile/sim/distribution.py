@@ -311,26 +311,33 @@ contact_timeconst : (float, float)
         out["finger_noise"] = (self.finger_noise, self.finger_noise)
         return out
 
-    def sample(self, rng: np.random.Generator | int, *, index: int = 0) -> PhysicsSample:
+    def sample(self, rng: np.random.Generator | int, *, index: int = 0,
+               stream: int | None = None) -> PhysicsSample:
         """One draw.
 
         Parameters
         ----------
         rng : numpy.random.Generator or int
             A generator to draw from, or a seed: sample ``index`` of that seed then comes from
-            ``SeedSequence([seed, index])`` (what :meth:`samples` does).
+            ``SeedSequence([seed, index])`` (what :meth:`samples` does), or with a
+            ``stream``, from ``SeedSequence([seed, stream, index])``.
         index : int
             The sample's number (recorded; with an int seed, it selects the draw).
+        stream : int, optional
+            Independent streams of one seed (a sweep gives each transition its own).
         """
-        if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or index < 0:
-            raise InputError(f"a sample index must be a whole number >= 0, got {index!r}")
+        for name, v in (("sample index", index), ("sample stream", stream)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))
+                                  or not 0 <= v < 2**63):
+                raise InputError(f"a {name} must be a whole number >= 0, got {v!r}")
         seed = -1
         if not isinstance(rng, np.random.Generator):
             if isinstance(rng, bool) or not isinstance(rng, (int, np.integer)) or \
                     not 0 <= rng < 2**63:
                 raise InputError(f"the seed must be a whole number in [0, 2^63), got {rng!r}")
             seed = int(rng)
-            rng = np.random.default_rng(np.random.SeedSequence([seed, int(index)]))
+            entropy = [seed, int(index)] if stream is None else [seed, int(stream), int(index)]
+            rng = np.random.default_rng(np.random.SeedSequence(entropy))
         drawn = {n: float(rng.uniform(*getattr(self, n))) for n in self.RANGED}
         radius = self.start_offset * math.sqrt(float(rng.uniform()))
         angle = float(rng.uniform(0.0, 2.0 * math.pi))

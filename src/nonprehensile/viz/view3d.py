@@ -359,6 +359,24 @@ def plan_view(poly: Polyhedron, result: Plan, *, scale: float = 1.0,
             x=[pts[:, 0].mean()], y=[pts[:, 1].mean()], z=[top[2] + 0.25 * size],
             mode="text", text=[tag], textfont={"size": 15, "color": color}, hovertext=[name],
             hoverinfo="text", legendgroup=name, showlegend=False, name=f"{name}: tag"))
+        if n < len(steps):
+            # where the agent stands for this step, and whether it moved there
+            moved_here = n > 0 and steps[n].relocated
+            traces.append(go.Scatter3d(
+                x=[agent.translate[0]], y=[agent.translate[1]], z=[0.12 * size],
+                mode="text", text=[f"agent {n + 1}" + (" (relocated)" if moved_here else "")],
+                textfont={"size": 12, "color": "#7f3f00"}, hoverinfo="skip",
+                legendgroup=name, showlegend=False, name=f"{name}: agent label"))
+            if moved_here:
+                before = steps[n - 1].agent or result.offset
+                traces.append(go.Scatter3d(
+                    x=[before.translate[0], agent.translate[0]],
+                    y=[before.translate[1], agent.translate[1]], z=[0.0, 0.0],
+                    mode="lines+markers", line={"color": "#ff7f0e", "width": 3, "dash": "dot"},
+                    marker={"size": 3, "color": "#ff7f0e"}, legendgroup=name,
+                    showlegend=False, name=f"{name}: relocation",
+                    hovertext=(f"agent relocated: turned {before.rotate_deg:g} -> "
+                               f"{agent.rotate_deg:g} deg"), hoverinfo="text"))
         tri = _agent_triangle(agent, 0.3 * size)
         traces.append(go.Mesh3d(
             x=tri[:, 0], y=tri[:, 1], z=tri[:, 2], i=[0], j=[1], k=[2], color="#ff7f0e",

@@ -1,0 +1,119 @@
+"""Robot options shared by ``plan`` and ``simulate plan``: ``--robot``, ``--robot-xml``,
+``--tip-site``, ``--base`` (see ``docs/robot.md``)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import click
+from rich.table import Table
+
+from nonprehensile.errors import InputError
+
+__all__ = ["load_robot", "robot_arms", "robot_options", "robot_table", "wants_robot"]
+
+F = Callable[..., Any]
+
+
+def robot_options(fn: F) -> F:
+    """Add the robot options to a command (keyword arguments ``robot``, ``robot_xml``,
+    ``tip_sites``, ``base``)."""
+    for opt in reversed([
+        click.option("--robot", "robot", default=None, metavar="NAME",
+                     help="Execute with a bundled robot arm: `panda` (Franka Panda with a "
+                          "finger rod). Needs the `robot` extra."),
+        click.option("--robot-xml", "robot_xml", default=None,
+                     type=click.Path(dir_okay=False),
+                     help="Execute with your MJCF robot (give --tip-site too)."),
+        click.option("--tip-site", "tip_sites", multiple=True, metavar="NAME",
+                     help="A fingertip site of --robot-xml, one per finger R1, R2, ... "
+                          "(repeatable)."),
+        click.option("--base", "base", type=(float, float, float), default=None,
+                     metavar="X Y YAW",
+                     help="The robot base on the table: x, y (m) and heading (degrees); "
+                          "default: searched for reach and joint-limit margin."),
+    ]):
+        fn = opt(fn)
+    return fn
+
+
+def wants_robot(kw: dict[str, Any]) -> bool:
+    """Whether a robot option was given (and they agree)."""
+    robot, xml, sites, base = (kw.get("robot"), kw.get("robot_xml"), kw.get("tip_sites"),
+                               kw.get("base"))
+    if robot is not None and xml is not None:
+        raise InputError("give --robot NAME or --robot-xml FILE, not both")
+    if sites and xml is None:
+        raise InputError("--tip-site names sites of --robot-xml FILE: give the file too")
+    if xml is not None and not sites:
+        raise InputError("--robot-xml needs --tip-site NAME (the fingertip's site; one per "
+                         "finger)")
+    if base is not None and robot is None and xml is None:
+        raise InputError("--base places a robot: give --robot NAME or --robot-xml FILE")
+    return robot is not None or xml is not None
+
+
+def load_robot(kw: dict[str, Any]) -> Any:
+    """The :class:`~nonprehensile.sim.robot.Robot` the options name (checked now, before any
+    planning: a bad file fails at once)."""
+    try:
+        from nonprehensile.sim.ik import import_mink
+        from nonprehensile.sim.robot import Robot
+    except ImportError as exc:
+        raise InputError(f"robots need MuJoCo and mink: pip install 'nonprehensile[robot]' "
+                         f"({exc})") from None
+    import_mink()
+    if kw.get("robot") is not None:
+        return Robot.builtin(kw["robot"])
+    return Robot.from_file(kw["robot_xml"], kw["tip_sites"])
+
+
+def robot_arms(kw: dict[str, Any], poly: Any, scale: float, plan: Any, fingers: Any,
+               params: Any, robot: Any = None) -> tuple[list[Any], Any]:
+    """The arm(s) the options ask for, at ``--base`` or at a searched base; returns the arms
+    and the placement (None when ``--base`` was given)."""
+    try:
+        from nonprehensile.sim.ik import import_mink
+        from nonprehensile.sim.placement import place_base, plan_targets
+        from nonprehensile.sim.robot import BasePose
+        from nonprehensile.sim.robot_scene import Arm
+    except ImportError as exc:
+        raise InputError(f"robots need MuJoCo and mink: pip install 'nonprehensile[robot]' "
+                         f"({exc})") from None
+    import_mink()
+    if robot is None:
+        robot = load_robot(kw)
+    placement = None
+    if kw.get("base") is not None:
+        x, y, yaw = kw["base"]
+        base = BasePose(x, y, yaw)
+    else:
+        placement = place_base(robot, poly, scale,
+                               plan_targets(plan, fingers, len(robot.tip_sites)),
+                               params=params)
+        base = placement.base
+    return [Arm(robot, base)], placement
+
+
+def robot_table(records: list[dict[str, Any]], extra: dict[str, Any]) -> Table:
+    """The robot's records per step, as a person reads them."""
+    base = extra["robot"]["robots"][0]["base"]
+    t = Table(title=f"robot {extra['robot']['robots'][0]['robot']['name']} at "
+                    f"({base['x']:.3f}, {base['y']:.3f}) m, {base['yaw_deg']:.1f} deg"
+                    + (" (searched)" if extra.get("placement") else ""))
+    for c in ("step", "tracking in contact (max)", "tracking (max)", "longest at a limit",
+              "link/rod contact", "joint margin", "IK median"):
+        t.add_column(c)
+    for r in records:
+        m = r["robot"]
+        c = m["tracking_error_contact_max_m"]
+        at = m["longest_at_limit_s"]
+        worst = max(at, key=lambda k: at[k]) if at else "-"
+        t.add_row(str(r["step"]), "-" if c is None else f"{1000 * c:.1f} mm",
+                  f"{1000 * m['tracking_error_max_m']:.1f} mm",
+                  f"{1000 * at.get(worst, 0.0):.0f} ms ({worst})" if at else "-",
+                  f"{1000 * m['other_contact_s']:.0f} ms",
+                  f"{m['position_margin_min_rad']:.2f} rad",
+                  f"{m['ik_median_ms']:.3f} ms")
+    return t

@@ -1,0 +1,200 @@
+"""``nonprehensile simulate robustness``: transitions or a plan judged across the physics
+distribution (registered in the ``simulate`` group by :mod:`nonprehensile.cli.sim`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import click
+from rich.table import Table
+
+from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, out, stage_bars
+from nonprehensile.cli.options import (
+    angle_tol_option,
+    json_option,
+    parse_state,
+    state_set,
+    states_option,
+    step_option,
+)
+from nonprehensile.errors import InputError
+from nonprehensile.states import State
+
+__all__ = ["robustness_cmd"]
+
+
+def _optional_state(ctx: click.Context, param: click.Parameter, value: str | None
+                    ) -> State | None:
+    return None if value is None else parse_state(ctx, param, value)
+
+
+def _loops(value: str) -> list[str]:
+    return ["closed", "open"] if value == "both" else [value]
+
+
+def _pct(d: dict[str, Any]) -> str:
+    if not d["n"]:
+        return "-"
+    lo, hi = d["ci95"]
+    return f"{d['k']}/{d['n']} {100 * d['rate']:.0f} % ({100 * lo:.0f}-{100 * hi:.0f})"
+
+
+@click.command("robustness")
+@click.argument("skills_file", type=click.Path(dir_okay=False))
+@click.option("--dataset", default="cube", show_default=True,
+              help="Demonstrations (a folder, or `cube`) giving the planner's reference "
+                   "motions (per-arc cluster medoids).")
+@step_option
+@states_option
+@click.option("--from", "start", default=None, callback=_optional_state,
+              help="Sweep the plan from this state (with --to) instead of every transition.")
+@click.option("--to", "goal", default=None, callback=_optional_state, help="The plan's goal.")
+@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+              help="Where the object is on the table (x y, metres), with --from/--to.")
+@click.option("--skill", "skill_names", multiple=True,
+              help="Only transitions of these demonstrated skills (repeatable; "
+                   "NAME:reverse for a reversed one).")
+@click.option("--samples", type=bounded(int, 1, 100_000), default=20, show_default=True,
+              help="Samples of the physics distribution per transition (or plan).")
+@click.option("--seed", type=bounded(int, 0, 2**63 - 1), default=0, show_default=True,
+              help="Seed of the samples (sample i of transition u: SeedSequence([seed, u, "
+                   "i])).")
+@click.option("--loop", type=click.Choice(["closed", "open", "both"]), default="both",
+              show_default=True, help="Execution loop(s); both: closed and open side by side "
+                                      "on the same samples.")
+@click.option("--workers", type=bounded(int, 1, 256), default=None,
+              help="Processes (one MuJoCo model each; default: the machine's cores).")
+@click.option("--scheduler", default=None, metavar="ADDRESS",
+              help="Run on this Dask scheduler (tcp://host:8786) instead of a process pool "
+                   "(extra `scale`).")
+@click.option("--bins", "n_bins", type=bounded(int, 1, 50), default=4, show_default=True,
+              help="Bins per parameter for the rates against each parameter.")
+@click.option("--tol-deg", type=bounded(float, 1e-3, 180.0), default=5.0, show_default=True,
+              help="A final theta within this many degrees is the predicted state.")
+@click.option("--position-tol", type=bounded(float, 1e-5, 1.0), default=0.010,
+              show_default=True,
+              help="A final centre of mass within this many metres of the prediction.")
+@click.option("-o", "--output", "rates_file", type=click.Path(dir_okay=False), default=None,
+              help="Write the per-transition success rates here (JSON) for "
+                   "`plan --robustness FILE`.")
+@click.option("--figure", type=click.Path(dir_okay=False), default=None,
+              help="Draw success against each parameter (open and closed loop) to this "
+                   "image.")
+@click.option("--no-records", is_flag=True,
+              help="Leave the per-execution records out of the JSON.")
+@angle_tol_option
+@json_option
+@handle_errors
+def robustness_cmd(skills_file: str, dataset: str, step: float | None,
+                   states_file: str | None, start: State | None, goal: State | None,
+                   position: tuple[float, float], skill_names: tuple[str, ...], samples: int,
+                   seed: int, loop: str, workers: int | None, scheduler: str | None,
+                   n_bins: int, tol_deg: float, position_tol: float, rates_file: str | None,
+                   figure: str | None, no_records: bool, angle_tol: float,
+                   as_json: bool) -> None:
+    """Execute every transition (or the plan --from --to) across the physics distribution:
+    success rates with 95 % intervals per transition, per skill and per parameter bin."""
+    if (start is None) != (goal is None):
+        raise InputError("give both --from and --to (a plan), or neither (every transition)")
+    if start is not None and rates_file is not None:
+        raise InputError("-o writes per-transition rates for the planner: sweep the "
+                         "transitions (leave out --from/--to)")
+    if start is not None and skill_names:
+        raise InputError("--skill selects transitions; a plan (--from/--to) uses what the "
+                         "planner picks")
+    if workers is not None and scheduler is not None:
+        raise InputError("give --workers (a process pool) or --scheduler (Dask), not both")
+    try:
+        import nonprehensile.sim.robustness as rob
+    except ImportError as exc:
+        raise InputError(f"simulation needs MuJoCo: pip install 'nonprehensile[sim]' ({exc})"
+                         ) from None
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.planning import plan
+    from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION
+
+    loops = _loops(loop)
+    rob.check_loops(loops)  # before any work: a missing loop is never replaced
+    if figure is not None:
+        from nonprehensile.viz._figures import require_matplotlib
+
+        require_matplotlib()
+    poly, skills = read_skills(skills_file, angle_tol=angle_tol)
+    states = state_set(poly, step, states_file, angle_tol)
+    exp = expand(poly, skills, states, angle_tol=angle_tol)
+    with stage_bars(as_json) as bars:
+        ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
+        if start is not None and goal is not None:
+            p = plan(poly, exp, start, goal, position=position, motions=motions,
+                     angle_tol=angle_tol, scale=ds.scale)
+            if not p.steps:
+                raise InputError(f"{start} is already the goal {goal}: nothing to execute")
+            units = [rob.plan_unit(p)]
+        else:
+            if skill_names:
+                known = sorted({t.source.name for t in exp.transitions})
+                unknown = sorted(set(skill_names) - set(known))
+                if unknown:
+                    raise InputError(f"--skill {unknown}: no transition of that skill; the "
+                                     f"transitions' skills are {known}")
+            units = rob.transition_units(poly, exp, motions, scale=ds.scale,
+                                         angle_tol=angle_tol,
+                                         sources=list(skill_names) or None)
+        spec = rob.SweepSpec(poly, ds.scale, tuple(units),
+                             DEFAULT_DISTRIBUTION.for_object(poly, ds.scale), seed, samples,
+                             tuple(loops), dict(ds.fingers), tol_deg, position_tol)
+        result = rob.run_sweep(spec, workers=workers, scheduler=scheduler,
+                               progress=lambda d, n: bars("executing", d, n))
+    doc = result.to_dict(records=not no_records, n_bins=n_bins)
+    doc["dataset"] = dataset
+    if rates_file is not None:
+        result.rates({"dataset": dataset, "step": step}).write(rates_file)
+        doc["rates_file"] = rates_file
+        err.print(f"wrote the success rates to {rates_file}", markup=False)
+    if figure is not None:
+        from nonprehensile.viz import save_figure
+        from nonprehensile.viz.robustness import robustness_figure
+
+        save_figure(robustness_figure(doc), figure)
+        doc["figure"] = figure
+        err.print(f"wrote {figure}", markup=False)
+    if as_json:
+        emit_json(doc)
+        return
+    _print(doc, loops)
+
+
+def _print(doc: dict[str, Any], loops: list[str]) -> None:
+    t = Table(title=f"{doc['object']}: success across the physics distribution "
+                    f"({len(doc['units'])} unit(s) x {doc['samples']} samples, seed "
+                    f"{doc['seed']}; k/n, rate, 95 % interval)")
+    t.add_column("source skill")
+    for lp in loops:
+        t.add_column(f"{lp} loop")
+    for name, rates in doc["per_source_skill"].items():
+        t.add_row(name, *(_pct(rates[lp]) for lp in loops))
+    t.add_row("all", *(_pct(doc["overall"][lp]) for lp in loops))
+    out.print(t)
+    if len(doc["units"]) > 1:
+        worst = sorted(doc["units"], key=lambda u: u[loops[0]]["rate"] or 0.0)[:10]
+        w = Table(title=f"the {len(worst)} least robust transitions ({loops[0]} loop)")
+        for c in ("skill", "from", "to", *(f"{lp} loop" for lp in loops)):
+            w.add_column(c)
+        for u in worst:
+            w.add_row(u["skill"], str(State.from_dict(u["from"])), str(State.from_dict(u["to"])),
+                      *(_pct(u[lp]) for lp in loops))
+        out.print(w)
+    b = Table(title="success per parameter bin")
+    b.add_column("parameter")
+    b.add_column("bin")
+    for lp in loops:
+        b.add_column(f"{lp} loop")
+    for name, bins in doc["bins"].items():
+        for i, bn in enumerate(bins):
+            b.add_row(name if i == 0 else "", f"{bn['low']:.4g} - {bn['high']:.4g}",
+                      *(_pct(bn[lp]) for lp in loops))
+    out.print(b)
+    out.print(f"{doc['physics_steps']} physics steps in {doc['wall_seconds']:.1f} s wall "
+              f"({doc['how']})")

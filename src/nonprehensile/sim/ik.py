@@ -1,0 +1,228 @@
+"""Differential inverse kinematics of the fingertips with mink, one solve per control step.
+
+:class:`FingertipIK` holds a kinematic copy of the robot scene (the object a mocap body, moved
+to where the simulation says the object is before each solve) and mink's tasks and limits:
+
+* a position task per fingertip site (the fingertip's centre on its target);
+* an axis-alignment task per fingertip: the site's +z (out of the finger) pointing down,
+  soft (the recorded finger direction is not used: the motion library keeps tip markers);
+* posture regularisation towards the robot's home configuration;
+* limits: joint positions, joint velocities (the datasheet's, or the user's), and collision
+  avoidance of every link and the rod against the object and the table (the base against the
+  object only).
+
+The QP is solved by daqp through qpsolvers. mink is imported lazily (extra ``robot``).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.errors import InputError
+from nonprehensile.sim.robot_scene import RobotScene
+
+__all__ = ["FingertipIK", "IKConfig", "import_mink"]
+
+FloatArray = NDArray[np.float64]
+
+
+def import_mink() -> Any:
+    """mink, or an :class:`InputError` saying how to install it."""
+    try:
+        import mink
+        import qpsolvers
+    except ImportError as exc:
+        raise InputError(f"robot arms need mink: pip install 'nonprehensile[robot]' ({exc})"
+                         ) from None
+    if "daqp" not in qpsolvers.available_solvers:
+        raise InputError("robot arms need the daqp QP solver: pip install 'nonprehensile[robot]'")
+    return mink
+
+
+@dataclass(frozen=True)
+class IKConfig:
+    """Weights, gains and limits of the fingertip IK.
+
+    Attributes
+    ----------
+    position_cost : float
+        Fingertip position task weight (per metre).
+    pointing_cost : float
+        Weight of the fingertip pointing down (per unit of axis error).
+    posture_cost : float
+        Posture regularisation weight (per radian).
+    posture_gain : float
+        Fraction of the posture error corrected per control step (0.001 at 1 kHz: a 1 s
+        time constant; at 1 the null space would swing to the home posture at the velocity
+        limit). A placement (:meth:`FingertipIK.converge`) settles the posture fully.
+    damping : float
+        Levenberg-Marquardt damping of the QP.
+    collision_margin : float
+        Least distance (m) the IK keeps between a link or the rod and the object or the table.
+    collision_detection : float
+        Distance (m) from which a collision constraint is active.
+    collision_gain : float
+        How fast geoms may approach each other, in (0, 1].
+    collisions : bool
+        Whether to avoid collisions at all (the base search skips them for speed).
+    """
+
+    position_cost: float = 1.0
+    pointing_cost: float = 0.05
+    posture_cost: float = 1e-3
+    posture_gain: float = 0.001
+    damping: float = 1e-5
+    collision_margin: float = 0.001
+    collision_detection: float = 0.02
+    collision_gain: float = 0.5
+    collisions: bool = True
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return asdict(self)
+
+
+class FingertipIK:
+    """mink IK over a kinematic robot scene (from
+    :func:`~nonprehensile.sim.robot_scene.build_robot_scene` with ``mocap_object=True``).
+
+    Parameters
+    ----------
+    scene : RobotScene
+    dt : float
+        Control period, s (the IK's integration step).
+    config : IKConfig
+
+    Attributes
+    ----------
+    q : ndarray, shape (n_joints,)
+        The IK's joint positions (the set points), scene joint order.
+    solve_times : list of float
+        Seconds per solve, since the last :meth:`reset`.
+    """
+
+    def __init__(self, scene: RobotScene, dt: float, config: IKConfig | None = None) -> None:
+        mink = import_mink()
+        self.mink = mink
+        self.scene = scene
+        self.dt = float(dt)
+        self.config = config or IKConfig()
+        m = scene.model
+        if m.nq != len(scene.qadr):
+            raise InputError("the IK scene must hold the robot joints only (mocap object)")
+        # mink's collision limit honours contype/conaffinity: this copy is never stepped
+        for name in (*scene.collision_geoms, "object", "table"):
+            gid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, name)
+            m.geom_contype[gid] = 1
+            m.geom_conaffinity[gid] = 1
+        self.configuration = mink.Configuration(m)
+        cfg = self.config
+        self.tip_names = [m.site(int(s)).name for s in scene.tip_sites]
+        self.position_tasks = [
+            mink.FrameTask(n, "site", position_cost=cfg.position_cost, orientation_cost=0.0)
+            for n in self.tip_names]
+        self.pointing_tasks = [
+            mink.AxisAlignTask(n, "site", axis=(0.0, 0.0, 1.0), cost=cfg.pointing_cost)
+            for n in self.tip_names]
+        for t in self.pointing_tasks:
+            t.set_target(np.array([0.0, 0.0, -1.0]))
+        self.posture = mink.PostureTask(m, cost=cfg.posture_cost, gain=cfg.posture_gain)
+        q_home = np.zeros(m.nq)
+        q_home[scene.qadr] = scene.home
+        self.posture.set_target(q_home)
+        self.tasks = [*self.position_tasks, *self.pointing_tasks, self.posture]
+        velocities = {n: float(v) for n, v in zip(scene.joint_names, scene.velocity,
+                                                   strict=True)}
+        self.limits: list[Any] = [mink.ConfigurationLimit(m),
+                                  mink.VelocityLimit(m, velocities)]
+        if cfg.collisions:
+            links_obj = list(scene.collision_geoms)
+            pairs = [(links_obj, ["object"])]
+            if scene.table_geoms:
+                pairs.append((list(scene.table_geoms), ["table"]))
+            self.limits.append(mink.CollisionAvoidanceLimit(
+                m, geom_pairs=pairs, gain=cfg.collision_gain,
+                minimum_distance_from_collisions=cfg.collision_margin,
+                collision_detection_distance=cfg.collision_detection))
+        self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
+        self._mocap = int(m.body_mocapid[self._obj])
+        self._target = [np.eye(4) for _ in self.tip_names]
+        self.solve_times: list[float] = []
+        self.reset(scene.home)
+
+    # -------------------------------------------------------------------------- state
+    @property
+    def q(self) -> FloatArray:
+        """The IK's joint positions, scene joint order."""
+        return np.asarray(self.configuration.q[self.scene.qadr], dtype=np.float64)
+
+    def reset(self, q: FloatArray) -> None:
+        """Start from joint positions ``q`` (scene joint order)."""
+        full = np.zeros(self.scene.model.nq)
+        full[self.scene.qadr] = np.clip(q, self.scene.lower, self.scene.upper)
+        self.configuration.update(full)
+        self.solve_times = []
+
+    def set_object(self, position: FloatArray, quat: FloatArray) -> None:
+        """Where the object is now (the body's origin and ``(w, x, y, z)`` orientation)."""
+        d = self.configuration.data
+        d.mocap_pos[self._mocap] = position
+        d.mocap_quat[self._mocap] = quat
+
+    def tips(self) -> FloatArray:
+        """The IK's fingertip positions, shape (n_fingers, 3)."""
+        d = self.configuration.data
+        return np.array([d.site_xpos[int(s)] for s in self.scene.tip_sites])
+
+    # -------------------------------------------------------------------------- solve
+    def step(self, targets: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """One control step towards ``targets`` (shape (n_fingers, 3), world metres).
+
+        Returns
+        -------
+        q : ndarray, shape (n_joints,)
+            Joint position set points.
+        qd : ndarray, shape (n_joints,)
+            Joint velocities (feed-forward), rad/s.
+        """
+        mink = self.mink
+        t0 = time.perf_counter()
+        for task, x, pose in zip(self.position_tasks, targets, self._target, strict=True):
+            pose[:3, 3] = x
+            task.set_target(mink.SE3.from_matrix(pose))
+        try:
+            v = mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
+                              damping=self.config.damping, limits=self.limits)
+        except mink.NoSolutionFound:
+            v = np.zeros(self.configuration.nv)  # hold: the limits admit no step
+        self.configuration.integrate_inplace(v, self.dt)
+        self.solve_times.append(time.perf_counter() - t0)
+        return self.q, np.asarray(v[self.scene.dadr], dtype=np.float64)
+
+    def converge(self, targets: FloatArray, *, iterations: int = 400,
+                 tol: float = 1e-4) -> float:
+        """Iterate towards fixed ``targets`` (no time meaning: a placement before a run);
+        returns the largest fingertip error left, m."""
+        saved = self.dt
+        self.dt = 0.02
+        self.posture.gain = 0.2  # settle the null space too: the run starts at rest
+        q_prev = self.q
+        try:
+            for _ in range(iterations):
+                self.step(targets)
+                err = float(np.linalg.norm(self.tips() - targets, axis=1).max())
+                q = self.q
+                if err < tol and float(np.abs(q - q_prev).max()) < 1e-5:
+                    break
+                q_prev = q
+        finally:
+            self.dt = saved
+            self.posture.gain = self.config.posture_gain
+        self.solve_times = []
+        return float(np.linalg.norm(self.tips() - targets, axis=1).max())

@@ -1,0 +1,269 @@
+"""Where to stand the robot: a base placement search, and the joint trajectory of a plan.
+
+:func:`place_base` tries base positions on rings around the plan's fingertip paths, the base
+facing them, and keeps the one that reaches every target of the whole plan (largest fingertip
+error under ``reach_tol``) with the largest joint-limit margin (least distance of any joint to
+an end of its range, in radians, over the whole plan). The search is kinematic (the IK at
+``search_rate``, no collision avoidance): the chosen base is then judged by physics.
+
+:func:`joint_trajectory` runs the fingertip IK (with collision avoidance, the object at each
+step's planned start pose) along a plan's reference motion at the control rate, and
+:func:`write_joint_trajectories` writes it: per step and for the whole plan, a CSV (time, every
+joint by name, their velocities) and a JSON (robot, base pose, controller, gains, rates,
+limits).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.errors import InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.planning import Plan
+from nonprehensile.sim.ik import FingertipIK, IKConfig
+from nonprehensile.sim.robot import BasePose, Robot
+from nonprehensile.sim.robot_scene import Arm, build_robot_scene
+from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
+
+__all__ = ["JointTrajectory", "Placement", "joint_trajectory", "place_base", "plan_targets",
+           "write_joint_trajectories"]
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Placement:
+    """The result of :func:`place_base`.
+
+    Attributes
+    ----------
+    base : BasePose
+    reach_error_m : float
+        Largest fingertip error over the plan's targets at this base.
+    joint_margin_rad : float
+        Least distance of a joint to an end of its range over the plan.
+    feasible : bool
+        Whether the reach error is under the tolerance.
+    tried : int
+        Candidate bases evaluated.
+    """
+
+    base: BasePose
+    reach_error_m: float
+    joint_margin_rad: float
+    feasible: bool
+    tried: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {"base": self.base.to_dict(), "reach_error_m": round(self.reach_error_m, 6),
+                "joint_margin_rad": round(self.joint_margin_rad, 4),
+                "feasible": self.feasible, "candidates": self.tried}
+
+
+def plan_targets(plan: Plan, fingers: Mapping[str, str], n_fingers: int = 1) -> list[
+        tuple[FloatArray, float]]:
+    """Each step's fingertip targets, shape (n_frames, n_fingers, 3), and rate (fingers a
+    step does not use hold their last target, the first step's first one before that)."""
+    from nonprehensile.sim.execute import step_targets
+
+    out = []
+    hold: FloatArray | None = None
+    for step in plan.steps:
+        targets, rate, _ = step_targets(step, fingers)
+        n = len(next(iter(targets.values())))
+        if hold is None:
+            first = next(iter(targets.values()))[0]
+            hold = np.repeat(first[None], n_fingers, axis=0)
+        arr = np.repeat(hold[None], n, axis=0)
+        for k, tr in targets.items():
+            if k > n_fingers:
+                raise InputError(f"step {step.transition.skill.name!r} uses finger R{k}; the "
+                                 f"robots have {n_fingers} fingertip(s)")
+            arr[:, k - 1] = tr
+        hold = arr[-1]
+        out.append((arr, rate))
+    return out
+
+
+def _rz(yaw_deg: float) -> FloatArray:
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def place_base(
+    robot: Robot, poly: Polyhedron, scale: float, paths: Sequence[tuple[FloatArray, float]], *,
+    radii: Sequence[float] = tuple(np.round(np.arange(0.35, 0.751, 0.05), 3)),
+    n_directions: int = 16, search_rate: float = 50.0, reach_tol: float = 0.002,
+    params: SimParams = DEFAULT_PARAMS,
+) -> Placement:
+    """Search a base pose for one arm that reaches the whole plan with the most joint margin.
+
+    Parameters
+    ----------
+    robot : Robot
+        One arm (its first tip site follows finger R1).
+    poly, scale : the object model and metres per model unit.
+    paths : sequence of (array, float)
+        Targets per step, shape (n_frames, n_fingers, 3), and their rate (:func:`plan_targets`).
+    radii : sequence of float
+        Distances (m) of the candidate bases from the centre of the targets.
+    n_directions : int
+        Directions around it (the base faces the centre).
+    search_rate : float
+        Rate (Hz) the targets are followed at in the search.
+    reach_tol : float
+        A base is feasible when the fingertip error stays under this (m).
+    """
+    if not paths:
+        raise InputError("the plan has no steps: nothing to place the robot for")
+    scene = build_robot_scene(poly, scale=scale, arms=[Arm(robot, BasePose(0.0, 0.0, 0.0))],
+                              params=params, mocap_object=True)
+    ik = FingertipIK(scene, 1.0 / search_rate, IKConfig(collisions=False))
+    ik.set_object(np.array([0.0, 0.0, -10.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+    sampled = []
+    for arr, rate in paths:
+        every = max(1, round(rate / search_rate))
+        sampled.append(arr[::every, :1])
+    allt = np.concatenate(sampled)
+    centre = allt.reshape(-1, 3)[:, :2].mean(axis=0)
+    best: Placement | None = None
+    tried = 0
+    for r in radii:
+        for k in range(n_directions):
+            a = 2 * math.pi * k / n_directions
+            bx, by = centre[0] + r * math.cos(a), centre[1] + r * math.sin(a)
+            yaw = math.degrees(math.atan2(centre[1] - by, centre[0] - bx))
+            base = BasePose(float(bx), float(by), yaw)
+            local = (allt - np.array([bx, by, 0.0])) @ _rz(yaw)  # world -> base frame
+            tried += 1
+            ik.reset(scene.home)
+            err = ik.converge(local[0], iterations=200)
+            margin = math.inf
+            for x in local[1:]:
+                ik.step(x)
+                e = float(np.linalg.norm(ik.tips() - x, axis=1).max())
+                err = max(err, e)
+                if err > 5 * reach_tol:
+                    break
+                q = ik.q
+                margin = min(margin, float(np.min(np.minimum(q - scene.lower,
+                                                             scene.upper - q))))
+            cand = Placement(base, err, margin if math.isfinite(margin) else 0.0,
+                             err <= reach_tol, tried)
+            if best is None or (cand.feasible, cand.joint_margin_rad if cand.feasible
+                                else -cand.reach_error_m) > (
+                    best.feasible, best.joint_margin_rad if best.feasible
+                    else -best.reach_error_m):
+                best = cand
+    assert best is not None
+    return Placement(best.base, best.reach_error_m, best.joint_margin_rad, best.feasible,
+                     tried)
+
+
+@dataclass(frozen=True)
+class JointTrajectory:
+    """Joint set points at the control rate.
+
+    Attributes
+    ----------
+    name : str
+        ``step1``, ``step2``, ... or ``plan``.
+    time : ndarray, shape (n,)
+        Seconds from the start of the plan.
+    positions, velocities : ndarray, shape (n, n_joints)
+    joint_names : tuple of str
+    tip_error_m : float
+        Largest distance of the IK's fingertip to its target (reach).
+    """
+
+    name: str
+    time: FloatArray
+    positions: FloatArray
+    velocities: FloatArray
+    joint_names: tuple[str, ...]
+    tip_error_m: float
+
+
+def joint_trajectory(
+    arms: Sequence[Arm], poly: Polyhedron, scale: float, plan: Plan,
+    fingers: Mapping[str, str], *, params: SimParams = DEFAULT_PARAMS,
+    ik_config: IKConfig | None = None,
+) -> list[JointTrajectory]:
+    """The IK's joint trajectory along the plan's reference motion, per step (kinematic:
+    the object stands at each step's planned start pose for collision avoidance)."""
+    scene = build_robot_scene(poly, scale=scale, arms=arms, params=params, mocap_object=True)
+    dt = params.timestep
+    ik = FingertipIK(scene, dt, ik_config)
+    paths = plan_targets(plan, fingers, scene.n_fingers)
+    out = []
+    t0 = 0.0
+    placed = False
+    for i, ((arr, rate), step) in enumerate(zip(paths, plan.steps, strict=True)):
+        pose = step.start_pose
+        if pose is not None:
+            quat = np.empty(4)
+            mujoco.mju_mat2Quat(quat, np.ascontiguousarray(pose.rotation).ravel())
+            ik.set_object(np.asarray(pose.translation, dtype=float), quat)
+        n = max(2, round((len(arr) - 1) / rate / dt) + 1)
+        tt = np.arange(n) * dt
+        tr = np.arange(len(arr)) / rate
+        x = np.stack([np.stack([np.interp(tt, tr, arr[:, k, a]) for a in range(3)], axis=1)
+                      for k in range(arr.shape[1])], axis=1)
+        if not placed:
+            ik.converge(x[0])
+            placed = True
+        qs, vs, err = [], [], 0.0
+        for xi in x:
+            q, v = ik.step(xi)
+            qs.append(q)
+            vs.append(v)
+            err = max(err, float(np.linalg.norm(ik.tips() - xi, axis=1).max()))
+        vs[-1] = np.zeros_like(vs[-1])
+        out.append(JointTrajectory(f"step{i + 1}", np.asarray(t0 + tt, dtype=np.float64),
+                                   np.array(qs), np.array(vs),
+                                   scene.joint_names, err))
+        t0 += n * dt
+    if out:
+        out.append(JointTrajectory(
+            "plan", np.concatenate([j.time for j in out]),
+            np.concatenate([j.positions for j in out]),
+            np.concatenate([j.velocities for j in out]), scene.joint_names,
+            max(j.tip_error_m for j in out)))
+    return out
+
+
+def write_joint_trajectories(trajectories: Sequence[JointTrajectory], out_dir: str | Path,
+                             meta: Mapping[str, Any]) -> list[Path]:
+    """Write ``joints_<name>.csv`` (``time``, each joint, ``<joint>_vel``) and
+    ``joints_<name>.json`` (``meta`` with the file's columns, units and rate)."""
+    d = Path(out_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    written = []
+    for jt in trajectories:
+        csv_path = d / f"joints_{jt.name}.csv"
+        names = list(jt.joint_names)
+        with csv_path.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["time", *names, *(f"{n}_vel" for n in names)])
+            for t, q, v in zip(jt.time, jt.positions, jt.velocities, strict=True):
+                w.writerow([f"{t:.6f}", *(f"{x:.9g}" for x in q), *(f"{x:.9g}" for x in v)])
+        doc = {**meta, "trajectory": jt.name, "csv": csv_path.name,
+               "columns": ["time", *names, *(f"{n}_vel" for n in names)],
+               "units": {"time": "s", "position": "rad (m for slide joints)",
+                         "velocity": "rad/s (m/s)"},
+               "samples": len(jt.time), "ik_tip_error_max_m": round(jt.tip_error_m, 6)}
+        json_path = d / f"joints_{jt.name}.json"
+        json_path.write_text(json.dumps(doc, indent=2) + "\n")
+        written += [csv_path, json_path]
+    return written

@@ -1,0 +1,322 @@
+"""The robot finger driver: fingertip targets -> IK at the control rate -> joint servos.
+
+:class:`RobotArms` implements :class:`~nonprehensile.sim.driver.FingerDriver`, so the judge's
+rules and records are those of the free fingertips. Its :meth:`~RobotArms.controls` are
+computed **online**: row ``i`` is solved when the step loop asks for it, right before physics
+step ``i``, with the object's collision geometry where the simulation has it then (a
+precomputed joint path would avoid the object where it was, not where it is). Each row holds,
+for every joint, the position servo's set point (the IK's joint positions) and the velocity
+servo's (the IK's joint velocities: feed-forward, so the arm does not lag its set points);
+gravity is compensated through the actuators (:mod:`nonprehensile.sim.robot_scene`).
+
+:class:`RobotLog` records, every control step, the fingertip tracking error, joint positions,
+velocities and actuator torques, whether a fingertip touches the object, whether a link or the
+rod touches the object or the table, and the IK's time; :meth:`RobotLog.metrics` sums them up.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.sim.ik import FingertipIK, IKConfig
+from nonprehensile.sim.judge import CONTACT_EVERY, Judge
+from nonprehensile.sim.robot_scene import RobotScene
+
+__all__ = ["LIMIT_BANDS", "RobotArms", "RobotLog", "RobotMetrics"]
+
+FloatArray = NDArray[np.float64]
+
+#: A joint is "at" a limit within these bands: position within 0.5 degrees of an end of its
+#: range, velocity and torque at or above 98 % of their limits.
+LIMIT_BANDS = {"position_rad": np.radians(0.5), "velocity_fraction": 0.98,
+               "torque_fraction": 0.98}
+
+
+@dataclass(frozen=True)
+class RobotMetrics:
+    """What the robot did during a run (see :class:`RobotLog`).
+
+    Attributes
+    ----------
+    tracking_error_contact_max_m, tracking_error_contact_mean_m : float or None
+        Fingertip tracking error (actual centre to target) while a fingertip touches the
+        object; None if none did.
+    tracking_error_max_m : float
+        Over the whole run (transits and jumps between steps included).
+    position_margin_min_rad : float
+        Least distance of a joint to an end of its range.
+    velocity_margin_min, torque_margin_min : float
+        Least ``1 - |value| / limit`` over joints and time (torque: None without limits).
+    longest_at_limit_s : dict of str to float
+        Longest time a joint stayed at a position, velocity or torque limit.
+    time_at_limit_s : float
+        Time any joint was at any limit.
+    other_contact_s : float
+        Time a link or the rod touched the object or the table.
+    ik_median_ms, ik_max_ms : float
+        IK time per solve.
+    n_solves : int
+    """
+
+    tracking_error_contact_max_m: float | None
+    tracking_error_contact_mean_m: float | None
+    tracking_error_max_m: float
+    position_margin_min_rad: float
+    velocity_margin_min: float
+    torque_margin_min: float | None
+    longest_at_limit_s: dict[str, float]
+    time_at_limit_s: float
+    other_contact_s: float
+    ik_median_ms: float
+    ik_max_ms: float
+    n_solves: int
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form (rounded)."""
+        def r(v: float | None, n: int = 6) -> float | None:
+            return None if v is None else round(float(v), n)
+        return {
+            "tracking_error_contact_max_m": r(self.tracking_error_contact_max_m),
+            "tracking_error_contact_mean_m": r(self.tracking_error_contact_mean_m),
+            "tracking_error_max_m": r(self.tracking_error_max_m),
+            "position_margin_min_rad": r(self.position_margin_min_rad, 4),
+            "velocity_margin_min": r(self.velocity_margin_min, 4),
+            "torque_margin_min": r(self.torque_margin_min, 4),
+            "longest_at_limit_s": {k: round(v, 4) for k, v in self.longest_at_limit_s.items()},
+            "time_at_limit_s": round(self.time_at_limit_s, 4),
+            "other_contact_s": round(self.other_contact_s, 4),
+            "ik_median_ms": round(self.ik_median_ms, 4),
+            "ik_max_ms": round(self.ik_max_ms, 4),
+            "ik_solves": self.n_solves,
+        }
+
+
+class RobotLog:
+    """Per-control-step records of a robot run (see the module docstring)."""
+
+    def __init__(self, scene: RobotScene, dt: float) -> None:
+        self.scene = scene
+        self.dt = dt
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget everything recorded."""
+        self.time: list[float] = []
+        self.error: list[float] = []
+        self.q: list[FloatArray] = []
+        self.qd: list[FloatArray] = []
+        self.tau: list[FloatArray] = []
+        self.q_ref: list[FloatArray] = []
+        self.qd_ref: list[FloatArray] = []
+        self.touch: list[bool] = []
+        self.other: list[bool] = []
+        self.ik: list[float] = []
+
+    def metrics(self, start: int = 0, stop: int | None = None) -> RobotMetrics:
+        """Sum up what was recorded (control steps ``start:stop``)."""
+        sc, dt = self.scene, self.dt
+        sl = slice(start, stop)
+        if not self.time[sl]:
+            return RobotMetrics(None, None, 0.0, float("nan"), float("nan"), None, {}, 0.0,
+                                0.0, 0.0, 0.0, 0)
+        err = np.array(self.error[sl])
+        touch = np.array(self.touch[sl], dtype=bool)
+        q, qd, tau = np.array(self.q[sl]), np.array(self.qd[sl]), np.array(self.tau[sl])
+        margin_pos = np.minimum(q - sc.lower, sc.upper - q)
+        vel_frac = np.abs(qd) / sc.velocity
+        finite = np.isfinite(sc.torque)
+        tau_frac = np.abs(tau[:, finite]) / sc.torque[finite] if finite.any() else None
+        at = {
+            "position": (margin_pos < LIMIT_BANDS["position_rad"]).any(axis=1),
+            "velocity": (vel_frac >= LIMIT_BANDS["velocity_fraction"]).any(axis=1),
+            "torque": (tau_frac >= LIMIT_BANDS["torque_fraction"]).any(axis=1)
+            if tau_frac is not None else np.zeros(len(q), dtype=bool),
+        }
+        longest = {k: _longest_run(v) * dt for k, v in at.items()}
+        any_at = at["position"] | at["velocity"] | at["torque"]
+        ik = np.array(self.ik[sl]) * 1e3
+        return RobotMetrics(
+            float(err[touch].max()) if touch.any() else None,
+            float(err[touch].mean()) if touch.any() else None,
+            float(err.max()),
+            float(margin_pos.min()),
+            float(1.0 - vel_frac.max()),
+            float(1.0 - tau_frac.max()) if tau_frac is not None else None,
+            longest,
+            float(any_at.sum() * dt),
+            float(np.sum(self.other[sl]) * dt),
+            float(np.median(ik)) if len(ik) else 0.0,
+            float(ik.max()) if len(ik) else 0.0,
+            len(ik),
+        )
+
+    def window(self, t0: float, t1: float) -> tuple[int, int]:
+        """The control steps recorded between simulated times ``t0`` and ``t1`` (s), as
+        ``(start, stop)`` for :meth:`metrics` (times increase within one execution)."""
+        t = np.asarray(self.time)
+        return int(np.searchsorted(t, t0 - 1e-9)), int(np.searchsorted(t, t1 + 1e-9))
+
+    def joint_rows(self) -> FloatArray:
+        """``[t, q_ref..., qd_ref...]`` per control step, shape (n, 1 + 2 n_joints)."""
+        if not self.time:
+            return np.zeros((0, 1 + 2 * len(self.scene.joint_names)))
+        return np.column_stack([np.array(self.time), np.array(self.q_ref),
+                                np.array(self.qd_ref)])
+
+
+def _longest_run(flags: NDArray[np.bool_]) -> int:
+    """Length of the longest run of True."""
+    best = run = 0
+    for f in flags:
+        run = run + 1 if f else 0
+        best = max(best, run)
+    return best
+
+
+class _OnlineControls:
+    """The rows of one target trajectory, solved as the step loop reads them (in order)."""
+
+    def __init__(self, driver: RobotArms, targets: FloatArray) -> None:
+        self.driver = driver
+        self.targets = targets
+        self._i = -1
+        self._row: FloatArray | None = None
+
+    def __len__(self) -> int:
+        return len(self.targets)
+
+    def __getitem__(self, i: int) -> FloatArray:
+        if i < 0 or i >= len(self.targets):
+            raise IndexError(i)
+        if i == self._i and self._row is not None:
+            return self._row
+        if i < self._i:  # read again from the start: a new pass over the same targets
+            self._i = -1
+        start = self._i + 1
+        row = self._row
+        for j in range(start, i + 1):
+            row = self.driver.solve(self.targets[j], last=j == len(self.targets) - 1)
+        self._i = i
+        self._row = row
+        assert row is not None
+        return row
+
+
+class RobotArms:
+    """Robot arms as a finger driver.
+
+    Parameters
+    ----------
+    scene : RobotScene
+        The simulated scene.
+    ik_scene : RobotScene
+        Its kinematic copy (``mocap_object=True``).
+    data : mujoco.MjData
+        The simulation's data (read before each solve: the object's pose, the joints).
+    judge : Judge
+        Reads the contacts for the log.
+    dt : float
+        Control period = physics step, s.
+    ik_config : IKConfig, optional
+    """
+
+    def __init__(self, scene: RobotScene, ik_scene: RobotScene, data: Any, judge: Judge,
+                 dt: float, ik_config: IKConfig | None = None) -> None:
+        self.scene = scene
+        self.n_fingers = scene.n_fingers
+        self.data = data
+        self.judge = judge
+        self.dt = dt
+        self.ik = FingertipIK(ik_scene, dt, ik_config)
+        self.log = RobotLog(scene, dt)
+        self.placed = False
+        self._obj = mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_BODY, "object")
+        self._n = 0
+        self._touch = False
+        self._other = False
+
+    # --------------------------------------------------------------------- protocol
+    def controls(self, targets: FloatArray) -> Any:
+        """The actuator rows along ``targets`` (shape (n_samples, n_fingers, 3)), each solved
+        by the IK when the step loop reads it (a sequence of rows, shape (model.nu,))."""
+        return _OnlineControls(self, np.asarray(targets, dtype=np.float64))
+
+    def place(self, data: Any, targets: FloatArray) -> None:
+        """Before a run: the arm stands at rest with its fingertips on ``targets`` (shape
+        (n_fingers, 3)), or at the joint positions of an actuator row (shape (model.nu,):
+        what :meth:`controls` gives), the first time after a :meth:`reset`; later calls
+        leave the arm where it is (no teleport)."""
+        sc = self.scene
+        if self.placed and np.abs(data.qpos[sc.qadr] - self.ik.q).max() < 0.05:
+            return
+        # not placed, or the data was reset under the arm (an executor's mj_resetData): the
+        # arm is placed anew and its records start again
+        if self.placed:
+            self.reset()
+        arr = np.asarray(targets, dtype=np.float64)
+        if (arr.size == 3 * self.n_fingers and arr.size != sc.model.nu) or arr.ndim == 2:
+            row = self.solve(arr.reshape(self.n_fingers, 3))
+        else:
+            row = arr
+        q = row[sc.pos_act]
+        data.qpos[sc.qadr] = q
+        data.qvel[sc.dadr] = 0.0
+        data.ctrl[:] = row
+        self.placed = True
+
+    def tips(self, data: Any) -> FloatArray:
+        """The fingertip sites' positions now, shape (n_fingers, 3)."""
+        return np.array([data.site_xpos[int(s)] for s in self.scene.tip_sites])
+
+    def qpos_indices(self) -> NDArray[np.int64]:
+        """The arms' joint positions in ``qpos``."""
+        return self.scene.qadr
+
+    # ---------------------------------------------------------------------- control
+    def reset(self) -> None:
+        """Forget the arm's placement: the next run places it again (a new start)."""
+        self.placed = False
+        self.ik.reset(self.scene.home)
+        self.log.clear()
+        self._n = 0
+
+    def solve(self, targets: FloatArray, *, last: bool = False) -> FloatArray:
+        """The actuator row for the fingertip ``targets`` (shape (n_fingers, 3)) now."""
+        d, sc = self.data, self.scene
+        self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
+        if not self.placed:  # a new start: converge from home onto the first targets
+            self.ik.reset(sc.home)
+            self.ik.converge(targets)
+            q, qd = self.ik.q, np.zeros(len(sc.qadr))
+        else:
+            q, qd = self.ik.step(targets)
+            self._record(targets, q, qd)
+        if last:
+            qd = np.zeros_like(qd)  # the set point holds still after the motion
+        row = np.array(d.ctrl, dtype=np.float64)
+        row[sc.pos_act] = q
+        row[sc.vel_act] = np.clip(qd, -sc.velocity, sc.velocity)
+        return row
+
+    def _record(self, targets: FloatArray, q_ref: FloatArray, qd_ref: FloatArray) -> None:
+        d, sc, log = self.data, self.scene, self.log
+        if self._n % CONTACT_EVERY == 0:
+            self._touch = self.judge.finger_object_contact(d)
+            self._other = self.judge.contacts(d)[2]
+        err = np.linalg.norm(self.tips(d) - targets, axis=1).max()
+        log.time.append(float(d.time))
+        self._n += 1
+        log.error.append(float(err))
+        log.q.append(np.array(d.qpos[sc.qadr]))
+        log.qd.append(np.array(d.qvel[sc.dadr]))
+        log.tau.append(np.array(d.qfrc_actuator[sc.dadr]))
+        log.q_ref.append(np.array(q_ref))
+        log.qd_ref.append(np.array(qd_ref))
+        log.touch.append(self._touch)
+        log.other.append(self._other)
+        log.ik.append(self.ik.solve_times[-1] if self.ik.solve_times else 0.0)

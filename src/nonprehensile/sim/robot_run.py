@@ -1,0 +1,143 @@
+"""A :class:`~nonprehensile.sim.run.Simulator` whose fingers are robot arms.
+
+:class:`RobotSimulator` builds the robot scene (:mod:`nonprehensile.sim.robot_scene`), drives
+it with :class:`~nonprehensile.sim.robot_driver.RobotArms` and judges it with the same
+:class:`~nonprehensile.sim.judge.Judge`; every executor that runs a ``Simulator`` (open loop
+:func:`~nonprehensile.sim.execute.simulate_plan`, the closed loop) runs it unchanged. The
+robot's own records (tracking error, limits, other contacts, IK time) are in
+:attr:`RobotSimulator.robot_log`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import mujoco
+import numpy as np
+from numpy.typing import NDArray
+
+from nonprehensile.errors import InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.planning import ObjectPose
+from nonprehensile.sim.ik import IKConfig
+from nonprehensile.sim.judge import Judge
+from nonprehensile.sim.robot_driver import RobotArms, RobotLog
+from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
+from nonprehensile.sim.run import SimResult, Simulator, default_scale
+from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
+
+__all__ = ["RobotSimulator", "describe_robots"]
+
+FloatArray = NDArray[np.float64]
+
+
+class RobotSimulator(Simulator):
+    """One object, the table and robot arms, at the physics step's control rate.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+    arms : sequence of Arm
+        Robots at their base poses; their tip sites are fingers R1, R2, ... in order.
+    scale : float, optional
+        Metres per model unit (default from the model's units).
+    params : SimParams
+        The scene's physics; ``finger_radius`` is the fingertip sphere put at each tip site
+        (``stiffness``, ``max_force`` and ``finger_mass`` belong to the free fingertips and
+        are not used).
+    ik_config : IKConfig, optional
+    """
+
+    def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
+                 params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None
+                 ) -> None:
+        self.poly = poly
+        self.scale = float(scale) if scale is not None else default_scale(poly)
+        self.params = params
+        self.arms = tuple(arms)
+        self.scene = build_robot_scene(poly, scale=self.scale, arms=self.arms, params=params)
+        self.ik_scene = build_robot_scene(poly, scale=self.scale, arms=self.arms,
+                                          params=params, mocap_object=True)
+        self.n_fingers = self.scene.n_fingers
+        if self.n_fingers > 10:
+            raise InputError(f"at most 10 fingers, the robots have {self.n_fingers}")
+        self.xml = ""  # built with MjSpec: see self.scene
+        self.model = self.scene.model
+        self.data = mujoco.MjData(self.model)
+        self.judge = Judge(poly, self.scale, params, self.model, self.n_fingers)
+        self.robot_driver = RobotArms(self.scene, self.ik_scene, self.data, self.judge,
+                                      params.timestep, ik_config)
+        self.driver = self.robot_driver
+        self._body = self.judge.body
+        self._qadr = self.judge.qadr
+        self._dadr = self.judge.dadr
+        self._finger_qadr = self.driver.qpos_indices()
+        self._home_tips = self._tips_at_home()
+
+    @property
+    def robot_log(self) -> RobotLog:
+        """The robot's records since the last new start."""
+        return self.robot_driver.log
+
+    @property
+    def ik_config(self) -> IKConfig:
+        """The IK's weights and limits."""
+        return self.robot_driver.ik.config
+
+    def _tips_at_home(self) -> FloatArray:
+        d = mujoco.MjData(self.model)
+        d.qpos[self.scene.qadr] = self.scene.home
+        mujoco.mj_kinematics(self.model, d)
+        return np.array([d.site_xpos[int(s)] for s in self.scene.tip_sites])
+
+    def park(self) -> FloatArray:
+        """Fingers not in use stay where the arm's home pose puts them."""
+        return np.array(self._home_tips)
+
+    def run(self, start: ObjectPose | None, targets: Mapping[int, FloatArray], rate: float,
+            *, settle: float | None = None, keep_trace: int = 0,
+            signals: bool = False) -> SimResult:
+        """As :meth:`Simulator.run`; a new ``start`` also places the arms anew (and clears
+        :attr:`robot_log`), ``start=None`` carries on from where the arms are."""
+        if start is not None:
+            self.robot_driver.reset()
+        return super().run(start, targets, rate, settle=settle, keep_trace=keep_trace,
+                           signals=signals)
+
+    def describe(self) -> dict[str, Any]:
+        """The robots, base poses, controller, gains, rates and limits (JSON)."""
+        return describe_robots(self.arms, self.scene, self.params, self.ik_config)
+
+
+def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
+                    ik_config: IKConfig) -> dict[str, Any]:
+    """The robots, base poses, controller, gains, rates and limits of a robot scene (JSON)."""
+    m, sc = scene.model, scene
+    joints = []
+    for j, name in enumerate(sc.joint_names):
+        pa, va = int(sc.pos_act[j]), int(sc.vel_act[j])
+        joints.append({
+            "name": name, "lower": round(float(sc.lower[j]), 6),
+            "upper": round(float(sc.upper[j]), 6),
+            "velocity_limit": round(float(sc.velocity[j]), 6),
+            "torque_limit": None if not np.isfinite(sc.torque[j])
+            else round(float(sc.torque[j]), 6),
+            "kp": round(float(m.actuator_gainprm[pa, 0]), 6),
+            "kv": round(float(m.actuator_gainprm[va, 0]), 6),
+        })
+    return {
+        "robots": [{"robot": a.robot.to_dict(), "base": a.base.to_dict(),
+                    "prefix": f"arm{i}/"} for i, a in enumerate(arms)],
+        "controller": {
+            "kind": "joint position servo + velocity feed-forward + gravity compensation",
+            "law": "tau = kp (q_ref - q) + kv (qd_ref - qd) + g(q), clamped to the torque "
+                   "limit",
+            "ik": "mink differential IK (daqp), one solve per control step",
+            "ik_config": ik_config.to_dict(),
+        },
+        "rates": {"control_hz": round(1.0 / params.timestep, 6),
+                  "physics_hz": round(1.0 / params.timestep, 6)},
+        "joints": joints,
+        "fingertip_radius_m": params.finger_radius,
+    }

@@ -1,0 +1,596 @@
+"""Robustness sweeps: transitions and plans executed across the physics distribution.
+
+A sweep executes **units** (a transition of the expanded graph made a one-step plan with
+:func:`~nonprehensile.planning.step_for`, or a whole plan) with the planner's own reference
+motions, once per sample of a :class:`~nonprehensile.sim.distribution.PhysicsDistribution`
+and per loop (open, closed), and counts how many end as predicted (face, ``theta`` within the
+angle tolerance, centre of mass within the position tolerance of the plan's prediction).
+
+* **Seeding**: execution ``i`` of unit ``u`` runs sample ``i`` of stream ``u`` of the sweep's
+  seed (``SeedSequence([seed, u, i])``): every transition sees its own draws (the
+  per-parameter bins fill with ``n_units * n_samples`` distinct values), the open and the
+  closed loop the same ones (a paired comparison), and a result never depends on which worker
+  ran it, nor in what order.
+* **Scale**: one compiled MuJoCo model per worker process, retuned per sample
+  (:class:`~nonprehensile.sim.scene.SceneTuner`); a process pool by default
+  (:func:`run_sweep` ``workers``), a Dask cluster with ``scheduler`` (extra ``scale``). Both
+  give the same records, sample by sample.
+* **Loops**: ``open`` and ``closed`` name executors of :data:`EXECUTORS`; a loop that is not
+  available is refused, never replaced by another.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS
+from nonprehensile.errors import InputError
+from nonprehensile.geometry.polyhedron import Polyhedron
+from nonprehensile.planning import Offset, Plan
+from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, DEFAULT_POSITION_TOL
+from nonprehensile.sim.distribution import PhysicsDistribution, PhysicsSample
+from nonprehensile.sim.run import Simulator
+from nonprehensile.sim.scene import SceneTuner
+from nonprehensile.success_rates import Rate, SuccessRates, TransitionKey
+
+__all__ = [
+    "EXECUTORS",
+    "SampleRecord",
+    "SweepResult",
+    "SweepSpec",
+    "SweepUnit",
+    "available_loops",
+    "check_loops",
+    "plan_unit",
+    "run_sweep",
+    "transition_units",
+]
+
+Progress = Callable[[int, int], None]
+
+
+# ----------------------------------------------------------------------------- the units
+@dataclass(frozen=True)
+class SweepUnit:
+    """What one execution runs: a plan (one step for a transition).
+
+    Attributes
+    ----------
+    plan : Plan
+        With reference motions.
+    label : dict
+        JSON-ready description (skill, source, from, to, demonstrated; or the plan's ends).
+    key : TransitionKey or None
+        The transition's key for the planner's rates (None for a whole plan).
+    source : str
+        The demonstrated skill behind it (``NAME:reverse`` for a reversed one), or
+        ``"plan"``.
+    """
+
+    plan: Plan
+    label: dict[str, Any]
+    key: TransitionKey | None
+    source: str
+
+
+class _Memo:
+    """A motion library asked once per arc: the same arc's reference serves every transition
+    of its skill (a cluster medoid costs a distance matrix)."""
+
+    def __init__(self, library: Any) -> None:
+        self.library = library
+        self._got: dict[tuple[str, str, str], Any] = {}
+
+    def reference(self, skill: str, source: str, target: str) -> Any:
+        key = (skill, source, target)
+        if key not in self._got:
+            self._got[key] = self.library.reference(skill, source, target)
+        return self._got[key]
+
+
+def transition_units(poly: Polyhedron, expansion: Any, motions: Any, *, scale: float,
+                     angle_tol: float, sources: Sequence[str] | None = None
+                     ) -> list[SweepUnit]:
+    """Every transition of ``expansion`` (of the demonstrated skills ``sources`` only, when
+    given: ``NAME:reverse`` for a reversed one) as a one-step plan with the planner's
+    references (per-arc cluster medoids, as :func:`~nonprehensile.planning.plan` attaches
+    them), its object's centre of mass at the origin."""
+    from nonprehensile.planning import step_for
+
+    motions = _Memo(motions)
+    out = []
+    for t in expansion.transitions:
+        if sources is not None and t.source.name not in sources:
+            continue
+        st = step_for(poly, t, motions=motions, scale=scale, angle_tol=angle_tol)
+        missing = [f"{a} -> {b}" for a, b, _, ref in st.motions if ref is None]
+        if missing:
+            raise InputError(f"skill {t.source.name!r} has no reference motion for its arc(s) "
+                             f"{missing}: the dataset does not demonstrate it")
+        plan = Plan(t.start, t.end, Offset(), (st,))
+        label = {"skill": t.skill.name, "source": t.source.name,
+                 "demonstrated": t.demonstrated, "from": t.start.to_dict(),
+                 "to": t.end.to_dict()}
+        out.append(SweepUnit(plan, label, TransitionKey.of(t.skill.name, t.start, t.end),
+                             t.source.name))
+    return out
+
+
+def plan_unit(plan: Plan) -> SweepUnit:
+    """A whole plan as one unit (its success: the goal reached)."""
+    if not plan.steps:
+        raise InputError("the plan has no step to execute")
+    label = {"skill": " + ".join(s.transition.skill.name for s in plan.steps),
+             "source": "plan", "demonstrated": all(s.transition.demonstrated
+                                                    for s in plan.steps),
+             "from": plan.start.to_dict(), "to": plan.goal.to_dict(),
+             "steps": len(plan.steps)}
+    return SweepUnit(plan, label, None, "plan")
+
+
+# -------------------------------------------------------------------------- the records
+@dataclass(frozen=True)
+class SampleRecord:
+    """One execution's verdict.
+
+    Attributes
+    ----------
+    unit, sample : int
+        Which unit, which sample of its stream.
+    loop : str
+    success : bool
+    reason : str
+        Why it failed ("" on success).
+    final : dict or None
+        The resting state reached (``{"face", "theta"}``), None if none.
+    theta_error, position_error : float or None
+        Degrees, metres (against the plan's prediction).
+    physics_steps : int
+    sim_seconds, wall_seconds : float
+    values : dict
+        The sample's varied quantities (:meth:`PhysicsSample.values`).
+    extra : dict
+        What the executor reports beside (events in order, retries, ...).
+    """
+
+    unit: int
+    sample: int
+    loop: str
+    success: bool
+    reason: str
+    final: dict[str, Any] | None
+    theta_error: float | None
+    position_error: float | None
+    physics_steps: int
+    sim_seconds: float
+    wall_seconds: float
+    values: dict[str, float]
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def outcome(self) -> tuple[Any, ...]:
+        """What must be equal between two runs of the same sweep (everything but timing)."""
+        return (self.unit, self.sample, self.loop, self.success, self.reason, self.final,
+                self.theta_error, self.position_error, self.physics_steps)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form."""
+        return {"unit": self.unit, "sample": self.sample, "loop": self.loop,
+                "success": self.success, "reason": self.reason, "final": self.final,
+                "theta_error_deg": None if self.theta_error is None
+                else round(self.theta_error, 4),
+                "position_error_m": None if self.position_error is None
+                else round(self.position_error, 6),
+                "physics_steps": self.physics_steps, "sim_seconds": round(self.sim_seconds, 4),
+                "wall_seconds": round(self.wall_seconds, 4),
+                "values": {k: round(v, 9) for k, v in self.values.items()}, **self.extra}
+
+
+# ---------------------------------------------------------------------------- executors
+Executor = Callable[["_Worker", SweepUnit, PhysicsSample], dict[str, Any]]
+
+
+def _open_loop(worker: _Worker, unit: SweepUnit, sample: PhysicsSample) -> dict[str, Any]:
+    """Open loop: every step's reference placed where the plan predicts the object, run for
+    its duration; nothing observed (:func:`~nonprehensile.sim.execute.simulate_plan`)."""
+    from nonprehensile.sim.execute import simulate_plan
+
+    spec = worker.spec
+    outs = simulate_plan(spec.poly, unit.plan, scale=spec.scale, fingers=spec.fingers,
+                         sim=worker.sim, angle_tol=spec.angle_tol,
+                         position_tol=spec.position_tol, perturbation=sample.perturbation)
+    last = outs[-1]
+    c = last.comparison
+    failed = next((o for o in outs if not o.success), None)
+    reason = ""
+    if not c.success:
+        if c.simulated is None:
+            reason = "rests on no face"
+        elif c.simulated.face != c.predicted.face:
+            reason = f"ended on face {c.simulated.face}, not {c.predicted.face}"
+        elif c.theta_error is not None and abs(c.theta_error) > spec.angle_tol:
+            reason = f"theta off by {c.theta_error:.1f} deg"
+        else:
+            reason = f"{1000 * (c.position_error or 0.0):.1f} mm off the predicted position"
+    return {
+        "success": bool(c.success), "reason": reason,
+        "final": c.simulated.to_dict() if c.simulated is not None else None,
+        "theta_error": c.theta_error, "position_error": c.position_error,
+        "physics_steps": sum(o.result.n_steps for o in outs),
+        "sim_seconds": sum(o.result.sim_time for o in outs),
+        "extra": {"events_in_order": all(o.comparison.chain_ok for o in outs),
+                  "first_failed_step": None if failed is None
+                  else int(failed.label.get("step", 1))},
+    }
+
+
+#: Executors by loop name. ``closed`` joins when the closed-loop executor is on main.
+EXECUTORS: dict[str, Executor] = {"open": _open_loop}
+
+
+def available_loops() -> list[str]:
+    """The loops this installation can execute."""
+    return [lp for lp in ("closed", "open") if lp in EXECUTORS]
+
+
+def check_loops(loops: Sequence[str]) -> tuple[str, ...]:
+    """The loops, each known and available, without repeats.
+
+    Raises
+    ------
+    InputError
+        An unknown loop, or one this installation cannot execute (never replaced by
+        another).
+    """
+    out: list[str] = []
+    for lp in loops:
+        if lp not in ("closed", "open"):
+            raise InputError(f"unknown loop {lp!r}: expected closed or open")
+        if lp not in EXECUTORS:
+            raise InputError(f"{lp}-loop execution is not available in this version (it has "
+                             f"{available_loops()}); a sweep never runs another loop in its "
+                             "place")
+        if lp not in out:
+            out.append(lp)
+    if not out:
+        raise InputError("give at least one loop (closed, open)")
+    return tuple(out)
+
+
+# ------------------------------------------------------------------------------ the spec
+@dataclass(frozen=True)
+class SweepSpec:
+    """Everything a worker needs: picklable, sent once to every worker.
+
+    Attributes
+    ----------
+    poly : Polyhedron
+    scale : float
+        Metres per model unit.
+    units : tuple of SweepUnit
+    distribution : PhysicsDistribution
+        For this object (:meth:`PhysicsDistribution.for_object`).
+    seed : int
+    n_samples : int
+        Per unit.
+    loops : tuple of str
+    fingers : mapping
+        Finger name -> tip marker of the references.
+    angle_tol, position_tol : float
+        Degrees, metres.
+    """
+
+    poly: Polyhedron
+    scale: float
+    units: tuple[SweepUnit, ...]
+    distribution: PhysicsDistribution
+    seed: int
+    n_samples: int
+    loops: tuple[str, ...] = ("closed", "open")
+    fingers: Mapping[str, str] = field(default_factory=lambda: dict(DEFAULT_FINGERS))
+    angle_tol: float = DEFAULT_ANGLE_TOL_DEG
+    position_tol: float = DEFAULT_POSITION_TOL
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "loops", check_loops(self.loops))
+        if isinstance(self.n_samples, bool) or not isinstance(self.n_samples, int) or \
+                not 1 <= self.n_samples <= 100_000:
+            raise InputError(f"the number of samples must be a whole number in [1, 100000], "
+                             f"got {self.n_samples!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or \
+                not 0 <= self.seed < 2**63:
+            raise InputError(f"the seed must be a whole number in [0, 2^63), got {self.seed!r}")
+        if not self.units:
+            raise InputError("nothing to sweep: no transition or plan")
+        for name, v in (("angle_tol", self.angle_tol), ("position_tol", self.position_tol)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"{name} must be a finite positive number, got {v!r}")
+
+    @property
+    def n_fingers(self) -> int:
+        """Fingertips every unit's plan needs."""
+        from nonprehensile.sim.execute import fingers_of
+
+        return max(max(fingers_of(s.transition.skill), default=1)
+                   for u in self.units for s in u.plan.steps)
+
+    def sample(self, unit: int, index: int) -> PhysicsSample:
+        """Sample ``index`` of unit ``unit``'s stream."""
+        return self.distribution.sample(self.seed, index=index, stream=unit)
+
+
+class _Worker:
+    """One compiled scene, retuned per sample (one per process)."""
+
+    def __init__(self, spec: SweepSpec) -> None:
+        self.spec = spec
+        self.sim = Simulator(spec.poly, scale=spec.scale, n_fingers=spec.n_fingers,
+                             params=spec.distribution.base)
+        self.tuner = SceneTuner(self.sim.model, self.sim.data, self.sim.params)
+
+    def run(self, unit: int, sample: int) -> list[SampleRecord]:
+        s = self.spec.sample(unit, sample)
+        self.tuner.tune(s.params)
+        # the simulator and its judge read timestep, settling and tolerances from params
+        self.sim.params = s.params
+        self.sim.judge.params = s.params
+        out = []
+        for loop in self.spec.loops:
+            wall0 = time.perf_counter()
+            got = EXECUTORS[loop](self, self.spec.units[unit], s)
+            out.append(SampleRecord(
+                unit, sample, loop, got["success"], got["reason"], got["final"],
+                got["theta_error"], got["position_error"], int(got["physics_steps"]),
+                float(got["sim_seconds"]), time.perf_counter() - wall0, s.values(),
+                got.get("extra", {})))
+        return out
+
+
+#: The worker of this process (process pool and Dask workers), keyed by its spec's token.
+_WORKERS: dict[str, _Worker] = {}
+_SPECS: dict[str, SweepSpec] = {}
+
+
+def _init_pool(token: str, spec: SweepSpec) -> None:
+    _SPECS[token] = spec
+
+
+def _chunk(token: str, tasks: Sequence[tuple[int, int]],
+           spec: SweepSpec | None = None) -> list[SampleRecord]:
+    """Run tasks ``(unit, sample)`` on this process's worker."""
+    w = _WORKERS.get(token)
+    if w is None:
+        s = spec if spec is not None else _SPECS[token]
+        _WORKERS.clear()  # one model per process: a new sweep replaces the last one's
+        w = _WORKERS[token] = _Worker(s)
+    return [r for u, i in tasks for r in w.run(u, i)]
+
+
+def _chunks(spec: SweepSpec, size: int) -> list[list[tuple[int, int]]]:
+    out = []
+    for u in range(len(spec.units)):
+        idx = list(range(spec.n_samples))
+        out += [[(u, i) for i in idx[j:j + size]] for j in range(0, len(idx), size)]
+    return out
+
+
+def run_sweep(
+    spec: SweepSpec, *, workers: int | None = None, scheduler: str | Any | None = None,
+    chunk_size: int = 10, progress: Progress | None = None,
+) -> SweepResult:
+    """Execute every unit of ``spec`` for each of its samples and loops.
+
+    Parameters
+    ----------
+    spec : SweepSpec
+    workers : int, optional
+        Processes of the pool (default: the machine's cores; 1 runs in this process).
+    scheduler : str or distributed.Client, optional
+        A Dask scheduler's address (``tcp://host:8786``) or a client: run there instead.
+    chunk_size : int
+        Samples of one unit per task.
+    progress : callable, optional
+        ``progress(done, total)`` in executions.
+
+    Returns
+    -------
+    SweepResult
+        Records sorted by unit, sample and loop.
+    """
+    import hashlib
+    import pickle
+
+    if isinstance(chunk_size, bool) or not isinstance(chunk_size, int) or chunk_size < 1:
+        raise InputError(f"chunk_size must be a whole number >= 1, got {chunk_size!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
+                                or not 1 <= workers <= 256):
+        raise InputError(f"workers must be a whole number in [1, 256], got {workers!r}")
+    if workers is not None and scheduler is not None:
+        raise InputError("give workers (a process pool) or a scheduler (Dask), not both")
+    blob = pickle.dumps(spec)
+    token = hashlib.blake2b(blob, digest_size=12).hexdigest()
+    chunks = _chunks(spec, chunk_size)
+    total = len(spec.units) * spec.n_samples * len(spec.loops)
+    done = 0
+    records: list[SampleRecord] = []
+    wall0 = time.perf_counter()
+
+    def got(rs: list[SampleRecord]) -> None:
+        nonlocal done
+        records.extend(rs)
+        done += len(rs)
+        if progress is not None:
+            progress(done, total)
+
+    how: str
+    if scheduler is not None:
+        how = "dask"
+        for rs in _dask_map(scheduler, token, spec, chunks):
+            got(rs)
+    else:
+        n = workers if workers is not None else (os.cpu_count() or 1)
+        n = max(1, min(n, len(chunks)))
+        how = f"processes:{n}"
+        if n == 1:
+            for c in chunks:
+                got(_chunk(token, c, spec))
+        else:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            # spawn, not fork: the parent may run threads (progress bars, a Dask client)
+            with ProcessPoolExecutor(n, mp_context=mp.get_context("spawn"),
+                                     initializer=_init_pool, initargs=(token, spec)) as ex:
+                futs = [ex.submit(_chunk, token, c) for c in chunks]
+                for f in as_completed(futs):
+                    got(f.result())
+    records.sort(key=lambda r: (r.unit, r.sample, spec.loops.index(r.loop)))
+    return SweepResult(spec, tuple(records), time.perf_counter() - wall0, how)
+
+
+def _dask_map(scheduler: str | Any, token: str, spec: SweepSpec,
+              chunks: list[list[tuple[int, int]]]) -> Iterator[list[SampleRecord]]:
+    try:
+        from distributed import Client, as_completed
+    except ImportError as exc:
+        raise InputError(f"--scheduler needs Dask: pip install 'nonprehensile[scale]' ({exc})"
+                         ) from None
+    own = isinstance(scheduler, str)
+    client: Any
+    try:
+        client = Client(scheduler, timeout="10s") if own else scheduler  # type: ignore[no-untyped-call]
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise InputError(f"cannot reach the Dask scheduler {scheduler!r}: {exc}") from None
+    try:
+        spec_f = client.scatter(spec, broadcast=True)
+        futs = [client.submit(_chunk, token, c, spec_f, pure=False) for c in chunks]
+        for f in as_completed(futs):  # type: ignore[no-untyped-call]
+            yield f.result()
+    finally:
+        if own:
+            client.close()
+
+
+# ----------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class SweepResult:
+    """A sweep's records and what they say.
+
+    Attributes
+    ----------
+    spec : SweepSpec
+    records : tuple of SampleRecord
+        Sorted by unit, sample and loop.
+    wall_seconds : float
+    how : str
+        ``processes:K`` or ``dask``.
+    """
+
+    spec: SweepSpec
+    records: tuple[SampleRecord, ...]
+    wall_seconds: float
+    how: str
+
+    def _rate(self, pick: Callable[[SampleRecord], bool], loop: str) -> Rate:
+        rs = [r for r in self.records if r.loop == loop and pick(r)]
+        return Rate(sum(r.success for r in rs), len(rs))
+
+    def overall(self) -> dict[str, Rate]:
+        """Per loop, over everything."""
+        return {lp: self._rate(lambda r: True, lp) for lp in self.spec.loops}
+
+    def per_unit(self) -> list[dict[str, Rate]]:
+        """Per unit and loop."""
+        acc: list[dict[str, list[int]]] = [
+            {lp: [0, 0] for lp in self.spec.loops} for _ in self.spec.units]
+        for r in self.records:
+            c = acc[r.unit][r.loop]
+            c[0] += r.success
+            c[1] += 1
+        return [{lp: Rate(*c) for lp, c in a.items()} for a in acc]
+
+    def per_source(self) -> dict[str, dict[str, Rate]]:
+        """Per demonstrated skill behind the units (``twist:reverse`` apart) and loop."""
+        out: dict[str, dict[str, Rate]] = {}
+        for u, rates in zip(self.spec.units, self.per_unit(), strict=True):
+            d = out.setdefault(u.source, {lp: Rate(0, 0) for lp in self.spec.loops})
+            for lp, r in rates.items():
+                d[lp] = d[lp] + r
+        return dict(sorted(out.items()))
+
+    def bins(self, n_bins: int = 4) -> dict[str, list[dict[str, Any]]]:
+        """Per varied quantity: ``n_bins`` equal bins of its range, each with its rate per
+        loop (quantities the distribution holds fixed are left out)."""
+        if isinstance(n_bins, bool) or not isinstance(n_bins, int) or not 1 <= n_bins <= 100:
+            raise InputError(f"the number of bins must be a whole number in [1, 100], got "
+                             f"{n_bins!r}")
+        out: dict[str, list[dict[str, Any]]] = {}
+        for name, (lo, hi) in self.spec.distribution.ranges().items():
+            if hi <= lo:
+                continue
+            edges = np.linspace(lo, hi, n_bins + 1)
+            counts = np.zeros((n_bins, len(self.spec.loops), 2), dtype=int)
+            for r in self.records:
+                b = min(n_bins - 1, max(0, int(np.searchsorted(edges, r.values[name],
+                                                               side="right")) - 1))
+                c = counts[b, self.spec.loops.index(r.loop)]
+                c[0] += r.success
+                c[1] += 1
+            out[name] = [{"low": float(edges[b]), "high": float(edges[b + 1]),
+                          **{lp: Rate(int(counts[b, j, 0]), int(counts[b, j, 1]))
+                             for j, lp in enumerate(self.spec.loops)}}
+                         for b in range(n_bins)]
+        return out
+
+    def steps(self) -> int:
+        """Physics steps simulated, all executions."""
+        return sum(r.physics_steps for r in self.records)
+
+    def rates(self, meta: Mapping[str, Any] | None = None) -> SuccessRates:
+        """Per-transition rates for the planner (``plan --robustness``)."""
+        counts = [(self.spec.units[r.unit].key, r.loop, r.success) for r in self.records
+                  if self.spec.units[r.unit].key is not None]
+        if not counts:
+            raise InputError("a sweep of a whole plan has no per-transition rates to write; "
+                             "sweep the transitions (no --from/--to)")
+        return SuccessRates.from_counts(
+            [(k, lp, ok) for k, lp, ok in counts if k is not None], self.spec.poly.name,
+            {"seed": self.spec.seed, "samples": self.spec.n_samples,
+             "angle_tol_deg": self.spec.angle_tol, "position_tol_m": self.spec.position_tol,
+             "distribution": self.spec.distribution.to_dict(), **(meta or {})})
+
+    def to_dict(self, *, records: bool = True, n_bins: int = 4) -> dict[str, Any]:
+        """JSON form: rates per loop overall, per source skill, per unit and per bin (each
+        ``{k, n, rate, ci95}``), and each execution's record."""
+        def rates(d: Mapping[str, Rate]) -> dict[str, Any]:
+            return {lp: r.to_dict() for lp, r in d.items()}
+
+        doc: dict[str, Any] = {
+            "object": self.spec.poly.name, "seed": self.spec.seed,
+            "samples": self.spec.n_samples, "loops": list(self.spec.loops),
+            "distribution": self.spec.distribution.to_dict(),
+            "angle_tol_deg": self.spec.angle_tol, "position_tol_m": self.spec.position_tol,
+            "overall": rates(self.overall()),
+            "per_source_skill": {k: rates(v) for k, v in self.per_source().items()},
+            "units": [{**u.label, **rates(r)}
+                      for u, r in zip(self.spec.units, self.per_unit(), strict=True)],
+            "bins": {name: [{"low": round(b["low"], 9), "high": round(b["high"], 9),
+                             **{lp: b[lp].to_dict() for lp in self.spec.loops}}
+                            for b in bs] for name, bs in self.bins(n_bins).items()},
+            "physics_steps": self.steps(), "wall_seconds": round(self.wall_seconds, 3),
+            "how": self.how,
+        }
+        if records:
+            doc["records"] = [r.to_dict() for r in self.records]
+        return doc
+
+
+def with_loops(spec: SweepSpec, loops: Sequence[str]) -> SweepSpec:
+    """The same sweep under other loops."""
+    return replace(spec, loops=tuple(loops))

@@ -1,0 +1,253 @@
+"""Robot arms (issue 22): the bundled Panda against Franka's DH table, robot files and their
+checks, the robot scene, the IK, a short robot-executed step, the CLI outputs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+if not os.environ.get("DISPLAY"):
+    os.environ.setdefault("MUJOCO_GL", "egl")
+mujoco = pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not installed")
+pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
+                                   "pip install 'nonprehensile[robot]'")
+
+from click.testing import CliRunner  # noqa: E402
+from hypothesis import (  # noqa: E402
+    given,
+    settings,
+    strategies as st,
+)
+
+from nonprehensile.cli import main  # noqa: E402
+from nonprehensile.errors import InputError  # noqa: E402
+from nonprehensile.geometry.build import cube  # noqa: E402
+from nonprehensile.sim import panda  # noqa: E402
+from nonprehensile.sim.ik import FingertipIK, IKConfig  # noqa: E402
+from nonprehensile.sim.placement import place_base  # noqa: E402
+from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
+from nonprehensile.sim.robot_run import RobotSimulator  # noqa: E402
+from nonprehensile.sim.robot_scene import Arm, build_robot_scene  # noqa: E402
+
+CUBE = cube()
+SCALE = 0.05
+SKILLS = str(Path(__file__).resolve().parents[1] / "src/nonprehensile/data/cube_skills.json")
+
+
+def _dh_flange(q: np.ndarray) -> np.ndarray:
+    """Franka's published modified-DH chain, multiplied out directly (independent of the
+    MJCF): the flange's homogeneous transform."""
+    t = np.eye(4)
+    for i, (a, d, alpha) in enumerate(panda.DH):
+        th = q[i] if i < 7 else 0.0
+        ca, sa, ct, st_ = math.cos(alpha), math.sin(alpha), math.cos(th), math.sin(th)
+        t = t @ np.array([[ct, -st_, 0, a],
+                          [st_ * ca, ct * ca, -sa, -d * sa],
+                          [st_ * sa, ct * sa, ca, d * ca],
+                          [0, 0, 0, 1]])
+    return t
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(0.0, 1.0), min_size=7, max_size=7))
+def test_panda_kinematics_match_franka_dh_table(u: list[float]) -> None:
+    m = mujoco.MjModel.from_xml_string(panda.panda_xml())
+    d = mujoco.MjData(m)
+    q = np.array(panda.Q_MIN) + np.array(u) * (np.array(panda.Q_MAX) - np.array(panda.Q_MIN))
+    d.qpos[:] = q
+    mujoco.mj_kinematics(m, d)
+    t = _dh_flange(q)
+    rod = m.body("rod").id
+    np.testing.assert_allclose(d.xpos[rod], t[:3, 3], atol=1e-9)
+    # the tip lies ROD_LENGTH along the flange's z axis
+    np.testing.assert_allclose(d.site("tip").xpos, t[:3, 3] + panda.ROD_LENGTH * t[:3, 2],
+                               atol=1e-9)
+
+
+def test_panda_limits_masses_and_gravity_compensation() -> None:
+    r = Robot.builtin("panda")
+    np.testing.assert_array_equal(r.lower, panda.Q_MIN)
+    np.testing.assert_array_equal(r.upper, panda.Q_MAX)
+    np.testing.assert_array_equal(r.velocity, panda.DQ_MAX)
+    np.testing.assert_array_equal(r.torque, [87, 87, 87, 87, 12, 12, 12])
+    m = mujoco.MjModel.from_xml_string(panda.panda_xml())
+    masses = [m.body(f"link{i}").mass[0] for i in range(1, 8)]
+    np.testing.assert_allclose(masses, [p[0] for p in panda.INERTIAL], rtol=1e-6)
+    # held at home by the servos with gravity compensation: no sag, no drift
+    d = mujoco.MjData(m)
+    mujoco.mj_resetDataKeyframe(m, d, 0)
+    for _ in range(500):
+        mujoco.mj_step(m, d)
+    assert np.abs(d.qpos - np.array(panda.Q_HOME)).max() < 1e-4
+    # the wrist's gravity torque counts against its 12 N m limit (actuatorgravcomp)
+    assert np.abs(d.qfrc_actuator).max() > 1.0
+
+
+def _write(tmp_path: Path, body: str, actuators: str = "") -> Path:
+    p = tmp_path / f"arm{len(list(tmp_path.glob('arm*.xml')))}.xml"
+    p.write_text(f"""<mujoco><worldbody><body name="base"><geom type="sphere" size="0.05"/>
+      <body name="l1" pos="0 0 0.3">{body}</body></body></worldbody>
+      <actuator>{actuators}</actuator></mujoco>""")
+    return p
+
+
+def test_robot_file_checks_one_line(tmp_path: Path) -> None:
+    ok = _write(tmp_path, '<joint name="j1" axis="0 0 1" range="-1 1"/><geom type="capsule" '
+                'fromto="0 0 0 0.3 0 0" size="0.02"/><site name="tip" pos="0.3 0 0"/>',
+                '<position joint="j1" kp="100" kv="5"/>')
+    r = Robot.from_file(ok, ["tip"])
+    assert r.joint_names == ("j1",) and r.velocity[0] == 2.0
+    with pytest.raises(InputError, match="no site 'nope'"):
+        Robot.from_file(ok, ["nope"])
+    no_act = _write(tmp_path, '<joint name="j1" range="-1 1"/><geom size="0.02"/>'
+                    '<site name="tip"/>')
+    with pytest.raises(InputError, match="no actuators"):
+        Robot.from_file(no_act, ["tip"])
+    unlimited = _write(tmp_path, '<joint name="j1" limited="false"/><geom size="0.02"/>'
+                       '<site name="tip"/>', '<motor joint="j1"/><position joint="j1" kp="1"/>')
+    with pytest.raises(InputError, match="joint 'j1' has no limits"):
+        Robot.from_file(unlimited, ["tip"])
+    motor = _write(tmp_path, '<joint name="j1" range="-1 1"/><geom size="0.02"/>'
+                   '<site name="tip"/>', '<motor joint="j1"/>')
+    with pytest.raises(InputError, match="no position servo"):
+        Robot.from_file(motor, ["tip"])
+    with pytest.raises(InputError, match="does not exist"):
+        Robot.from_file(tmp_path / "missing.xml", ["tip"])
+    # the CLI: one line, exit 2, before any planning
+    runner = CliRunner()
+    for path, site, what in ((ok, "nope", "no site"), (no_act, "tip", "no actuators"),
+                             (unlimited, "tip", "no limits")):
+        res = runner.invoke(main, ["simulate", "plan", SKILLS, "--from", "b:200", "--to",
+                                   "a:290", "--step", "90", "--robot-xml", str(path),
+                                   "--tip-site", site])
+        assert res.exit_code == 2, res.output
+        assert what in res.stderr and "Traceback" not in res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1
+    res = runner.invoke(main, ["simulate", "plan", SKILLS, "--from", "b:200", "--to", "a:290",
+                               "--step", "90", "--robot", "panda", "--base", "nan", "0", "0"])
+    assert res.exit_code == 2 and "base x" in res.stderr
+    res = runner.invoke(main, ["plan", SKILLS, "--from", "b:200", "--to", "a:290", "--step",
+                               "90", "--tip-site", "tip"])
+    assert res.exit_code == 2 and "--robot-xml" in res.stderr
+
+
+def test_user_robot_gets_velocity_servo_and_pairs(tmp_path: Path) -> None:
+    arm = _write(tmp_path, '<joint name="j1" axis="0 1 0" range="-1 1"/><geom type="capsule" '
+                 'fromto="0 0 0 0.3 0 0" size="0.02"/><site name="tip" pos="0.3 0 0"/>',
+                 '<position joint="j1" kp="100" kv="5"/>')
+    sc = build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.from_file(arm, ["tip"]),
+                                                        BasePose(-0.3, 0.0, 0.0))])
+    m = sc.model
+    # the servo's damping moved to a velocity servo beside it: kp (q_ref - q) + kv (v_ref - v)
+    assert m.actuator_biasprm[sc.pos_act[0], 2] == 0.0
+    assert m.actuator_gainprm[sc.vel_act[0], 0] == pytest.approx(5.0)
+    pairs = {(m.geom(int(a)).name, m.geom(int(b)).name)
+             for a, b in zip(m.pair_geom1, m.pair_geom2, strict=True)}
+    assert ("object", "finger1") in pairs and ("table", "finger1") in pairs
+    assert ("object", "arm0/geom#1") in pairs
+    # the base rests on the table: not paired with it; every robot geom collides by pairs only
+    assert ("table", "arm0/geom#0") not in pairs
+    assert all(m.geom_contype[g] == 0 for g in range(m.ngeom))
+
+
+def test_ik_tracks_a_line_within_limits() -> None:
+    sc = build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.builtin(),
+                                                        BasePose(-0.25, 0.1, 0.0))],
+                           mocap_object=True)
+    ik = FingertipIK(sc, 0.001, IKConfig())
+    ik.set_object(np.array([0.3, 0.1, 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+    x0 = np.array([[0.2, 0.1, 0.04]])
+    assert ik.converge(x0) < 1e-4
+    m, d = sc.model, mujoco.MjData(sc.model)
+    worst = 0.0
+    q_prev = ik.q
+    for i in range(1, 301):  # 3 cm along y in 0.3 s
+        x = x0 + np.array([[0.0, 0.1 * i / 1000, 0.0]])
+        q, _ = ik.step(x)
+        assert np.all(np.abs(q - q_prev) <= sc.velocity * 0.001 + 1e-9)
+        assert np.all(q >= sc.lower - 1e-9) and np.all(q <= sc.upper + 1e-9)
+        q_prev = q
+        # the truth: MuJoCo's forward kinematics at the IK's joints, in a fresh data
+        d.qpos[sc.qadr] = q
+        mujoco.mj_kinematics(m, d)
+        worst = max(worst, float(np.linalg.norm(d.site_xpos[sc.tip_sites[0]] - x[0])))
+    assert worst < 1e-3
+
+
+def test_robot_executes_a_push_roll_step() -> None:
+    """Step 1 of the main plan's skill, by the bundled Panda at a fixed base: the cube rolls
+    onto the predicted face; the judge's records are those of the free fingertips."""
+    from nonprehensile.cli.options import state_set
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.planning import plan
+    from nonprehensile.sim.execute import simulate_step
+    from nonprehensile.states import State
+
+    poly, skills = read_skills(SKILLS)
+    exp = expand(poly, skills, state_set(poly, 90.0, None, 1e-6))
+    ds, motions = motions_from_dataset("cube", skills=skills, poly=poly)
+    p = plan(poly, exp, State("b", 200), State("a", 290), position=(0.3, 0.1),
+             motions=motions, scale=ds.scale)
+    sim = RobotSimulator(poly, [Arm(Robot.builtin(), BasePose(0.53, -0.51, 112.5))],
+                         scale=ds.scale)
+    out = simulate_step(sim, p.steps[0], fingers=ds.fingers)
+    assert out.result.final_state is not None and out.result.final_state.face == "a"
+    assert out.comparison.chain_ok
+    met = sim.robot_log.metrics()
+    assert met.tracking_error_contact_max_m is not None
+    assert met.tracking_error_contact_max_m < 0.005
+    assert met.other_contact_s == 0.0 and met.position_margin_min_rad > 0.1
+    assert sim.describe()["rates"]["control_hz"] == 1000.0
+
+
+def test_place_base_and_cli_joint_trajectories(tmp_path: Path) -> None:
+    # a short path 0.5 m out: a feasible base faces it
+    path = np.tile(np.array([[0.3, 0.1, 0.04]]), (20, 1, 1))
+    path[:, 0, 0] += np.linspace(0.0, 0.03, 20)
+    pl = place_base(Robot.builtin(), CUBE, SCALE, [(path, 20.0)], radii=(0.5,),
+                    n_directions=4)
+    assert pl.feasible and pl.tried == 4 and pl.reach_error_m < 0.002
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, [
+        "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to", "a:290", "--step",
+        "90", "--dataset", "cube", "--robot", "panda", "--base", "0.53", "-0.51", "112.5",
+        "--out", str(out), "--json"])
+    assert res.exit_code == 0, res.stderr
+    meta = json.loads((out / "joints_plan.json").read_text())
+    assert meta["robots"][0]["base"] == {"x": 0.53, "y": -0.51, "yaw_deg": 112.5}
+    assert meta["rates"]["control_hz"] == 1000.0 and len(meta["joints"]) == 7
+    with (out / "joints_step1.csv").open() as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0][:2] == ["time", "arm0/joint1"] and rows[0][-1] == "arm0/joint7_vel"
+    arr = np.array(rows[1:], dtype=float)
+    assert np.all(np.diff(arr[:, 0]) > 0)
+    q = arr[:, 1:8]
+    assert np.all(q >= np.array(panda.Q_MIN) - 1e-9) and np.all(q <= np.array(panda.Q_MAX))
+    assert np.all(np.abs(arr[:, 8:]) <= np.array(panda.DQ_MAX) + 1e-9)
+    assert meta["ik_tip_error_max_m"] < 0.005
+
+
+def test_closed_loop_main_plan_by_the_panda() -> None:
+    """The main plan, closed loop with transits, by the bundled Panda at a fixed base: the
+    goal is reached and nothing but the fingertip touches the cube or the table."""
+    res = CliRunner().invoke(main, [
+        "simulate", "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to", "e:110",
+        "--step", "90", "--dataset", "cube", "--robot", "panda", "--base", "0.53", "-0.51",
+        "112.5", "--json"])
+    assert res.exit_code == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["success"] and doc["loop"] == "closed"
+    assert doc["robot"]["robots"][0]["base"]["yaw_deg"] == 112.5
+    whole = doc["robot_metrics"]
+    assert whole["other_contact_s"] == 0.0
+    for r in doc["records"]:
+        assert r["robot"]["tracking_error_contact_max_m"] < 0.004
+    assert doc["execution"]["limits"]["transit_finger_object_contact_s"] == 0.0
