@@ -351,3 +351,24 @@ def test_any_episodes_round_trip(tmp_path_factory: pytest.TempPathFactory,
         assert back.episodes[i]["mentor"] == e.meta["mentor"]
         assert back.episodes[i]["length"] == e.n_frames
         start += e.n_frames
+
+
+def test_cli_records_a_robustness_sweep(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco", reason="simulation needs MuJoCo (extra 'sim')")
+    from importlib import resources
+
+    skills_file = str(resources.files("nonprehensile") / "data" / "cube_skills.json")
+    r = _cli("simulate", "robustness", skills_file, "--step", "90", "--from", "a:0", "--to",
+             "d:0", "--samples", "2", "--loop", "open", "--workers", "1", "--record",
+             str(tmp_path / "rec"), "--json", "--no-records")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    back = read_lerobot(tmp_path / "rec")
+    assert len(back.episodes) == doc["record"]["n_episodes"] == 2
+    assert [e["sample"] for e in back.episodes] == [0, 1]
+    # each episode is its sample's execution: its verdict and its physical parameters
+    assert all("param.mass" in e and e["loop"] == "open" for e in back.episodes)
+    assert sum(e["success"] for e in back.episodes) == doc["overall"]["open"]["k"]
+    r = _cli("simulate", "robustness", skills_file, "--step", "90", "--from", "a:0", "--to",
+             "d:0", "--samples", "2", "--loop", "open", "--record", str(tmp_path / "rec"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1

@@ -158,6 +158,8 @@ class SampleRecord:
         The sample's varied quantities (:meth:`PhysicsSample.values`).
     extra : dict
         What the executor reports beside (events in order, retries, ...).
+    episodes : tuple of Episode
+        The executed steps as episodes, when the sweep records (``record_fps``).
     """
 
     unit: int
@@ -173,6 +175,9 @@ class SampleRecord:
     wall_seconds: float
     values: dict[str, float]
     extra: dict[str, Any] = field(default_factory=dict)
+    #: With ``SweepSpec.record_fps``: the executed steps as learning episodes
+    #: (:mod:`nonprehensile.sim.episodes`); not part of the verdict or its JSON.
+    episodes: tuple[Any, ...] = field(default=(), compare=False, repr=False)
 
     def outcome(self) -> tuple[Any, ...]:
         """What must be equal between two runs of the same sweep (everything but timing)."""
@@ -204,7 +209,16 @@ def _open_loop(worker: _Worker, unit: SweepUnit, sample: PhysicsSample) -> dict[
     spec = worker.spec
     outs = simulate_plan(spec.poly, unit.plan, scale=spec.scale, fingers=spec.fingers,
                          sim=worker.sim, angle_tol=spec.angle_tol,
-                         position_tol=spec.position_tol, perturbation=sample.perturbation)
+                         position_tol=spec.position_tol, perturbation=sample.perturbation,
+                         keep_trace=1 if spec.record_fps else 0)
+    episodes: tuple[Any, ...] = ()
+    if spec.record_fps:
+        from nonprehensile.sim.episodes import plan_episodes
+
+        episodes = tuple(plan_episodes(
+            spec.poly, unit.plan, outs, n_fingers=worker.sim.n_fingers, fingers=spec.fingers,
+            fps=spec.record_fps, meta={"loop": "open", "sample": sample.index,
+                                       **{f"param.{k}": v for k, v in sample.values().items()}}))
     last = outs[-1]
     c = last.comparison
     failed = next((o for o in outs if not o.success), None)
@@ -227,6 +241,7 @@ def _open_loop(worker: _Worker, unit: SweepUnit, sample: PhysicsSample) -> dict[
         "extra": {"events_in_order": all(o.comparison.chain_ok for o in outs),
                   "first_failed_step": None if failed is None
                   else int(failed.label.get("step", 1))},
+        "episodes": episodes,
     }
 
 
@@ -284,6 +299,9 @@ class SweepSpec:
         Finger name -> tip marker of the references.
     angle_tol, position_tol : float
         Degrees, metres.
+    record_fps : float or None
+        Record every execution's steps as episodes at this frame rate
+        (``simulate robustness --record``); None: do not.
     """
 
     poly: Polyhedron
@@ -296,6 +314,7 @@ class SweepSpec:
     fingers: Mapping[str, str] = field(default_factory=lambda: dict(DEFAULT_FINGERS))
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG
     position_tol: float = DEFAULT_POSITION_TOL
+    record_fps: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "loops", check_loops(self.loops))
@@ -348,7 +367,9 @@ class _Worker:
                 unit, sample, loop, got["success"], got["reason"], got["final"],
                 got["theta_error"], got["position_error"], int(got["physics_steps"]),
                 float(got["sim_seconds"]), time.perf_counter() - wall0, s.values(),
-                got.get("extra", {})))
+                got.get("extra", {}),
+                tuple(replace(e, meta={**e.meta, "unit": unit}) for e in got.get(
+                    "episodes", ()))))
         return out
 
 
