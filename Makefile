@@ -35,8 +35,9 @@ bench: $(STAMP)
 	$(BIN)/python -m benchmarks
 
 fuzz: $(STAMP)
-	# >= 10,000 generated and mutated inputs through the CLI on 2 processes (docs/robustness.md)
-	$(BIN)/python tests/fuzz_harness.py --budget 10000 --jobs 2 --report fuzz-report.json
+	# >= 10,000 generated and mutated inputs through the CLI on 2 processes, and 3,200 HTTP
+	# requests to the service over SQLite and PostgreSQL with 12 SIGKILLs (docs/robustness.md)
+	$(BIN)/python tests/fuzz_harness.py --budget 10000 --jobs 2 --http-budget 3200 --report fuzz-report.json
 
 clean:
 	rm -rf $(VENV) build *.egg-info src/*.egg-info .pytest_cache .mypy_cache .ruff_cache report fuzz-report.json

@@ -623,6 +623,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--family", choices=sorted(FAMILIES), default=None)
     p.add_argument("--case", type=int, default=None, help="replay one case of --family")
     p.add_argument("--report", type=Path, default=ROOT / "fuzz-report.json")
+    p.add_argument("--http-budget", type=int, default=0,
+                   help="also this many HTTP requests to the service over SQLite and "
+                        "PostgreSQL, alongside (tests/fuzz_http.py; 0: none)")
+    p.add_argument("--http-kills", type=int, default=6,
+                   help="SIGKILLs of the server mid-upload per store (HTTP family)")
     p.add_argument("--part", type=int, default=None, help=argparse.SUPPRESS)
     p.add_argument("--part-out", type=Path, default=None, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -646,6 +651,15 @@ def main(argv: list[str] | None = None) -> int:
             if args.family:
                 cmd += ["--family", args.family]
             procs.append((subprocess.Popen(cmd), out))
+        http = None
+        if args.http_budget and not args.family:
+            # the service's family runs beside the command line's (its own module and
+            # report: tests/fuzz_http.py)
+            http_out = Path(tmp) / "http.json"
+            http = (subprocess.Popen([sys.executable, str(ROOT / "tests" / "fuzz_http.py"),
+                                      "--budget", str(args.http_budget), "--seed",
+                                      str(args.seed), "--kills", str(args.http_kills),
+                                      "--report", str(http_out)]), http_out)
         merged = Report()
         for proc, out in procs:
             proc.wait()
@@ -657,15 +671,39 @@ def main(argv: list[str] | None = None) -> int:
             merged.subprocess_counts.update(part["subprocess_by_family"])
             merged.exits.update(part["exit_codes"])
             merged.failures.extend(part["failure_list"])
+        http_doc = None
+        if http is not None:
+            http[0].wait()
+            if not http[1].exists():
+                merged.failures.append({"failure": f"HTTP fuzz exited {http[0].returncode}"})
+            else:
+                http_doc = json.loads(http[1].read_text())
+                for store, r in http_doc["stores"].items():
+                    merged.counts[f"http:{store}"] += r["requests"]
+                    merged.exits.update({f"http:{store}:{k}": v
+                                         for k, v in r["statuses"].items()})
+                    merged.failures.extend(r["failure_list"])
     merged.seconds = time.perf_counter() - t0
     doc = merged.to_dict()
     doc["budget"], doc["jobs"], doc["seed"] = args.budget, args.jobs, args.seed
+    if http_doc is not None:
+        doc["http"] = {k: v for k, v in http_doc.items() if k != "stores"}
+        doc["http"]["stores"] = {k: {kk: vv for kk, vv in v.items() if kk != "failure_list"}
+                                 for k, v in http_doc["stores"].items()}
     args.report.write_text(json.dumps(doc, indent=1))
     print(f"fuzz: {doc['inputs']} inputs ({sum(merged.subprocess_counts.values())} also as "
           f"subprocesses) in {doc['seconds']:.0f} s on {args.jobs} processes: "
           f"{doc['failures']} failures; report {args.report}")
     for fam in sorted(merged.counts):
         print(f"  {fam:8} {merged.counts[fam]:6d}")
+    if http_doc is not None:
+        h = http_doc
+        print(f"  HTTP: {h['requests']} requests over {', '.join(h['stores']) or 'no store'}; "
+              f"{h['kills']} SIGKILLs of the server mid-upload, {h['lost']} acknowledged "
+              f"uploads lost; server peak "
+              f"{max((r['server_peak_mb'] for r in h['stores'].values()), default=0):.0f} MB")
+        for store, why in h["skipped"].items():
+            print(f"  HTTP on {store} skipped: {why}")
     for f in merged.failures[:20]:
         print(f"  FAIL {f.get('family')} #{f.get('case')}: {f.get('failure')} "
               f"({f.get('note', '')!r})")

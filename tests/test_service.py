@@ -183,7 +183,7 @@ def test_bad_uploads_get_the_clis_reasons(service: dict[str, Any], tmp_path: Pat
     assert r.status_code == 400 and "unknown trajectory format" in r.json()["detail"]
     r = c.post("/demonstrations", **{**form(e), "data": {"annotation": "{nope"}},
                headers=auth["ana"])
-    assert r.status_code == 400 and "not valid JSON" in r.json()["detail"]
+    assert r.status_code == 400 and "malformed JSON" in r.json()["detail"]
     r = c.post("/demonstrations", **form(e, annotation={**bad, "mentor": "ben"}),
                headers=auth["ana"])
     assert r.status_code == 403

@@ -89,8 +89,9 @@ def check_document(data: Any, source: str) -> Any:
     Raises
     ------
     InputError
-        Nesting deeper than :data:`MAX_DOCUMENT_DEPTH` or more than
-        :data:`MAX_DOCUMENT_NODES` values once aliases are expanded.
+        Nesting deeper than :data:`MAX_DOCUMENT_DEPTH`, more than
+        :data:`MAX_DOCUMENT_NODES` values once aliases are expanded, an integer beyond
+        floats, or a value JSON has not (a YAML date, binary or set).
     """
     sizes: dict[int, int] = {}
     open_: set[int] = set()  # nodes whose children are being walked (a cycle returns to one)
@@ -102,6 +103,7 @@ def check_document(data: Any, source: str) -> Any:
             _check_text(node, source)
             continue
         if not isinstance(node, (list, tuple, Mapping)):
+            _check_scalar(node, source)
             continue
         if not done and id(node) in sizes:
             continue
@@ -131,6 +133,30 @@ def check_document(data: Any, source: str) -> Any:
         stack.append((node, depth, True))
         stack.extend((c, depth + 1, False) for c in children)
     return data
+
+
+def _check_scalar(value: Any, source: str) -> None:
+    """A value of a document must be one JSON has (YAML also makes dates, bytes and sets,
+    which no file of the spec holds and no JSON writer takes), and an integer must fit a
+    float: every number of these files is used as one."""
+    if value is None or isinstance(value, (bool, float)):
+        return
+    if isinstance(value, int):
+        try:
+            float(value)
+        except OverflowError:
+            digits = len(str(abs(value)))  # at most 4300 digits: the parsers' own bound
+            raise InputError(
+                f"{source}: the integer {str(value)[:12]}... ({digits} digits) is too large for "
+                "any value of these files (numbers end at 1.8e308)"
+            ) from None
+        return
+    kind = {"date": "a date", "datetime": "a date and time", "bytes": "binary data (!!binary)",
+            "set": "a set (!!set)"}.get(type(value).__name__, f"a {type(value).__name__}")
+    raise InputError(
+        f"{source}: {kind} {str(value)[:40]!r} is not a JSON value; write it as a quoted string "
+        "(or a list), as the spec's files are JSON or the same in YAML"
+    )
 
 
 def _check_text(text: str, source: str) -> None:

@@ -35,6 +35,7 @@ __all__ = [
     "load_model",
     "model_from_dict",
     "model_to_dict",
+    "parse_document",
     "read_model",
     "read_skills",
     "read_states",
@@ -72,30 +73,50 @@ def load_document(path: str | Path) -> Any:
         raise InputError(f"{path}: is a folder, expected a JSON/YAML file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: cannot read it: {exc}") from None
-    kind = "YAML" if path.suffix.lower() in (".yaml", ".yml") else "JSON"
-    yaml_errors: tuple[type[Exception], ...] = ()
-    if kind == "YAML":
-        import yaml  # only for YAML files: PyYAML's import is 10-15 ms of every command
+    return parse_document(text, str(path), yaml=path.suffix.lower() in (".yaml", ".yml"))
 
-        yaml_errors = (yaml.YAMLError,)
+
+def parse_document(text: str, source: str, *, yaml: bool = False) -> Any:
+    """Parse JSON (or YAML) text from ``source`` (a file name, or what the text is, as "the
+    annotation" of an upload), bounded as :func:`load_document` bounds a file.
+
+    Raises
+    ------
+    InputError
+        A syntax error (one line, with its line and column), an integer of more than 4300
+        digits, nesting deeper than :data:`~nonprehensile.bounds.MAX_DOCUMENT_DEPTH`, too
+        many values, or a value JSON has not (a YAML date, binary or set); the message
+        starts with ``source``.
+    """
+    kind = "YAML" if yaml else "JSON"
+    yaml_errors: tuple[type[Exception], ...] = ()
+    if yaml:
+        import yaml as pyyaml  # only for YAML files: PyYAML's import is 10-15 ms of every command
+
+        yaml_errors = (pyyaml.YAMLError,)
     try:
-        data = yaml.safe_load(text) if kind == "YAML" else json.loads(text)
+        data = pyyaml.safe_load(text) if yaml else json.loads(text)
     except yaml_errors as exc:
-        raise InputError(f"{path}: malformed YAML{_yaml_error(exc)}") from None
+        raise InputError(f"{source}: malformed YAML{_yaml_error(exc)}") from None
     except json.JSONDecodeError as exc:
         raise InputError(
-            f"{path}: malformed JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+            f"{source}: malformed JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
         ) from None
     except RecursionError:
         # the parsers recurse once per level: thousands of levels overflow the stack
         raise InputError(
-            f"{path}: lists and mappings nested more than {MAX_DOCUMENT_DEPTH} levels deep; "
+            f"{source}: lists and mappings nested more than {MAX_DOCUMENT_DEPTH} levels deep; "
             "the spec's files nest a few levels"
         ) from None
     except (ValueError, OverflowError) as exc:
-        # JSON: an integer of more than 4300 digits; YAML: a date like 2019-13-45
-        raise InputError(f"{path}: malformed {kind}: {exc}") from None
-    return check_document(data, str(path))
+        if "digits" in str(exc):  # Python's bound on int() of a long digit string
+            raise InputError(
+                f"{source}: malformed {kind}: an integer of more than 4300 digits; no value of "
+                "these files is that large"
+            ) from None
+        # YAML: a date like 2019-13-45
+        raise InputError(f"{source}: malformed {kind}: {exc}") from None
+    return check_document(data, source)
 
 
 def _yaml_error(exc: Exception) -> str:

@@ -139,7 +139,12 @@ class State:
         theta = data["theta"]
         if isinstance(theta, bool) or not isinstance(theta, (int, float)):
             raise StateError(f"state {data!r}: theta must be a number of degrees")
-        return cls(str(data["face"]), float(theta))
+        try:
+            return cls(str(data["face"]), float(theta))
+        except OverflowError:  # an integer beyond floats (10**400)
+            raise StateError(f"state face {str(data['face'])[:20]!r}: theta "
+                             f"{str(theta)[:12]}... is too large; give degrees as a float"
+                             ) from None
 
     def isclose(self, other: State, tol: float = DEFAULT_ANGLE_TOL) -> bool:
         """Same face and angles equal within ``tol`` degrees."""

@@ -30,7 +30,13 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
-from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, wants_robot
+from nonprehensile.cli.robot import (
+    control_every,
+    load_robot,
+    robot_arms,
+    robot_options,
+    wants_robot,
+)
 from nonprehensile.errors import InputError
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
@@ -111,9 +117,11 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
     arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, DEFAULT_PARAMS,
                                  robot)
     cfg = IKConfig()
-    trajectories = joint_trajectory(arms, poly, ds.scale, result, ds.fingers, ik_config=cfg)
+    every = control_every(robot_kw, DEFAULT_PARAMS.timestep)
+    trajectories = joint_trajectory(arms, poly, ds.scale, result, ds.fingers, ik_config=cfg,
+                                    control_every=every)
     scene = build_robot_scene(poly, scale=ds.scale, arms=arms, params=DEFAULT_PARAMS)
-    meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg)
+    meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg, every)
     meta["placement"] = placement.to_dict() if placement is not None else None
     meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
                     "the object at each step's planned start pose; `simulate plan --robot` "

@@ -9,6 +9,7 @@ from __future__ import annotations
 import sys
 from collections import defaultdict
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import click
@@ -33,7 +34,14 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
-from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, robot_table, wants_robot
+from nonprehensile.cli.robot import (
+    control_every,
+    load_robot,
+    robot_arms,
+    robot_options,
+    robot_table,
+    wants_robot,
+)
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -355,7 +363,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     (default) or open loop, with transits between steps; the goal is the plan's last state at
     the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
     it (docs/robot.md)."""
-    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
+    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
+                                       "control_rate")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
@@ -375,6 +384,10 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
     # bad settings are refused before any work (one line, exit 2)
     cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
+    if use_robot:  # an arm's fingertip accelerates less than a free 20 g sphere
+        from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL
+
+        cfg = replace(cfg, max_accel=ROBOT_MAX_ACCEL)
     obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
     if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
@@ -398,7 +411,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
         arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
                                      robot)
-        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params)
+        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params,
+                                   control_every=control_every(robot_kw, params.timestep))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")
@@ -520,12 +534,18 @@ def _check_record(record: str | None) -> None:
               default="c3d", show_default=True,
               help="Recording files to write: C3D, or Motive CSV (with the object's rigid "
                    "body).")
+@click.option("--physics-distribution", "under_distribution", is_flag=True,
+              help="Record every take in its own sample of the physics distribution "
+                   "(docs/physics.md) instead of one scene: friction, mass, fingertip, "
+                   "stiffness, force limit and contact softness vary take by take (seeded "
+                   "by --seed).")
 @_physics_options
 @json_option
 @handle_errors
 def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tuple[str, ...],
                     keep_going: bool, scale: float | None, seed: int, max_attempts: int,
-                    trajectory_format: str, as_json: bool, tol_deg: float, **kw: Any) -> None:
+                    trajectory_format: str, under_distribution: bool, as_json: bool,
+                    tol_deg: float, **kw: Any) -> None:
     """Record a dataset of demonstrations from the physics itself: fingers push the
     simulated object; poses and contact events are read from physics.
 
@@ -543,10 +563,15 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
     failures: dict[str, str] = {}
     with progress_bar("recording", as_json) as bar:
         try:
+            dist = None
+            if under_distribution:
+                from nonprehensile.sim.distribution import PhysicsDistribution
+
+                dist = PhysicsDistribution(base=params)
             ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
                                        scale=scale, params=params, max_attempts=max_attempts,
                                        only=only or None, keep_going=keep_going,
-                                       progress=bar)
+                                       progress=bar, distribution=dist)
         except RecordError as exc:
             raise InputError(f"{skills_file}: {exc}; nothing was written (--keep-going "
                              "records the other skills)") from None

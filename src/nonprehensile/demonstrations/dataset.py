@@ -346,8 +346,10 @@ class _Settings:
     ros: RosSetup | None = None  # how rosbag2 recordings map topics to markers
 
 
-def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
-    """Read the dataset-wide keys; what cannot be read is reported and replaced by a default."""
+def _top_level(data: Any, ann: Path, root: Path, out: _Collector,
+               known: KnownSkills | None = None) -> _Settings:
+    """Read the dataset-wide keys; what cannot be read is reported and replaced by a default
+    (the skills file from ``known`` when it is the file named)."""
     name = ann.name
     poly: Polyhedron | None = None
     skills: list[Skill] = []
@@ -363,7 +365,10 @@ def _top_level(data: Any, ann: Path, root: Path, out: _Collector) -> _Settings:
                             f"dataset folder), got {skills_ref!r}")
     else:
         try:
-            poly, skills = read_skills(root / skills_ref)
+            if known is not None and _same_file(root / skills_ref, known[0]):
+                poly, skills = known[1], list(known[2])
+            else:
+                poly, skills = read_skills(root / skills_ref)
         except InputError as exc:
             out.add(skills_ref, None, f"cannot use the skills file: {exc}")
     scale = _number(data.get("scale", 1.0))
@@ -643,8 +648,20 @@ def _check_object_markers(
     return True
 
 
+#: A skills file read before: (its path, the object, the skills).
+KnownSkills = tuple[Path, Polyhedron, Sequence[Skill]]
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve()
+    except (OSError, RuntimeError):
+        return False
+
+
 def check_dataset(
-    path: str | Path, *, progress: Progress | None = None
+    path: str | Path, *, progress: Progress | None = None,
+    known_skills: KnownSkills | None = None,
 ) -> tuple[Dataset | None, list[Problem]]:
     """Read and check a dataset folder, collecting every problem.
 
@@ -654,6 +671,9 @@ def check_dataset(
         The dataset folder, or a bundled dataset's name (``"cube"``).
     progress : callable (done, total) -> None, optional
         Called after each trajectory file is read (for a progress bar).
+    known_skills : (Path, Polyhedron, sequence of Skill), optional
+        A skills file already read, used when the annotations name that file instead of
+        reading it again (the service checks every upload against its own, read once).
 
     Returns
     -------
@@ -680,7 +700,7 @@ def check_dataset(
         out.add(ann.name, None, "the annotations must be an object with a 'demonstrations' list "
                                 "(see docs/dataset.md)")
         return None, out.problems
-    settings = _top_level(data, ann, root, out)
+    settings = _top_level(data, ann, root, out, known_skills)
     poly, skills, fingers = settings.poly, settings.skills, settings.fingers
     by_name = {s.name: s for s in skills}
     ignored: dict[str, None] = {}
@@ -797,7 +817,12 @@ def _read(
     """Read a recording into our axes (z up) and units, as the annotations say."""
     suffix = path.suffix.lower()
     reader = _READERS.get(suffix)
-    if is_rosbag(path):
+    try:
+        bag, present = is_rosbag(path), path.is_file()
+    except OSError as exc:  # a name the file system cannot take (too long, ...)
+        out.add(*where, f"cannot look for the trajectory file: {exc.strerror or exc}")
+        return None
+    if bag:
         if settings.ros is None:
             out.add(*where, "a rosbag2 folder, but the annotations have no 'ros' set-up saying "
                             "which topic is which marker (see docs/dataset.md#ros-2-bags)")
@@ -811,7 +836,7 @@ def _read(
         out.add(*where, f"unknown trajectory format {path.suffix!r}; use .c3d, a Motive .csv "
                         "or a rosbag2 folder")
         return None
-    elif not path.is_file():
+    elif not present:
         out.add(*where, "no such trajectory file in the dataset folder")
         return None
     try:

@@ -14,6 +14,7 @@ import logging
 import threading
 from collections.abc import Awaitable, Callable, MutableMapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Annotated, Any
 
 from fastapi import Depends, FastAPI, File, Form, Header, Request, UploadFile
@@ -22,11 +23,11 @@ from fastapi.responses import JSONResponse
 
 import nonprehensile
 from nonprehensile.errors import InputError, NonprehensileError
+from nonprehensile.io import parse_document
 from nonprehensile.service.db import Pool, mentor_of
+from nonprehensile.service.errors import Forbidden, Rejected, public_text
 from nonprehensile.service.ingest import (
-    Forbidden,
     Registry,
-    Rejected,
     Template,
     archive_upload,
     registration_error,
@@ -91,6 +92,7 @@ class BodyLimit:
                 return
         seen = 0
         refused = False
+        started = False
 
         async def limited() -> Message:
             nonlocal seen, refused
@@ -102,24 +104,26 @@ class BodyLimit:
                     raise _TooLarge
             return msg
 
-        started = False
-
-        async def tracking_send(msg: Message) -> None:
+        async def guarded_send(msg: Message) -> None:
             nonlocal started
+            if refused:
+                # the application answered the body it could not read with its own error
+                # (FastAPI: 400 "error parsing the body"): the answer is ours, a 413
+                if msg["type"] == "http.response.start" and not started:
+                    started = True
+                    await self._refuse(send)
+                return
             if msg["type"] == "http.response.start":
                 started = True
             await send(msg)
 
         try:
-            await self.app(scope, limited, tracking_send)
-        except _TooLarge:
+            await self.app(scope, limited, guarded_send)
+        except Exception:
+            if not refused:
+                raise
             if not started:
                 await self._refuse(send)
-        except Exception:
-            if refused and not started:
-                await self._refuse(send)
-            else:
-                raise
 
     async def _refuse(self, send: Send) -> None:
         body = json.dumps({"detail": f"the request body is larger than {self.max_bytes} bytes",
@@ -134,8 +138,12 @@ class _TooLarge(Exception):
     pass
 
 
-def _error(status: int, detail: str, problems: list[str] | None = None) -> JSONResponse:
-    return JSONResponse({"detail": detail, "problems": problems or []}, status_code=status)
+def _error(status: int, detail: str, problems: list[str] | None = None,
+           hidden: tuple[Path, ...] = ()) -> JSONResponse:
+    """The one reply of every refusal: one line, and nothing of the server's folders."""
+    return JSONResponse({"detail": public_text(detail, hidden),
+                         "problems": [public_text(p, hidden) for p in problems or []]},
+                        status_code=status)
 
 
 class Recalibrator:
@@ -213,22 +221,24 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
     )
     app.state.registry = reg
     app.state.recalibrator = recal
+    # the service's dataset (its skills file's folder): no reply shows where it is
+    hidden = (Path(str(template.top.get("skills", "."))).parent,)
 
     @app.exception_handler(Rejected)
     async def _rejected(request: Request, exc: Rejected) -> JSONResponse:
-        return _error(exc.status, str(exc), exc.problems)
+        return _error(exc.status, str(exc), exc.problems, hidden)
 
     @app.exception_handler(Forbidden)
     async def _forbidden(request: Request, exc: Forbidden) -> JSONResponse:
-        return _error(403, str(exc))
+        return _error(403, str(exc), hidden=hidden)
 
     @app.exception_handler(InputError)
     async def _input(request: Request, exc: InputError) -> JSONResponse:
-        return _error(422, str(exc))
+        return _error(422, str(exc), hidden=hidden)
 
     @app.exception_handler(NonprehensileError)
     async def _other(request: Request, exc: NonprehensileError) -> JSONResponse:
-        return _error(503, str(exc))
+        return _error(503, str(exc), hidden=hidden)
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
@@ -256,15 +266,19 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
 
     Mentor = Annotated[str, Depends(mentor)]
 
-    @app.get("/health")
+    store_kind = _public_store(config.store)
+
+    @app.get("/health", operation_id="health")
     def health() -> dict[str, Any]:
-        """Liveness, and whether the database answers."""
+        """Liveness, whether the database answers, and its kind (never where it is)."""
         with pool.connection() as conn:
             conn.execute("SELECT 1")
-        return {"status": "ok", "store": config.store,
-                "recalibration_error": recal.last_error}
+        return {"status": "ok", "store": store_kind,
+                "recalibration_error": None if recal.last_error is None
+                else public_text(recal.last_error, hidden)}
 
-    @app.post("/demonstrations", status_code=201)
+    @app.post("/demonstrations", status_code=201, operation_id="uploadDemonstration",
+              responses=_upload_links("#/upload"))
     def upload_demonstration(
         who: Mentor,
         file: Annotated[UploadFile, File(description="The recording: C3D or Motive CSV.")],
@@ -273,9 +287,10 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
     ) -> JSONResponse:
         """Upload one recording with its annotation entry; the reply names its clusters."""
         try:
-            entry = json.loads(annotation)
-        except (json.JSONDecodeError, RecursionError) as exc:
-            raise Rejected(f"the annotation is not valid JSON ({exc})", status=400) from None
+            # the CLI's bounded reader: integers, nesting, size, text
+            entry = parse_document(annotation, "the annotation")
+        except InputError as exc:
+            raise Rejected(str(exc), status=400) from None
         data = file.file.read()
         with single_upload(template, who, file.filename, data, entry) as (ds, hashes):
             try:
@@ -284,15 +299,16 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
                 raise registration_error(exc) from None
         return JSONResponse(replies[0], status_code=200 if replies[0]["duplicate"] else 201)
 
-    @app.post("/datasets", status_code=201)
+    @app.post("/datasets", status_code=201, operation_id="uploadDataset",
+              responses=_upload_links("#/uploads/0/upload"))
     def upload_dataset(
         who: Mentor,
         archive: Annotated[UploadFile, File(description="A dataset folder as a zip or tar "
                                                         "archive.")],
     ) -> JSONResponse:
         """Upload a dataset folder (zip or tar); every demonstration must be the mentor's."""
-        data = archive.file.read()
-        with archive_upload(template, who, data, config.max_bytes) as (ds, hashes):
+        # read from the spooled file member by member, never whole (ingest/archive.py)
+        with archive_upload(template, who, archive.file, config.max_bytes) as (ds, hashes):
             try:
                 replies = reg.register(who, ds, hashes, "archive")
             except NonprehensileError as exc:
@@ -302,28 +318,31 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
                              "duplicates": len(replies) - new},
                             status_code=201 if new else 200)
 
-    @app.get("/uploads/{digest}")
+    @app.get("/uploads/{digest}", operation_id="getUpload")
     def get_upload(digest: str) -> dict[str, Any]:
         """One upload: mentor, file, skill, and each segment's arc, sample and cluster."""
         with pool.connection() as conn:
             return reg.upload(conn, digest)
 
-    @app.delete("/uploads/{digest}")
+    @app.delete("/uploads/{digest}", operation_id="withdrawUpload",
+                responses={200: {"description": "The upload, withdrawn.", "links": {
+                    "GetUpload": {"operationId": "getUpload",
+                                  "parameters": {"digest": "$response.body#/upload"}}}}})
     def withdraw_upload(who: Mentor, digest: str) -> dict[str, Any]:
         """Withdraw one of the mentor's own uploads (another's: 403)."""
         return reg.withdraw(who, digest)
 
-    @app.get("/clusters")
+    @app.get("/clusters", operation_id="listClusters")
     def clusters() -> dict[str, Any]:
         """Every arc: its clusters and their sizes, samples pending a first clustering."""
         return {"arcs": reg.clusters()}
 
-    @app.get("/mentors")
+    @app.get("/mentors", operation_id="listMentors")
     def mentors() -> dict[str, Any]:
         """Per-mentor statistics: uploads, segments, skills and clusters."""
         return {"mentors": reg.mentor_stats()}
 
-    @app.get("/mentors/{name}")
+    @app.get("/mentors/{name}", operation_id="getMentor")
     def mentor_stats(name: str) -> dict[str, Any]:
         """One mentor's statistics."""
         docs = reg.mentor_stats(name)
@@ -331,7 +350,7 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
             raise Rejected(f"no uploads by mentor {name!r}", status=404)
         return docs[0]
 
-    @app.post("/recalibrate", status_code=202)
+    @app.post("/recalibrate", status_code=202, operation_id="recalibrate")
     def recalibrate(who: Mentor) -> dict[str, Any]:
         """Ask for a recalibration of every arc, in the background (uploads go on)."""
         recal.request()
@@ -339,6 +358,30 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
 
     app.add_middleware(BodyLimit, max_bytes=config.max_bytes)
     return app
+
+
+def _upload_links(pointer: str) -> dict[int | str, dict[str, Any]]:
+    """OpenAPI links from an upload's reply (``pointer``: where its hash is) to reading,
+    withdrawing and the mentor's statistics (clients and stateful testers follow them)."""
+    digest = {"digest": f"$response.body{pointer}"}
+    links = {"GetUpload": {"operationId": "getUpload", "parameters": digest},
+             "WithdrawUpload": {"operationId": "withdrawUpload", "parameters": digest},
+             "GetMentor": {"operationId": "getMentor", "parameters": {
+                 "name": f"$response.body{pointer.rsplit('/', 1)[0]}/mentor"}}}
+    return {201: {"description": "Stored.", "links": links},
+            200: {"description": "Stored before (`duplicate`).", "links": links}}
+
+
+def _public_store(store: str) -> str:
+    """The store as a reply may show it: its kind and database or file name, not its host,
+    folder or user (``postgresql:nonprehensile``, ``sqlite:demos.db``)."""
+    from urllib.parse import urlsplit
+
+    from nonprehensile.motion.stores import is_postgres_url
+
+    if is_postgres_url(store):
+        return f"postgresql:{urlsplit(store).path.lstrip('/') or 'postgres'}"
+    return f"sqlite:{Path(store).name}"
 
 
 class _Unauthorized(NonprehensileError):

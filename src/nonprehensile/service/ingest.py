@@ -21,24 +21,26 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import io
 import json
-import shutil
-import tarfile
 import tempfile
 import uuid
-import zipfile
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
 from nonprehensile.demonstrations.dataset import (
+    _TOP_KEYS,
     ANNOTATION_FILES,
+    DATASET_FORMAT,
+    DEFAULT_FINGERS,
+    DEFAULT_GAP_LIMIT,
+    DEFAULT_TOLERANCE_MM,
     Dataset,
     Demonstration,
+    KnownSkills,
     Problem,
     _annotations_file,
     check_dataset,
@@ -51,10 +53,12 @@ from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.store import MemoryStore
 from nonprehensile.motion.tablestore import TableStore
 from nonprehensile.references import flatten_segments
+from nonprehensile.service.archive import MAX_ARCHIVE_FILES, unpack_archive
 from nonprehensile.service.db import Pool, arc_store, snapshot
+from nonprehensile.service.errors import TEMP_PREFIX, Forbidden, Rejected, disk_error
 
-__all__ = ["Forbidden", "Registry", "Rejected", "Template", "content_hash", "extract_archive",
-           "load_template"]
+__all__ = ["MAX_ARCHIVE_FILES", "Forbidden", "Registry", "Rejected", "Template", "content_hash",
+           "extract_archive", "load_template"]
 
 #: Name of an arc clusterer's state in its store's meta table.
 STATE = "hilbert_clusterer"
@@ -69,22 +73,13 @@ DEFAULT_CHECKPOINT = 64
 GENERATION = "service_generation"
 #: Samples the checkpointed model had seen (meta, decimal text).
 CHECKPOINT_N = "service_checkpoint_n"
-#: Most files in an uploaded archive.
-MAX_ARCHIVE_FILES = 5000
 _TRAJECTORY_SUFFIXES = (".c3d", ".csv")
-
-
-class Rejected(InputError):
-    """An upload that fails validation: HTTP 422 with every problem, one line each."""
-
-    def __init__(self, message: str, problems: list[str] | None = None, status: int = 422):
-        super().__init__(message)
-        self.problems = problems or [message]
-        self.status = status
-
-
-class Forbidden(InputError):
-    """A mentor acting on another mentor's data: HTTP 403."""
+#: The value of each dataset-wide setting when the annotations leave it out (None: as the
+#: recordings declare); an archive's settings must be the service's, given or left out.
+_SETTING_DEFAULTS: dict[str, Any] = {
+    "format": DATASET_FORMAT, "scale": 1.0, "gap_limit": DEFAULT_GAP_LIMIT,
+    "fingers": dict(DEFAULT_FINGERS), "markers": [], "object_markers": {}, "rigid_body": None,
+    "axes": None, "units": None, "tolerance_mm": DEFAULT_TOLERANCE_MM}
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,6 +103,9 @@ class Template:
     graphs: SkillGraphs
     arcs: dict[tuple[int, Any, Any], str] = field(default_factory=dict)
     arc_skills: dict[str, int] = field(default_factory=dict)
+    #: The skills file as read once (path, object, skills): every upload's check uses it
+    #: instead of reading the file again (a third of a small upload's time).
+    known: KnownSkills | None = None
 
 
 def load_template(spec: str | Path) -> Template:
@@ -131,12 +129,16 @@ def load_template(spec: str | Path) -> Template:
             name = f"{graph.graph['maneuver']}-g{g}-n{names[u]}-n{names[v]}"
             arcs[(g, u, v)] = name
             arc_keys.setdefault(name, set()).add(str(key))
-    return Template(top, graphs, arcs, {n: len(k) for n, k in arc_keys.items()})
+    return Template(top, graphs, arcs, {n: len(k) for n, k in arc_keys.items()},
+                    (Path(top["skills"]), poly, tuple(skills)))
 
 
 def content_hash(mentor: str, entry: Mapping[str, Any], data: bytes) -> str:
     """SHA-256 of an upload: the mentor, the annotation (without the file's name), the bytes."""
     ann = {k: v for k, v in entry.items() if k not in ("file", "mentor")}
+    # through JSON once: keys of other types (YAML's 1:) become the strings JSON makes of
+    # them, which sort (a str-keyed annotation comes out the same)
+    ann = json.loads(json.dumps(ann))
     h = hashlib.sha256()
     h.update(mentor.encode() + b"\0")
     h.update(json.dumps(ann, sort_keys=True, separators=(",", ":")).encode() + b"\0")
@@ -146,9 +148,17 @@ def content_hash(mentor: str, entry: Mapping[str, Any], data: bytes) -> str:
 
 def _safe_name(filename: str | None) -> str:
     name = PurePosixPath((filename or "").replace("\\", "/")).name
-    if not name or name.startswith(".") or len(name) > 200:
-        raise Rejected(f"the recording's file name {filename!r} is not usable; name it like "
+    shown = repr((filename or "")[:80])
+    if (not name or name.startswith(".") or len(name) > 200
+            or any(ord(c) < 32 or ord(c) == 127 for c in name)
+            or len(name.encode("utf-8", "surrogatepass")) > 255):
+        raise Rejected(f"the recording's file name {shown} is not usable; name it like "
                        "take_01.c3d or take_01.csv", status=400)
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise Rejected(f"the recording's file name {shown} is not valid UTF-8; name it like "
+                       "take_01.c3d", status=400) from None
     if PurePosixPath(name).suffix.lower() not in _TRAJECTORY_SUFFIXES:
         raise Rejected(f"{name}: unknown trajectory format {PurePosixPath(name).suffix!r}; "
                        "use .c3d or a Motive .csv", status=400)
@@ -177,80 +187,27 @@ def single_upload(template: Template, mentor: str, filename: str | None, data: b
         raise Forbidden(f"the annotation names mentor {given!r} but the token is {mentor!r}'s; "
                         "a mentor uploads only their own demonstrations")
     entry = {**annotation, "file": name, "mentor": mentor}
-    with tempfile.TemporaryDirectory(prefix="np-upload-") as tmp:
+    with tempfile.TemporaryDirectory(prefix=TEMP_PREFIX) as tmp:
         root = Path(tmp)
-        (root / name).write_bytes(data)
         doc = {**template.top, "demonstrations": [entry]}
-        (root / ANNOTATION_FILES[0]).write_text(json.dumps(doc))
-        ds, problems = check_dataset(root)
+        try:
+            (root / name).write_bytes(data)
+            (root / ANNOTATION_FILES[0]).write_text(json.dumps(doc))
+        except OSError as exc:
+            raise disk_error(exc, f"the recording {name!r}") from None
+        ds, problems = check_dataset(root, known_skills=template.known)
         if ds is None:
             raise _problems(problems, root)
         yield ds, [content_hash(mentor, entry, data)]
 
 
-def extract_archive(data: bytes, dest: Path, max_bytes: int) -> Path:
+def extract_archive(source: bytes | BinaryIO, dest: Path, max_bytes: int) -> Path:
     """Unpack a zip or tar archive of a dataset folder into ``dest``; the dataset's root.
 
-    Refuses absolute names, ``..``, links, more than :data:`MAX_ARCHIVE_FILES` files and more
-    than ``max_bytes`` unpacked.
+    Every member is checked as it comes (:func:`~nonprehensile.service.archive.unpack_archive`:
+    names, kinds, at most :data:`MAX_ARCHIVE_FILES` members and ``max_bytes`` unpacked).
     """
-    members: list[tuple[str, Any]] = []
-
-    def check(name: str) -> PurePosixPath:
-        p = PurePosixPath(name)
-        if p.is_absolute() or ".." in p.parts or not p.parts:
-            raise Rejected(f"archive member {name!r} lies outside the archive's folder", status=400)
-        return p
-
-    total = 0
-    if zipfile.is_zipfile(io.BytesIO(data)):
-        try:
-            zf = zipfile.ZipFile(io.BytesIO(data))
-            infos = zf.infolist()
-        except (zipfile.BadZipFile, ValueError) as exc:
-            raise Rejected(f"the archive is not a readable zip file ({exc})", status=400) from None
-        if len(infos) > MAX_ARCHIVE_FILES:
-            raise Rejected(f"the archive has {len(infos)} files, more than "
-                           f"{MAX_ARCHIVE_FILES}", status=413)
-        for info in infos:
-            check(info.filename)
-            total += info.file_size
-            if total > max_bytes:
-                raise Rejected(f"the archive unpacks to more than {max_bytes} bytes", status=413)
-            members.append((info.filename, info))
-        for name, info in members:
-            if info.is_dir():
-                continue
-            target = dest / name
-            target.parent.mkdir(parents=True, exist_ok=True)
-            try:
-                with zf.open(info) as src, target.open("wb") as out:
-                    shutil.copyfileobj(src, out)
-            except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
-                raise Rejected(f"archive member {name!r} cannot be read ({exc})",
-                               status=400) from None
-    else:
-        try:
-            tf = tarfile.open(fileobj=io.BytesIO(data), mode="r:*")  # noqa: SIM115
-            infos_t = tf.getmembers()
-        except (tarfile.TarError, EOFError, OSError) as exc:
-            raise Rejected(f"the upload is neither a zip nor a tar archive ({exc})",
-                           status=400) from None
-        if len(infos_t) > MAX_ARCHIVE_FILES:
-            raise Rejected(f"the archive has {len(infos_t)} files, more than "
-                           f"{MAX_ARCHIVE_FILES}", status=413)
-        for ti in infos_t:
-            check(ti.name)
-            if not (ti.isfile() or ti.isdir()):
-                raise Rejected(f"archive member {ti.name!r} is a link or a device; a dataset "
-                               "archive holds plain files", status=400)
-            total += ti.size
-            if total > max_bytes:
-                raise Rejected(f"the archive unpacks to more than {max_bytes} bytes", status=413)
-        try:
-            tf.extractall(dest, filter="data")
-        except (tarfile.TarError, OSError, EOFError) as exc:
-            raise Rejected(f"the archive cannot be unpacked ({exc})", status=400) from None
+    unpack_archive(source, dest, max_bytes=max_bytes)
     # the dataset's root: the folder holding the annotations file (the top or its one child)
     for cand in [dest, *sorted(p for p in dest.iterdir() if p.is_dir())]:
         if _annotations_file(cand) is not None:
@@ -260,38 +217,46 @@ def extract_archive(data: bytes, dest: Path, max_bytes: int) -> Path:
 
 
 @contextlib.contextmanager
-def archive_upload(template: Template, mentor: str, data: bytes,
+def archive_upload(template: Template, mentor: str, source: bytes | BinaryIO,
                    max_bytes: int) -> Iterator[tuple[Dataset, list[str]]]:
     """Check a dataset archive as ``dataset show`` would; yields it and each demo's hash.
 
     The archive's own skills file is not used: its demonstrations must be of the service's
-    skills (the archive's dataset-wide settings must match the service's).
+    skills, and its dataset-wide settings must be the service's (given or left out); a key
+    the annotations do not have is refused with the line ``dataset show`` prints for it.
     """
-    with tempfile.TemporaryDirectory(prefix="np-archive-") as tmp:
-        root = extract_archive(data, Path(tmp), max_bytes)
+    with tempfile.TemporaryDirectory(prefix=TEMP_PREFIX) as tmp:
+        root = extract_archive(source, Path(tmp), max_bytes)
         ann = _annotations_file(root)
         assert ann is not None
         try:
             doc = load_document(ann)
         except InputError as exc:
-            raise Rejected(f"{ann.name}: {exc}") from None
+            raise Rejected(str(exc)) from None
         if not isinstance(doc, Mapping) or not isinstance(doc.get("demonstrations"), list):
             raise Rejected(f"{ann.name}: the annotations must be an object with a "
                            "'demonstrations' list (see docs/dataset.md)")
-        for key in ("scale", "gap_limit", "fingers", "markers", "format"):
-            if key in doc and key in template.top and doc[key] != template.top[key]:
-                raise Rejected(f"{ann.name}: '{key}' is {doc[key]!r}, the service's datasets "
-                               f"have {template.top[key]!r}; export the archive with the "
-                               "service's settings")
+        for key, value in doc.items():
+            if key in ("demonstrations", "skills") or key not in _TOP_KEYS:
+                continue  # unknown keys: refused below by the dataset check, as the CLI does
+            service = template.top.get(key, _SETTING_DEFAULTS.get(key))
+            if value != service:
+                raise Rejected(f"{ann.name}: '{key}' is {value!r:.80}, the service's datasets "
+                               f"have {service!r:.80}; export the archive with the service's "
+                               "settings")
         for i, item in enumerate(doc["demonstrations"]):
-            if isinstance(item, Mapping) and item.get("mentor") != mentor:
+            if isinstance(item, Mapping) and "mentor" in item and item["mentor"] != mentor:
                 raise Forbidden(f"{ann.name} (demonstration {i}): mentor "
-                                f"{item.get('mentor')!r} is not the token's mentor {mentor!r}; "
-                                "a mentor uploads only their own demonstrations")
-        ann.unlink()
-        (root / ANNOTATION_FILES[0]).write_text(json.dumps(
-            {**template.top, "demonstrations": doc["demonstrations"]}))
-        ds, problems = check_dataset(root)
+                                f"{str(item.get('mentor'))[:100]!r} is not the token's mentor "
+                                f"{mentor!r}; a mentor uploads only their own demonstrations")
+        unknown = {str(k): v for k, v in doc.items() if k not in _TOP_KEYS}
+        try:
+            ann.unlink()
+            (root / ANNOTATION_FILES[0]).write_text(json.dumps(
+                {**template.top, **unknown, "demonstrations": doc["demonstrations"]}))
+        except OSError as exc:
+            raise disk_error(exc, "the archive's annotations") from None
+        ds, problems = check_dataset(root, known_skills=template.known)
         if ds is None:
             raise _problems(problems, root)
         hashes = []
@@ -422,7 +387,13 @@ class Registry:
                 "RETURNING hash", (digest, mentor, demo.file, demo.skill.name, kind, "{}")
             ).fetchone()
             if claimed is None:
-                return {**self.upload(conn, digest), "duplicate": True}
+                # stored before; withdrawn since: the same mentor's upload of it again puts it
+                # back (its samples never left the arcs; the listings count it again)
+                back = conn.execute(
+                    "UPDATE np_uploads SET withdrawn = false WHERE hash = %s AND withdrawn "
+                    "RETURNING hash", (digest,)).fetchone()
+                return {**self.upload(conn, digest), "duplicate": back is None,
+                        "reinstated": back is not None}
             with contextlib.ExitStack() as stack:
                 stores = {}
                 for arc in sorted(set(arcs)):  # one lock order: no deadlock between uploads
@@ -439,7 +410,7 @@ class Registry:
             reply = self.upload(conn, digest)
             conn.execute("UPDATE np_uploads SET reply = %s WHERE hash = %s",
                          (json.dumps(reply), digest))
-        return {**reply, "duplicate": False}
+        return {**reply, "duplicate": False, "reinstated": False}
 
     def upload(self, conn: Any, digest: str) -> dict[str, Any]:
         """An upload's document: who, what, and each segment's arc, sample and cluster now."""

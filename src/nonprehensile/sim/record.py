@@ -56,9 +56,10 @@ from nonprehensile.geometry.units import in_metres
 from nonprehensile.io import read_skills
 from nonprehensile.maneuvers import classify, move_pose
 from nonprehensile.sim.compare import Comparison, compare
+from nonprehensile.sim.distribution import PhysicsDistribution
 from nonprehensile.sim.execute import fingers_of, smooth_markers
 from nonprehensile.sim.run import SimResult, Simulator, default_scale, pose_of_state
-from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
+from nonprehensile.sim.scene import DEFAULT_PARAMS, RETUNABLE, SceneTuner, SimParams
 from nonprehensile.skills.contacts import Finger
 from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State
@@ -430,6 +431,7 @@ def record_dataset(
     keep_going: bool = False,
     with_object_markers: bool = True,
     progress: Progress | None = None,
+    distribution: PhysicsDistribution | None = None,
 ) -> tuple[Dataset, dict[str, dict[str, Any]]]:
     """Record ``n_per_skill`` physics takes of every skill of a skills file.
 
@@ -450,6 +452,13 @@ def record_dataset(
         (``stats[name]["failed"]`` says why) instead of raising.
     with_object_markers : bool
         ``False`` leaves the object markers out (smaller files).
+    distribution : PhysicsDistribution, optional
+        Record under it: every take (every attempt) runs in its own sample of the scene's
+        parameters (friction, mass scaled to the object, fingertip, stiffness, force limit,
+        contact softness), sample ``a`` of stream ``k`` of ``seed`` for the ``a``-th attempt
+        at skill ``k``, instead of the one scene of ``params``. The mentor's hand and the
+        tracker are the mentor's own: the distribution's start error and noise do not apply.
+        ``stats[name]["physics"]`` lists each kept take's varied values.
 
     Returns
     -------
@@ -481,6 +490,10 @@ def record_dataset(
     si = in_metres(poly, scale)
     n_f = max(max(fingers_of(s), default=1) for s in skills)
     sim = Simulator(si, scale=1.0, n_fingers=max(n_f, 1), params=params)
+    tuner = None
+    if distribution is not None:
+        distribution = distribution.for_object(si, 1.0)
+        tuner = SceneTuner(sim.model, sim.data, sim.params)
     markers = object_markers_of(poly) if with_object_markers else {}
     markers_si = object_markers_of(si) if with_object_markers else {}
     demos: list[Demonstration] = []
@@ -488,13 +501,18 @@ def record_dataset(
     failures: dict[str, str] = {}
     chosen = [s for s in skills if only is None or s.name in only]
     total = n_per_skill * len(chosen)
-    for skill in chosen:
+    for k_skill, skill in enumerate(chosen):
         tried = fragile = kept = 0
         reasons: Counter[TakeReason] = Counter()
+        physics: list[dict[str, float]] = []
         for j in range(n_per_skill):
             mentor = mentors[j % len(mentors)]
             for _ in range(max_attempts):
                 tried += 1
+                if tuner is not None and distribution is not None:
+                    sample = distribution.sample(seed, index=tried - 1, stream=k_skill)
+                    tuner.tune(sample.params)
+                    sim.params = sim.judge.params = sample.params
                 try:
                     traj, events = record_demonstration(
                         sim, skill, mentor, rng, rate=rate, noise_mm=noise_mm,
@@ -513,6 +531,9 @@ def record_dataset(
                     f"({_summary(reasons)}); what to change: "
                     f"{what_to_change(skill, commonest)}")
                 break
+            if tuner is not None:
+                physics.append({k: round(v, 6) for k, v in sample.values().items()
+                                if k in RETUNABLE})
             name = f"{skill.name}_{mentor.name}_{j // len(mentors):02d}.c3d"
             demos.append(Demonstration(name, skill, mentor.name, skill.initial, skill.final,
                                        events, traj))
@@ -524,6 +545,8 @@ def record_dataset(
             by_key[r.key] += n
         stats[skill.name] = {"kept": kept, "tried": tried, "fragile": fragile,
                              "reasons": dict(by_key.most_common())}
+        if tuner is not None:
+            stats[skill.name]["physics"] = physics
         if skill.name in failures:
             stats[skill.name]["failed"] = failures[skill.name]
             if not keep_going:
