@@ -2,7 +2,7 @@
 
 :func:`place_base` tries base positions on rings around the plan's fingertip paths, the base
 facing them, and keeps the one that reaches every target of the whole plan (largest fingertip
-error under ``reach_tol``) with the largest joint-limit margin (least distance of any joint to
+error under ``reach_tol``, 5 mm) with the largest joint-limit margin (least distance of any joint to
 an end of its range, in radians, over the whole plan). The search is kinematic (the IK at
 ``search_rate``, no collision avoidance): the chosen base is then judged by physics.
 
@@ -104,7 +104,7 @@ def _rz(yaw_deg: float) -> FloatArray:
 def place_base(
     robot: Robot, poly: Polyhedron, scale: float, paths: Sequence[tuple[FloatArray, float]], *,
     radii: Sequence[float] = tuple(np.round(np.arange(0.35, 0.751, 0.05), 3)),
-    n_directions: int = 16, search_rate: float = 50.0, reach_tol: float = 0.002,
+    n_directions: int = 16, search_rate: float = 50.0, reach_tol: float = 0.005,
     params: SimParams = DEFAULT_PARAMS, finger: int = 0,
     avoid: Sequence[BasePose] = (), min_separation: float = 0.4,
 ) -> Placement:
@@ -124,7 +124,8 @@ def place_base(
     search_rate : float
         Rate (Hz) the targets are followed at in the search.
     reach_tol : float
-        A base is feasible when the fingertip error stays under this (m).
+        A base is feasible when the fingertip error stays under this (m) while the IK follows
+        the targets at ``search_rate`` (its lag included: out of reach is centimetres).
     finger : int
         Which finger of the paths (0 for R1) this arm's tip follows (its first tip site).
     avoid : sequence of BasePose
