@@ -99,7 +99,8 @@ class State:
         object.__setattr__(self, "theta", _normalize_deg(theta))
 
     def __str__(self) -> str:
-        return f"{self.face}:{self.theta:g}"
+        text = f"{self.theta:g}"
+        return f"{self.face}:{'0' if text == '360' else text}"  # 359.9999997 is not "360"
 
     @classmethod
     def parse(cls, text: str) -> State:

@@ -198,7 +198,9 @@ def object_figure_cmd(model: str, output: str | None, html_out: str | None,
               "convex hull of its points.")
 @click.option("--allow-open", is_flag=True, hidden=True,
               help="Accepted for compatibility: open meshes are used unless --strict.")
-@click.option("--units", default="m", show_default=True, help="Length units of the mesh.")
+@click.option("--units", default="m", show_default=True,
+              help="Length units of the mesh: m, dm, cm, mm, um, in or ft (the model stores "
+                   "them; physics converts with them).")
 @json_option
 @handle_errors
 def object_from_mesh(

@@ -39,6 +39,7 @@ from nonprehensile.cli.robot import (
     wants_robot,
 )
 from nonprehensile.errors import InputError
+from nonprehensile.geometry.units import metres_per_unit
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
 from nonprehensile.pipeline import motions_from_dataset, write_plan_motions
@@ -206,7 +207,8 @@ def plan_cmd(
         robustness = RobustnessCosts(rates, robustness_loop or rates.loops()[0],
                                      robustness_threshold, robustness_weight)
     motions = None
-    scale = 1.0
+    # world positions in metres: from the model's units, or the dataset's recorded scale
+    scale = metres_per_unit(poly.units)
     markers: list[str] | None = None
     if dataset is not None:
         with stage_bars(as_json) as bars:
