@@ -21,9 +21,11 @@ from nonprehensile.cli.common import (
     stage_bars,
 )
 from nonprehensile.cli.options import (
+    COORDINATE,
     angle_tol_option,
     atol_option,
     json_option,
+    number,
     parse_state,
     rtol_option,
     state_set,
@@ -140,11 +142,12 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
               help="Goal state FACE:THETA in the same (world) frame.")
 @step_option
 @states_option
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+@click.option("--at", "position", type=(COORDINATE, COORDINATE), default=(0.0, 0.0),
+              show_default=True,
               help="Where the object is on the table (x y), for the agent's offset.")
 @click.option("--cost", "costs", multiple=True, callback=_parse_costs,
               help="Cost of a skill, SKILL=COST (repeatable); default 1 per transition.")
-@click.option("--relocation-cost", type=float, default=DEFAULT_RELOCATION_COST,
+@click.option("--relocation-cost", type=number(0.0, 1e9), default=DEFAULT_RELOCATION_COST,
               show_default=True,
               help="Cost of relocating the agent between steps (its first placement is free).")
 @click.option("--dataset", default=None,

@@ -9,12 +9,19 @@ from typing import Any
 import click
 from rich.table import Table
 
+from nonprehensile.cli.options import number
 from nonprehensile.errors import InputError
 
 __all__ = ["control_every", "load_robot", "placement_doc", "robot_arms", "robot_options",
            "robot_table", "wants_robot"]
 
 F = Callable[..., Any]
+
+#: --base: a place on the table within an arm's reach of the object, and a heading.
+_BASE_XY = number(-10.0, 10.0, unit="m")
+_BASE_YAW = number(-360.0, 360.0, unit="degrees")
+#: --control-rate: how often the IK runs (the library checks that it divides the physics rate).
+_RATE = number(0.0, 1e5, low_open=True, unit="Hz")
 
 
 def robot_options(fn: F) -> F:
@@ -30,7 +37,7 @@ def robot_options(fn: F) -> F:
         click.option("--tip-site", "tip_sites", multiple=True, metavar="NAME",
                      help="A fingertip site of --robot-xml, one per finger R1, R2, ... "
                           "(repeatable)."),
-        click.option("--control-rate", "control_rate", type=float, default=1000.0,
+        click.option("--control-rate", "control_rate", type=_RATE, default=1000.0,
                      show_default=True, metavar="HZ",
                      help="Robot: how often the IK runs (a divisor of the 1 kHz physics "
                           "rate); the joint servos get interpolated set points every step."),
@@ -38,7 +45,7 @@ def robot_options(fn: F) -> F:
                      show_default=True,
                      help="How many copies of the robot (two-finger skills by two one-finger "
                           "arms); their tip sites are fingers R1, R2, ... arm by arm."),
-        click.option("--base", "base", type=(float, float, float), multiple=True,
+        click.option("--base", "base", type=(_BASE_XY, _BASE_XY, _BASE_YAW), multiple=True,
                      metavar="X Y YAW",
                      help="A robot base on the table: x, y (m) and heading (degrees), one per "
                           "arm (repeatable); default: searched for reach and joint-limit "
