@@ -218,6 +218,22 @@ class _GroupSearch:
             want = rel[lp.flat[lp.starts[owner] + (pos + m) % n0]]
             miss = np.linalg.norm(a * u + b * w + c * nrm - want, axis=1)
             keep &= miss <= slack * self.gate
+        # then a few vertices spread over the whole object must land near vertices (one
+        # batched search): congruent faces elsewhere on a tessellated ball pass the corner
+        # test, not this one. The edge frame's error grows with the distance from the edge.
+        idx = np.flatnonzero(keep)
+        if len(idx) > 1:
+            sample = rel[np.unique(np.linspace(0, len(rel) - 1, 16).astype(np.int64))]
+            coef = sample @ src  # (a, b, c) of each sample point in the first face's frame
+            img = (coef[None, :, 0:1] * u[idx][:, None, :] + coef[None, :, 1:2]
+                   * w[idx][:, None, :] + coef[None, :, 2:3] * nrm[idx][:, None, :])
+            i0, j0 = lp.flat[0], lp.flat[lp.nxt[0]]
+            lever = 1.0 + 2.0 * float(np.abs(rel).max()) / float(
+                np.linalg.norm(rel[j0] - rel[i0]))
+            dist, _ = self.tree.query(img.reshape(-1, 3), distance_upper_bound=lever * 4.0
+                                      * self.gate)
+            near = np.isfinite(dist).reshape(len(idx), -1).all(axis=1)
+            keep[idx[~near]] = False
         return list(zip(owner[keep].tolist(), pos[keep].tolist(), strict=True))
 
     def candidate(self, g: str, k: int, src: FloatArray, i0: int) -> _Element | None:
