@@ -373,9 +373,17 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     from nonprehensile.planning import plan
     from nonprehensile.sim.closed_loop import execute_plan, scene_fingers
 
-    # bad settings are refused before any work (one line, exit 2)
-    cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
-    obs_model = ObservationModel(rate=observation_rate, latency=latency)
+    # bad settings are refused before any work (one line naming the option, exit 2)
+    options = {"angle_tol": "--tol-deg", "position_tol": "--position-tol",
+               "max_replans": "--max-replans", "observation rate": "--observation-rate",
+               "observation latency": "--latency"}
+    try:
+        cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol,
+                            max_replans=max_replans)
+        obs_model = ObservationModel(rate=observation_rate, latency=latency)
+    except InputError as exc:
+        named = next((o for k, o in options.items() if k in str(exc)), None)
+        raise InputError(f"{named}: {exc}" if named else str(exc)) from None
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
     if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
         from nonprehensile.sim.execute import fingers_of
