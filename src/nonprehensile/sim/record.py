@@ -55,12 +55,12 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.units import in_metres
 from nonprehensile.io import read_skills
 from nonprehensile.maneuvers import classify, move_pose
-from nonprehensile.sim.compare import Comparison, compare
+from nonprehensile.sim.compare import Comparison, compare, events_text
 from nonprehensile.sim.distribution import PhysicsDistribution
 from nonprehensile.sim.execute import fingers_of, smooth_markers
 from nonprehensile.sim.run import SimResult, Simulator, default_scale, pose_of_state
 from nonprehensile.sim.scene import DEFAULT_PARAMS, RETUNABLE, SceneTuner, SimParams
-from nonprehensile.skills.contacts import Finger
+from nonprehensile.skills.contacts import Edge, Face, Finger, Ground, Vertex
 from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State
 
@@ -144,8 +144,10 @@ def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
                               f"{text} (skill: {skill.final})")
         return TakeReason("elsewhere", f"ended on face {got.face}", text)
     if not cmp.chain_ok:
-        text = f"events {list(cmp.missing)} missing"
-        return TakeReason("events", text, text, tuple(cmp.missing))
+        key = f"events {list(cmp.missing)} missing"
+        chain = events_text(res.events)
+        seen = chain if len(chain) <= 160 else chain[:157] + "..."
+        return TakeReason("events", key, f"{key}; physics: {seen}", tuple(cmp.missing))
     return TakeReason("slid", "slid off its pivot",
                       f"slid {1000 * slip:.1f} mm (at most {1000 * max_slip:g} mm allowed)")
 
@@ -153,6 +155,10 @@ def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
 def what_to_change(skill: Skill, reason: TakeReason) -> str:
     """Advice for the commonest way a skill's takes fail (one sentence)."""
     see = f"`nonprehensile maneuvers MODEL --from {skill.initial}`"
+    if reason.kind == "pushed" and skill.maneuver == "tumbling":
+        return ("the pinch carried the object along the table instead of tipping it over its "
+                "pivot vertex: pinch above the centre of mass so that it hangs from the "
+                "pinch, or more table friction (--friction) keeps the vertex in place")
     if reason.kind == "pushed":
         return ("the push slid the object along the table instead of tipping it over its "
                 "pivot: a push this low on a flat object slides it; push higher on the face "
@@ -178,10 +184,26 @@ def what_to_change(skill: Skill, reason: TakeReason) -> str:
     if reason.kind == "events":
         named = [e for e in skill.events if e.id in reason.events]
         contacts = "; ".join(f"{e.id!r}: {e}" for e in named)
-        return ("physics made the maneuver but not these events in order (" + contacts
-                + "): write them as physics makes them; an object that falls ahead of the "
-                "finger lands without it, so end the moving arc on the landing with the "
-                "ground alone (pivot, then e.g. (G,face): a topple), or leave the event out")
+        final = skill.final.face
+        landing = [e for e in named if any(isinstance(p.y, Face) and p.y.id == final
+                                           for p in e.pairs if isinstance(p.x, Ground))
+                   and any(isinstance(p.x, Finger) for p in e.pairs)]
+        pivot = [e for e in named if any(isinstance(p.y, (Edge, Vertex)) for p in e.pairs
+                                         if isinstance(p.x, Ground))]
+        head = ("physics made the maneuver but not these events in order (" + contacts
+                + "; what it made is in the reason): ")
+        if landing:
+            return head + ("the object falls ahead of the finger and lands without it: end "
+                           "the moving arc on the landing with the ground alone (pivot, then "
+                           f"(G,{final}): a topple)")
+        if pivot:
+            return head + ("the object never rested on that edge or vertex alone long enough "
+                           "to be seen (it turned over another element, or passed it in a "
+                           "few ms): name what physics shows, or leave the pivot event out")
+        return head + "write them as physics makes them, or leave them out"
+    if reason.kind == "elsewhere" and skill.maneuver == "rotating":
+        return ("the turn tipped the object over instead of turning it on its face: grip it "
+                "lower on its sides (nearer the table), or on faces that hold it upright")
     if reason.kind == "slid":
         return ("the pivot slid along the table: more table friction (--friction), or a "
                 "second finger holding the object down on its pivot")
