@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from nonprehensile.checks import Range, check_number
 from nonprehensile.errors import ManeuverError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.states import (
@@ -234,7 +235,8 @@ def rotate(poly: Polyhedron, state: State, angle: float) -> Maneuver:
 
     The bottom face stays on the ground: a rotating maneuver.
     """
-    if not math.isfinite(angle) or abs(angle_diff(angle, 0.0)) < 1e-12:
+    angle = float(check_number(angle, "rotation angle", Range(), ManeuverError))
+    if abs(angle_diff(angle, 0.0)) < 1e-12:
         raise ManeuverError(f"a rotation needs a non-zero finite angle, got {angle!r}")
     end = State(state.face, state.theta + angle)
     return Maneuver("rotating", state, end, (state.face,), float(angle), (0.0, 0.0, 1.0))

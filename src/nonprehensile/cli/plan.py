@@ -21,9 +21,11 @@ from nonprehensile.cli.common import (
     stage_bars,
 )
 from nonprehensile.cli.options import (
+    COORDINATE,
     angle_tol_option,
     atol_option,
     json_option,
+    number,
     parse_state,
     rtol_option,
     state_set,
@@ -33,6 +35,7 @@ from nonprehensile.cli.options import (
 from nonprehensile.cli.robot import (
     control_every,
     load_robot,
+    placement_doc,
     robot_arms,
     robot_options,
     wants_robot,
@@ -123,7 +126,7 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
                                     control_every=every)
     scene = build_robot_scene(poly, scale=ds.scale, arms=arms, params=DEFAULT_PARAMS)
     meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg, every)
-    meta["placement"] = placement.to_dict() if placement is not None else None
+    meta["placement"] = placement_doc(placement)
     meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
                     "the object at each step's planned start pose; `simulate plan --robot` "
                     "executes it in physics")
@@ -139,11 +142,12 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
               help="Goal state FACE:THETA in the same (world) frame.")
 @step_option
 @states_option
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+@click.option("--at", "position", type=(COORDINATE, COORDINATE), default=(0.0, 0.0),
+              show_default=True,
               help="Where the object is on the table (x y), for the agent's offset.")
 @click.option("--cost", "costs", multiple=True, callback=_parse_costs,
               help="Cost of a skill, SKILL=COST (repeatable); default 1 per transition.")
-@click.option("--relocation-cost", type=float, default=DEFAULT_RELOCATION_COST,
+@click.option("--relocation-cost", type=number(0.0, 1e9), default=DEFAULT_RELOCATION_COST,
               show_default=True,
               help="Cost of relocating the agent between steps (its first placement is free).")
 @click.option("--dataset", default=None,

@@ -10,6 +10,7 @@ from rich.table import Table
 
 from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, out, stage_bars
 from nonprehensile.cli.options import (
+    COORDINATE,
     angle_tol_option,
     json_option,
     parse_state,
@@ -49,7 +50,8 @@ def _pct(d: dict[str, Any]) -> str:
 @click.option("--from", "start", default=None, callback=_optional_state,
               help="Sweep the plan from this state (with --to) instead of every transition.")
 @click.option("--to", "goal", default=None, callback=_optional_state, help="The plan's goal.")
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+@click.option("--at", "position", type=(COORDINATE, COORDINATE), default=(0.0, 0.0),
+              show_default=True,
               help="Where the object is on the table (x y, metres), with --from/--to.")
 @click.option("--demonstrations", is_flag=True,
               help="Sweep the dataset's own demonstrations (each replayed with its recorded "
