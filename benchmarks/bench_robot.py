@@ -4,10 +4,11 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
 ``python -m benchmarks robot`` prints:
 
 1. the main plan (``b:200`` at (0.3, 0.1) -> ``e:110``, ``--step 90 --dataset cube``) executed
-   open loop by the bundled Panda at the searched base, in one continuous simulation: per step
-   the state, theta and position error, fingertip tracking error in contact, the longest time
-   at a joint limit, link/rod contacts, IK time; the same plan by the free fingertips in the
-   same run, and the CPU-time ratio robot / free per transition;
+   by the closed-loop executor (transits included) and open loop, by the bundled Panda at the
+   searched base, in one continuous simulation: per step the state, theta and position error,
+   fingertip tracking error in contact, the longest time at a joint limit, link/rod contacts,
+   IK time; the same plan by the free fingertips in the same run, and the CPU ratio robot /
+   free;
 2. a third-party Panda from a PyPI wheel: ``dm-robotics-panda`` (Franka's Panda as MJCF with
    meshes, DeepMind's packaging) installed with ``pip install --no-deps --target DIR`` into a
    folder outside the project's environment (never committed). Its ``panda.xml`` has no
@@ -48,50 +49,73 @@ def _cli(args: list[str]) -> tuple[int, dict]:
 
 
 def main_plan() -> None:
+    from dataclasses import replace
+
     from nonprehensile.cli.options import state_set
+    from nonprehensile.control import ControlConfig, replanner
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
     from nonprehensile.pipeline import motions_from_dataset
     from nonprehensile.planning import plan
     from nonprehensile.sim import Simulator
-    from nonprehensile.sim.execute import simulate_plan
+    from nonprehensile.sim.closed_loop import execute_plan
     from nonprehensile.sim.placement import place_base, plan_targets
     from nonprehensile.sim.robot import Robot
-    from nonprehensile.sim.robot_run import RobotSimulator
+    from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL, RobotSimulator
     from nonprehensile.sim.robot_scene import Arm
     from nonprehensile.states import State
 
     poly, skills = read_skills(_skills())
     exp = expand(poly, skills, state_set(poly, 90.0, None, 1e-6))
     ds, motions = motions_from_dataset("cube", skills=skills, poly=poly)
-    p = plan(poly, exp, State("b", 200), State("e", 110), position=(0.3, 0.1),
-             motions=motions, scale=ds.scale)
+    goal = State("e", 110)
+    p = plan(poly, exp, State("b", 200), goal, position=(0.3, 0.1), motions=motions,
+             scale=ds.scale)
+    replan = replanner(poly, exp, goal, motions=motions, scale=ds.scale)
     robot = Robot.builtin("panda")
     t0 = time.process_time()
     pl = place_base(robot, poly, ds.scale, plan_targets(p, ds.fingers))
     t_place = time.process_time() - t0
     print(f"base search: {pl.to_dict()} ({t_place:.2f} s CPU)")
-    free = Simulator(poly, scale=ds.scale, n_fingers=1)
-    t0 = time.process_time()
-    out_free = simulate_plan(poly, p, scale=ds.scale, fingers=ds.fingers, sim=free)
-    t_free = time.process_time() - t0
-    sim = RobotSimulator(poly, [Arm(robot, pl.base)], scale=ds.scale)
-    bounds = [0]
-    t0 = time.process_time()
-    out = simulate_plan(poly, p, scale=ds.scale, fingers=ds.fingers, sim=sim,
-                        progress=lambda i, n: bounds.append(len(sim.robot_log.time)))
-    t_robot = time.process_time() - t0
-    for i, (o, f) in enumerate(zip(out, out_free, strict=True)):
-        c = o.comparison.to_dict()
-        m = sim.robot_log.metrics(bounds[i], bounds[i + 1]).to_dict()
-        print(f"step {i + 1}: robot {c['simulated']} theta err {c['theta_error_deg']} deg, "
-              f"position err {c['position_error_m']} m, success {o.success} | free "
-              f"{f.comparison.to_dict()['simulated']} success {f.success}")
-        print(f"   tracking in contact max {m['tracking_error_contact_max_m']} m, longest at "
-              f"limit {m['longest_at_limit_s']} s, link/rod contact {m['other_contact_s']} s, "
-              f"IK median {m['ik_median_ms']} ms (max {m['ik_max_ms']} ms)")
-    print(f"CPU per transition: robot {t_robot / len(out):.3f} s, free fingertips "
-          f"{t_free / len(out):.3f} s: ratio {t_robot / t_free:.2f}x (same run)")
+    bases = [("searched", pl.base)]
+    for loop in ("closed", "open"):
+        free = Simulator(poly, scale=ds.scale, n_fingers=1)
+        t0 = time.process_time()
+        exf = execute_plan(free, p, fingers=ds.fingers, loop=loop, replan=replan)
+        t_free = time.process_time() - t0
+        nf = max(1, exf.n_steps)
+        print(f"{loop} loop, free fingertips: success {exf.success}, final "
+              f"{exf.to_dict()['final_state']}, {1000 * (exf.position_error or 0):.1f} mm; "
+              f"{t_free:.3f} s CPU for {exf.sim_time:.2f} s simulated ({nf} physics steps)")
+        for (label, base), every in ((b, e) for b in bases for e in (1, 8)):
+            sim = RobotSimulator(poly, [Arm(robot, base)], scale=ds.scale, control_every=every)
+            cfg = replace(ControlConfig(), max_accel=ROBOT_MAX_ACCEL)
+            t0 = time.process_time()
+            ex = execute_plan(sim, p, fingers=ds.fingers, loop=loop, replan=replan, config=cfg)
+            t_robot = time.process_time() - t0
+            log = sim.robot_log
+            print(f"{loop} loop, Panda (IK at {1000 // every} Hz) at the {label} base "
+                  f"{base.to_dict()}: success "
+                  f"{ex.success}, final {ex.to_dict()['final_state']}, "
+                  f"{1000 * (ex.position_error or 0):.1f} mm from the goal; {t_robot:.3f} s CPU "
+                  f"for {ex.sim_time:.2f} s simulated")
+            for (n, a, b), rec in zip(ex.step_traces, ex.steps, strict=False):
+                m = log.metrics(*log.window(a, b)).to_dict()
+                print(f"   step {n} {rec['skill']}: {rec['simulated']}, theta err "
+                      f"{rec['theta_error_deg']} deg, {1000 * rec['position_error_m']:.1f} mm; "
+                      f"tracking in contact max {m['tracking_error_contact_max_m']} m, "
+                      f"longest at limit {m['longest_at_limit_s']} s, link/rod contact "
+                      f"{m['other_contact_s']} s, IK median {m['ik_median_ms']} ms")
+            m = log.metrics().to_dict()
+            print(f"   whole run: {m}")
+            # per transition: CPU per simulated second, the robot against the free fingertips
+            rate_r = t_robot / ex.sim_time
+            rate_f = t_free / exf.sim_time
+            print(f"   CPU per simulated second: robot {rate_r:.3f}, free {rate_f:.3f}: "
+                  f"{rate_r / rate_f:.2f}x; per executed step: robot "
+                  f"{t_robot / max(1, len(ex.steps)):.3f} s, free "
+                  f"{t_free / max(1, len(exf.steps)):.3f} s: "
+                  f"{(t_robot / max(1, len(ex.steps))) / (t_free / max(1, len(exf.steps))):.2f}x")
 
 
 def wheel_robot(folder: Path) -> Path:

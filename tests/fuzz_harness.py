@@ -2,10 +2,12 @@
 
 Every input family a user can hand the tool is covered: object models, skills files, state
 lists and state strings, dataset folders (annotations), C3D files, Motive CSV files, meshes,
-numeric options, sample arrays (.npy/.npz) and store files. Inputs come from seeds (the
-repository's bundled data and the real files in ``../shared/realdata``) mutated by bit flips,
-truncations, deletions, insertions and token replacements, and from generators of hostile
-values (huge, tiny, NaN, negative zero, deep nesting, NUL, lone surrogates).
+numeric options (every numeric option of every command, found by walking the command
+tree: issue 25), the API's constructors, sample arrays (.npy/.npz) and store files. Inputs
+come from seeds (the repository's bundled data and the real files in ``../shared/realdata``)
+mutated by bit flips, truncations, deletions, insertions and token replacements, and from
+generators of hostile values (huge, tiny, NaN, negative zero, deep nesting, NUL, lone
+surrogates).
 
 Each case runs the command line in-process (click's ``CliRunner``); every ``--subprocess-every``
 th case also runs as a real process under ``RLIMIT_AS`` = 2 GiB and a 60 s timeout. A case
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import random
 import resource
@@ -342,6 +345,168 @@ def _fam_numbers(c: Corpus, rng: random.Random, i: int) -> Case:
     return Case("numbers", i, cmd, note=v)
 
 
+_OPTIONS: list[tuple[list[str], str, list[Any]]] = []
+
+
+def numeric_options() -> list[tuple[list[str], str, list[Any]]]:
+    """Every numeric option of every command: (command path, option, its Range per value),
+    from the command tree itself, so that an option added tomorrow is fuzzed too."""
+    if not _OPTIONS:
+        import click
+
+        from nonprehensile.cli import main
+        from nonprehensile.cli.options import Number
+
+        def walk(cmd: click.Command, path: list[str]) -> None:
+            for p in cmd.params:
+                types = list(p.type.types) if isinstance(p.type, click.Tuple) else [p.type]
+                if isinstance(p, click.Option) and any(isinstance(t, Number) for t in types):
+                    _OPTIONS.append((path, p.opts[0], [getattr(t, "range", None)
+                                                        for t in types]))
+            if isinstance(cmd, click.Group):
+                ctx = click.Context(cmd)
+                for name in cmd.list_commands(ctx):
+                    sub = cmd.get_command(ctx, name)
+                    if sub is not None:
+                        walk(sub, [*path, name])
+
+        walk(main, [])
+    return _OPTIONS
+
+
+def _option_templates(c: Corpus) -> dict[str, list[str]]:
+    """Complete command lines of the cheap commands (a valid value then runs them whole);
+    other commands get only values their option refuses, checked at parsing."""
+    skills = str(PACKAGE_DATA / "cube_skills.json")
+    out = {
+        "states": ["states", "cube", "--step", "90"],
+        "object show": ["object", "show", "cube"],
+        "infer": ["infer", skills, "--step", "90"],
+        "plan": ["plan", skills, "--from", "a:0", "--to", "f:0", "--step", "90"],
+        "skills show": ["skills", "show", skills],
+        "cluster fit": ["cluster", "fit", "{tmp}/s.db", "--arrays", str(c.arrays[0])],
+        "dataset synth": ["dataset", "synth", "{tmp}/syn", "--n-per-skill", "1", "--format",
+                          "csv"],
+    }
+    if c.meshes:
+        out["object from-mesh"] = ["object", "from-mesh", str(c.meshes[0]), "-o",
+                                   "{tmp}/o.json"]
+    return out
+
+
+def _fam_options(c: Corpus, rng: random.Random, i: int) -> Case:
+    """Any numeric option of any command, given a hostile value or one at its limits: a
+    value its range refuses must exit 2 at parsing, on one line naming the option."""
+    path, opt, ranges = rng.choice(numeric_options())
+    template = _option_templates(c).get(" ".join(path))
+    values = []
+    invalid = False
+    for r in ranges:
+        pool = list(HOSTILE_NUMBERS)
+        if r is not None:
+            for edge in (r.low, r.high):
+                if math.isfinite(edge):
+                    step = 1 if r.integer else max(abs(edge) * 1e-9, 1e-300)
+                    pool += [repr(int(edge) if r.integer else edge),
+                             repr((int(edge) if r.integer else edge) + step),
+                             repr((int(edge) if r.integer else edge) - step)]
+        v = rng.choice(pool)
+        if template is None and r is not None:
+            # a command that would run for long (physics, a server): refused values only
+            for _ in range(20):
+                if r.problem(v)[1] is not None:
+                    break
+                v = rng.choice(pool)
+        values.append(v)
+        invalid = invalid or (r is not None and r.problem(v)[1] is not None)
+    argv = [*(template or path), opt, *values]
+    if template is None and not invalid:
+        argv = [*path, opt, *values, "--definitely-not-an-option"]  # parse, never run
+    return Case("options", i, argv, expect="invalid" if invalid else "any",
+                note=f"{' '.join(path)} {opt} {' '.join(values)}")
+
+
+def _fam_api(c: Corpus, rng: random.Random, i: int) -> Case:
+    """The API's constructors with hostile numbers: each must raise the project's errors."""
+    return Case("api", i, ["__api__", rng.choice(_API), rng.choice(API_VALUES)], note="api")
+
+
+#: Values passed to the constructors by the API family (evaluated: ``float('nan')``).
+API_VALUES = ["0", "-0.0", "-1", "1e-320", "5e-324", "1e-301", "1e-9", "1e308", "float('inf')",
+              "float('nan')", "4294967296", "2**70", "True", "None", "3.5", "'1'", "[]", "1",
+              "1e-13", "-float('inf')", "10**400"]
+
+
+def _scaled(points: Any, v: Any) -> Any:
+    """``points * v`` where ``v`` is a real number (else ``v`` itself, as the user gave it)."""
+    import numbers
+
+    import numpy as np
+
+    if isinstance(v, numbers.Real) and not isinstance(v, bool) and abs(v) < 1e300:
+        with np.errstate(all="ignore"):
+            return np.asarray(points) * float(v)
+    return v
+
+
+def _api_calls() -> dict[str, Callable[[Any], object]]:
+    import numpy as np
+
+    import nonprehensile as nph
+
+    cube = nph.cube()
+    pts = np.random.default_rng(0).normal(size=(40, 3))
+    return {
+        "cube": lambda v: nph.cube(v),
+        "box": lambda v: nph.box(1, 1, v),
+        "box3": lambda v: nph.box(v, v, v),
+        "prism_n": lambda v: nph.prism(v),
+        "prism_r": lambda v: nph.prism(5, v),
+        "prism_h": lambda v: nph.prism(5, 1, v),
+        "tetrahedron": lambda v: nph.tetrahedron(v),
+        "octahedron": lambda v: nph.octahedron(v),
+        "hull_scale": lambda v: nph.convex_hull(_scaled(pts, v)),
+        "hull_rtol": lambda v: nph.convex_hull(cube.vertices, rtol=v),
+        "hull_angle": lambda v: nph.convex_hull(cube.vertices, angle=v),
+        "hull_faces": lambda v: nph.convex_hull(cube.vertices, max_faces=v),
+        "model_scale": lambda v: nph.Polyhedron(_scaled(cube.vertices, v), dict(cube.faces)),
+        "model_rtol": lambda v: nph.Polyhedron(cube.vertices, dict(cube.faces), rtol=v),
+        "state": lambda v: nph.State("a", v),
+        "step": lambda v: nph.states_by_step(cube, v),
+        "margin": lambda v: nph.stable_faces(cube, v),
+        "rotate": lambda v: nph.rotate(cube, nph.State("a", 0), v),
+        "classes": lambda v: nph.equivalence_classes(cube, nph.states_by_step(cube, 90),
+                                                     angle_tol=v),
+    }
+
+
+_API = ["cube", "box", "box3", "prism_n", "prism_r", "prism_h", "tetrahedron", "octahedron",
+        "hull_scale", "hull_rtol", "hull_angle", "hull_faces", "model_scale", "model_rtol",
+        "state", "step", "margin", "rotate", "classes"]
+
+
+def run_api_case(case: Case) -> Outcome:
+    """One constructor call: it returns, or raises a NonprehensileError; anything else (or
+    a run over the time limit) fails."""
+    from nonprehensile.errors import NonprehensileError
+
+    _, key, text = case.argv
+    value = eval(text)  # the harness's own literals
+    case.note = f"{key}({text})"
+    t0 = time.perf_counter()
+    failure = None
+    try:
+        with _alarm(TIME_LIMIT):
+            _api_calls()[key](value)
+    except NonprehensileError:
+        pass
+    except _Timeout:
+        failure = f"ran over {TIME_LIMIT} s"
+    except Exception as exc:  # another library's error is what this family looks for
+        failure = f"traceback: {type(exc).__name__}: {str(exc)[:200]}"
+    return Outcome(case, 0 if failure is None else 1, time.perf_counter() - t0, failure)
+
+
 def _fam_arrays(c: Corpus, rng: random.Random, i: int) -> Case:
     source = rng.choice(c.arrays)
     data, how = mutate_bytes(source.read_bytes(), rng)
@@ -382,6 +547,8 @@ FAMILIES: dict[str, tuple[Callable[[Corpus, random.Random, int], Case], float]] 
     "arrays": (_fam_arrays, 0.06),
     "store": (_fam_store, 0.06),
     "names": (_fam_names, 0.04),
+    "options": (_fam_options, 0.08),
+    "api": (_fam_api, 0.03),
 }
 
 
@@ -577,8 +744,11 @@ def run_campaign(cases: list[tuple[str, int]], *, seed: int = 13, subprocess_eve
             work.mkdir()
             case = make_case(corpus, family, index, seed)
             try:
-                report.add(run_in_process(case, work), False)
-                if subprocess_every and k % subprocess_every == 0:
+                if case.argv[:1] == ["__api__"]:
+                    report.add(run_api_case(case), False)
+                else:
+                    report.add(run_in_process(case, work), False)
+                if subprocess_every and k % subprocess_every == 0 and case.family != "api":
                     shutil.rmtree(work)
                     work.mkdir()
                     report.add(run_subprocess(make_case(corpus, family, index, seed), work),

@@ -219,7 +219,7 @@ def test_a_closed_loop_step_recovers_where_open_loop_fails(first_step, physics) 
     assert abs(closed.theta_error or 99.0) <= 5.0 and (closed.position_error or 1.0) <= 0.010
     # every arc ended on its observed event, and the record says so
     events = [e["event"] for e in closed.steps[0]["observed"] if "event" in e]
-    assert events[:2] == ["touch", "pivot"] and events[-1] == "done"
+    assert events[:3] == ["rest", "touch", "pivot"] and events[-1] == "done"
     # no teleport: bounded commanded motion, no fingertip-object contact in any transit
     assert closed.commanded_speed <= 0.5 and closed.commanded_accel <= 20.0 + 1e-6
     assert closed.transit_contact_s == 0.0 and len(closed.transits) >= 2

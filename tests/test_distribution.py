@@ -156,10 +156,11 @@ def test_cli_physics_options_refuse_bad_values_in_one_line() -> None:
 
     runner = CliRunner()
     base = ["simulate", "dataset", "cube", "--skill", "push-roll"]
-    for bad, word in [(["--force-limit", "nan"], "max_force"),
-                      (["--contact-timeconst", "-1"], "contact_timeconst"),
-                      (["--start-error", "0", "0", "nan"], "DYAW"),
-                      (["--start-error", "1", "0", "0"], "DX"),
+    # the option's own name (cli.options.Number): the message names what the user typed
+    for bad, word in [(["--force-limit", "nan"], "--force-limit"),
+                      (["--contact-timeconst", "-1"], "--contact-timeconst"),
+                      (["--start-error", "0", "0", "nan"], "--start-error"),
+                      (["--start-error", "1", "0", "0"], "--start-error"),
                       (["--finger-noise", "-0.001"], "--finger-noise"),
                       (["--tracking-noise", "inf"], "--tracking-noise"),
                       (["--seed", "-1"], "--seed")]:

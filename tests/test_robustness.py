@@ -242,13 +242,17 @@ def test_dask_local_cluster_equals_the_process_pool(small_spec: SweepSpec) -> No
     assert dsk.how == "dask"
 
 
-def test_a_missing_loop_is_refused_never_replaced(small_spec: SweepSpec) -> None:
+def test_a_missing_loop_is_refused_never_replaced(small_spec: SweepSpec,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
     from dataclasses import replace
 
-    if "closed" in available_loops():
-        pytest.skip("the closed-loop executor is available here")
+    import nonprehensile.sim.robustness as rob
+
+    # an installation without the closed-loop executor
+    monkeypatch.setattr(rob, "EXECUTORS", {"open": rob.EXECUTORS["open"]})
     with pytest.raises(InputError, match="closed-loop execution is not available"):
         replace(small_spec, loops=("closed", "open"))
+    assert rob.available_loops() == ["open"]
 
 
 def test_retuning_a_scene_equals_compiling_it_whatever_ran_before() -> None:
@@ -314,3 +318,30 @@ def test_simulate_robustness_cli(tmp_path: Path) -> None:
     if "closed" not in available_loops():
         res = runner.invoke(main, [*base, "--loop", "closed"])
         assert res.exit_code == 2 and "not available" in res.stderr
+
+
+def test_closed_and_open_loop_run_the_same_samples(small_spec: SweepSpec) -> None:
+    from dataclasses import replace
+
+    spec = replace(small_spec, units=small_spec.units[:1], n_samples=1,
+                   loops=("closed", "open"))
+    res = run_sweep(spec, workers=1)
+    assert [r.loop for r in res.records] == ["closed", "open"]
+    closed, opened = res.records
+    assert closed.values == opened.values == spec.sample(0, 0).values()
+    assert closed.physics_steps > 0 and opened.physics_steps > 0
+    assert set(res.overall()) == {"closed", "open"}
+
+
+def test_record_under_the_distribution_varies_the_scene_take_by_take(tmp_path: Path) -> None:
+    from nonprehensile.sim.distribution import PhysicsDistribution
+    from nonprehensile.sim.record import record_dataset
+
+    ds, stats = record_dataset(CUBE_SKILLS, only=["push-roll"], n_per_skill=2, scale=0.05,
+                               distribution=PhysicsDistribution(), seed=5)
+    phys = stats["push-roll"]["physics"]
+    assert len(phys) == 2 == len(ds.demonstrations)
+    assert phys[0] != phys[1]
+    for p in phys:
+        assert 0.3 <= p["friction_table"] <= 1.0 and 0.05 <= p["mass"] <= 0.4
+        assert 0.005 <= p["finger_radius"] <= 0.012

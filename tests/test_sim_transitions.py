@@ -104,8 +104,11 @@ def test_report_physics_section_simulates_each_step() -> None:
               position=(0.1, 0.1), costs={"push-roll": 0.5}, scale=ds.scale)
     section, records = physics_section(ds.poly, pl, scale=ds.scale, fingers=ds.fingers)
     assert len(records) == len(pl.steps) == 1 and records[0]["success"]
-    ((_, rows),) = section.tables
+    # executed closed loop: the steps' table, then (if any) the re-plans and corrections
+    _, rows = section.tables[0]
     assert len(rows) == 1 and rows[0][-1] == "yes"
+    assert "touch" in rows[0][5] and "done" in rows[0][5]  # the observed events
+    assert "closed loop" in section.paragraphs[0] and "Open loop" in section.paragraphs[1]
     # a filmstrip where OpenGL works, a note saying why not elsewhere: never an error
     assert section.figures or any("No pictures" in p for p in section.paragraphs)
 

@@ -264,6 +264,11 @@ class ArcSpec:
     releases : bool
         The target event has fewer finger contacts: past its end the arc lets go by
         moving the fingertips straight up.
+    min_progress : float
+        Share of the arc's reference that must have run before its end event counts. A
+        skill run backwards (``NAME:reverse``) makes each contact at the start of the arc
+        that, forwards, ended with it (a reversed twist grips first and then turns): its
+        events count near the end of their arcs only (0.9); forwards, whenever seen (0).
     """
 
     source: str
@@ -274,6 +279,7 @@ class ArcSpec:
     seeks: bool
     tips: bool
     releases: bool = False
+    min_progress: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -379,6 +385,7 @@ def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
             seeks=bool(_fingers_in(tgt) - _fingers_in(src)),
             tips=grounds[i + 1] is not None and grounds[i + 1] != grounds[i],
             releases=bool(_fingers_in(src) - _fingers_in(tgt)),
+            min_progress=0.9 if step.transition.source.name.endswith(":reverse") else 0.0,
         ))
     return StepSpec(step, used, rate, tuple(arcs), events, tuple(e.id for e in skill.events),
                     grounds, step.start_pose, step.end_pose, targets, tuple(times))
@@ -418,12 +425,16 @@ class Decision:
         The step is over (``outcome`` says how).
     outcome : {"", "finished", "aborted"}
     reason : str
+    fade : float, optional
+        How long (s) to fade from the running targets into the new ones (default the
+        executor's); a release fades fast, so that the turn stops.
     """
 
     segment: FloatArray | None = None
     done: bool = False
     outcome: Literal["", "finished", "aborted"] = ""
     reason: str = ""
+    fade: float | None = None
 
 
 class StepMonitor:
@@ -469,6 +480,7 @@ class StepMonitor:
         self.current: Pairs | None = None
         self._pivoted = False
         self._odd: tuple[str, float] | None = None  # an unexpected contact, and since when
+        self._released = False  # a turn in place let go once its angle was reached
         self._settle_t0 = 0.0
         self._window: list[tuple[float, FloatArray, FloatArray]] = []
         self.final_pose: ObjectPose | None = None
@@ -526,6 +538,16 @@ class StepMonitor:
         fingertips are being held (shape (n_fingers, 3))."""
         self._t0 = self._arc_t0 = obs.time
         self._arc_com = obs.pose.com[:2].copy()
+        # what the object shows now is the step's first event (at rest): a later event with
+        # the same contacts (a turn in place ends as it began, (G,a)) must be seen anew
+        self.current = self._candidate = observed_contacts(
+            self.poly, obs, finger_radius=self.radius, tol=self.cfg.contact_tol,
+            ground_tol=self.cfg.ground_tol, planes=self._planes)
+        self._since = obs.time
+        self.log.append({"time": 0.0, "contacts": [
+            str(p) for p in ContactEvent("", self.current).ordered_pairs],
+            **({"event": self.spec.event_ids[0]} if self.current == self.spec.events[0]
+               else {})})
         return Decision(segment=self._arc_segment(obs, command))
 
     def update(self, obs: Observation, command: FloatArray) -> Decision:
@@ -539,6 +561,9 @@ class StepMonitor:
             self._candidate, self._since = pairs, obs.time
         if self.phase == "settle":
             return self._settle(obs)
+        turned = self._turned_enough(obs, command)
+        if turned is not None:
+            return turned
         new = (self._candidate != self.current
                and obs.time - self._since >= self.cfg.confirm - 1e-9)
         if new:
@@ -583,12 +608,62 @@ class StepMonitor:
                                     f"{limit:.2f} s of {arc.source!r} (observed {seen})")
         return Decision()
 
+    def _turned_enough(self, obs: Observation, command: FloatArray) -> Decision | None:
+        """A turn in place (start and end on the same face) watched by its angle: once the
+        observed ``theta`` reaches the predicted one (within 0.5 degrees, or past it), the
+        fingers let go (away from the object, then up) instead of turning it further; the
+        step then ends on its last event, as it would have."""
+        spec = self.spec
+        start, end = spec.step.transition.start, spec.step.transition.end
+        if start.face != end.face or self.phase != "run" or self.arc == 0 \
+                or self._released:
+            return None
+        st = observed_state(self.poly, obs.pose.rotation)
+        if st is None or st.face != spec.end_state.face:
+            return None
+        want = angle_diff(spec.end_state.theta, spec.step.start_world.theta)
+        left = angle_diff(spec.end_state.theta, st.theta)
+        if abs(left) > 0.5 and left * want > 0:
+            return None
+        self._released = True
+        self.log.append({"time": round(obs.time - self._t0, 4),
+                         "turned": round(float(angle_diff(st.theta,
+                                                          spec.step.start_world.theta)), 3),
+                         "release": "theta reached"})
+        # from where the pads are, not where they are commanded: a compliant pinch lags its
+        # targets, and going back to them would turn the object on
+        now = np.asarray(obs.tips, dtype=np.float64)[[k - 1 for k in spec.used]]
+        off = now.copy()
+        for j in range(len(off)):
+            away = off[j, :2] - obs.pose.com[:2]
+            norm = float(np.hypot(*away))
+            if norm > 1e-9:
+                off[j, :2] += away / norm * (self.radius + 0.01)
+        up = off.copy()
+        up[:, 2] += self.radius + self.cfg.clearance
+        n1 = max(2, round(0.15 / self.dt))
+        s1 = ease(np.linspace(0.0, 1.0, n1))[:, None, None]
+        path = np.concatenate([now[None] + s1 * (off - now)[None],
+                               off[None] + s1 * (up - off)[None]])
+        # the last arc's end event (no finger on the object) is what is waited for now
+        self.arc = len(spec.arcs) - 1
+        self._arc_t0 = obs.time
+        return Decision(segment=self._full(path), fade=0.04)
+
     def _on_event(self, obs: Observation, pairs: Pairs, command: FloatArray
                   ) -> Decision | None:
         spec = self.spec
         t = round(self._since - self._t0, 4)
         ahead = range(self.arc + 1, len(spec.events))
         j = next((j for j in ahead if spec.events[j] == pairs), None)
+
+        arc = spec.arcs[self.arc]
+        if j is not None and arc.min_progress > 0 and self.phase == "run":
+            ran = (obs.time - self._arc_t0) * spec.rate / max(len(arc.positions) - 1, 1)
+            if ran < arc.min_progress:
+                # too early to count; looked at again at the next observation
+                self.current = None
+                return None
         entry: dict[str, Any] = {
             "time": t, "contacts": [str(p) for p in ContactEvent("", pairs).ordered_pairs]}
         if j is not None:

@@ -13,9 +13,13 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
+from nonprehensile.checks import check_tolerance
+from nonprehensile.errors import StateError
 from nonprehensile.geometry.polyhedron import Polyhedron, wrap_index
-from nonprehensile.geometry.symmetry import Symmetry, rotation_group
+from nonprehensile.geometry.symmetry import Symmetry, group_arrays, rotation_group
 from nonprehensile.states import DEFAULT_ANGLE_TOL, State
 
 __all__ = ["apply_to_state", "equivalence_classes", "equivalent"]
@@ -76,51 +80,63 @@ def equivalence_classes(
     list of int
         ``classes[i]`` is the class of ``states[i]``; classes are numbered 0, 1, ... in order
         of first appearance.
+
+    Notes
+    -----
+    States ``a`` and ``b`` are equivalent when ``g . a`` equals ``b`` within ``angle_tol``
+    for a symmetry ``g`` (chains of near-copies within the tolerance join too). Trying every
+    ``g`` on every state costs ``|G| x |states|``: 290 million matches for a 2,000-sided
+    prism at 10 degrees. Instead every state is first moved, by one symmetry, onto the
+    representative face of its face's orbit; two states are then equivalent when the
+    stabiliser of that face (the symmetries keeping it on the ground, rotations about its
+    normal) takes one onto the other, which costs ``|stabiliser|`` matches per state.
     """
-    group = rotation_group(poly, atol)
-    angle_tol = float(angle_tol)
+    angle_tol = check_tolerance(angle_tol, "angle_tol", allow_zero=True, high=90.0)
+    fmaps, shifts = group_arrays(poly, atol)
     n = len(states)
     if n == 0:
         return []
-    # states by face: sorted angles and their positions in ``states``
-    faces = np.array([s.face for s in states])
-    thetas = np.array([s.theta for s in states], dtype=np.float64)
-    by_face: dict[str, tuple[NDArray[np.float64], NDArray[np.int64]]] = {}
-    for f in np.unique(faces).tolist():
-        pos = np.flatnonzero(faces == f)
-        order = np.argsort(thetas[pos], kind="stable")
-        by_face[f] = (thetas[pos][order], pos[order])
-    # images[g][i]: the first state equal to g . states[i] within the tolerance, or -1. The
-    # identity is in the group, so copies of one state (equal within the tolerance) merge.
-    images = []
-    for g in group:
-        img = np.full(n, -1, dtype=np.int64)
-        for f, (th, pos) in by_face.items():
-            if f not in g.face_map or g.face_map[f] not in by_face:
-                continue
-            h = g.face_map[f]
-            j = wrap_index(1 - g.edge_shift[f], poly.n_edges(f))
-            target = (th + poly.delta[f][j - 1]) % 360.0
-            img[pos] = _match(target, *by_face[h], angle_tol)
-        images.append(img)
-    # a class is an orbit of the group: label each state by the smallest position in its
-    # orbit, repeating until stable (chains of near-copies within the tolerance)
-    label = np.arange(n, dtype=np.int64)
-    for _ in range(n):
-        new = label.copy()
-        for img in images:
-            ok = img >= 0
-            np.minimum.at(new, np.flatnonzero(ok), label[img[ok]])
-            np.minimum.at(new, img[ok], label[ok])
-        new = new[new]
-        if np.array_equal(new, label):
-            break
-        label = new
+    index = {f: i for i, f in enumerate(poly.face_ids)}
+    try:
+        face = np.array([index[s.face] for s in states], dtype=np.int64)
+    except KeyError as exc:
+        raise StateError(f"state on face {exc.args[0]!r}, which {poly.name!r} does not "
+                         "have") from None
+    theta = np.array([s.theta for s in states], dtype=np.float64)
+    lp = poly._loops
+    delta = np.array([d for f in poly.face_ids for d in poly.delta[f]], dtype=np.float64)
+
+    def turn(g: NDArray[np.int64], f: NDArray[np.int64]) -> NDArray[np.float64]:
+        # apply_to_state: theta + Delta_f[j - 1], g taking edge j of f to edge 1
+        return np.asarray(delta[lp.starts[f] + (-shifts[g, f]) % lp.lengths[f]])
+
+    # each face's orbit is named by its smallest face number; one symmetry takes it there
+    rep = fmaps.min(axis=0)
+    to_rep = fmaps.argmin(axis=0)
+    cls = rep[face]
+    moved = (theta + turn(to_rep[face], face)) % 360.0
+    src: list[NDArray[np.int64]] = []
+    dst: list[NDArray[np.int64]] = []
+    for r in np.unique(cls).tolist():
+        pos = np.flatnonzero(cls == r)
+        order = np.argsort(moved[pos], kind="stable")
+        th, pos = moved[pos][order], pos[order]
+        stab = np.flatnonzero(fmaps[:, r] == r)  # the identity among them: near-copies
+        d = turn(stab, np.full(len(stab), r, dtype=np.int64))
+        target = ((th[None, :] + d[:, None]) % 360.0).ravel()
+        img = _match(target, th, pos, angle_tol)
+        ok = img >= 0
+        src.append(np.tile(pos, len(stab))[ok])
+        dst.append(img[ok])
+    a, b = np.concatenate(src), np.concatenate(dst)
+    graph = coo_matrix((np.ones(len(a), dtype=np.int8), (a, b)), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
     # classes numbered in order of first appearance
-    _, first, inverse = np.unique(label, return_index=True, return_inverse=True)
+    first = np.full(label.max() + 1, n, dtype=np.int64)
+    np.minimum.at(first, label, np.arange(n, dtype=np.int64))
     rank = np.empty(len(first), dtype=np.int64)
     rank[np.argsort(first, kind="stable")] = np.arange(len(first))
-    return [int(c) for c in rank[inverse]]
+    return [int(c) for c in rank[label]]
 
 
 def _match(

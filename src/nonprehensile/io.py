@@ -34,6 +34,7 @@ __all__ = [
     "load_document",
     "load_model",
     "model_from_dict",
+    "model_json",
     "model_to_dict",
     "parse_document",
     "read_model",
@@ -249,10 +250,19 @@ def model_from_dict(
 
 def model_to_dict(poly: Polyhedron) -> dict[str, Any]:
     """The spec's dictionary form of a model (centre of mass always written)."""
+    out = _model_header(poly)
+    out["vertices"] = np.asarray(poly.vertices, dtype=float).tolist()
+    out["faces"] = {f: list(loop) for f, loop in poly.faces.items()}
+    return out
+
+
+def _model_header(poly: Polyhedron) -> dict[str, Any]:
+    """:func:`model_to_dict` with ``vertices`` and ``faces`` left as placeholders (None),
+    in the document's order."""
     out: dict[str, Any] = {
         "name": poly.name,
-        "vertices": [[float(c) for c in row] for row in np.asarray(poly.vertices)],
-        "faces": {f: list(loop) for f, loop in poly.faces.items()},
+        "vertices": None,
+        "faces": None,
         "center_of_mass": [float(c) for c in poly.com],
         "units": poly.units,
     }
@@ -290,7 +300,33 @@ def load_model(spec: str | Path, *, rtol: float | None = None) -> Polyhedron:
 
 def write_model(poly: Polyhedron, path: str | Path) -> None:
     """Write a model file (JSON, or YAML by suffix)."""
-    save_document(model_to_dict(poly), path)
+    path = check_path(path)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        save_document(model_to_dict(poly), path)
+    else:
+        write_text_file(path, model_json(poly))
+
+
+def model_json(poly: Polyhedron) -> str:
+    """The model file's JSON text (:func:`model_to_dict`), one vertex and one face a line.
+
+    Written row by row: ``json.dumps(..., indent=2)`` runs its pure-Python encoder over every
+    number (a line each), which for a million-face model takes half a minute and a GB.
+    """
+    doc = _model_header(poly)
+    items = []
+    for key, value in doc.items():
+        if key == "vertices":
+            rows = ",\n".join(f"    [{x!r}, {y!r}, {z!r}]"
+                               for x, y, z in np.asarray(poly.vertices, dtype=float).tolist())
+            items.append(f'  "vertices": [\n{rows}\n  ]')
+        elif key == "faces":
+            rows = ",\n".join(f"    {json.dumps(f)}: [{', '.join(map(str, loop))}]"
+                               for f, loop in poly.faces.items())
+            items.append(f'  "faces": {{\n{rows}\n  }}')
+        else:
+            items.append(f"  {json.dumps(key)}: {json.dumps(value)}")
+    return "{\n" + ",\n".join(items) + "\n}\n"
 
 
 def read_states(path: str | Path) -> list[State]:

@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from nonprehensile.checks import Range, check_number
 from nonprehensile.errors import ManeuverError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.states import (
@@ -151,6 +152,17 @@ def roll_directions(poly: Polyhedron, state: State) -> dict[int, float]:
     }
 
 
+def _landing_tol(poly: Polyhedron, f: str, g: str, angle_tol: float) -> float:
+    """Degrees within which the landing face points down after an exact roll or tumble.
+
+    The faces of a model are planar within its length tolerance ``atol``, so a face's normal
+    is known to about ``2 atol / size`` radians (size: the square root of its area); a mesh's
+    merged hull faces land that far off straight down (1e-5 degrees on a real STL).
+    """
+    slack = sum(2.0 * poly.atol / math.sqrt(poly.face_areas[h]) for h in (f, g))
+    return max(angle_tol, 1e-6, math.degrees(slack))
+
+
 def roll(
     poly: Polyhedron,
     state: State,
@@ -211,7 +223,7 @@ def roll(
     nf, ng = poly.normals[f], poly.normals[g]
     ang = math.atan2(float(np.linalg.norm(np.cross(nf, ng))), float(nf @ ng))
     q = _rotation(axis, ang)
-    end = state_of_pose(poly, q @ rot, tol=max(angle_tol, 1e-6))
+    end = state_of_pose(poly, q @ rot, tol=_landing_tol(poly, f, g, angle_tol))
     # the edge stays put and the body turns away from its own interior: never through the
     # ground for a convex solid; checked anyway, since it is cheap
     _require_clear(poly, state, end, q, p_i, "rolling")
@@ -223,7 +235,8 @@ def rotate(poly: Polyhedron, state: State, angle: float) -> Maneuver:
 
     The bottom face stays on the ground: a rotating maneuver.
     """
-    if not math.isfinite(angle) or abs(angle_diff(angle, 0.0)) < 1e-12:
+    angle = float(check_number(angle, "rotation angle", Range(), ManeuverError))
+    if abs(angle_diff(angle, 0.0)) < 1e-12:
         raise ManeuverError(f"a rotation needs a non-zero finite angle, got {angle!r}")
     end = State(state.face, state.theta + angle)
     return Maneuver("rotating", state, end, (state.face,), float(angle), (0.0, 0.0, 1.0))
@@ -278,7 +291,7 @@ def tumble(
         axis = np.cross(n_w, down)
         ang = math.atan2(float(np.linalg.norm(axis)), float(n_w @ down))
         q = _rotation(axis / np.linalg.norm(axis), ang)
-        end = state_of_pose(poly, q @ rot, tol=max(angle_tol, 1e-6))
+        end = state_of_pose(poly, q @ rot, tol=_landing_tol(poly, f, to_face, angle_tol))
     else:
         end = State(to_face, theta)
         q = state_pose(poly, end)[0] @ rot.T

@@ -169,6 +169,13 @@ class ObservationStream:
             tips = tips + self.rng.normal(0.0, m.finger_noise, tips.shape)
         self._queue.append(Observation(now, pose, tips))
 
+    def next_time(self) -> float:
+        """When something next happens: a sample is due, or a queued one arrives."""
+        nxt = self._next
+        if self._queue:
+            nxt = min(nxt, self._queue[0].time + self.model.latency)
+        return nxt
+
     def latest(self, now: float) -> Observation | None:
         """The newest sample that has arrived by ``now``, or None before the first."""
         lat = self.model.latency

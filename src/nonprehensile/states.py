@@ -17,7 +17,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from nonprehensile.checks import DEFAULT_ANGLE_TOL, check_tolerance
+from nonprehensile.checks import (
+    ANGLE_TOL_RANGE,
+    DEFAULT_ANGLE_TOL,
+    MARGIN_RANGE,
+    STEP_RANGE,
+    check_number,
+    check_tolerance,
+)
 from nonprehensile.errors import GeometryError, StateError
 
 if TYPE_CHECKING:
@@ -99,7 +106,8 @@ class State:
         object.__setattr__(self, "theta", _normalize_deg(theta))
 
     def __str__(self) -> str:
-        return f"{self.face}:{self.theta:g}"
+        text = f"{self.theta:g}"
+        return f"{self.face}:{'0' if text == '360' else text}"  # 359.9999997 is not "360"
 
     @classmethod
     def parse(cls, text: str) -> State:
@@ -257,6 +265,7 @@ def state_of_pose(
         If no face points down within ``tol``: the object would rest on an edge or a vertex
         that is not a face of the model.
     """
+    tol = float(check_number(tol, "angle tolerance", ANGLE_TOL_RANGE, StateError))
     rot = np.asarray(rotation, dtype=float)
     world_normals = np.array([rot @ n for n in poly.normals.values()])
     i = int(np.argmin(world_normals[:, 2]))
@@ -324,12 +333,14 @@ def is_stable(poly: Polyhedron, face: str, margin: float = 0.0) -> bool:
         Required distance (model length units) between the centre of mass's projection and
         the face's boundary; at least the model's tolerance is always required.
     """
+    margin = float(check_number(margin, "stability margin", MARGIN_RANGE, StateError))
     return stability_margin(poly, face) > max(margin, poly.atol)
 
 
 def stable_faces(poly: Polyhedron, margin: float = 0.0) -> list[str]:
     """The faces the object can rest on, in model order."""
-    need = max(margin, poly.atol)
+    need = max(float(check_number(margin, "stability margin", MARGIN_RANGE, StateError)),
+               poly.atol)
     return [f for f, m in stability_margins(poly).items() if m > need]
 
 
@@ -357,9 +368,7 @@ def states_by_step(
     list of State
         Face-major, in model order then increasing ``theta``.
     """
-    step = float(step)
-    if not math.isfinite(step) or step <= 0 or step > 360:
-        raise StateError(f"the angle step must be in (0, 360] degrees, got {step!r}")
+    step = float(check_number(step, "the angle step", STEP_RANGE, StateError))
     if 360.0 / step > 1e9:  # 360 / 1e-320 is infinite: no whole number of steps
         raise StateError(f"the angle step {step!r} degrees is too small to step around 360")
     n = round(360.0 / step)

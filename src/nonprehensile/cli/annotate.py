@@ -13,6 +13,7 @@ import click
 from rich.table import Table
 
 from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar
+from nonprehensile.cli.options import ANGLE, number
 from nonprehensile.demonstrations.annotate import DetectionParams, annotate_dataset
 from nonprehensile.demonstrations.dataset import ANNOTATION_FILES, _annotations_file
 from nonprehensile.errors import InputError
@@ -21,20 +22,24 @@ from nonprehensile.io import load_document, save_document
 __all__ = ["annotate_cmd"]
 
 
+#: A distance threshold, mm.
+_MM = number(0.0, 1000.0, low_open=True, unit="mm")
+
+
 @click.command("annotate")
 @click.argument("directory", type=click.Path(file_okay=False))
 @click.option("-o", "--output", "output", type=click.Path(dir_okay=False), required=True,
               help="Where to write the complete annotations (in DIRECTORY or a folder holding "
                    "it; name it annotations.json for `dataset show`).")
-@click.option("--pad-radius", type=float, default=0.0, show_default=True,
+@click.option("--pad-radius", type=number(0.0, 100.0, unit="mm"), default=0.0, show_default=True,
               help="Distance from a tip marker to the finger's contact surface, mm.")
-@click.option("--contact", "contact_mm", type=(float, float), default=(4.0, 7.0),
+@click.option("--contact", "contact_mm", type=(_MM, _MM), default=(4.0, 7.0),
               show_default=True, help="Finger contact thresholds ON OFF, mm (hysteresis).")
-@click.option("--ground", "ground_mm", type=(float, float), default=(1.5, 3.0),
+@click.option("--ground", "ground_mm", type=(_MM, _MM), default=(1.5, 3.0),
               show_default=True, help="Vertex-on-table thresholds ON OFF, mm (hysteresis).")
-@click.option("--min-duration", type=float, default=0.05, show_default=True,
+@click.option("--min-duration", type=number(0.0, 10.0, unit="s"), default=0.05, show_default=True,
               help="Shortest contact state kept, s; shorter ones are flickers.")
-@click.option("--state-tol", type=float, default=5.0, show_default=True,
+@click.option("--state-tol", type=ANGLE, default=5.0, show_default=True,
               help="Tolerance of resting poses against the skills' states, degrees.")
 @click.option("--no-fit", is_flag=True,
               help="Time events at the threshold crossings, not by the smooth-onset fit.")

@@ -24,6 +24,7 @@ from rich.table import Table
 from nonprehensile.bounds import check_path
 from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import emit_json, handle_errors, out, progress_bar
+from nonprehensile.cli.options import SEED, count
 from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.store import SampleStore
@@ -101,6 +102,11 @@ def _read_npy(fh: Any, size: int, what: str) -> NDArray[Any]:
     if dtype.hasobject or dtype.kind not in "biufU":
         raise InputError(f"{what}: an array of {dtype} cannot hold samples; save a float "
                          "array, shape (n_samples, n_features)")
+    if not all(type(k) is int and k >= 0 for k in shape):
+        # numpy reads any tuple literal: (-1, 12) would become a read of -12 rows
+        raise InputError(f"{what}: its header declares shape {shape}, not a shape (the sizes "
+                         "must be whole numbers >= 0); the file is damaged, save it again with "
+                         "numpy.save")
     count = math.prod(shape)
     nbytes = count * dtype.itemsize
     if nbytes > MAX_ARRAY_BYTES:
@@ -248,11 +254,11 @@ def cluster_group() -> None:
               show_default=True,
               help="micro: ours (micro-cluster summary); runs: our earlier key runs; paper: "
                    "the paper's recipe.")
-@click.option("--n-clusters", type=int, default=None,
+@click.option("--n-clusters", type=count(1, 10**7), default=None,
               help="Number of clusters (default: chosen by the silhouette).")
-@click.option("--init-size", type=int, default=None,
+@click.option("--init-size", type=count(1, 10**9), default=None,
               help="Samples of the first batch (default: all given here).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed.")
 @json_option
 @handle_errors
 def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str,

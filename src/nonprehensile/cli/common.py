@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import functools
 import json
-import math
 import os
 import sys
 from collections.abc import Callable, Iterator
@@ -28,6 +27,7 @@ from rich.progress import (
 from rich.text import Text
 
 from nonprehensile.cli import unusable_text
+from nonprehensile.cli.options import Number, number
 from nonprehensile.errors import InputError, NonprehensileError
 
 __all__ = [
@@ -79,35 +79,13 @@ def fmt_num(x: float) -> str:
     return f"{x:.6g}"
 
 
-class Bounded(_ParamBase):
-    """A number option with its limits: finite, in ``low..high``, checked before any work.
-
-    click's own ranges let NaN through; this one names the option and the limit.
-    """
-
-    def __init__(self, kind: type[int] | type[float], low: float, high: float) -> None:
-        self.kind, self.low, self.high = kind, low, high
-        self.limits = f"{int(low)}..{int(high)}" if kind is int else f"{low:g}..{high:g}"
-        self.name = "integer" if kind is int else "float"
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None
-                ) -> Any:
-        if isinstance(value, self.kind) and not isinstance(value, bool):
-            v = value
-        else:
-            try:
-                v = self.kind(str(value).strip())
-            except ValueError:
-                what = "a whole number" if self.kind is int else "a number"
-                self.fail(f"{value!r} is not {what}", param, ctx)
-        if not ((self.kind is int or math.isfinite(v)) and self.low <= v <= self.high):
-            self.fail(f"{value!r} is outside the limits {self.limits}", param, ctx)
-        return v + 0 if self.kind is int else float(v) + 0.0  # -0.0 -> 0.0
+def bounded(kind: type[int] | type[float], low: float, high: float) -> Number:
+    """A :class:`~nonprehensile.cli.options.Number` option type from ``low`` to ``high``."""
+    return number(low, high, integer=kind is int)
 
 
-def bounded(kind: type[int] | type[float], low: float, high: float) -> Bounded:
-    """A :class:`Bounded` option type."""
-    return Bounded(kind, low, high)
+#: The former name of the option type (every numeric option is a ``Number`` now).
+Bounded = Number
 
 
 def _check_text_arguments(kwargs: dict[str, Any]) -> None:

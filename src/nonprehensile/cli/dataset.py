@@ -14,7 +14,8 @@ import click
 from rich.table import Table
 
 from nonprehensile.cli import HelpGroup
-from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, out, progress_bar
+from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar
+from nonprehensile.cli.options import count, number
 from nonprehensile.demonstrations.dataset import (
     DEFAULT_GAP_LIMIT,
     Dataset,
@@ -49,25 +50,25 @@ def dataset_group() -> None:
 
 @dataset_group.command("synth")
 @click.argument("out_dir", type=click.Path(file_okay=False))
-@click.option("--seed", type=bounded(int, 0, MAX_SEED), default=DEFAULT_SEED,
+@click.option("--seed", type=count(0, MAX_SEED), default=DEFAULT_SEED,
               show_default=True, help="Random seed (the bundled dataset uses the default).")
 @click.option("--skills", "skills_file", type=click.Path(dir_okay=False), default=None,
               help="Skills file to demonstrate (default: the bundled cube skills).")
-@click.option("--n-per-skill", type=bounded(int, 1, MAX_N_PER_SKILL), default=30,
+@click.option("--n-per-skill", type=count(1, MAX_N_PER_SKILL), default=30,
               show_default=True,
               help="Demonstrations per skill, shared round-robin among the mentors.")
-@click.option("--mentors", type=bounded(int, 1, MAX_MENTORS), default=3, show_default=True,
+@click.option("--mentors", type=count(1, MAX_MENTORS), default=3, show_default=True,
               help="Number of mentors (the first three have the documented styles).")
-@click.option("--rate", type=bounded(float, MIN_RATE, MAX_RATE), default=120.0,
+@click.option("--rate", type=number(MIN_RATE, MAX_RATE), default=120.0,
               show_default=True, help="Sampling rate, Hz.")
-@click.option("--scale", type=bounded(float, *SCALE_RANGE), default=0.05, show_default=True,
+@click.option("--scale", type=number(*SCALE_RANGE), default=0.05, show_default=True,
               help="Metres per model unit (0.05: a 5 cm cube).")
-@click.option("--noise", "noise_mm", type=bounded(float, 0.0, MAX_NOISE_MM), default=0.5,
+@click.option("--noise", "noise_mm", type=number(0.0, MAX_NOISE_MM), default=0.5,
               show_default=True, help="Measurement noise (standard deviation), mm.")
-@click.option("--dropouts", type=bounded(float, 0.0, MAX_DROPOUTS), default=0.5,
+@click.option("--dropouts", type=number(0.0, MAX_DROPOUTS), default=0.5,
               show_default=True,
               help="Mean number of marker dropouts per marker and demonstration.")
-@click.option("--gap-limit", type=bounded(int, 0, MAX_GAP_LIMIT), default=DEFAULT_GAP_LIMIT,
+@click.option("--gap-limit", type=count(0, MAX_GAP_LIMIT), default=DEFAULT_GAP_LIMIT,
               show_default=True,
               help="Longest dropout a loader accepts, frames (dropouts are at most half).")
 @click.option("--format", "trajectory_format", type=click.Choice(["c3d", "csv"]),

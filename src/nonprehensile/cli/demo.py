@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import click
 
 from nonprehensile.cli.common import emit_json, handle_errors, out, stage_bars
-from nonprehensile.cli.options import json_option, parse_state
+from nonprehensile.cli.options import SEED, json_option, parse_state
 
 if TYPE_CHECKING:
     from nonprehensile.states import State
@@ -47,7 +47,7 @@ def _command_line() -> str | None:
               callback=parse_state, help="Start state of the task.")
 @click.option("--to", "goal", default=DEMO_GOAL, show_default=True,
               callback=parse_state, help="Goal state of the task.")
-@click.option("--seed", default=0, show_default=True, help="Seed of the clustering.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the clustering.")
 @json_option
 @handle_errors
 def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,

@@ -14,8 +14,11 @@ from rich.table import Table
 from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import emit_json, err, fmt_num, handle_errors, out
 from nonprehensile.cli.options import (
+    RTOL,
+    count,
     json_option,
     load_cli_model,
+    number,
     rtol_option,
 )
 from nonprehensile.errors import InputError
@@ -180,25 +183,31 @@ def object_figure_cmd(model: str, output: str | None, html_out: str | None,
                       highlight=False)
 
 
+#: Neighbouring facets merged within this angle: a right angle would merge across edges.
+_MERGE_ANGLE = number(0.0, 90.0, high_open=True, unit="degrees")
+
+
 @object_group.command("from-mesh")
 @click.argument("mesh", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Model file to write (.json, or .yaml/.yml).")
 @click.option("--name", default=None, help="Object name (default: the mesh file's stem).")
-@click.option("--rtol", type=float, default=MESH_RTOL, show_default=True,
+@click.option("--rtol", type=RTOL, default=MESH_RTOL, show_default=True,
               help="Tolerance, relative to the object's size, for merging nearly coplanar "
               "facets; raise it to facet a curved object more coarsely. The model stores it.")
-@click.option("--merge-angle", type=float, default=0.0, show_default=True,
+@click.option("--merge-angle", type=_MERGE_ANGLE, default=0.0, show_default=True,
               help="Also merge neighbouring facets whose normals differ by at most this many "
               "degrees.")
-@click.option("--max-faces", type=click.IntRange(min=4), default=None,
+@click.option("--max-faces", type=count(4, 10**7), default=None,
               help="Facet a curved object (a ball, a can) into at most this many faces.")
 @click.option("--strict", is_flag=True,
               help="Refuse an open, non-manifold or multi-piece mesh instead of using the "
               "convex hull of its points.")
 @click.option("--allow-open", is_flag=True, hidden=True,
               help="Accepted for compatibility: open meshes are used unless --strict.")
-@click.option("--units", default="m", show_default=True, help="Length units of the mesh.")
+@click.option("--units", default="m", show_default=True,
+              help="Length units of the mesh: m, dm, cm, mm, um, in or ft (the model stores "
+                   "them; physics converts with them).")
 @json_option
 @handle_errors
 def object_from_mesh(

@@ -21,17 +21,26 @@ from nonprehensile.cli.common import (
     stage_bars,
 )
 from nonprehensile.cli.options import (
+    COORDINATE,
     angle_tol_option,
     atol_option,
     json_option,
+    number,
     parse_state,
     rtol_option,
     state_set,
     states_option,
     step_option,
 )
-from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, wants_robot
+from nonprehensile.cli.robot import (
+    control_every,
+    load_robot,
+    robot_arms,
+    robot_options,
+    wants_robot,
+)
 from nonprehensile.errors import InputError
+from nonprehensile.geometry.units import metres_per_unit
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
 from nonprehensile.pipeline import motions_from_dataset, write_plan_motions
@@ -111,9 +120,11 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
     arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, DEFAULT_PARAMS,
                                  robot)
     cfg = IKConfig()
-    trajectories = joint_trajectory(arms, poly, ds.scale, result, ds.fingers, ik_config=cfg)
+    every = control_every(robot_kw, DEFAULT_PARAMS.timestep)
+    trajectories = joint_trajectory(arms, poly, ds.scale, result, ds.fingers, ik_config=cfg,
+                                    control_every=every)
     scene = build_robot_scene(poly, scale=ds.scale, arms=arms, params=DEFAULT_PARAMS)
-    meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg)
+    meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg, every)
     meta["placement"] = placement.to_dict() if placement is not None else None
     meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
                     "the object at each step's planned start pose; `simulate plan --robot` "
@@ -130,11 +141,12 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
               help="Goal state FACE:THETA in the same (world) frame.")
 @step_option
 @states_option
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+@click.option("--at", "position", type=(COORDINATE, COORDINATE), default=(0.0, 0.0),
+              show_default=True,
               help="Where the object is on the table (x y), for the agent's offset.")
 @click.option("--cost", "costs", multiple=True, callback=_parse_costs,
               help="Cost of a skill, SKILL=COST (repeatable); default 1 per transition.")
-@click.option("--relocation-cost", type=float, default=DEFAULT_RELOCATION_COST,
+@click.option("--relocation-cost", type=number(0.0, 1e9), default=DEFAULT_RELOCATION_COST,
               show_default=True,
               help="Cost of relocating the agent between steps (its first placement is free).")
 @click.option("--dataset", default=None,
@@ -197,7 +209,8 @@ def plan_cmd(
         robustness = RobustnessCosts(rates, robustness_loop or rates.loops()[0],
                                      robustness_threshold, robustness_weight)
     motions = None
-    scale = 1.0
+    # world positions in metres: from the model's units, or the dataset's recorded scale
+    scale = metres_per_unit(poly.units)
     markers: list[str] | None = None
     if dataset is not None:
         with stage_bars(as_json) as bars:

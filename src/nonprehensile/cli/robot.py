@@ -9,16 +9,24 @@ from typing import Any
 import click
 from rich.table import Table
 
+from nonprehensile.cli.options import number
 from nonprehensile.errors import InputError
 
-__all__ = ["load_robot", "robot_arms", "robot_options", "robot_table", "wants_robot"]
+__all__ = ["control_every", "load_robot", "robot_arms", "robot_options", "robot_table",
+           "wants_robot"]
 
 F = Callable[..., Any]
+
+#: --base: a place on the table within an arm's reach of the object, and a heading.
+_BASE_XY = number(-10.0, 10.0, unit="m")
+_BASE_YAW = number(-360.0, 360.0, unit="degrees")
+#: --control-rate: how often the IK runs (the library checks that it divides the physics rate).
+_RATE = number(0.0, 1e5, low_open=True, unit="Hz")
 
 
 def robot_options(fn: F) -> F:
     """Add the robot options to a command (keyword arguments ``robot``, ``robot_xml``,
-    ``tip_sites``, ``base``)."""
+    ``tip_sites``, ``base``, ``control_rate``)."""
     for opt in reversed([
         click.option("--robot", "robot", default=None, metavar="NAME",
                      help="Execute with a bundled robot arm: `panda` (Franka Panda with a "
@@ -29,7 +37,11 @@ def robot_options(fn: F) -> F:
         click.option("--tip-site", "tip_sites", multiple=True, metavar="NAME",
                      help="A fingertip site of --robot-xml, one per finger R1, R2, ... "
                           "(repeatable)."),
-        click.option("--base", "base", type=(float, float, float), default=None,
+        click.option("--control-rate", "control_rate", type=_RATE, default=1000.0,
+                     show_default=True, metavar="HZ",
+                     help="Robot: how often the IK runs (a divisor of the 1 kHz physics "
+                          "rate); the joint servos get interpolated set points every step."),
+        click.option("--base", "base", type=(_BASE_XY, _BASE_XY, _BASE_YAW), default=None,
                      metavar="X Y YAW",
                      help="The robot base on the table: x, y (m) and heading (degrees); "
                           "default: searched for reach and joint-limit margin."),
@@ -52,6 +64,22 @@ def wants_robot(kw: dict[str, Any]) -> bool:
     if base is not None and robot is None and xml is None:
         raise InputError("--base places a robot: give --robot NAME or --robot-xml FILE")
     return robot is not None or xml is not None
+
+
+def control_every(kw: dict[str, Any], timestep: float) -> int:
+    """Physics steps per IK solve from ``--control-rate`` (one line and exit 2 unless it
+    divides the physics rate)."""
+    import math
+
+    rate = kw.get("control_rate", 1000.0)
+    physics = 1.0 / timestep
+    if not (isinstance(rate, float) and math.isfinite(rate) and 0 < rate <= physics):
+        raise InputError(f"--control-rate must be a rate in (0, {physics:g}] Hz, got {rate!r}")
+    every = round(physics / rate)
+    if abs(every * rate - physics) > 1e-6 * physics or every > 100:
+        raise InputError(f"--control-rate must divide the physics rate {physics:g} Hz by a "
+                         f"whole number up to 100 (e.g. 1000, 500, 250, 125), got {rate:g}")
+    return every
 
 
 def load_robot(kw: dict[str, Any]) -> Any:

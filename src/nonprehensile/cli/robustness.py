@@ -10,6 +10,7 @@ from rich.table import Table
 
 from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, out, stage_bars
 from nonprehensile.cli.options import (
+    COORDINATE,
     angle_tol_option,
     json_option,
     parse_state,
@@ -49,8 +50,12 @@ def _pct(d: dict[str, Any]) -> str:
 @click.option("--from", "start", default=None, callback=_optional_state,
               help="Sweep the plan from this state (with --to) instead of every transition.")
 @click.option("--to", "goal", default=None, callback=_optional_state, help="The plan's goal.")
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+@click.option("--at", "position", type=(COORDINATE, COORDINATE), default=(0.0, 0.0),
+              show_default=True,
               help="Where the object is on the table (x y, metres), with --from/--to.")
+@click.option("--demonstrations", is_flag=True,
+              help="Sweep the dataset's own demonstrations (each replayed with its recorded "
+                   "motion as the reference) instead of the transitions.")
 @click.option("--skill", "skill_names", multiple=True,
               help="Only transitions of these demonstrated skills (repeatable; "
                    "NAME:reverse for a reversed one).")
@@ -80,6 +85,9 @@ def _pct(d: dict[str, Any]) -> str:
 @click.option("--figure", type=click.Path(dir_okay=False), default=None,
               help="Draw success against each parameter (open and closed loop) to this "
                    "image.")
+@click.option("--no-replan", is_flag=True,
+              help="Closed loop: a step that ends elsewhere fails (default: re-plan from the "
+                   "observed state toward the goal, as `simulate plan`).")
 @click.option("--no-records", is_flag=True,
               help="Leave the per-execution records out of the JSON.")
 @angle_tol_option
@@ -87,10 +95,11 @@ def _pct(d: dict[str, Any]) -> str:
 @handle_errors
 def robustness_cmd(skills_file: str, dataset: str, step: float | None,
                    states_file: str | None, start: State | None, goal: State | None,
-                   position: tuple[float, float], skill_names: tuple[str, ...], samples: int,
+                   position: tuple[float, float], demonstrations: bool,
+                   skill_names: tuple[str, ...], samples: int,
                    seed: int, loop: str, workers: int | None, scheduler: str | None,
                    n_bins: int, tol_deg: float, position_tol: float, rates_file: str | None,
-                   figure: str | None, no_records: bool, angle_tol: float,
+                   figure: str | None, no_replan: bool, no_records: bool, angle_tol: float,
                    as_json: bool) -> None:
     """Execute every transition (or the plan --from --to) across the physics distribution:
     success rates with 95 % intervals per transition, per skill and per parameter bin."""
@@ -99,6 +108,12 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
     if start is not None and rates_file is not None:
         raise InputError("-o writes per-transition rates for the planner: sweep the "
                          "transitions (leave out --from/--to)")
+    if start is not None and demonstrations:
+        raise InputError("--demonstrations sweeps the dataset's demonstrations: leave out "
+                         "--from/--to")
+    if demonstrations and rates_file is not None:
+        raise InputError("-o writes per-transition rates for the planner: sweep the "
+                         "transitions (leave out --demonstrations)")
     if start is not None and skill_names:
         raise InputError("--skill selects transitions; a plan (--from/--to) uses what the "
                          "planner picks")
@@ -132,6 +147,13 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
             if not p.steps:
                 raise InputError(f"{start} is already the goal {goal}: nothing to execute")
             units = [rob.plan_unit(p)]
+        elif demonstrations:
+            known = sorted({d.skill.name for d in ds.demonstrations})
+            unknown = sorted(set(skill_names) - set(known))
+            if unknown:
+                raise InputError(f"--skill {unknown}: the dataset demonstrates {known}")
+            units = rob.demonstration_units(ds, exp, angle_tol=angle_tol,
+                                            skills=list(skill_names) or None)
         else:
             if skill_names:
                 known = sorted({t.source.name for t in exp.transitions})
@@ -142,9 +164,12 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
             units = rob.transition_units(poly, exp, motions, scale=ds.scale,
                                          angle_tol=angle_tol,
                                          sources=list(skill_names) or None)
+        replan = {}
+        if not no_replan:  # closed loop re-plans from what it observes, as `simulate plan`
+            replan = {"expansion": exp, "library": rob.frozen_library(exp, motions)}
         spec = rob.SweepSpec(poly, ds.scale, tuple(units),
                              DEFAULT_DISTRIBUTION.for_object(poly, ds.scale), seed, samples,
-                             tuple(loops), dict(ds.fingers), tol_deg, position_tol)
+                             tuple(loops), dict(ds.fingers), tol_deg, position_tol, **replan)
         result = rob.run_sweep(spec, workers=workers, scheduler=scheduler,
                                progress=lambda d, n: bars("executing", d, n))
     doc = result.to_dict(records=not no_records, n_bins=n_bins)

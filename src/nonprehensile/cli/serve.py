@@ -14,6 +14,7 @@ import click
 
 from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import emit_json, err, handle_errors, out
+from nonprehensile.cli.options import count, number
 from nonprehensile.errors import InputError
 
 __all__ = ["serve_group"]
@@ -40,18 +41,18 @@ store_option = click.option("--store", required=True, metavar="STORE", help=_STO
 @click.option("--store", default=None, metavar="STORE", help=_STORE_HELP)
 @click.option("--host", default="127.0.0.1", show_default=True,
               help="Address to listen on (127.0.0.1: this machine only).")
-@click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True,
+@click.option("--port", type=count(0, 65535), default=8000, show_default=True,
               help="TCP port to listen on.")
 @click.option("--dataset", default="cube", show_default=True,
               help="Dataset folder (or bundled name) whose skills file and settings "
                    "(scale, markers, fingers, gap limit) every upload uses.")
-@click.option("--max-bytes", type=click.IntRange(1024, 2**31), default=_MAX_BYTES,
+@click.option("--max-bytes", type=count(1024, 2**31), default=_MAX_BYTES,
               show_default=True, help="Largest request body, bytes.")
-@click.option("--recalibrate-every", type=click.FloatRange(0, 86400), default=5.0,
+@click.option("--recalibrate-every", type=number(0, 86400, unit="s"), default=5.0,
               show_default=True,
               help="Seconds between checks for arcs due a background recalibration (0: only "
                    "on POST /recalibrate).")
-@click.option("--workers", type=click.IntRange(1, 64), default=8, show_default=True,
+@click.option("--workers", type=count(1, 64), default=8, show_default=True,
               help="Database connections in the pool (PostgreSQL).")
 @click.pass_context
 @handle_errors

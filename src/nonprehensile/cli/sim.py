@@ -9,6 +9,7 @@ from __future__ import annotations
 import sys
 from collections import defaultdict
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import click
@@ -26,14 +27,26 @@ from nonprehensile.cli.common import (
     stage_bars,
 )
 from nonprehensile.cli.options import (
+    ANGLE,
+    COORDINATE,
+    POSITIVE,
     angle_tol_option,
+    count,
     json_option,
+    number,
     parse_state,
     state_set,
     states_option,
     step_option,
 )
-from nonprehensile.cli.robot import load_robot, robot_arms, robot_options, robot_table, wants_robot
+from nonprehensile.cli.robot import (
+    control_every,
+    load_robot,
+    robot_arms,
+    robot_options,
+    robot_table,
+    wants_robot,
+)
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -51,23 +64,32 @@ def _sim() -> Any:
     return sim
 
 
+#: --start-error's parts: metres, metres, degrees (the ranges _perturbation names).
+_OFFSET = number(-0.05, 0.05, unit="m")
+_YAW = number(-45.0, 45.0, unit="degrees")
+#: A tolerance on the final position, metres.
+_POSITION_TOL = number(0.0, 10.0, low_open=True, unit="m")
+#: A noise standard deviation, metres.
+_NOISE = number(0.0, 0.01, unit="m")
+
+
 def _physics_options(fn: F) -> F:
     for opt in reversed([
-        click.option("--friction", type=float, default=None,
+        click.option("--friction", type=POSITIVE, default=None,
                      help="Object-table friction coefficient (default 0.6)."),
-        click.option("--finger-friction", type=float, default=None,
+        click.option("--finger-friction", type=POSITIVE, default=None,
                      help="Object-fingertip friction coefficient (default 0.8)."),
-        click.option("--mass", type=float, default=None, help="Object mass, kg (default 0.1)."),
-        click.option("--finger-radius", type=float, default=None,
+        click.option("--mass", type=POSITIVE, default=None, help="Object mass, kg (default 0.1)."),
+        click.option("--finger-radius", type=POSITIVE, default=None,
                      help="Fingertip sphere radius, m (default 0.006)."),
-        click.option("--stiffness", type=float, default=None,
+        click.option("--stiffness", type=POSITIVE, default=None,
                      help="Finger position gain, N/m per axis (default 600)."),
-        click.option("--force-limit", type=float, default=None,
+        click.option("--force-limit", type=POSITIVE, default=None,
                      help="Finger force limit, N per axis (default 8)."),
-        click.option("--contact-timeconst", type=float, default=None,
+        click.option("--contact-timeconst", type=POSITIVE, default=None,
                      help="Contact softness: MuJoCo solref time constant, s (default 0.02; "
                           "smaller is stiffer, at least two 1 ms steps)."),
-        click.option("--tol-deg", type=float, default=5.0, show_default=True,
+        click.option("--tol-deg", type=ANGLE, default=5.0, show_default=True,
                      help="A final theta within this many degrees is the predicted state."),
     ]):
         fn = opt(fn)
@@ -76,17 +98,17 @@ def _physics_options(fn: F) -> F:
 
 def _perturbation_options(fn: F) -> F:
     for opt in reversed([
-        click.option("--start-error", type=(float, float, float), default=None,
+        click.option("--start-error", type=(_OFFSET, _OFFSET, _YAW), default=None,
                      metavar="DX DY DYAW",
                      help="The object really starts DX, DY metres and DYAW degrees (about "
                           "the vertical) from where it is believed to be."),
-        click.option("--tracking-noise", type=float, default=None, metavar="M",
+        click.option("--tracking-noise", type=_NOISE, default=None, metavar="M",
                      help="Object tracker noise, m (standard deviation per marker); only "
                           "closed-loop execution observes the object."),
-        click.option("--finger-noise", type=float, default=None, metavar="M",
+        click.option("--finger-noise", type=_NOISE, default=None, metavar="M",
                      help="Fingertip position noise, m (standard deviation per axis, "
                           "50 ms correlation)."),
-        click.option("--seed", type=int, default=0, show_default=True,
+        click.option("--seed", type=count(0, 2**63 - 1), default=0, show_default=True,
                      help="Seed of the noise draws."),
     ]):
         fn = opt(fn)
@@ -229,7 +251,7 @@ def simulate_dataset(dataset: str, skill_names: tuple[str, ...], as_json: bool,
               default="cluster", show_default=True,
               help="Each skill's motion: each arc's cluster medoid, the planner's own "
                    "references; or the skill's medoid demonstration taken whole.")
-@click.option("--position-tol", type=float, default=0.010, show_default=True,
+@click.option("--position-tol", type=_POSITION_TOL, default=0.010, show_default=True,
               help="A final position within this many metres of where the exact maneuver "
                    "puts the object.")
 @click.option("--loop", type=click.Choice(["open", "closed"]), default="open",
@@ -313,22 +335,25 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @click.option("--from", "start", required=True, callback=parse_state,
               help="Start state FACE:THETA as the object lies.")
 @click.option("--to", "goal", required=True, callback=parse_state, help="Goal state.")
-@click.option("--at", "position", type=(float, float), default=(0.0, 0.0), show_default=True,
+@click.option("--at", "position", type=(COORDINATE, COORDINATE), default=(0.0, 0.0),
+              show_default=True,
               help="Where the object is on the table (x y), metres.")
 @click.option("--dataset", default="cube", show_default=True,
               help="Demonstrations (a folder, or `cube`) giving the reference motions.")
-@click.option("--position-tol", type=float, default=0.010, show_default=True,
+@click.option("--position-tol", type=_POSITION_TOL, default=0.010, show_default=True,
               help="A final position within this many metres of the goal position.")
 @click.option("--loop", type=click.Choice(["closed", "open"]), default="closed",
               show_default=True,
               help="closed: event-driven, each arc anchored on the observed object, re-plans "
                    "when a step ends elsewhere; open: each step's reference runs where the "
                    "plan predicts the object.")
-@click.option("--observation-rate", type=float, default=120.0, show_default=True,
-              metavar="HZ", help="Closed loop: the object tracker's sample rate.")
-@click.option("--latency", type=float, default=0.0, show_default=True, metavar="S",
+@click.option("--observation-rate", type=number(1.0, 1e5, unit="Hz"), default=120.0,
+              show_default=True, metavar="HZ",
+              help="Closed loop: the object tracker's sample rate.")
+@click.option("--latency", type=number(0.0, 1.0, unit="s"), default=0.0, show_default=True,
+              metavar="S",
               help="Closed loop: the tracker's latency, seconds.")
-@click.option("--max-replans", type=int, default=8, show_default=True,
+@click.option("--max-replans", type=count(0, 100), default=8, show_default=True,
               help="Closed loop: retries and re-plans allowed in one execution.")
 @click.option("--record", "record", type=click.Path(file_okay=False), default=None,
               help="Also write the executed steps to this new folder as a LeRobot v3.0 "
@@ -355,7 +380,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     (default) or open loop, with transits between steps; the goal is the plan's last state at
     the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
     it (docs/robot.md)."""
-    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base")}
+    robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
+                                       "control_rate")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
@@ -375,6 +401,10 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
     # bad settings are refused before any work (one line, exit 2)
     cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
+    if use_robot:  # an arm's fingertip accelerates less than a free 20 g sphere
+        from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL
+
+        cfg = replace(cfg, max_accel=ROBOT_MAX_ACCEL)
     obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
     if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
@@ -398,7 +428,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
         arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
                                      robot)
-        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params)
+        simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params,
+                                   control_every=control_every(robot_kw, params.timestep))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")
@@ -520,12 +551,18 @@ def _check_record(record: str | None) -> None:
               default="c3d", show_default=True,
               help="Recording files to write: C3D, or Motive CSV (with the object's rigid "
                    "body).")
+@click.option("--physics-distribution", "under_distribution", is_flag=True,
+              help="Record every take in its own sample of the physics distribution "
+                   "(docs/physics.md) instead of one scene: friction, mass, fingertip, "
+                   "stiffness, force limit and contact softness vary take by take (seeded "
+                   "by --seed).")
 @_physics_options
 @json_option
 @handle_errors
 def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tuple[str, ...],
                     keep_going: bool, scale: float | None, seed: int, max_attempts: int,
-                    trajectory_format: str, as_json: bool, tol_deg: float, **kw: Any) -> None:
+                    trajectory_format: str, under_distribution: bool, as_json: bool,
+                    tol_deg: float, **kw: Any) -> None:
     """Record a dataset of demonstrations from the physics itself: fingers push the
     simulated object; poses and contact events are read from physics.
 
@@ -543,10 +580,15 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
     failures: dict[str, str] = {}
     with progress_bar("recording", as_json) as bar:
         try:
+            dist = None
+            if under_distribution:
+                from nonprehensile.sim.distribution import PhysicsDistribution
+
+                dist = PhysicsDistribution(base=params)
             ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
                                        scale=scale, params=params, max_attempts=max_attempts,
                                        only=only or None, keep_going=keep_going,
-                                       progress=bar)
+                                       progress=bar, distribution=dist)
         except RecordError as exc:
             raise InputError(f"{skills_file}: {exc}; nothing was written (--keep-going "
                              "records the other skills)") from None

@@ -46,7 +46,6 @@ A chain that fits no skill gets a proposed skills-file entry.
 from __future__ import annotations
 
 import contextlib
-import math
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -56,6 +55,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from nonprehensile.checks import Range, check_number
 from nonprehensile.demonstrations.dataset import Dataset, Demonstration, EventTime
 from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
 from nonprehensile.demonstrations.tracking import ObjectSetup, object_setup
@@ -134,12 +134,13 @@ class DetectionParams:
     refine: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("pad_radius", "contact_on", "contact_off", "ground_on", "ground_off",
-                     "element_tol", "min_duration", "state_tol"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
-                    or v < 0:
-                raise DemonstrationError(f"{name} must be a finite number >= 0, got {v!r}")
+        # upper bounds far past real set-ups, so that no product (a duration times a rate,
+        # a length squared) overflows: lengths in metres, durations in s, angles in degrees
+        for name, high in (("pad_radius", 1.0), ("contact_on", 1.0), ("contact_off", 1.0),
+                           ("ground_on", 1.0), ("ground_off", 1.0), ("element_tol", 1.0),
+                           ("min_duration", 60.0), ("state_tol", 90.0)):
+            object.__setattr__(self, name, float(check_number(
+                getattr(self, name), name, Range(0.0, high), DemonstrationError)))
         if not (self.contact_off > self.contact_on > 0 and self.ground_off > self.ground_on > 0):
             raise DemonstrationError(
                 "thresholds need contact_off > contact_on > 0 and ground_off > ground_on > 0 "

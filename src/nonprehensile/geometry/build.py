@@ -15,6 +15,7 @@ import itertools
 import logging
 import math
 import string
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -23,12 +24,13 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 from nonprehensile.bounds import MAX_COORDINATE as MAX_RECORDED_COORDINATE
-from nonprehensile.checks import check_tolerance
+from nonprehensile.checks import RTOL_RANGE, Range, check_number
 from nonprehensile.errors import InputError, MeshError, ModelError
 from nonprehensile.geometry.polyhedron import (
     COLLINEAR_FRACTION,
     DEFAULT_RTOL,
     MAX_COORDINATE,
+    MIN_SIZE,
     Polyhedron,
     _Loops,
     corner_heights,
@@ -56,6 +58,20 @@ MESH_RTOL = 1e-6
 
 #: Mesh formats that :func:`from_mesh` is tested on; trimesh reads more.
 MESH_FORMATS = ("stl", "obj", "ply", "off", "glb")
+
+#: Most sides of :func:`prism`'s polygon (its model holds about 6 numbers a side).
+MAX_PRISM_SIDES = 1_000_000
+#: Point sets from this size on are large: a Qhull run over them takes seconds, so the
+#: builder retries as few times as it can (:func:`_hull_model`).
+LARGE_HULL = 50_000
+#: Most triangles a hull may have to be built into a model: a 327,680-triangle sphere takes
+#: about 15 s and 1.3 GB; a 1.3-million-triangle one took 90 s of CPU and 3.3 GB
+#: (docs/benchmarks.md).
+MAX_HULL_TRIANGLES = 400_000
+#: Most faces :func:`convex_hull` may be asked to facet a curved object into.
+MAX_FACES = 10_000_000
+
+_SIZE = Range(MIN_SIZE, MAX_COORDINATE)
 
 
 def face_name(i: int) -> str:
@@ -90,9 +106,7 @@ def cube(size: float = 1.0, *, name: str = "cube") -> Polyhedron:
     Section III text (``A(b, a) = 2``, ``A(a, b) = 3``) and the spec's example skill: pushed
     on ``f``, the cube rolls over ``E(a, d)`` from ``a:0`` to ``d:0``.
     """
-    s = float(size)
-    if not s > 0:
-        raise ModelError(f"cube size must be positive, got {size!r}")
+    s = float(check_number(size, "cube size", _SIZE, ModelError))
     v = s * np.array(
         [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]],
         dtype=float,
@@ -108,39 +122,114 @@ def cube(size: float = 1.0, *, name: str = "cube") -> Polyhedron:
     return Polyhedron(v, faces, name=name)
 
 
-def box(width: float, depth: float, height: float, *, name: str = "box") -> Polyhedron:
-    """A rectangular box ``width x depth x height`` (along x, y, z), corner at the origin."""
-    dims = np.array([width, depth, height], dtype=float)
-    if not np.all(np.isfinite(dims)) or np.any(dims <= 0):
-        raise ModelError(f"box dimensions must be positive, got {dims.tolist()}")
+def box(width: float, depth: float, height: float, *, name: str = "box",
+        rtol: float = DEFAULT_RTOL) -> Polyhedron:
+    """A rectangular box ``width x depth x height`` (along x, y, z), corner at the origin.
+
+    Built from its six faces (no hull: a thin plate is still a box), named as
+    :func:`convex_hull` names them.
+
+    Raises
+    ------
+    ModelError
+        A side that is not a finite number from :data:`MIN_SIZE` up, or one shorter than the
+        tolerance (``rtol`` times the diagonal): at that tolerance the box is flat.
+    """
+    dims = np.array([check_number(v, f"box {what}", _SIZE, ModelError)
+                     for v, what in zip((width, depth, height), ("width", "depth", "height"),
+                                        strict=True)], dtype=float)
+    rtol = float(check_number(rtol, "rtol", RTOL_RANGE, ModelError))
+    diag = float(np.linalg.norm(dims))
+    k = int(np.argmin(dims))
+    if dims[k] <= rtol * diag:
+        raise ModelError(
+            f"box {('width', 'depth', 'height')[k]} {dims[k]:g} is within the length tolerance "
+            f"{rtol * diag:.3g} (rtol {rtol:g} x the diagonal {diag:.4g}): at that tolerance "
+            f"the box is flat; pass a smaller rtol (below {dims[k] / diag:.2g}) or a thicker box"
+        )
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], float)
-    return convex_hull(corners * dims, name=name)
+    # corner index 4x + 2y + z
+    loops = [(0, 2, 6, 4), (1, 5, 7, 3), (0, 4, 5, 1), (2, 3, 7, 6), (0, 1, 3, 2),
+             (4, 6, 7, 5)]
+    return _explicit_model(corners * dims, loops, name=name, rtol=rtol)
 
 
 def prism(
     n: int, radius: float = 1.0, height: float = 1.0, *, name: str | None = None
 ) -> Polyhedron:
-    """A right prism on a regular ``n``-gon of circumradius ``radius``."""
-    if n < 3:
-        raise ModelError(f"a prism needs a polygon of at least 3 sides, got {n}")
-    if not (radius > 0 and height > 0):
-        raise ModelError(f"prism radius and height must be positive, got {radius}, {height}")
+    """A right prism on a regular ``n``-gon of circumradius ``radius``.
+
+    Built from its ``n + 2`` faces (no hull: the sides of a 100,000-gon are further apart
+    than the tolerance, yet a hull would merge them), named as :func:`convex_hull` names
+    them.
+
+    Raises
+    ------
+    ModelError
+        ``n`` not a whole number from 3 to :data:`MAX_PRISM_SIDES`, a size that is not a
+        finite number from :data:`MIN_SIZE` up, or sides shorter than the model's tolerance.
+    """
+    n = int(check_number(n, "prism sides n", Range(3, MAX_PRISM_SIDES, integer=True),
+                         ModelError))
+    radius = float(check_number(radius, "prism radius", _SIZE, ModelError))
+    height = float(check_number(height, "prism height", _SIZE, ModelError))
+    rtol = DEFAULT_RTOL
+    atol = rtol * math.hypot(2 * radius, height)
+    # a corner of the n-gon stands r (1 - cos(2 pi / n)) off the line through its
+    # neighbours: within the tolerance the polygon has no corner there
+    turn = radius * (1.0 - math.cos(2 * math.pi / n))
+    if turn <= atol or height <= atol:
+        most = int(2 * math.pi / math.acos(1.0 - atol / radius)) if atol < radius else 3
+        raise ModelError(
+            f"a prism of {n} sides, radius {radius:g} and height {height:g}: "
+            + (f"its corners stand {turn:.3g} off the line through their neighbours, within "
+               f"the length tolerance {atol:.3g}; use at most {most} sides at this size"
+               if turn <= atol else
+               f"its height is within the length tolerance {atol:.3g}; make it taller")
+        )
     ang = 2 * np.pi * np.arange(n) / n
     ring = np.column_stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(n)])
     top = ring + np.array([0.0, 0.0, height])
-    return convex_hull(np.vstack([ring, top]), name=name or f"prism{n}")
+    # ring i = vertex i, top i = vertex n + i; loops clockwise seen from outside
+    i = np.arange(n)
+    j = (i + 1) % n
+    sides = np.column_stack([i, n + i, n + j, j])
+    loops: list[tuple[int, ...]] = [tuple(range(n)), tuple(range(2 * n - 1, n - 1, -1)),
+                                    *map(tuple, sides.tolist())]
+    return _explicit_model(np.vstack([ring, top]), loops, name=name or f"prism{n}",
+                           rtol=rtol)
 
 
 def tetrahedron(edge: float = 1.0, *, name: str = "tetrahedron") -> Polyhedron:
     """A regular tetrahedron with the given edge length."""
+    edge = float(check_number(edge, "tetrahedron edge", _SIZE, ModelError))
     p = np.array([[1, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]], dtype=float)
     return convex_hull(p * (edge / (2 * math.sqrt(2))), name=name)
 
 
 def octahedron(edge: float = 1.0, *, name: str = "octahedron") -> Polyhedron:
     """A regular octahedron with the given edge length."""
+    edge = float(check_number(edge, "octahedron edge", _SIZE, ModelError))
     p = np.vstack([np.eye(3), -np.eye(3)]) * (edge / math.sqrt(2))
     return convex_hull(p, name=name)
+
+
+def _explicit_model(points: FloatArray, loops: Sequence[tuple[int, ...]], *, name: str,
+                    rtol: float) -> Polyhedron:
+    """The convex polyhedron of ``points`` with faces ``loops`` (clockwise from outside,
+    every point a corner; a loop given the other way round is reversed), named and numbered
+    as :func:`convex_hull` does."""
+    centre = points.mean(axis=0)
+    newell = _Loops.of(loops).newell(points)
+    # clockwise from outside: Newell's normal of the loop points inward
+    inward = np.einsum("ij,ij->i", newell, points[[lp[0] for lp in loops]] - centre) < 0
+    loops = [lp if ok else lp[::-1] for lp, ok in zip(loops, inward, strict=True)]
+    newell = np.where(inward[:, None], -newell, newell)
+    normals = newell / np.linalg.norm(newell, axis=1)[:, None]
+    lengths = np.array([len(lp) for lp in loops], dtype=np.int64)
+    flat = np.fromiter((i for lp in loops for i in lp), dtype=np.int64, count=int(lengths.sum()))
+    keyed, faces = _assemble(points, flat, lengths, normals, rtol * vertex_diameter(points))
+    return Polyhedron(points[keyed], faces, name=name, rtol=rtol, hull_facets=True)
 
 
 def _qhull(points: FloatArray, radius: float, angle: float) -> Any:
@@ -317,6 +406,16 @@ def _hull_model(
     size = extent / math.sqrt(3.0)  # at most the diameter: the merge radius errs small
     radius = rtol * size
     hull = _qhull(p, radius, angle)
+    if len(hull.simplices) > MAX_HULL_TRIANGLES:
+        raise MeshError(
+            f"the convex hull of the points has {len(hull.simplices):,} triangles, more than "
+            f"the {MAX_HULL_TRIANGLES:,} a model is built from (a model's checks, states and "
+            "plans grow with its faces: 1.3 million take minutes and over 2 GB, and no "
+            "manipulation needs them); simplify the mesh first to at most "
+            f"{MAX_HULL_TRIANGLES:,} triangles, e.g. trimesh's "
+            "simplify_quadric_decimation, MeshLab's Quadric Edge Collapse Decimation or "
+            "Blender's Decimate modifier"
+        )
     if max_faces is not None:
         # coarser and coarser merging until the hull has few enough faces
         for _ in range(60):
@@ -352,37 +451,63 @@ def _hull_model(
                 hull_facets=True,
             ), np.zeros(0, dtype=np.int64)
         except ModelError as exc:
+            # kept without its traceback, whose frames hold the failed model's arrays
+            exc = exc.with_traceback(None)
             if not unturned:
                 return exc, np.zeros(0, dtype=np.int64)
             return exc, keyed[_unturned_corners(vertices, faces, model_rtol)]
 
-    last: ModelError | None = None
-    for _ in range(8):
-        got, _ = attempt(p, radius, hull)
+    def by_merging(radius: float, hull: Any) -> Polyhedron | ModelError:
+        # nearly coplanar or nearly collinear leftovers: merge a little more, each time
+        got: Polyhedron | ModelError | None = None
+        for _ in range(8):
+            got, _ = attempt(p, radius, hull)
+            if isinstance(got, Polyhedron):
+                return got
+            radius = max(radius * 2.0, 1e-12 * extent)
+            hull = _qhull(p, radius, angle)
+        assert got is not None
+        return got
+
+    def by_removal(hull: Any) -> Polyhedron | None:
+        # Qhull keeps corners that are straight within the tolerance (a point a hair off the
+        # line between two others, where the facets that meet there were not merged) or turn
+        # back (a point inside a merged facet's thickness), and a larger merging radius makes
+        # more of them. Such a point is within the tolerance of the hull of the others: leave
+        # it out, at the first radius, until every corner turns.
+        keep = np.ones(len(p), dtype=bool)
+        for _ in range(32):
+            sub = np.flatnonzero(keep)
+            if len(sub) < 4:
+                break
+            got, unturned = attempt(p[sub], first_radius, hull, unturned=True)
+            if isinstance(got, Polyhedron):
+                return got
+            if not len(unturned):
+                break
+            keep[sub[unturned]] = False
+            hull = _qhull(p[np.flatnonzero(keep)], first_radius, angle)
+        return None
+
+    if len(p) < LARGE_HULL:
+        got = by_merging(radius, hull)
         if isinstance(got, Polyhedron):
             return got
-        # nearly coplanar or nearly collinear leftovers: merge a little more
-        last = got
-        radius = max(radius * 2.0, 1e-12 * extent)
-        hull = _qhull(p, radius, angle)
-    # Still none: Qhull keeps corners that are straight within the tolerance (a point a hair
-    # off the line between two others, where the facets that meet there were not merged) or
-    # turn back (a point inside a merged facet's thickness), and a larger merging radius
-    # makes more of them. Such a point is within the tolerance of the hull of the others:
-    # leave it out, at the first radius, until every corner turns.
-    keep = np.ones(len(p), dtype=bool)
-    for _ in range(32):
-        sub = np.flatnonzero(keep)
-        got, unturned = attempt(p[sub], first_radius, _qhull(p[sub], first_radius, angle),
-                                unturned=True)
-        if isinstance(got, Polyhedron):
-            return got
-        if not len(unturned):
-            break
-        keep[sub[unturned]] = False
+        model = by_removal(_qhull(p, first_radius, angle))
+    else:
+        # a Qhull run over this many points takes seconds: leaving out the few corners that
+        # do not turn costs one more, merging coarser up to eight (a 1.3-million-triangle
+        # sphere: 2 runs instead of 10)
+        model = by_removal(hull)
+        if model is None:
+            got = by_merging(radius * 2.0, _qhull(p, radius * 2.0, angle))
+            if isinstance(got, Polyhedron):
+                return got
+    if model is not None:
+        return model
     raise MeshError(
         f"the hull of the points does not make a valid model at tolerance rtol={rtol:g} "
-        f"({last}); try a larger tolerance (--rtol) or fewer faces (--max-faces)"
+        f"({got}); try a larger tolerance (--rtol) or fewer faces (--max-faces)"
     )
 
 
@@ -443,16 +568,23 @@ def convex_hull(
             f"a coordinate of magnitude {big:.3g} is beyond {MAX_COORDINATE:g}: products of "
             "such numbers overflow; express the points in other units"
         )
+    # the largest side of the bounding box (no squares: they underflow near 1e-160)
+    size = float(np.max(p.max(axis=0) - p.min(axis=0)))
+    if size < MIN_SIZE:
+        raise MeshError(
+            f"the points span {size:.3g} (the largest side of their bounding box), below the "
+            f"smallest object size {MIN_SIZE:g}: express them in smaller units (mm, um)"
+        )
+    rtol = float(check_number(rtol, "rtol", RTOL_RANGE, MeshError))
+    angle = float(check_number(angle, "merge angle",
+                               Range(0.0, 90.0, high_open=True, unit="degrees"), MeshError))
+    if max_faces is not None:
+        max_faces = int(check_number(max_faces, "max_faces",
+                                     Range(4, MAX_FACES, integer=True), MeshError))
     try:
-        rtol = check_tolerance(rtol, "rtol")
-        angle = check_tolerance(angle, "merge angle", allow_zero=True)
         units = check_units(units)
     except InputError as exc:
         raise MeshError(str(exc)) from None
-    if angle >= 90:
-        raise MeshError(f"the merge angle must be below 90 degrees, got {angle:g}")
-    if max_faces is not None and (isinstance(max_faces, bool) or int(max_faces) < 4):
-        raise MeshError(f"max_faces must be an integer >= 4, got {max_faces!r}")
     return _hull_model(p, name=name, rtol=rtol, angle=angle, max_faces=max_faces,
                        center_of_mass=center_of_mass, units=units)
 
@@ -599,8 +731,23 @@ def from_mesh(
         )
     if len(pts) < 4:
         raise MeshError(f"{path}: a solid needs at least 4 points, the mesh has {len(pts)}")
+    span = float(np.max(pts.max(axis=0) - pts.min(axis=0)))
+    if span < MIN_SIZE:
+        raise MeshError(
+            f"{path}: the mesh spans {span:.3g} (the largest side of its bounding box), below "
+            f"the smallest object size {MIN_SIZE:g}; are its units right? Express it in "
+            "smaller units (mm, um)"
+        )
+    # trimesh welds vertices closer than 1e-8 (an absolute distance): a mesh a millimetre
+    # across in metres would lose its shape. Scale it up by a power of two (exact) while it
+    # is cleaned, and back after.
+    up = 2.0 ** -math.frexp(span)[1] if span < 1e-2 else 1.0
     try:
+        if up != 1.0:
+            mesh.apply_scale(up)  # type: ignore[no-untyped-call]
         filled = bool(len(mesh.faces)) and _clean(mesh, trimesh)
+        if up != 1.0:
+            mesh.apply_scale(1.0 / up)  # type: ignore[no-untyped-call]
     except (OverflowError, ValueError, IndexError) as exc:
         # trimesh's welding hashes coordinates and indices as int64: a damaged file overflows
         raise MeshError(f"{path}: trimesh cannot process the mesh ({exc}); the file is "
@@ -627,6 +774,16 @@ def from_mesh(
             f"{path}: {why}, so its volume and centre of mass are undefined; repair it, or "
             "leave out --strict to use the convex hull of its points"
         )
+    volume, com = 0.0, np.zeros(3)
+    surface = (np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64))
+    if not why:
+        if mesh.volume < 0:
+            mesh.invert()
+        volume, com = float(mesh.volume), np.asarray(mesh.center_mass, dtype=float)
+        surface = (np.array(mesh.vertices, dtype=float), np.array(mesh.faces, dtype=np.int64))
+    # what is left of the mesh is its caches (edges, adjacency): 1 GB for a million
+    # triangles, freed before the hull needs the memory
+    del mesh
     try:
         hull = convex_hull(pts, name=name or path.stem, rtol=rtol, angle=angle,
                            max_faces=max_faces, units=units)
@@ -638,18 +795,12 @@ def from_mesh(
             "centroid as centre of mass"
         )
         return hull
-    if mesh.volume < 0:
-        mesh.invert()
-    volume = float(mesh.volume)
     area = float(sum(hull.face_areas.values()))
     if hull.volume - volume <= 2 * hull.atol * area:
         return hull  # convex: the hull is the object
     try:
-        return dataclasses.replace(
-            hull,
-            center_of_mass=np.asarray(mesh.center_mass, dtype=float),
-            virtual_faces=_virtual_faces(hull, mesh),
-        )
+        return dataclasses.replace(hull, center_of_mass=com,
+                                   virtual_faces=_virtual_faces(hull, *surface))
     except ModelError as exc:
         raise MeshError(f"{path}: {exc}") from None
 
@@ -673,14 +824,17 @@ def _clean(mesh: Any, trimesh: Any) -> bool:
     return filled
 
 
-def _virtual_faces(hull: Polyhedron, mesh: Any) -> frozenset[str]:
+def _virtual_faces(hull: Polyhedron, vertices: FloatArray, triangles: NDArray[np.int64]
+                   ) -> frozenset[str]:
     """Hull faces on which the mesh has no triangle: the object touches them only along
     edges or at vertices (the paper's virtual bottom faces). A hull face partly covered by a
     mesh face (a non-convex face, such as the side of an L) is a real face: the object rests
     on that face, and the hull face is its supporting polygon."""
-    tri = np.asarray(mesh.triangles, dtype=np.float64)
-    tri_n = np.asarray(mesh.face_normals, dtype=np.float64)
-    areas = np.asarray(mesh.area_faces, dtype=np.float64)
+    tri = vertices[triangles]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(cross, axis=1)
+    tri_n = cross / np.maximum(norm, 1e-300)[:, None]
+    areas = 0.5 * norm
     names = hull.face_ids
     normals = np.array([hull.normals[f] for f in names])
     anchors = hull.vertices[[hull.faces[f][0] for f in names]]

@@ -25,12 +25,13 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import ConvexHull, QhullError
 
-from nonprehensile.checks import DEFAULT_RTOL, check_tolerance
+from nonprehensile.checks import DEFAULT_RTOL, RTOL_RANGE
 from nonprehensile.errors import InputError, ModelError
 
 __all__ = [
     "DEFAULT_RTOL",
     "MAX_COORDINATE",
+    "MIN_SIZE",
     "Polyhedron",
     "check_polyhedron",
     "point_diameter",
@@ -39,6 +40,10 @@ __all__ = [
 
 #: Largest coordinate magnitude accepted: squares and cubes of it stay finite in float64.
 MAX_COORDINATE = 1e100
+#: Smallest object accepted, in its own units (the largest side of its bounding box): its
+#: areas (size^2) and volumes (size^3) stay far from float underflow, and no real part is a
+#: picometre across in metres.
+MIN_SIZE = 1e-12
 #: A corner whose height above the line through its neighbours is at most this fraction of
 #: the tolerance is collinear (a vertex to remove).
 COLLINEAR_FRACTION = 1.0
@@ -387,7 +392,7 @@ class Polyhedron:
 
 def _check_rtol(rtol: object) -> float:
     try:
-        return check_tolerance(rtol, "rtol")
+        return float(RTOL_RANGE.check(rtol, "rtol"))
     except InputError as exc:
         raise ModelError(str(exc)) from None
 
@@ -759,6 +764,12 @@ def _check(
         raise ModelError(
             f"vertex {i} has a coordinate of magnitude {big:.3g}, beyond {MAX_COORDINATE:g}: "
             "products of such numbers overflow; express the model in other units"
+        )
+    span = float(np.max(v.max(axis=0) - v.min(axis=0)))
+    if span < MIN_SIZE:
+        raise ModelError(
+            f"the vertices span {span:.3g} (the largest side of their bounding box), below the "
+            f"smallest object size {MIN_SIZE:g}: express the model in smaller units (mm, um)"
         )
     v.setflags(write=False)
     if not isinstance(faces, Mapping):

@@ -60,7 +60,7 @@ from nonprehensile.sim.observe import SimObserver
 from nonprehensile.sim.run import SimResult, Simulator
 from nonprehensile.states import State, angle_diff
 from nonprehensile.step_paths import fingers_of, resample
-from nonprehensile.transit import limits_of, straight, transit
+from nonprehensile.transit import hull_distance, limits_of, straight, transit
 
 __all__ = ["Execution", "execute_plan", "scene_fingers", "transition_record"]
 
@@ -152,7 +152,7 @@ class _Runner:
 
     def __init__(self, sim: Simulator, observation: ObservationModel,
                  tracker_rng: np.random.Generator, finger_rng: np.random.Generator,
-                 finger_noise: float, keep_trace: int) -> None:
+                 finger_noise: float, keep_trace: int, signals: bool = False) -> None:
         self.sim = sim
         self.m, self.d = sim.model, sim.data
         self.dt = sim.params.timestep
@@ -167,6 +167,7 @@ class _Runner:
         self.commanded: list[FloatArray] = []
         self.tip_speed = 0.0
         self.keep_trace = keep_trace
+        self.signals = signals
         self.trace: list[FloatArray] = []
         self.contact_reads = 0  # fingertip-object contacts read during transits
         self._tail: FloatArray | None = None
@@ -217,6 +218,7 @@ class _Runner:
         # the free fingertips' joint velocities are their speeds (a robot's driver has none)
         finger_dofs = getattr(sim.driver, "dadr", None)
         trace_every = self.keep_trace
+        next_obs = observer.next_time()
         while True:
             if i < len(ctrl):
                 ctrl_view[:] = ctrl[i]
@@ -234,14 +236,16 @@ class _Runner:
                     if sp > self.tip_speed:
                         self.tip_speed = sp
             if trace_every and self.n % trace_every == 0:
-                self.trace.append(sim.trace_row(self.t))
-            if react is not None:
+                self.trace.append(sim.trace_row(
+                    self.t, seg[min(i - 1, len(seg) - 1)] if self.signals else None))
+            if react is not None and self.t >= next_obs - 1e-9:
                 obs = observer.sample(self.t)
+                next_obs = observer.next_time()
                 if obs is not None:
                     cur = seg[min(i, len(seg) - 1)]
                     dec = react(obs, cur)
                     if dec.segment is not None:
-                        new = self._crossfade(seg, i, dec.segment)
+                        new = self._crossfade(seg, i, dec.segment, dec.fade)
                         self.commanded[-1] = seg[:i]
                         self.commanded.append(new)
                         seg, i = new, 0
@@ -249,6 +253,7 @@ class _Runner:
                     if dec.done:
                         self._stop(seg, i)
                         return dec
+            if react is not None:
                 if self.t >= t_end:
                     self._stop(seg, i)
                     return Decision(done=True, outcome="aborted",
@@ -264,10 +269,12 @@ class _Runner:
         self.command = seg[j]
         self._tail = seg[j:] if len(seg) - j > 1 else None
 
-    def _crossfade(self, old: FloatArray, i: int, new: FloatArray) -> FloatArray:
-        """``new`` with its first :data:`CROSSFADE` seconds faded in from ``old``'s
-        continuation (held at its end), so position and velocity stay continuous."""
-        n = max(2, round(CROSSFADE / self.dt))
+    def _crossfade(self, old: FloatArray, i: int, new: FloatArray,
+                   fade: float | None = None) -> FloatArray:
+        """``new`` with its first ``fade`` (default :data:`CROSSFADE`) seconds faded in from
+        ``old``'s continuation (held at its end), so position and velocity stay
+        continuous."""
+        n = max(2, round((CROSSFADE if fade is None else fade) / self.dt))
         if len(new) < n:  # a short hold: long enough to fade into
             new = np.concatenate([new, np.repeat(new[-1:], n - len(new), axis=0)])
         rest = old[i:i + n]
@@ -318,6 +325,7 @@ def execute_plan(
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG,
     position_tol: float = DEFAULT_POSITION_TOL,
     keep_trace: int = 0,
+    signals: bool = False,
 ) -> Execution:
     """Execute ``plan`` in one continuous simulation (see the module's docstring).
 
@@ -345,7 +353,10 @@ def execute_plan(
     angle_tol, position_tol : float
         The goal's tolerances (degrees, m).
     keep_trace : int
-        Keep a trace row every this many physics steps (for rendering).
+        Keep a trace row every this many physics steps (for rendering, recording).
+    signals : bool
+        Trace rows carry the tracking error, contact forces and slip too
+        (:func:`~nonprehensile.sim.run.signal_columns`).
     """
     wall0 = time.perf_counter()
     cfg = config or ControlConfig(angle_tol=angle_tol, position_tol=position_tol)
@@ -361,7 +372,7 @@ def execute_plan(
     ex = Execution(loop, plan.goal, last.end_pose.position)
     p = sim.params
     run = _Runner(sim, obs_model, perturbation.rng("tracker"), perturbation.rng("finger"),
-                  perturbation.finger_noise, keep_trace)
+                  perturbation.finger_noise, keep_trace, signals)
     m, d = sim.model, sim.data
     mujoco.mj_resetData(m, d)
     sim.set_pose(perturbation.start_pose(first.start_pose))
@@ -383,6 +394,20 @@ def execute_plan(
         # fingers the step does not use go home
         goal = np.where(moving[:, None], target, rest)
         moving |= np.linalg.norm(run.command - rest, axis=1) > 1e-9
+        # a transit ends clear of the object: a reference recorded with a smaller fingertip
+        # may begin within this one's radius; it stops short, away from the object, and the
+        # step's first arc blends in from there (touching is the step's business)
+        need = p.finger_radius + 0.003
+        gap = hull_distance(sim.poly, pose, goal)
+        top = float(pose.to_world(sim.poly.vertices)[:, 2].max())
+        for k in np.flatnonzero(moving & (gap < need)):
+            if goal[k, 2] >= top:
+                goal[k, 2] += need - gap[k]
+            else:
+                away = goal[k, :2] - pose.com[:2]
+                norm = float(np.hypot(*away))
+                if norm > 1e-9:
+                    goal[k, :2] += away / norm * (need - gap[k])
         path = transit(sim.poly, pose, run.command, goal, dt=run.dt,
                        clearance=cfg.clearance, finger_radius=p.finger_radius,
                        max_speed=cfg.max_speed, max_accel=cfg.max_accel / 2,
@@ -431,7 +456,8 @@ def execute_plan(
             # faded in from rest as the closed loop's first arc is
             run.drive(run._crossfade(np.array([run.command]), 0,
                                      resample(targets, spec.rate, run.dt)))
-            j, settled = sim.settle(p.settle, run.log, run.t, keep_trace, run.trace)
+            j, settled = sim.settle(p.settle, run.log, run.t, keep_trace, run.trace,
+                                    run.command if signals else None)
             run.t += j * run.dt
             run.n += j
             record.update(outcome="finished" if settled else "unsettled", reason="",
@@ -461,8 +487,16 @@ def execute_plan(
                 # let go first (straight up off the object: the fingertip may still press
                 # it), then move clear as a transit
                 off = np.array(run.command)
+                gap = hull_distance(sim.poly, pose_now, off)
                 for k in spec.used:
-                    off[k - 1, 2] += p.finger_radius + cfg.clearance
+                    # away from the object's centre (a pinch opens), as far as the pad is
+                    # pressed in plus its radius and a margin, and up
+                    away = off[k - 1, :2] - pose_now.com[:2]
+                    norm = float(np.hypot(*away))
+                    if norm > 1e-9:
+                        off[k - 1, :2] += away / norm * max(
+                            0.0, p.finger_radius + 0.005 - float(gap[k - 1]))
+                    off[k - 1, 2] += 0.005
                 run.drive(straight(run.command, off, dt=run.dt, max_speed=0.1,
                                    max_accel=cfg.max_accel / 2))
                 up = _retreat_target(sim, pose_now, run.command, spec.used, cfg.clearance)
@@ -729,8 +763,11 @@ def _outcome(sim: Simulator, run: _Runner, step: PlanStep, spec: Any, record: di
     rows = np.array([r for r in run.trace if t_begin - 1e-9 <= r[0] <= run.t + 1e-9])
     if len(rows):
         rows[:, 0] -= t_begin
-    events = tuple(SimEvent(e.time - t_begin, e.event) for e in run.log.events[n_events:]
-                   if e.time >= t_begin - 1e-9)
+    before = [e for e in run.log.events if e.time < t_begin - 1e-9]
+    # the contact set the step began in (the object at rest: its first event), then the rest
+    events = tuple([SimEvent(0.0, before[-1].event)] if before else []) + tuple(
+        SimEvent(e.time - t_begin, e.event) for e in run.log.events[n_events:]
+        if e.time >= t_begin - 1e-9)
     res = SimResult(sim.pose(), sim.state(), events, record["outcome"] == "finished",
                     run.t - t_begin, 0.0, round((run.t - t_begin) / run.dt),
                     run.log.finger_table, rows if len(rows) else None)

@@ -169,6 +169,12 @@ class FingertipIK:
         self.configuration.update(full)
         self.solve_times = []
 
+    def set_q(self, q: FloatArray) -> None:
+        """Carry on from joint positions ``q`` (scene joint order), keeping the timings."""
+        full = np.array(self.configuration.q)
+        full[self.scene.qadr] = np.clip(q, self.scene.lower, self.scene.upper)
+        self.configuration.update(full)
+
     def set_object(self, position: FloatArray, quat: FloatArray) -> None:
         """Where the object is now (the body's origin and ``(w, x, y, z)`` orientation)."""
         d = self.configuration.data

@@ -46,6 +46,11 @@ class SimObserver:
         self._last = got
         return got
 
+    def next_time(self) -> float:
+        """When :meth:`sample` next has something to do (s): calling it earlier is a
+        no-op."""
+        return self.stream.next_time()
+
     def wait(self, now: float) -> Observation | None:
         """The newest observation that has arrived by ``now`` (new or not)."""
         self.sample(now)

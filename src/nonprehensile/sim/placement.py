@@ -198,12 +198,13 @@ class JointTrajectory:
 def joint_trajectory(
     arms: Sequence[Arm], poly: Polyhedron, scale: float, plan: Plan,
     fingers: Mapping[str, str], *, params: SimParams = DEFAULT_PARAMS,
-    ik_config: IKConfig | None = None,
+    ik_config: IKConfig | None = None, control_every: int = 1,
 ) -> list[JointTrajectory]:
-    """The IK's joint trajectory along the plan's reference motion, per step (kinematic:
-    the object stands at each step's planned start pose for collision avoidance)."""
+    """The IK's joint trajectory along the plan's reference motion, per step, one row per
+    control step (``control_every`` physics steps; kinematic: the object stands at each
+    step's planned start pose for collision avoidance)."""
     scene = build_robot_scene(poly, scale=scale, arms=arms, params=params, mocap_object=True)
-    dt = params.timestep
+    dt = params.timestep * control_every
     ik = FingertipIK(scene, dt, ik_config)
     paths = plan_targets(plan, fingers, scene.n_fingers)
     out = []

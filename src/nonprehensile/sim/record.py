@@ -55,11 +55,12 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.units import in_metres
 from nonprehensile.io import read_skills
 from nonprehensile.maneuvers import classify, move_pose
-from nonprehensile.sim.compare import Comparison, compare
+from nonprehensile.sim.compare import Comparison, compare, events_text
+from nonprehensile.sim.distribution import PhysicsDistribution
 from nonprehensile.sim.execute import fingers_of, smooth_markers
 from nonprehensile.sim.run import SimResult, Simulator, default_scale, pose_of_state
-from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
-from nonprehensile.skills.contacts import Finger
+from nonprehensile.sim.scene import DEFAULT_PARAMS, RETUNABLE, SceneTuner, SimParams
+from nonprehensile.skills.contacts import Edge, Face, Finger, Ground, Vertex
 from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State
 
@@ -143,8 +144,10 @@ def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
                               f"{text} (skill: {skill.final})")
         return TakeReason("elsewhere", f"ended on face {got.face}", text)
     if not cmp.chain_ok:
-        text = f"events {list(cmp.missing)} missing"
-        return TakeReason("events", text, text, tuple(cmp.missing))
+        key = f"events {list(cmp.missing)} missing"
+        chain = events_text(res.events)
+        seen = chain if len(chain) <= 160 else chain[:157] + "..."
+        return TakeReason("events", key, f"{key}; physics: {seen}", tuple(cmp.missing))
     return TakeReason("slid", "slid off its pivot",
                       f"slid {1000 * slip:.1f} mm (at most {1000 * max_slip:g} mm allowed)")
 
@@ -152,6 +155,10 @@ def _reason(skill: Skill, cmp: Comparison, res: SimResult, slip: float,
 def what_to_change(skill: Skill, reason: TakeReason) -> str:
     """Advice for the commonest way a skill's takes fail (one sentence)."""
     see = f"`nonprehensile maneuvers MODEL --from {skill.initial}`"
+    if reason.kind == "pushed" and skill.maneuver == "tumbling":
+        return ("the pinch carried the object along the table instead of tipping it over its "
+                "pivot vertex: pinch above the centre of mass so that it hangs from the "
+                "pinch, or more table friction (--friction) keeps the vertex in place")
     if reason.kind == "pushed":
         return ("the push slid the object along the table instead of tipping it over its "
                 "pivot: a push this low on a flat object slides it; push higher on the face "
@@ -177,10 +184,26 @@ def what_to_change(skill: Skill, reason: TakeReason) -> str:
     if reason.kind == "events":
         named = [e for e in skill.events if e.id in reason.events]
         contacts = "; ".join(f"{e.id!r}: {e}" for e in named)
-        return ("physics made the maneuver but not these events in order (" + contacts
-                + "): write them as physics makes them; an object that falls ahead of the "
-                "finger lands without it, so end the moving arc on the landing with the "
-                "ground alone (pivot, then e.g. (G,face): a topple), or leave the event out")
+        final = skill.final.face
+        landing = [e for e in named if any(isinstance(p.y, Face) and p.y.id == final
+                                           for p in e.pairs if isinstance(p.x, Ground))
+                   and any(isinstance(p.x, Finger) for p in e.pairs)]
+        pivot = [e for e in named if any(isinstance(p.y, (Edge, Vertex)) for p in e.pairs
+                                         if isinstance(p.x, Ground))]
+        head = ("physics made the maneuver but not these events in order (" + contacts
+                + "; what it made is in the reason): ")
+        if landing:
+            return head + ("the object falls ahead of the finger and lands without it: end "
+                           "the moving arc on the landing with the ground alone (pivot, then "
+                           f"(G,{final}): a topple)")
+        if pivot:
+            return head + ("the object never rested on that edge or vertex alone long enough "
+                           "to be seen (it turned over another element, or passed it in a "
+                           "few ms): name what physics shows, or leave the pivot event out")
+        return head + "write them as physics makes them, or leave them out"
+    if reason.kind == "elsewhere" and skill.maneuver == "rotating":
+        return ("the turn tipped the object over instead of turning it on its face: grip it "
+                "lower on its sides (nearer the table), or on faces that hold it upright")
     if reason.kind == "slid":
         return ("the pivot slid along the table: more table friction (--friction), or a "
                 "second finger holding the object down on its pivot")
@@ -430,6 +453,7 @@ def record_dataset(
     keep_going: bool = False,
     with_object_markers: bool = True,
     progress: Progress | None = None,
+    distribution: PhysicsDistribution | None = None,
 ) -> tuple[Dataset, dict[str, dict[str, Any]]]:
     """Record ``n_per_skill`` physics takes of every skill of a skills file.
 
@@ -450,6 +474,13 @@ def record_dataset(
         (``stats[name]["failed"]`` says why) instead of raising.
     with_object_markers : bool
         ``False`` leaves the object markers out (smaller files).
+    distribution : PhysicsDistribution, optional
+        Record under it: every take (every attempt) runs in its own sample of the scene's
+        parameters (friction, mass scaled to the object, fingertip, stiffness, force limit,
+        contact softness), sample ``a`` of stream ``k`` of ``seed`` for the ``a``-th attempt
+        at skill ``k``, instead of the one scene of ``params``. The mentor's hand and the
+        tracker are the mentor's own: the distribution's start error and noise do not apply.
+        ``stats[name]["physics"]`` lists each kept take's varied values.
 
     Returns
     -------
@@ -481,6 +512,10 @@ def record_dataset(
     si = in_metres(poly, scale)
     n_f = max(max(fingers_of(s), default=1) for s in skills)
     sim = Simulator(si, scale=1.0, n_fingers=max(n_f, 1), params=params)
+    tuner = None
+    if distribution is not None:
+        distribution = distribution.for_object(si, 1.0)
+        tuner = SceneTuner(sim.model, sim.data, sim.params)
     markers = object_markers_of(poly) if with_object_markers else {}
     markers_si = object_markers_of(si) if with_object_markers else {}
     demos: list[Demonstration] = []
@@ -488,13 +523,18 @@ def record_dataset(
     failures: dict[str, str] = {}
     chosen = [s for s in skills if only is None or s.name in only]
     total = n_per_skill * len(chosen)
-    for skill in chosen:
+    for k_skill, skill in enumerate(chosen):
         tried = fragile = kept = 0
         reasons: Counter[TakeReason] = Counter()
+        physics: list[dict[str, float]] = []
         for j in range(n_per_skill):
             mentor = mentors[j % len(mentors)]
             for _ in range(max_attempts):
                 tried += 1
+                if tuner is not None and distribution is not None:
+                    sample = distribution.sample(seed, index=tried - 1, stream=k_skill)
+                    tuner.tune(sample.params)
+                    sim.params = sim.judge.params = sample.params
                 try:
                     traj, events = record_demonstration(
                         sim, skill, mentor, rng, rate=rate, noise_mm=noise_mm,
@@ -513,6 +553,9 @@ def record_dataset(
                     f"({_summary(reasons)}); what to change: "
                     f"{what_to_change(skill, commonest)}")
                 break
+            if tuner is not None:
+                physics.append({k: round(v, 6) for k, v in sample.values().items()
+                                if k in RETUNABLE})
             name = f"{skill.name}_{mentor.name}_{j // len(mentors):02d}.c3d"
             demos.append(Demonstration(name, skill, mentor.name, skill.initial, skill.final,
                                        events, traj))
@@ -524,6 +567,8 @@ def record_dataset(
             by_key[r.key] += n
         stats[skill.name] = {"kept": kept, "tried": tried, "fragile": fragile,
                              "reasons": dict(by_key.most_common())}
+        if tuner is not None:
+            stats[skill.name]["physics"] = physics
         if skill.name in failures:
             stats[skill.name]["failed"] = failures[skill.name]
             if not keep_going:

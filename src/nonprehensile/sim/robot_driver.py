@@ -16,6 +16,7 @@ rod touches the object or the table, and the IK's time; :meth:`RobotLog.metrics`
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +24,7 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from nonprehensile.errors import InputError
 from nonprehensile.sim.ik import FingertipIK, IKConfig
 from nonprehensile.sim.judge import CONTACT_EVERY, Judge
 from nonprehensile.sim.robot_scene import RobotScene
@@ -140,6 +142,7 @@ class RobotLog:
         longest = {k: _longest_run(v) * dt for k, v in at.items()}
         any_at = at["position"] | at["velocity"] | at["torque"]
         ik = np.array(self.ik[sl]) * 1e3
+        ik = ik[np.isfinite(ik)]
         return RobotMetrics(
             float(err[touch].max()) if touch.any() else None,
             float(err[touch].mean()) if touch.any() else None,
@@ -179,13 +182,19 @@ def _longest_run(flags: NDArray[np.bool_]) -> int:
 
 
 class _OnlineControls:
-    """The rows of one target trajectory, solved as the step loop reads them (in order)."""
+    """The rows of one target trajectory, solved as the step loop reads them (in order).
+
+    The IK runs every ``driver.every`` rows, for the target that many rows ahead; the rows in
+    between interpolate the joint set points linearly (their velocity is the segment's), so
+    the servos get a set point every physics step without lagging the reference."""
 
     def __init__(self, driver: RobotArms, targets: FloatArray) -> None:
         self.driver = driver
         self.targets = targets
         self._i = -1
         self._row: FloatArray | None = None
+        self.seg: tuple[FloatArray, FloatArray, int, int] | None = None
+        driver.begin()
 
     def __len__(self) -> int:
         return len(self.targets)
@@ -197,10 +206,11 @@ class _OnlineControls:
             return self._row
         if i < self._i:  # read again from the start: a new pass over the same targets
             self._i = -1
-        start = self._i + 1
+            self.seg = None
+            self.driver.begin()
         row = self._row
-        for j in range(start, i + 1):
-            row = self.driver.solve(self.targets[j], last=j == len(self.targets) - 1)
+        for j in range(self._i + 1, i + 1):
+            row = self.driver.row(self, j)
         self._i = i
         self._row = row
         assert row is not None
@@ -223,10 +233,19 @@ class RobotArms:
     dt : float
         Control period = physics step, s.
     ik_config : IKConfig, optional
+    control_every : int
+        The IK runs every this many physics steps (the control rate is the physics rate over
+        it); the joint set points are interpolated in between.
     """
 
     def __init__(self, scene: RobotScene, ik_scene: RobotScene, data: Any, judge: Judge,
-                 dt: float, ik_config: IKConfig | None = None) -> None:
+                 dt: float, ik_config: IKConfig | None = None, control_every: int = 1
+                 ) -> None:
+        if isinstance(control_every, bool) or not isinstance(control_every, int) or not \
+                1 <= control_every <= 100:
+            raise InputError(f"the IK runs every 1..100 physics steps, got {control_every!r}")
+        self.every = control_every
+        self._q_set: FloatArray | None = None
         self.scene = scene
         self.n_fingers = scene.n_fingers
         self.data = data
@@ -235,7 +254,13 @@ class RobotArms:
         self.ik = FingertipIK(ik_scene, dt, ik_config)
         self.log = RobotLog(scene, dt)
         self.placed = False
-        self._obj = mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_BODY, "object")
+        m = scene.model
+        self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
+        self._obj_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
+        self._tip_geoms = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"finger{k}")
+                                    for k in range(1, scene.n_fingers + 1)])
+        self._link_geoms = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g)
+                                     for g in scene.collision_geoms])
         self._n = 0
         self._touch = False
         self._other = False
@@ -285,6 +310,45 @@ class RobotArms:
         self.log.clear()
         self._n = 0
 
+    def begin(self) -> None:
+        """A new target trajectory: the IK starts from the set point the servos have now (a
+        trajectory replaced mid-segment would otherwise start from the segment's end)."""
+        if self.placed and self._q_set is not None:
+            self.ik.set_q(self._q_set)
+
+    def row(self, ctl: _OnlineControls, j: int) -> FloatArray:
+        """Row ``j`` of ``ctl``'s targets (see :class:`_OnlineControls`)."""
+        targets = ctl.targets
+        last = j == len(targets) - 1
+        if not self.placed or self.every == 1:
+            return self.solve(targets[j], last=last)
+        d = self.data
+        seg = ctl.seg
+        if seg is None or j >= seg[2] + seg[3]:
+            k = max(1, min(self.every, len(targets) - 1 - j))
+            q0 = self.ik.q
+            self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
+            self.ik.dt = k * self.dt
+            q1, _ = self.ik.step(targets[min(j + k, len(targets) - 1)])
+            self.ik.dt = self.dt
+            seg = ctl.seg = (q0, q1, j, k)
+        q0, q1, j0, k = seg
+        f = (j - j0) / k
+        q = q0 + f * (q1 - q0)
+        qd = (q1 - q0) / (k * self.dt)
+        if last:
+            qd = np.zeros_like(qd)
+        self._record(targets[j], q, qd, solved=j == j0)
+        return self._row_of(q, qd)
+
+    def _row_of(self, q: FloatArray, qd: FloatArray) -> FloatArray:
+        sc = self.scene
+        self._q_set = q
+        row = np.array(self.data.ctrl, dtype=np.float64)
+        row[sc.pos_act] = q
+        row[sc.vel_act] = np.clip(qd, -sc.velocity, sc.velocity)
+        return row
+
     def solve(self, targets: FloatArray, *, last: bool = False) -> FloatArray:
         """The actuator row for the fingertip ``targets`` (shape (n_fingers, 3)) now."""
         d, sc = self.data, self.scene
@@ -298,16 +362,29 @@ class RobotArms:
             self._record(targets, q, qd)
         if last:
             qd = np.zeros_like(qd)  # the set point holds still after the motion
-        row = np.array(d.ctrl, dtype=np.float64)
-        row[sc.pos_act] = q
-        row[sc.vel_act] = np.clip(qd, -sc.velocity, sc.velocity)
-        return row
+        return self._row_of(q, qd)
 
-    def _record(self, targets: FloatArray, q_ref: FloatArray, qd_ref: FloatArray) -> None:
+    def _contacts(self, d: Any) -> tuple[bool, bool]:
+        """Whether a fingertip touches the object, and whether a link or the rod touches the
+        object or the table (the judge's rule: contacts within 0.1 mm), in one pass."""
+        n = d.ncon
+        if n == 0:
+            return False, False
+        con = d.contact
+        near = con.dist[:n] <= 1e-4
+        g1, g2 = con.geom1[:n][near], con.geom2[:n][near]
+        obj = self._obj_geom
+        tips = self._tip_geoms
+        touch = bool(np.any(((g1 == obj) & np.isin(g2, tips)) | ((g2 == obj) & np.isin(g1, tips))))
+        links = self._link_geoms
+        other = bool(np.any(np.isin(g1, links) | np.isin(g2, links)))
+        return touch, other
+
+    def _record(self, targets: FloatArray, q_ref: FloatArray, qd_ref: FloatArray, *,
+                solved: bool = True) -> None:
         d, sc, log = self.data, self.scene, self.log
-        if self._n % CONTACT_EVERY == 0:
-            self._touch = self.judge.finger_object_contact(d)
-            self._other = self.judge.contacts(d)[2]
+        if self._n % CONTACT_EVERY == 0:  # as often as the judge reads contacts
+            self._touch, self._other = self._contacts(d)
         err = np.linalg.norm(self.tips(d) - targets, axis=1).max()
         log.time.append(float(d.time))
         self._n += 1
@@ -319,4 +396,5 @@ class RobotArms:
         log.qd_ref.append(np.array(qd_ref))
         log.touch.append(self._touch)
         log.other.append(self._other)
-        log.ik.append(self.ik.solve_times[-1] if self.ik.solve_times else 0.0)
+        # NaN where the set point was interpolated (no solve this step)
+        log.ik.append(self.ik.solve_times[-1] if solved and self.ik.solve_times else math.nan)

@@ -27,7 +27,14 @@ from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
-__all__ = ["RobotSimulator", "describe_robots"]
+__all__ = ["ROBOT_MAX_ACCEL", "RobotSimulator", "describe_robots"]
+
+#: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
+#: fingertip (``ControlConfig.max_accel``; transits use half of it). The free fingertips'
+#: 20 m/s^2 asks the Panda's shoulder for more than its 87 N m for ~20 ms on the first
+#: transit (measured: joint 2 at its torque limit for 24 ms); at 4 m/s^2 no joint reaches a
+#: limit over the main plan.
+ROBOT_MAX_ACCEL = 4.0
 
 FloatArray = NDArray[np.float64]
 
@@ -47,11 +54,14 @@ class RobotSimulator(Simulator):
         (``stiffness``, ``max_force`` and ``finger_mass`` belong to the free fingertips and
         are not used).
     ik_config : IKConfig, optional
+    control_every : int
+        The IK runs every this many physics steps (control rate = physics rate / it); the
+        servos' set points are interpolated in between.
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
-                 params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None
-                 ) -> None:
+                 params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
+                 control_every: int = 1) -> None:
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self.params = params
@@ -67,7 +77,7 @@ class RobotSimulator(Simulator):
         self.data = mujoco.MjData(self.model)
         self.judge = Judge(poly, self.scale, params, self.model, self.n_fingers)
         self.robot_driver = RobotArms(self.scene, self.ik_scene, self.data, self.judge,
-                                      params.timestep, ik_config)
+                                      params.timestep, ik_config, control_every)
         self.driver = self.robot_driver
         self._body = self.judge.body
         self._qadr = self.judge.qadr
@@ -107,11 +117,12 @@ class RobotSimulator(Simulator):
 
     def describe(self) -> dict[str, Any]:
         """The robots, base poses, controller, gains, rates and limits (JSON)."""
-        return describe_robots(self.arms, self.scene, self.params, self.ik_config)
+        return describe_robots(self.arms, self.scene, self.params, self.ik_config,
+                               self.robot_driver.every)
 
 
 def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
-                    ik_config: IKConfig) -> dict[str, Any]:
+                    ik_config: IKConfig, control_every: int = 1) -> dict[str, Any]:
     """The robots, base poses, controller, gains, rates and limits of a robot scene (JSON)."""
     m, sc = scene.model, scene
     joints = []
@@ -136,7 +147,8 @@ def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
             "ik": "mink differential IK (daqp), one solve per control step",
             "ik_config": ik_config.to_dict(),
         },
-        "rates": {"control_hz": round(1.0 / params.timestep, 6),
+        "rates": {"control_hz": round(1.0 / (params.timestep * control_every), 6),
+                  "servo_hz": round(1.0 / params.timestep, 6),
                   "physics_hz": round(1.0 / params.timestep, 6)},
         "joints": joints,
         "fingertip_radius_m": params.finger_radius,

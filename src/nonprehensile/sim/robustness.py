@@ -15,8 +15,9 @@ angle tolerance, centre of mass within the position tolerance of the plan's pred
   (:class:`~nonprehensile.sim.scene.SceneTuner`); a process pool by default
   (:func:`run_sweep` ``workers``), a Dask cluster with ``scheduler`` (extra ``scale``). Both
   give the same records, sample by sample.
-* **Loops**: ``open`` and ``closed`` name executors of :data:`EXECUTORS`; a loop that is not
-  available is refused, never replaced by another.
+* **Loops**: ``closed`` and ``open``, both by the executor ``simulate plan`` runs
+  (:func:`~nonprehensile.sim.closed_loop.execute_plan`: the same transits and verdict); a
+  loop that is not available is refused, never replaced by another.
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ __all__ = [
     "SweepUnit",
     "available_loops",
     "check_loops",
+    "demonstration_units",
+    "frozen_library",
     "plan_unit",
     "run_sweep",
     "transition_units",
@@ -80,6 +83,22 @@ class SweepUnit:
     source: str
 
 
+def frozen_library(expansion: Any, motions: Any) -> _Memo:
+    """A motion library holding only the references ``expansion``'s skills use, each asked
+    of ``motions`` once: small to send to every worker (a re-planner's library)."""
+    from nonprehensile.planning import _demonstrated_name
+
+    memo = _Memo(motions)
+    for t in expansion.transitions:
+        name = _demonstrated_name(t.source.name)
+        for st in t.source.steps():
+            # a reversed skill asks for its demonstrated arcs the other way round
+            memo.reference(name, st.motion.source, st.motion.target)
+            memo.reference(name, st.motion.target, st.motion.source)
+    memo.library = None  # everything is asked: the clusters need not travel
+    return memo
+
+
 class _Memo:
     """A motion library asked once per arc: the same arc's reference serves every transition
     of its skill (a cluster medoid costs a distance matrix)."""
@@ -91,7 +110,8 @@ class _Memo:
     def reference(self, skill: str, source: str, target: str) -> Any:
         key = (skill, source, target)
         if key not in self._got:
-            self._got[key] = self.library.reference(skill, source, target)
+            self._got[key] = (None if self.library is None
+                              else self.library.reference(skill, source, target))
         return self._got[key]
 
 
@@ -120,6 +140,72 @@ def transition_units(poly: Polyhedron, expansion: Any, motions: Any, *, scale: f
                  "to": t.end.to_dict()}
         out.append(SweepUnit(plan, label, TransitionKey.of(t.skill.name, t.start, t.end),
                              t.source.name))
+    return out
+
+
+class _OneDemonstration:
+    """A motion library holding one demonstration's own segments (metres)."""
+
+    def __init__(self, segments: Sequence[Any]) -> None:
+        self._arcs = {(s.motion.source, s.motion.target): s for s in segments}
+        self.skill = segments[0].skill if segments else ""
+
+    def reference(self, skill: str, source: str, target: str) -> Any:
+        from nonprehensile.planning import ReferenceMotion
+
+        seg = self._arcs.get((source, target))
+        if seg is None or skill != self.skill:
+            return None
+        traj = seg.trajectory.to_units("m")
+        return ReferenceMotion(np.asarray(traj.positions), tuple(traj.marker_names),
+                               traj.rate, 0, 1)
+
+
+def demonstration_units(dataset: Any, expansion: Any, *, angle_tol: float,
+                        skills: Sequence[str] | None = None) -> list[SweepUnit]:
+    """Every demonstration of ``dataset`` (of ``skills`` only, when given) as a one-step plan
+    whose references are its own recorded segments, the object where it was recorded
+    (centre of mass at the origin): the demonstration replayed, judged by the same executors
+    and verdict as a planned transition.
+
+    Raises
+    ------
+    InputError
+        A demonstration whose transition is not in ``expansion``, or with gaps its dataset's
+        gap limit does not bridge.
+    """
+    from nonprehensile.demonstrations.segment import segment_dataset
+    from nonprehensile.planning import step_for
+
+    _, segments = segment_dataset(dataset)
+    by_demo: dict[str, list[Any]] = {}
+    for seg in segments:
+        by_demo.setdefault(seg.demonstration.file, []).append(seg)
+    arcs = {(t.source.name, t.start): t for t in expansion.transitions if t.demonstrated}
+    out = []
+    for demo in dataset.demonstrations:
+        if skills is not None and demo.skill.name not in skills:
+            continue
+        key = (demo.skill.name, demo.initial)
+        t = arcs.get(key) or next(
+            (t for (name, start), t in arcs.items()
+             if name == demo.skill.name and start.isclose(demo.initial, angle_tol)), None)
+        if t is None:
+            raise InputError(f"{demo.file}: its transition {demo.skill.name} from "
+                             f"{demo.initial} is not a demonstrated transition of the state "
+                             "set (use the dataset's own step)")
+        lib = _OneDemonstration(by_demo.get(demo.file, []))
+        st = step_for(dataset.poly, t, motions=lib, scale=dataset.scale, angle_tol=angle_tol)
+        bad = [f"{a} -> {b}" for a, b, _, ref in st.motions
+               if ref is None or not np.isfinite(ref.positions).all()]
+        if bad:
+            raise InputError(f"{demo.file}: no usable recorded motion on arc(s) {bad} (gaps "
+                             "longer than the dataset's gap limit)")
+        label = {"file": demo.file, "skill": demo.skill.name, "source": demo.skill.name,
+                 "mentor": demo.mentor, "demonstrated": True,
+                 "from": t.start.to_dict(), "to": t.end.to_dict()}
+        out.append(SweepUnit(Plan(t.start, t.end, Offset(), (st,)), label, None,
+                             demo.skill.name))
     return out
 
 
@@ -196,42 +282,46 @@ class SampleRecord:
 Executor = Callable[["_Worker", SweepUnit, PhysicsSample], dict[str, Any]]
 
 
-def _open_loop(worker: _Worker, unit: SweepUnit, sample: PhysicsSample) -> dict[str, Any]:
-    """Open loop: every step's reference placed where the plan predicts the object, run for
-    its duration; nothing observed (:func:`~nonprehensile.sim.execute.simulate_plan`)."""
-    from nonprehensile.sim.execute import simulate_plan
+def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
+               loop: str) -> dict[str, Any]:
+    """One execution by :func:`~nonprehensile.sim.closed_loop.execute_plan`, the executor
+    ``simulate plan`` runs: the same transits, verdict and records whatever the loop. With
+    the spec's expansion, the closed loop may re-plan from where the object is observed
+    toward the unit's goal (as ``simulate plan`` does): a transition's rate is then that of
+    reaching its end state when the planner picks it; without, a step that ends elsewhere
+    fails."""
+    from nonprehensile.control import ControlConfig
+    from nonprehensile.sim.closed_loop import execute_plan
 
     spec = worker.spec
-    outs = simulate_plan(spec.poly, unit.plan, scale=spec.scale, fingers=spec.fingers,
-                         sim=worker.sim, angle_tol=spec.angle_tol,
-                         position_tol=spec.position_tol, perturbation=sample.perturbation)
-    last = outs[-1]
-    c = last.comparison
-    failed = next((o for o in outs if not o.success), None)
-    reason = ""
-    if not c.success:
-        if c.simulated is None:
-            reason = "rests on no face"
-        elif c.simulated.face != c.predicted.face:
-            reason = f"ended on face {c.simulated.face}, not {c.predicted.face}"
-        elif c.theta_error is not None and abs(c.theta_error) > spec.angle_tol:
-            reason = f"theta off by {c.theta_error:.1f} deg"
-        else:
-            reason = f"{1000 * (c.position_error or 0.0):.1f} mm off the predicted position"
+    replan = worker.replanner(unit)
+    ex = execute_plan(worker.sim, unit.plan, fingers=spec.fingers,
+                      loop="closed" if loop == "closed" else "open", replan=replan,
+                      config=ControlConfig(angle_tol=spec.angle_tol,
+                                           position_tol=spec.position_tol),
+                      perturbation=sample.perturbation, angle_tol=spec.angle_tol,
+                      position_tol=spec.position_tol)
     return {
-        "success": bool(c.success), "reason": reason,
-        "final": c.simulated.to_dict() if c.simulated is not None else None,
-        "theta_error": c.theta_error, "position_error": c.position_error,
-        "physics_steps": sum(o.result.n_steps for o in outs),
-        "sim_seconds": sum(o.result.sim_time for o in outs),
-        "extra": {"events_in_order": all(o.comparison.chain_ok for o in outs),
-                  "first_failed_step": None if failed is None
-                  else int(failed.label.get("step", 1))},
+        "success": bool(ex.success), "reason": "" if ex.success else ex.reason,
+        "final": ex.final_state.to_dict() if ex.final_state is not None else None,
+        "theta_error": ex.theta_error, "position_error": ex.position_error,
+        "physics_steps": ex.n_steps, "sim_seconds": ex.sim_time,
+        "extra": {"replans": len(ex.replans), "corrections": len(ex.corrections),
+                  "fingertip_max_speed": round(ex.tip_speed, 4),
+                  "transit_contact_s": round(ex.transit_contact_s, 4)},
     }
 
 
-#: Executors by loop name. ``closed`` joins when the closed-loop executor is on main.
-EXECUTORS: dict[str, Executor] = {"open": _open_loop}
+def _closed_loop(worker: _Worker, unit: SweepUnit, sample: PhysicsSample) -> dict[str, Any]:
+    return _execution(worker, unit, sample, "closed")
+
+
+def _open_loop(worker: _Worker, unit: SweepUnit, sample: PhysicsSample) -> dict[str, Any]:
+    return _execution(worker, unit, sample, "open")
+
+
+#: Executors by loop name.
+EXECUTORS: dict[str, Executor] = {"closed": _closed_loop, "open": _open_loop}
 
 
 def available_loops() -> list[str]:
@@ -284,6 +374,9 @@ class SweepSpec:
         Finger name -> tip marker of the references.
     angle_tol, position_tol : float
         Degrees, metres.
+    expansion, library : optional
+        The expanded graph and a motion library (:func:`frozen_library`): closed loop, an
+        execution re-plans with them from where the object is observed (None: it may not).
     """
 
     poly: Polyhedron
@@ -296,6 +389,8 @@ class SweepSpec:
     fingers: Mapping[str, str] = field(default_factory=lambda: dict(DEFAULT_FINGERS))
     angle_tol: float = DEFAULT_ANGLE_TOL_DEG
     position_tol: float = DEFAULT_POSITION_TOL
+    expansion: Any = None
+    library: Any = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "loops", check_loops(self.loops))
@@ -314,11 +409,10 @@ class SweepSpec:
 
     @property
     def n_fingers(self) -> int:
-        """Fingertips every unit's plan needs."""
-        from nonprehensile.sim.execute import fingers_of
+        """Fingertips every unit's plan (and any re-plan) needs."""
+        from nonprehensile.sim.closed_loop import scene_fingers
 
-        return max(max(fingers_of(s.transition.skill), default=1)
-                   for u in self.units for s in u.plan.steps)
+        return max(scene_fingers(u.plan, self.expansion) for u in self.units)
 
     def sample(self, unit: int, index: int) -> PhysicsSample:
         """Sample ``index`` of unit ``unit``'s stream."""
@@ -333,6 +427,21 @@ class _Worker:
         self.sim = Simulator(spec.poly, scale=spec.scale, n_fingers=spec.n_fingers,
                              params=spec.distribution.base)
         self.tuner = SceneTuner(self.sim.model, self.sim.data, self.sim.params)
+        self._replanners: dict[int, Any] = {}
+
+    def replanner(self, unit: SweepUnit) -> Any:
+        """The re-planner of a whole plan's unit (None without an expansion)."""
+        spec = self.spec
+        if spec.expansion is None:
+            return None
+        key = id(unit)
+        if key not in self._replanners:
+            from nonprehensile.control import replanner
+
+            self._replanners[key] = replanner(spec.poly, spec.expansion, unit.plan.goal,
+                                              motions=spec.library, scale=spec.scale,
+                                              angle_tol=spec.angle_tol)
+        return self._replanners[key]
 
     def run(self, unit: int, sample: int) -> list[SampleRecord]:
         s = self.spec.sample(unit, sample)

@@ -245,14 +245,14 @@ def _right_finals(poly: Polyhedron, initial: State, face: str, kind: str | None,
     opts = [o for o in maneuvers_from(poly, initial, angle_tol=angle_tol)
             if kind is None or o.maneuver.kind == kind]
     onto = [o for o in opts if o.maneuver.end.face == face]
-    what = kind or "a maneuver"
     if onto:
         listed = ", ".join(f"{o.maneuver.end} ({o.maneuver.kind} over {o.element})"
                            for o in onto[:6])
-        return (f"{what} from {initial} onto face {face!r} ends in {listed}: write that final "
-                f"state (`nonprehensile maneuvers MODEL --from {initial}` lists them all)")
+        return (f"{kind or 'a maneuver'} from {initial} onto face {face!r} ends in {listed}: "
+                f"write that final state (`nonprehensile maneuvers MODEL --from {initial}` "
+                "lists them all)")
     ends = ", ".join(sorted({str(o.maneuver.end) for o in opts})[:12])
-    return (f"no {what} from {initial} lands on face {face!r}; it reaches {ends} "
+    return (f"no {kind or 'maneuver'} from {initial} lands on face {face!r}; it reaches {ends} "
             f"(`nonprehensile maneuvers MODEL --from {initial}` lists them all)")
 
 

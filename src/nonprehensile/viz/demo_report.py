@@ -125,7 +125,11 @@ def physics_section(ctx: ReportContext) -> Section:
 
     ds, result, summary = ctx.ds, ctx.result, ctx.summary
     try:
-        section, records = draw(ds.poly, result, scale=ds.scale, fingers=ds.fingers)
+        from nonprehensile.control import replanner
+
+        rp = replanner(ds.poly, ctx.exp, result.goal, motions=ctx.motions, scale=ds.scale)
+        section, records = draw(ds.poly, result, scale=ds.scale, fingers=ds.fingers,
+                                replan=rp)
     except NonprehensileError as exc:
         summary["physics"] = {"error": str(exc)}
         return Section("Physics: the plan executed in MuJoCo", [f"Not simulated: {exc}"])

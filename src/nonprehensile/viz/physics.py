@@ -203,73 +203,122 @@ def signals_figure(traces: Sequence[Any], *, n_fingers: int, motion_end: Sequenc
 
 def physics_section(
     poly: Polyhedron, plan: Plan, *, scale: float, fingers: Mapping[str, str],
+    replan: Any = None,
 ) -> tuple[Section, list[dict[str, Any]]]:
-    """Simulate the plan and describe it; also returns the per-step records (JSON)."""
+    """Execute the plan closed loop (and open loop beside) and describe it; also returns the
+    closed loop's per-step records (JSON). ``replan``: the executor's re-planner
+    (:func:`nonprehensile.control.replanner`), so a step that ends elsewhere is re-planned."""
     title = "Physics: the plan executed in MuJoCo"
     try:
         from nonprehensile.sim import Simulator
-        from nonprehensile.sim.execute import fingers_of, simulate_step
+        from nonprehensile.sim.closed_loop import execute_plan, scene_fingers
         from nonprehensile.sim.render import render_traces
+        from nonprehensile.sim.run import signal_columns
     except ImportError:
         return Section(title, ["The simulation needs the `sim` extra (MuJoCo): "
                                "pip install 'nonprehensile[sim]'. Not simulated here."]), []
     if not plan.steps:
         return Section(title, ["The plan has no step to simulate."]), []
-    n = max(max(fingers_of(s.transition.skill), default=1) for s in plan.steps)
+    n = scene_fingers(plan)
     sim = Simulator(poly, scale=scale, n_fingers=n)
-    outcomes = []
-    traces = []
-    # one continuous simulation, open loop; each step keeps its trace for the pictures
-    for i, step in enumerate(plan.steps):
-        o = simulate_step(sim, step, fingers=fingers, continue_from_current=i > 0,
-                          label={"step": i + 1}, keep_trace=10, signals=True)
-        outcomes.append(o)
-        traces.append(o.result.trace)
-    records = [o.to_dict() for o in outcomes]
-    from nonprehensile.sim.run import signal_columns
-
+    # closed loop, one continuous simulation with transits; every executed step keeps its
+    # trace (with the signals) for the pictures
+    ex = execute_plan(sim, plan, fingers=fingers, loop="closed", replan=replan,
+                      keep_trace=10, signals=True)
+    opened = execute_plan(Simulator(poly, scale=scale, n_fingers=n), plan, fingers=fingers,
+                          loop="open")
     cols = signal_columns(n)
-    for r, tr in zip(records, traces, strict=True):
-        if tr is None:
-            continue
-        slip = tr[:, cols["slip"]]
-        # the largest of each signal over the step, for programs (the figure shows them all)
-        r["signals"] = {
-            "max_tracking_error_m": round(float(tr[:, cols["error"]].max()), 6),
-            "max_contact_force_n": round(float(tr[:, cols["force"]].max()), 4),
-            "max_slip_m_per_s": (round(float(np.nanmax(slip)), 6)
-                                 if np.isfinite(slip).any() else None),
-        }
-    ok = sum(o.success for o in outcomes)
+    records = []
+    traces = []
+    for (_step, outcome), rec in zip(ex.executed, ex.steps, strict=True):
+        # a step succeeds when the object rests in its predicted state; its position is
+        # shown (the goal's position is judged at the end, after any correction)
+        r = {**outcome.to_dict(), "success": rec["success"], "outcome": rec["outcome"],
+             "reason": rec["reason"], "observed": rec["observed"],
+             "next": rec.get("next", "")}
+        tr = outcome.result.trace
+        traces.append(tr)
+        if tr is not None and tr.shape[1] > cols["slip"].start:
+            slip = tr[:, cols["slip"]]
+            # the largest of each signal over the step, for programs (the figure shows all)
+            r["signals"] = {
+                "max_tracking_error_m": round(float(tr[:, cols["error"]].max()), 6),
+                "max_contact_force_n": round(float(tr[:, cols["force"]].max()), 4),
+                "max_slip_m_per_s": (round(float(np.nanmax(slip)), 6)
+                                     if np.isfinite(slip).any() else None),
+            }
+        records.append(r)
+    doc = ex.to_dict()
+    lim = doc["limits"]
+    fs = ex.final_state
+    verdict = (f"It reached the goal {plan.goal}" if ex.success else
+               f"It did NOT reach the goal {plan.goal} ({ex.reason})")
     paras = [
-        f"Each of the {len(plan.steps)} steps was executed in one continuous MuJoCo "
-        "simulation, open loop: the fingertips (compliant spheres) follow each step's "
-        "reference motion, placed where the plan predicts the object to be; the object "
-        "carries on from wherever physics left it. A step succeeds when the object rests on "
-        "the predicted face, theta within 5 degrees, centre of mass within 10 mm of the "
-        f"plan's prediction. {ok} of {len(outcomes)} steps ended as predicted. "
+        f"The plan was executed in one continuous MuJoCo simulation, closed loop "
+        f"(`simulate plan --loop closed`, docs/physics.md): before each step the fingertip "
+        "moves clear of the object and approaches it (a transit); each arc of the skill's "
+        "graph runs its reference motion placed on the object where it is observed, until "
+        "the arc's end event is observed; the state is read from the observed pose at the "
+        "end of the step, and a step that ends elsewhere is re-planned from there. "
+        f"{verdict}: it rests on {fs if fs is not None else 'no face'}"
+        + (f", theta {ex.theta_error:+.1f} degrees and" if ex.theta_error is not None
+           else ",")
+        + f" {1000 * (ex.position_error or 0.0):.1f} mm from the goal position (the plan's "
+        "prediction; the bar is 5 degrees and 10 mm). "
+        f"{plural(len([r for r in ex.replans if not r.get('retry')]), 're-plan')}, "
+        f"{plural(len([r for r in ex.replans if r.get('retry')]), 'retry', 'retries')}, "
+        f"{plural(len(ex.corrections), 'correction push', 'correction pushes')}. "
+        f"Fingertips: at most {lim['commanded_max_speed']:.2f} m/s and "
+        f"{lim['commanded_max_accel']:.1f} m/s^2 commanded, "
+        f"{lim['transit_finger_object_contact_s']:.3f} s of fingertip contact with the "
+        f"object in the {len(ex.transits)} transits.",
+        "Open loop beside (each step's reference where the plan predicts the object, run "
+        "for its duration): it "
+        + ("reached" if opened.success else "did NOT reach")
+        + f" the goal, resting on {opened.final_state}, "
+        f"{1000 * (opened.position_error or 0.0):.1f} mm from the goal position. "
         f"Physics: {sim.params.mass:g} kg object, friction {sim.params.friction_table:g} "
         f"(table) / {sim.params.friction_finger:g} (finger), fingertip radius "
-        f"{1000 * sim.params.finger_radius:g} mm, {1000 * sim.params.timestep:g} ms steps.",
+        f"{1000 * sim.params.finger_radius:g} mm, {1000 * sim.params.timestep:g} ms steps; "
+        "the robustness of both across the physics distribution is measured in "
+        "docs/benchmarks.md.",
     ]
     rows = []
     for r in records:
-        s = r["simulated"]
+        sim_state = r["simulated"]
+        seen = [f"{e['event']} {e['time']:.2f} s" for e in r["observed"] if "event" in e]
+        odd = [e["anomaly"] for e in r["observed"] if "anomaly" in e]
         rows.append([
             str(r["step"]), r["skill"],
             f"{r['from']['face']}:{r['from']['theta']:g} -> {r['predicted']['face']}:"
             f"{r['predicted']['theta']:g}",
-            "-" if s is None else f"{s['face']}:{s['theta']:.1f}",
+            "-" if sim_state is None else f"{sim_state['face']}:{sim_state['theta']:.1f}",
             "-" if r["position_error_m"] is None else f"{1000 * r['position_error_m']:.1f}",
-            "yes" if r["chain_ok"] else "missing " + ", ".join(r["missing_events"]),
-            " -> ".join(" ∧ ".join(e["contacts"]) for e in r["simulation"]["events"]),
+            " -> ".join(seen) or "-",
+            "; ".join(odd) or "-",
             "yes" if r["success"] else "NO",
         ])
-    section = Section(title, paras, [], [(
-        ["step", "skill", "predicted", "simulated", "position error (mm)",
-         "skill's events in order", "simulated contact events", "as predicted"], rows)])
+    tables: list[Any] = [(["step", "skill", "predicted", "simulated", "position error (mm)",
+                "observed events (time from the step's start)", "anomaly",
+                "in the predicted state"], rows)]
+    extra = []
+    for rp in ex.replans:
+        extra.append([f"after step {rp['after_step']}",
+                      "retry" + (" (higher, slower)" if rp.get("higher") else "")
+                      if rp.get("retry") else "re-plan", rp["reason"],
+                      "; ".join(rp.get("steps", [])) or rp.get("error", "")])
+    for c in ex.corrections:
+        what = (f"theta {c['theta_error_before_deg']:+.1f} -> "
+                f"{c['theta_error_after_deg']:+.1f} deg" if c["kind"] == "turn"
+                and c["theta_error_after_deg"] is not None else
+                f"moved {1000 * c.get('moved_m', 0.0):.1f} mm, "
+                f"{1000 * c.get('error_after_m', 0.0):.1f} mm from the goal")
+        extra.append(["at the end", f"{c['kind']} push on face {c['face']}", what, ""])
+    if extra:
+        tables.append((["when", "what", "why / result", "new steps"], extra))
+    section = Section(title, paras, [], tables)
     shown = [(i, tr, [float(t) for t in np.linspace(0.0, float(tr[-1, 0]), 6)])
-             for i, tr in enumerate(traces) if tr is not None]
+             for i, tr in enumerate(traces) if tr is not None and len(tr)]
     got, note = (render_traces(sim, [(tr, times) for _, tr, times in shown],
                                width=FRAME_SIZE[0], height=FRAME_SIZE[1]) if shown
                  else (None, ""))
@@ -282,29 +331,32 @@ def physics_section(
                             f"{down_element(poly, _quat_matrix(row[4:8]))}")
     if frames:
         section.figures.append((filmstrip_png(frames, captions),
-                                "Filmstrip of the simulated plan (offscreen MuJoCo rendering); "
-                                "each frame names what the object stands on: its bottom face, "
-                                "or the edge E(f,g) or vertex V(...) it pivots on."))
+                                "Filmstrip of the executed plan, closed loop (offscreen MuJoCo "
+                                "rendering); each frame names what the object stands on: its "
+                                "bottom face, or the edge E(f,g) or vertex V(...) it pivots "
+                                "on."))
     else:
         section.paragraphs.append(f"No pictures: {note or 'nothing to draw'}; the physics "
                                   "above does not need them.")
     if shown:
-        from nonprehensile.sim.execute import step_targets
-
-        expected = [step_targets(plan.steps[i], fingers)[2] for i, _, _ in shown]
-        ends = [times[-1] for times in expected]
-        titles = [f"step {i + 1}: {plan.steps[i].transition.skill.name} "
-                  f"({'as predicted' if outcomes[i].success else 'NOT as predicted'})"
+        observed = [[(float(e["time"]), str(e["event"])) for e in records[i]["observed"]
+                     if "event" in e] for i, _, _ in shown]
+        ends = [ev[-1][0] if ev else float(tr[-1, 0]) for ev, (_, tr, _) in
+                zip(observed, shown, strict=True)]
+        titles = [f"step {i + 1}: {records[i]['skill']} "
+                  f"({'as predicted' if records[i]['success'] else 'NOT as predicted'})"
                   for i, _, _ in shown]
-        events = [list(zip(times, (e.id for e in plan.steps[i].transition.skill.events),
-                           strict=False)) for (i, _, _), times in zip(shown, expected, strict=True)]
         fig = signals_figure([tr for _, tr, _ in shown], n_fingers=n, motion_end=ends,
-                             titles=titles, events=events)
+                             titles=titles, events=observed)
         section.figures.append((figure_to_png(fig), (
             "What the execution did, step by step: each fingertip's distance from its "
             "commanded target (tracking error), its normal force on the object, and how fast "
             "the object's points on the table slide (slip; a roll pivots on an edge, which "
-            "should not slide). Dotted: when the reference motion expects each of the skill's "
-            "contact events; grey: settling after the motion, the fingers holding their last "
-            "targets.")))
+            "should not slide). Dotted: when the controller observed each of the skill's "
+            "contact events; grey: after the last one, the object coming to rest.")))
     return section, records
+
+
+def plural(n: int, word: str, many: str | None = None) -> str:
+    """``1 re-plan``, ``2 re-plans``."""
+    return f"{n} {word if n == 1 else many or word + 's'}"
