@@ -265,3 +265,26 @@ def test_closed_loop_main_plan_by_the_panda() -> None:
     for r in doc["records"]:
         assert r["robot"]["tracking_error_contact_max_m"] < 0.004
     assert doc["execution"]["limits"]["transit_finger_object_contact_s"] == 0.0
+
+
+def test_two_arms_one_finger_each() -> None:
+    """Two Pandas are fingers R1 and R2; the base search places the second away from the
+    first; each fingertip follows its own target."""
+    path = np.tile(np.array([[[0.28, 0.1, 0.03], [0.32, 0.1, 0.03]]]), (10, 1, 1))
+    first = place_base(Robot.builtin(), CUBE, SCALE, [(path, 20.0)], radii=(0.5,),
+                       n_directions=4, finger=0)
+    second = place_base(Robot.builtin(), CUBE, SCALE, [(path, 20.0)], radii=(0.5,),
+                        n_directions=4, finger=1, avoid=[first.base])
+    assert first.feasible and second.feasible
+    assert math.hypot(first.base.x - second.base.x, first.base.y - second.base.y) >= 0.4
+    with pytest.raises(InputError, match="far enough"):
+        place_base(Robot.builtin(), CUBE, SCALE, [(path, 20.0)], radii=(0.5,),
+                   n_directions=1, avoid=[BasePose(0.8, 0.1, 0.0)])
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), first.base),
+                                Arm(Robot.builtin(), second.base)], scale=SCALE)
+    assert sim.n_fingers == 2 and len(sim.scene.joint_names) == 14
+    m = sim.model
+    assert m.body(m.geom("finger2").bodyid[0]).name.startswith("arm1/")
+    ik = sim.robot_driver.ik
+    ik.set_object(np.array([0.3, 0.1, -1.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+    assert ik.converge(path[0]) < 1e-3

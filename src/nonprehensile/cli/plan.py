@@ -35,6 +35,7 @@ from nonprehensile.cli.options import (
 from nonprehensile.cli.robot import (
     control_every,
     load_robot,
+    placement_doc,
     robot_arms,
     robot_options,
     wants_robot,
@@ -125,7 +126,7 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
                                     control_every=every)
     scene = build_robot_scene(poly, scale=ds.scale, arms=arms, params=DEFAULT_PARAMS)
     meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg, every)
-    meta["placement"] = placement.to_dict() if placement is not None else None
+    meta["placement"] = placement_doc(placement)
     meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
                     "the object at each step's planned start pose; `simulate plan --robot` "
                     "executes it in physics")

@@ -12,8 +12,8 @@ from rich.table import Table
 from nonprehensile.cli.options import number
 from nonprehensile.errors import InputError
 
-__all__ = ["control_every", "load_robot", "robot_arms", "robot_options", "robot_table",
-           "wants_robot"]
+__all__ = ["control_every", "load_robot", "placement_doc", "robot_arms", "robot_options",
+           "robot_table", "wants_robot"]
 
 F = Callable[..., Any]
 
@@ -41,10 +41,15 @@ def robot_options(fn: F) -> F:
                      show_default=True, metavar="HZ",
                      help="Robot: how often the IK runs (a divisor of the 1 kHz physics "
                           "rate); the joint servos get interpolated set points every step."),
-        click.option("--base", "base", type=(_BASE_XY, _BASE_XY, _BASE_YAW), default=None,
+        click.option("--arms", "n_arms", type=click.IntRange(1, 4), default=1,
+                     show_default=True,
+                     help="How many copies of the robot (two-finger skills by two one-finger "
+                          "arms); their tip sites are fingers R1, R2, ... arm by arm."),
+        click.option("--base", "base", type=(_BASE_XY, _BASE_XY, _BASE_YAW), multiple=True,
                      metavar="X Y YAW",
-                     help="The robot base on the table: x, y (m) and heading (degrees); "
-                          "default: searched for reach and joint-limit margin."),
+                     help="A robot base on the table: x, y (m) and heading (degrees), one per "
+                          "arm (repeatable); default: searched for reach and joint-limit "
+                          "margin, arm by arm."),
     ]):
         fn = opt(fn)
     return fn
@@ -61,7 +66,7 @@ def wants_robot(kw: dict[str, Any]) -> bool:
     if xml is not None and not sites:
         raise InputError("--robot-xml needs --tip-site NAME (the fingertip's site; one per "
                          "finger)")
-    if base is not None and robot is None and xml is None:
+    if base and robot is None and xml is None:
         raise InputError("--base places a robot: give --robot NAME or --robot-xml FILE")
     return robot is not None or xml is not None
 
@@ -99,8 +104,9 @@ def load_robot(kw: dict[str, Any]) -> Any:
 
 def robot_arms(kw: dict[str, Any], poly: Any, scale: float, plan: Any, fingers: Any,
                params: Any, robot: Any = None) -> tuple[list[Any], Any]:
-    """The arm(s) the options ask for, at ``--base`` or at a searched base; returns the arms
-    and the placement (None when ``--base`` was given)."""
+    """The arm(s) the options ask for, at ``--base`` or at searched bases (arm by arm, each
+    for its first fingertip's path, away from the arms placed before); returns the arms and
+    the placement (a list with several arms; None when ``--base`` was given)."""
     try:
         from nonprehensile.sim.ik import import_mink
         from nonprehensile.sim.placement import place_base, plan_targets
@@ -112,23 +118,31 @@ def robot_arms(kw: dict[str, Any], poly: Any, scale: float, plan: Any, fingers: 
     import_mink()
     if robot is None:
         robot = load_robot(kw)
-    placement = None
-    if kw.get("base") is not None:
-        x, y, yaw = kw["base"]
-        base = BasePose(x, y, yaw)
-    else:
-        placement = place_base(robot, poly, scale,
-                               plan_targets(plan, fingers, len(robot.tip_sites)),
-                               params=params)
-        base = placement.base
-    return [Arm(robot, base)], placement
+    n_arms = int(kw.get("n_arms", 1))
+    bases = list(kw.get("base") or ())
+    if bases and len(bases) != n_arms:
+        raise InputError(f"--base given {len(bases)} time(s) for {n_arms} arm(s): give one "
+                         "X Y YAW per arm, or none to search them")
+    if bases:
+        return [Arm(robot, BasePose(x, y, yaw)) for x, y, yaw in bases], None
+    per_arm = len(robot.tip_sites)
+    paths = plan_targets(plan, fingers, per_arm * n_arms)
+    placements: list[Any] = []
+    for i in range(n_arms):
+        placements.append(place_base(robot, poly, scale, paths, params=params,
+                                     finger=i * per_arm,
+                                     avoid=[p.base for p in placements]))
+    arms = [Arm(robot, p.base) for p in placements]
+    return arms, placements[0] if n_arms == 1 else placements
 
 
 def robot_table(records: list[dict[str, Any]], extra: dict[str, Any]) -> Table:
     """The robot's records per step, as a person reads them."""
-    base = extra["robot"]["robots"][0]["base"]
-    t = Table(title=f"robot {extra['robot']['robots'][0]['robot']['name']} at "
-                    f"({base['x']:.3f}, {base['y']:.3f}) m, {base['yaw_deg']:.1f} deg"
+    robots = extra["robot"]["robots"]
+    where = "; ".join(f"({r['base']['x']:.3f}, {r['base']['y']:.3f}) m, "
+                      f"{r['base']['yaw_deg']:.1f} deg" for r in robots)
+    t = Table(title=f"robot {robots[0]['robot']['name']}"
+                    + (f" x{len(robots)}" if len(robots) > 1 else "") + f" at {where}"
                     + (" (searched)" if extra.get("placement") else ""))
     for c in ("step", "tracking in contact (max)", "tracking (max)", "longest at a limit",
               "link/rod contact", "joint margin", "IK median"):
@@ -145,3 +159,12 @@ def robot_table(records: list[dict[str, Any]], extra: dict[str, Any]) -> Table:
                   f"{m['position_margin_min_rad']:.2f} rad",
                   f"{m['ik_median_ms']:.3f} ms")
     return t
+
+
+def placement_doc(placement: Any) -> Any:
+    """JSON form of :func:`robot_arms`' placement (None, one, or one per arm)."""
+    if placement is None:
+        return None
+    if isinstance(placement, list):
+        return [p.to_dict() for p in placement]
+    return placement.to_dict()

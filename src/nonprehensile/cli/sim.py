@@ -42,6 +42,7 @@ from nonprehensile.cli.options import (
 from nonprehensile.cli.robot import (
     control_every,
     load_robot,
+    placement_doc,
     robot_arms,
     robot_options,
     robot_table,
@@ -381,7 +382,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
     it (docs/robot.md)."""
     robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
-                                       "control_rate")}
+                                       "control_rate", "n_arms")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
@@ -410,7 +411,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
         from nonprehensile.sim.execute import fingers_of
 
-        n_tips = len(robot.tip_sites)
+        n_tips = len(robot.tip_sites) * robot_kw["n_arms"]
         skills = [s for s in skills if max(fingers_of(s), default=1) <= n_tips]
         if not skills:
             raise InputError(f"every skill needs more than the robot's {n_tips} fingertip(s)")
@@ -434,7 +435,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")
         extra["robot"] = simulator.describe()
-        extra["placement"] = placement.to_dict() if placement is not None else None
+        extra["placement"] = placement_doc(placement)
     else:
         simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=scene_fingers(result, exp),
                                   params=params)

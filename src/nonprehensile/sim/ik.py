@@ -88,6 +88,76 @@ class IKConfig:
         return asdict(self)
 
 
+def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95) -> Any:
+    """Joint position and velocity limits as one box on the step ``dq``:
+    ``max(-v dt, gain (lo - q)) <= dq <= min(v dt, gain (hi - q))``.
+
+    The same bounds as mink's ``ConfigurationLimit`` (its default gain) and
+    ``VelocityLimit`` together, in one constraint of ``2 n`` rows instead of two: a quarter of
+    the solve time went to building those two (the IK scene has only the robot's joints, each
+    one degree of freedom: mocap object).
+    """
+
+    class JointBoxLimit(mink.Limit):  # type: ignore[misc]
+        def __init__(self) -> None:
+            n = scene.model.nv
+            self.lower = scene.lower
+            self.upper = scene.upper
+            self.velocity = scene.velocity
+            self.qadr = scene.qadr
+            self.dadr = scene.dadr
+            self.n = n
+            self.G = np.vstack([np.eye(n), -np.eye(n)])
+            self.h = np.zeros(2 * n)
+
+        def compute_qp_inequalities(self, configuration: Any, dt: float) -> Any:
+            q = configuration.q[self.qadr]
+            h = self.h
+            # rows: dq[dof] <= up, then -dq[dof] <= down (a joint outside its range may only
+            # move back in, as with mink's own limit)
+            h[self.dadr] = np.minimum(self.velocity * dt, gain * (self.upper - q))
+            h[self.n + self.dadr] = np.minimum(self.velocity * dt, gain * (q - self.lower))
+            return mink.limits.Constraint(G=self.G, h=h.copy())
+
+    return JointBoxLimit()
+
+
+def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
+                    pointing_cost: float) -> Any:
+    """One fingertip's task: its centre on the target and its +z axis pointing down.
+
+    Error ``[p - target, z - (0, 0, -1)]`` (6), Jacobian ``[J_p; -[z]x J_r]`` from one
+    ``mj_jacSite`` (the pointing rows have rank 2: the roll about the finger stays free).
+    mink's ``FrameTask`` (zero orientation cost) with an ``AxisAlignTask`` give the same
+    least-squares problem; this computes it with one Jacobian call instead of three (the
+    IK's time per solve went from 0.12 to about 0.09 ms).
+    """
+    down = np.array([0.0, 0.0, -1.0])
+
+    class FingertipTask(mink.Task):  # type: ignore[misc]
+        def __init__(self) -> None:
+            super().__init__(cost=np.array([position_cost] * 3 + [pointing_cost] * 3,
+                                           dtype=np.float64))
+            self.target = np.zeros(3)
+            self._jp = np.zeros((3, model.nv))
+            self._jr = np.zeros((3, model.nv))
+
+        def compute_error(self, configuration: Any) -> FloatArray:
+            d = configuration.data
+            z = d.site_xmat[site].reshape(3, 3)[:, 2]
+            return np.concatenate([d.site_xpos[site] - self.target, z - down])
+
+        def compute_jacobian(self, configuration: Any) -> FloatArray:
+            d = configuration.data
+            mujoco.mj_jacSite(model, d, self._jp, self._jr, site)
+            z = d.site_xmat[site].reshape(3, 3)[:, 2]
+            # d z / dt = w x z = -[z]x w
+            skew = np.array([[0.0, -z[2], z[1]], [z[2], 0.0, -z[0]], [-z[1], z[0], 0.0]])
+            return np.vstack([self._jp, -skew @ self._jr])
+
+    return FingertipTask()
+
+
 class FingertipIK:
     """mink IK over a kinematic robot scene (from
     :func:`~nonprehensile.sim.robot_scene.build_robot_scene` with ``mocap_object=True``).
@@ -124,23 +194,15 @@ class FingertipIK:
         self.configuration = mink.Configuration(m)
         cfg = self.config
         self.tip_names = [m.site(int(s)).name for s in scene.tip_sites]
-        self.position_tasks = [
-            mink.FrameTask(n, "site", position_cost=cfg.position_cost, orientation_cost=0.0)
-            for n in self.tip_names]
-        self.pointing_tasks = [
-            mink.AxisAlignTask(n, "site", axis=(0.0, 0.0, 1.0), cost=cfg.pointing_cost)
-            for n in self.tip_names]
-        for t in self.pointing_tasks:
-            t.set_target(np.array([0.0, 0.0, -1.0]))
+        self.position_tasks = [_fingertip_task(mink, m, int(sid), cfg.position_cost,
+                                               cfg.pointing_cost)
+                               for sid in scene.tip_sites]
         self.posture = mink.PostureTask(m, cost=cfg.posture_cost, gain=cfg.posture_gain)
         q_home = np.zeros(m.nq)
         q_home[scene.qadr] = scene.home
         self.posture.set_target(q_home)
-        self.tasks = [*self.position_tasks, *self.pointing_tasks, self.posture]
-        velocities = {n: float(v) for n, v in zip(scene.joint_names, scene.velocity,
-                                                   strict=True)}
-        self.limits: list[Any] = [mink.ConfigurationLimit(m),
-                                  mink.VelocityLimit(m, velocities)]
+        self.tasks = [*self.position_tasks, self.posture]
+        self.limits: list[Any] = [_joint_box_limit(mink, scene)]
         if cfg.collisions:
             links_obj = list(scene.collision_geoms)
             pairs = [(links_obj, ["object"])]
@@ -152,7 +214,6 @@ class FingertipIK:
                 collision_detection_distance=cfg.collision_detection))
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
         self._mocap = int(m.body_mocapid[self._obj])
-        self._target = [np.eye(4) for _ in self.tip_names]
         self.solve_times: list[float] = []
         self.reset(scene.home)
 
@@ -199,9 +260,8 @@ class FingertipIK:
         """
         mink = self.mink
         t0 = time.perf_counter()
-        for task, x, pose in zip(self.position_tasks, targets, self._target, strict=True):
-            pose[:3, 3] = x
-            task.set_target(mink.SE3.from_matrix(pose))
+        for task, x in zip(self.position_tasks, targets, strict=True):
+            task.target = np.asarray(x, dtype=np.float64)
         try:
             v = mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
                               damping=self.config.damping, limits=self.limits)

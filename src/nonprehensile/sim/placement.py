@@ -2,7 +2,7 @@
 
 :func:`place_base` tries base positions on rings around the plan's fingertip paths, the base
 facing them, and keeps the one that reaches every target of the whole plan (largest fingertip
-error under ``reach_tol``) with the largest joint-limit margin (least distance of any joint to
+error under ``reach_tol``, 5 mm) with the largest joint-limit margin (least distance of any joint to
 an end of its range, in radians, over the whole plan). The search is kinematic (the IK at
 ``search_rate``, no collision avoidance): the chosen base is then judged by physics.
 
@@ -104,8 +104,9 @@ def _rz(yaw_deg: float) -> FloatArray:
 def place_base(
     robot: Robot, poly: Polyhedron, scale: float, paths: Sequence[tuple[FloatArray, float]], *,
     radii: Sequence[float] = tuple(np.round(np.arange(0.35, 0.751, 0.05), 3)),
-    n_directions: int = 16, search_rate: float = 50.0, reach_tol: float = 0.002,
-    params: SimParams = DEFAULT_PARAMS,
+    n_directions: int = 16, search_rate: float = 50.0, reach_tol: float = 0.005,
+    params: SimParams = DEFAULT_PARAMS, finger: int = 0,
+    avoid: Sequence[BasePose] = (), min_separation: float = 0.4,
 ) -> Placement:
     """Search a base pose for one arm that reaches the whole plan with the most joint margin.
 
@@ -123,7 +124,13 @@ def place_base(
     search_rate : float
         Rate (Hz) the targets are followed at in the search.
     reach_tol : float
-        A base is feasible when the fingertip error stays under this (m).
+        A base is feasible when the fingertip error stays under this (m) while the IK follows
+        the targets at ``search_rate`` (its lag included: out of reach is centimetres).
+    finger : int
+        Which finger of the paths (0 for R1) this arm's tip follows (its first tip site).
+    avoid : sequence of BasePose
+        Bases of other arms already placed: candidates closer than ``min_separation`` (m)
+        to one are skipped.
     """
     if not paths:
         raise InputError("the plan has no steps: nothing to place the robot for")
@@ -134,7 +141,10 @@ def place_base(
     sampled = []
     for arr, rate in paths:
         every = max(1, round(rate / search_rate))
-        sampled.append(arr[::every, :1])
+        if not 0 <= finger < arr.shape[1]:
+            raise InputError(f"finger R{finger + 1} is not in the paths "
+                             f"({arr.shape[1]} finger(s))")
+        sampled.append(arr[::every, finger:finger + 1])
     allt = np.concatenate(sampled)
     centre = allt.reshape(-1, 3)[:, :2].mean(axis=0)
     best: Placement | None = None
@@ -143,6 +153,8 @@ def place_base(
         for k in range(n_directions):
             a = 2 * math.pi * k / n_directions
             bx, by = centre[0] + r * math.cos(a), centre[1] + r * math.sin(a)
+            if any(math.hypot(bx - o.x, by - o.y) < min_separation for o in avoid):
+                continue
             yaw = math.degrees(math.atan2(centre[1] - by, centre[0] - bx))
             base = BasePose(float(bx), float(by), yaw)
             local = (allt - np.array([bx, by, 0.0])) @ _rz(yaw)  # world -> base frame
@@ -166,7 +178,8 @@ def place_base(
                     best.feasible, best.joint_margin_rad if best.feasible
                     else -best.reach_error_m):
                 best = cand
-    assert best is not None
+    if best is None:
+        raise InputError("no candidate base is far enough from the other arms' bases")
     return Placement(best.base, best.reach_error_m, best.joint_margin_rad, best.feasible,
                      tried)
 
