@@ -581,7 +581,6 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
     reason is kept, and a skill that cannot be recorded is reported with its commonest
     reasons, counts and what to change.
     """
-    del tol_deg
     params = _params(kw)
     from nonprehensile.errors import RecordError
     from nonprehensile.sim.record import record_dataset, write_recorded
@@ -597,6 +596,7 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
             ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
                                        scale=scale, params=params, max_attempts=max_attempts,
                                        only=only or None, keep_going=keep_going,
+                                       angle_tol=tol_deg,
                                        progress=bar, distribution=dist)
         except RecordError as exc:
             raise InputError(f"{skills_file}: {exc}; nothing was written (--keep-going "
