@@ -2,7 +2,9 @@
 
 Not part of ``make bench`` or CI: LeRobot pulls torch, so it lives in its own environment.
 Make one (once; see docs/benchmarks.md#lerobot-export), then run this script with the
-project's Python::
+project's Python. The newest LeRobot (0.6.1) needs Python 3.12: ``python3.12 -m venv
+/tmp/lerobot06-venv && /tmp/lerobot06-venv/bin/pip install "lerobot[dataset]==0.6.1"`` (a
+CUDA torch, about 5 GB). On Python 3.11, LeRobot 0.4.4 beside the torch on this disk::
 
     python3.11 -m venv /tmp/lerobot-venv
     /tmp/lerobot-venv/bin/pip install torch==2.14.1 torchvision==0.29.1
@@ -13,7 +15,8 @@ project's Python::
     .venv/bin/python benchmarks/lerobot_check.py --lerobot-python /tmp/lerobot-venv/bin/python
 
 It exports (1) the bundled cube dataset (``dataset export cube``) and (2) a simulated
-execution of the plan a:0 -> c:90 (``simulate plan --record``, two steps), opens each with
+execution of the plan a:0 -> c:90, open and closed loop (``simulate plan --record``),
+opens each with
 ``lerobot.datasets.lerobot_dataset.LeRobotDataset`` in the other environment, iterates every
 frame (``ds[i]`` for every ``i``, as a training loop's sampler does), and compares what LeRobot
 returns with the source, independently of our writer:
@@ -21,9 +24,9 @@ returns with the source, independently of our writer:
 * the cube: the C3D recordings as the loader reads them (metres): fingertips and markers at
   every recorded sample (the frames a dropout left empty are compared with the filled values
   and counted apart), the task text, the skill of every frame;
-* the execution: the simulator's own trace (every 10th physics step at 100 fps): the object's
-  position and orientation and the fingertips, and the order of the simulator's contact
-  events.
+* the executions (open loop, and closed loop as ``simulate plan --record`` runs by default):
+  the simulator's own trace (every 10th physics step at 100 fps): the object's position and
+  orientation and the fingertips, and the order of the simulator's contact events.
 """
 
 from __future__ import annotations
@@ -135,7 +138,7 @@ def check_cube(python: str, tmp: Path) -> list[str]:
     ]
 
 
-def check_plan(python: str, tmp: Path) -> list[str]:
+def check_plan(python: str, tmp: Path, loop: str = "open") -> list[str]:
     from importlib import resources
 
     from nonprehensile.export import write_episodes
@@ -156,10 +159,22 @@ def check_plan(python: str, tmp: Path) -> list[str]:
     result = plan(poly, exp, State("a", 0), State("c", 90), motions=motions, scale=ds.scale)
     sim = Simulator(poly, scale=ds.scale, n_fingers=2)
     t0 = time.perf_counter()
-    outcomes = simulate_plan(poly, result, scale=ds.scale, fingers=ds.fingers, sim=sim,
-                             keep_trace=1)
-    eps = plan_episodes(poly, result, outcomes, n_fingers=2, fingers=ds.fingers, fps=100)
-    root = write_episodes(eps, tmp / "plan")
+    if loop == "open":
+        outcomes = simulate_plan(poly, result, scale=ds.scale, fingers=ds.fingers, sim=sim,
+                                 keep_trace=1)
+        eps = plan_episodes(poly, result, outcomes, n_fingers=2, fingers=ds.fingers, fps=100)
+    else:  # as `simulate plan --record` runs it by default
+        from nonprehensile.control import replanner
+        from nonprehensile.sim.closed_loop import execute_plan
+        from nonprehensile.sim.episodes import step_episode
+
+        ex = execute_plan(sim, result, fingers=ds.fingers, loop="closed",
+                          replan=replanner(poly, exp, State("c", 90), motions=motions,
+                                           scale=ds.scale), keep_trace=1)
+        outcomes = [o for _, o in ex.executed]
+        eps = [step_episode(poly, st, o, n_fingers=2, fingers=ds.fingers, fps=100)
+               for st, o in ex.executed]
+    root = write_episodes(eps, tmp / f"plan-{loop}")
     t_export = time.perf_counter() - t0
     got, meta = _lerobot_read(python, root, tmp)
     info = json.loads((root / "meta/info.json").read_text())
@@ -186,7 +201,7 @@ def check_plan(python: str, tmp: Path) -> list[str]:
     ok = max(pos_err, tip_err) < 1e-6 and rot_err < 1e-6 and order_ok and start == meta["n"]
     succ = sum(o.success for o in outcomes)
     return [
-        f"   | simulated plan a:0 -> c:90 (`simulate plan --record`), {succ}/{len(outcomes)} "
+        f"   | simulated plan a:0 -> c:90, {loop} loop, {succ}/{len(outcomes)} "
         f"steps succeeded | {meta['num_episodes']} | {meta['n']} | {meta['fps']} | "
         f"{meta['codebase_version']} | object position {pos_err:.2e} m, fingertips "
         f"{tip_err:.2e} m, orientation 1-|q.q| {rot_err:.1e} vs the simulator's trace; "
@@ -214,8 +229,9 @@ def main(argv: list[str] | None = None) -> int:
     print("   | export | episodes | frames read | fps | codebase | values against the source "
           "| export s / LeRobot read s | bar |")
     with tempfile.TemporaryDirectory() as tmp:
-        for line in check_cube(args.lerobot_python, Path(tmp)) + check_plan(
-                args.lerobot_python, Path(tmp)):
+        for line in (check_cube(args.lerobot_python, Path(tmp))
+                     + check_plan(args.lerobot_python, Path(tmp), "open")
+                     + check_plan(args.lerobot_python, Path(tmp), "closed")):
             print(line, flush=True)
     return 0
 

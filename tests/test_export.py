@@ -261,6 +261,10 @@ def test_simulated_plan_records_physics_as_it_was(tmp_path: Path) -> None:
     quat_xyzw = np.column_stack([rows[:, 5:8], rows[:, 4:5]])
     assert np.abs(np.abs(np.einsum("ij,ij->i", state[:, 3:7], quat_xyzw)) - 1).max() < 1e-6
     assert np.abs(state[:, 7:] - rows[:, 8:14]).max() < 1e-6
+    # the action: the actuators' set points (the trace's last columns) at the next frame
+    act = back.frames["action"][:n].astype(np.float64)
+    ctrl = trace[::10][:n + 1, -6:]
+    assert np.abs(act[:-1] - ctrl[1:n]).max() < 1e-6
     ep = back.episodes[0]
     assert ep["success"] is outcomes[0].success and ep["skill"] == "push-roll"
     # the labels are the simulator's own events, in order
@@ -271,6 +275,21 @@ def test_simulated_plan_records_physics_as_it_was(tmp_path: Path) -> None:
 
     assert firsts == list(dict.fromkeys(event_name(poly, e.event)
                                         for e in outcomes[0].result.events))
+
+
+def test_cli_records_a_closed_loop_execution(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco", reason="simulation needs MuJoCo (extra 'sim')")
+    from importlib import resources
+
+    skills_file = str(resources.files("nonprehensile") / "data" / "cube_skills.json")
+    r = _cli("simulate", "plan", skills_file, "--from", "a:0", "--to", "d:0", "--step", "90",
+             "--record", str(tmp_path / "rec"), "--json")
+    assert r.returncode in (0, 1), r.stderr
+    doc = json.loads(r.stdout)
+    back = read_lerobot(tmp_path / "rec")
+    assert back.info["total_frames"] == doc["record"]["n_frames"]
+    assert back.episodes[0]["skill"] == "push-roll" and back.episodes[0]["loop"] == "closed"
+    assert back.info["features"]["observation.state"]["names"][0] == "object.x"
 
 
 def test_cli_record_refuses_an_existing_folder_before_simulating(tmp_path: Path) -> None:
@@ -332,3 +351,24 @@ def test_any_episodes_round_trip(tmp_path_factory: pytest.TempPathFactory,
         assert back.episodes[i]["mentor"] == e.meta["mentor"]
         assert back.episodes[i]["length"] == e.n_frames
         start += e.n_frames
+
+
+def test_cli_records_a_robustness_sweep(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco", reason="simulation needs MuJoCo (extra 'sim')")
+    from importlib import resources
+
+    skills_file = str(resources.files("nonprehensile") / "data" / "cube_skills.json")
+    r = _cli("simulate", "robustness", skills_file, "--step", "90", "--from", "a:0", "--to",
+             "d:0", "--samples", "2", "--loop", "open", "--workers", "1", "--record",
+             str(tmp_path / "rec"), "--json", "--no-records")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    back = read_lerobot(tmp_path / "rec")
+    assert len(back.episodes) == doc["record"]["n_episodes"] == 2
+    assert [e["sample"] for e in back.episodes] == [0, 1]
+    # each episode is its sample's execution: its verdict and its physical parameters
+    assert all("param.mass" in e and e["loop"] == "open" for e in back.episodes)
+    assert sum(e["success"] for e in back.episodes) == doc["overall"]["open"]["k"]
+    r = _cli("simulate", "robustness", skills_file, "--step", "90", "--from", "a:0", "--to",
+             "d:0", "--samples", "2", "--loop", "open", "--record", str(tmp_path / "rec"))
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1

@@ -30,7 +30,8 @@ def test_pressing_down_force_is_the_actuators_and_error_its_spring(sim: Simulato
     target[:20, 2] = np.linspace(top + 0.01, top - 0.002, 20)
     res = sim.run(start, {1: target}, 200.0, keep_trace=1, signals=True, settle=0.2)
     cols = signal_columns(1)
-    assert res.trace is not None and res.trace.shape[1] == cols["slip"].stop
+    # then the actuators' set points (control_columns)
+    assert res.trace is not None and res.trace.shape[1] == cols["slip"].stop + sim.model.nu
     last = res.trace[-1]
     actuator = abs(float(sim.data.actuator_force[2]))  # the z axis of finger 1
     force = float(last[cols["force"]][0])
@@ -69,4 +70,5 @@ def test_signals_are_off_by_default(sim: Simulator) -> None:
     start = pose_of_state(sim.poly, State("a", 0.0), (0.0, 0.0), SIZE)
     target = np.tile([0.2, 0.2, 0.2], (10, 1))
     res = sim.run(start, {1: target}, 100.0, keep_trace=1, settle=0.01)
-    assert res.trace is not None and res.trace.shape[1] == 8 + 3
+    # pose and fingertip, then the set points (control_columns)
+    assert res.trace is not None and res.trace.shape[1] == 8 + 3 + sim.model.nu

@@ -90,6 +90,12 @@ def _pct(d: dict[str, Any]) -> str:
                    "observed state toward the goal, as `simulate plan`).")
 @click.option("--no-records", is_flag=True,
               help="Leave the per-execution records out of the JSON.")
+@click.option("--record", "record", type=click.Path(file_okay=False), default=None,
+              help="Also write every execution's steps to this new folder as a LeRobot v3.0 "
+                   "dataset (docs/dataset.md#executions-as-datasets).")
+@click.option("--record-fps", type=bounded(float, 1.0, 1e4), default=100.0,
+              show_default=True,
+              help="Frame rate of --record (a divisor of the physics rate keeps its values).")
 @angle_tol_option
 @json_option
 @handle_errors
@@ -99,7 +105,8 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
                    skill_names: tuple[str, ...], samples: int,
                    seed: int, loop: str, workers: int | None, scheduler: str | None,
                    n_bins: int, tol_deg: float, position_tol: float, rates_file: str | None,
-                   figure: str | None, no_replan: bool, no_records: bool, angle_tol: float,
+                   figure: str | None, no_replan: bool, no_records: bool,
+                   record: str | None, record_fps: float, angle_tol: float,
                    as_json: bool) -> None:
     """Execute every transition (or the plan --from --to) across the physics distribution:
     success rates with 95 % intervals per transition, per skill and per parameter bin."""
@@ -119,6 +126,9 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
                          "planner picks")
     if workers is not None and scheduler is not None:
         raise InputError("give --workers (a process pool) or --scheduler (Dask), not both")
+    from nonprehensile.cli.sim import _check_record
+
+    _check_record(record)
     try:
         import nonprehensile.sim.robustness as rob
     except ImportError as exc:
@@ -169,11 +179,23 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
             replan = {"expansion": exp, "library": rob.frozen_library(exp, motions)}
         spec = rob.SweepSpec(poly, ds.scale, tuple(units),
                              DEFAULT_DISTRIBUTION.for_object(poly, ds.scale), seed, samples,
-                             tuple(loops), dict(ds.fingers), tol_deg, position_tol, **replan)
+                             tuple(loops), dict(ds.fingers), tol_deg, position_tol, **replan,
+                             record_fps=record_fps if record else None)
         result = rob.run_sweep(spec, workers=workers, scheduler=scheduler,
                                progress=lambda d, n: bars("executing", d, n))
     doc = result.to_dict(records=not no_records, n_bins=n_bins)
     doc["dataset"] = dataset
+    if record:
+        from nonprehensile.export import write_episodes
+
+        episodes = [e for r in result.records for e in r.episodes]
+        write_episodes(episodes, record, extra_info={
+            "source": "simulate robustness", "object": poly.name,
+            "scale_m_per_unit": ds.scale, "seed": seed, "samples": samples, "loops": loops})
+        doc["record"] = {"output": record, "n_episodes": len(episodes),
+                         "n_frames": sum(e.n_frames for e in episodes), "fps": record_fps}
+        err.print(f"recorded {len(episodes)} episodes ({doc['record']['n_frames']} frames at "
+                  f"{record_fps:g} fps) to {record}", markup=False)
     if rates_file is not None:
         result.rates({"dataset": dataset, "step": step}).write(rates_file)
         doc["rates_file"] = rates_file

@@ -10,10 +10,11 @@ Each executed step of a plan (one transition, one skill) is one
   200, 250, 500 Hz) takes every value as physics left it;
 * ``observation.state``: the object's pose (the model frame's, metres, ``x y z qx qy qz qw``)
   and the fingertips' centres, as physics moved them;
-* ``action``: the fingertip targets at the next frame (the references the plan outputs,
-  interpolated as the simulator interpolates them to its step, then held while the object
-  settles); a finger the step does not use is parked away from the object, and its action
-  is where it is;
+* ``action``: the actuators' set points at the next frame (free fingertips: the fingertip
+  targets the executor sent, open loop the plan's references as the simulator interpolates
+  them to its step, closed loop as the controller re-timed and corrected them; held while
+  the object settles; a finger the step does not use is parked away from the object, and
+  its set point is the parking place);
 * labels: the skill of the step, the contact event physics produced (debounced, the
   simulator's own events; -1 before the first), the reference arc being driven;
 * per episode: success (ended in the predicted state, where predicted), the simulated final
@@ -39,6 +40,7 @@ from nonprehensile.export.episodes import (
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import Plan, PlanStep
 from nonprehensile.sim.execute import Outcome, step_targets
+from nonprehensile.sim.run import control_columns
 
 __all__ = ["DEFAULT_RECORD_FPS", "plan_episodes", "step_episode"]
 
@@ -57,6 +59,7 @@ def step_episode(
     fingers: Mapping[str, str] = DEFAULT_FINGERS,
     fps: float = DEFAULT_RECORD_FPS,
     meta: Mapping[str, object] | None = None,
+    controls: int | None = None,
 ) -> Episode:
     """One executed step as an episode (the outcome must keep its trace).
 
@@ -74,6 +77,9 @@ def step_episode(
     fps : float
     meta : mapping, optional
         More per-episode facts (the plan, the step number).
+    controls : int, optional
+        The scene's actuators (``model.nu``; default: free fingertips, three per finger),
+        whose set points end each trace row and are the action.
 
     Raises
     ------
@@ -94,16 +100,14 @@ def step_episode(
         raise InputError(f"the trace has {trace.shape[1]} columns, {cols} expected for "
                          f"{n_fingers} fingers")
     tips = resample_positions(t, trace[:, 8:cols], at).reshape(n, n_fingers, 3)
-    targets, rate, ev_times = step_targets(step, fingers)
-    t_ref = np.arange(len(next(iter(targets.values())))) / rate
-    nxt = np.minimum(at + 1.0 / fps, t[-1])  # the target at the next frame, held at the end
-    action = tips.copy()
-    for k, tr in targets.items():
-        action[:, k - 1] = np.column_stack([np.interp(nxt, t_ref, tr[:, j]) for j in range(3)])
-    if n > 1:  # a parked finger's action: where it is at the next frame
-        parked = [k for k in range(1, n_fingers + 1) if k not in targets]
-        for k in parked:
-            action[:-1, k - 1] = tips[1:, k - 1]
+    # the action: the actuators' set points (the fingertip targets the executor sent, open
+    # or closed loop, re-timed or corrected) at the next frame, held at the end
+    nu = 3 * n_fingers if controls is None else controls
+    if trace.shape[1] < cols + nu:
+        raise InputError(f"the trace has no set points ({trace.shape[1]} columns)")
+    nxt = np.minimum(at + 1.0 / fps, t[-1])
+    action = resample_positions(t, trace[:, control_columns(nu)], nxt).reshape(n, n_fingers, 3)
+    _, _, ev_times = step_targets(step, fingers)
     skill = step.transition.skill
     # observed events: the simulator's debounced contact changes
     seen = [(e.time, event_name(poly, e.event)) for e in res.events]

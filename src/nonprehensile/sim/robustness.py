@@ -244,6 +244,8 @@ class SampleRecord:
         The sample's varied quantities (:meth:`PhysicsSample.values`).
     extra : dict
         What the executor reports beside (events in order, retries, ...).
+    episodes : tuple of Episode
+        The executed steps as episodes, when the sweep records (``record_fps``).
     """
 
     unit: int
@@ -259,6 +261,9 @@ class SampleRecord:
     wall_seconds: float
     values: dict[str, float]
     extra: dict[str, Any] = field(default_factory=dict)
+    #: With ``SweepSpec.record_fps``: the executed steps as learning episodes
+    #: (:mod:`nonprehensile.sim.episodes`); not part of the verdict or its JSON.
+    episodes: tuple[Any, ...] = field(default=(), compare=False, repr=False)
 
     def outcome(self) -> tuple[Any, ...]:
         """What must be equal between two runs of the same sweep (everything but timing)."""
@@ -300,7 +305,20 @@ def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
                       config=ControlConfig(angle_tol=spec.angle_tol,
                                            position_tol=spec.position_tol),
                       perturbation=sample.perturbation, angle_tol=spec.angle_tol,
-                      position_tol=spec.position_tol)
+                      position_tol=spec.position_tol,
+                      keep_trace=1 if spec.record_fps else 0)
+    episodes: tuple[Any, ...] = ()
+    if spec.record_fps:
+        from nonprehensile.sim.episodes import step_episode
+
+        params = {f"param.{k}": v for k, v in sample.values().items()}
+        episodes = tuple(
+            step_episode(spec.poly, st, o, n_fingers=worker.sim.n_fingers,
+                         fingers=spec.fingers, fps=spec.record_fps,
+                         meta={"plan": f"{unit.plan.start} -> {unit.plan.goal}", "step": i + 1,
+                               "n_steps": len(ex.executed), "loop": loop,
+                               "sample": sample.index, **params})
+            for i, (st, o) in enumerate(ex.executed))
     return {
         "success": bool(ex.success), "reason": "" if ex.success else ex.reason,
         "final": ex.final_state.to_dict() if ex.final_state is not None else None,
@@ -309,6 +327,7 @@ def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
         "extra": {"replans": len(ex.replans), "corrections": len(ex.corrections),
                   "fingertip_max_speed": round(ex.tip_speed, 4),
                   "transit_contact_s": round(ex.transit_contact_s, 4)},
+        "episodes": episodes,
     }
 
 
@@ -377,6 +396,9 @@ class SweepSpec:
     expansion, library : optional
         The expanded graph and a motion library (:func:`frozen_library`): closed loop, an
         execution re-plans with them from where the object is observed (None: it may not).
+    record_fps : float or None
+        Record every execution's steps as episodes at this frame rate
+        (``simulate robustness --record``); None: do not.
     """
 
     poly: Polyhedron
@@ -391,6 +413,7 @@ class SweepSpec:
     position_tol: float = DEFAULT_POSITION_TOL
     expansion: Any = None
     library: Any = None
+    record_fps: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "loops", check_loops(self.loops))
@@ -466,7 +489,9 @@ class _Worker:
                 unit, sample, loop, got["success"], got["reason"], got["final"],
                 got["theta_error"], got["position_error"], int(got["physics_steps"]),
                 float(got["sim_seconds"]), time.perf_counter() - wall0, s.values(),
-                got.get("extra", {})))
+                got.get("extra", {}),
+                tuple(replace(e, meta={**e.meta, "unit": unit}) for e in got.get(
+                    "episodes", ()))))
         return out
 
 

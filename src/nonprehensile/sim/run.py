@@ -42,6 +42,7 @@ __all__ = [
     "SimEvent",
     "SimResult",
     "Simulator",
+    "control_columns",
     "default_scale",
     "pose_of_state",
     "signal_columns",
@@ -68,6 +69,12 @@ def signal_columns(n_fingers: int) -> dict[str, slice]:
     return {"error": slice(first, first + n_fingers),
             "force": slice(first + n_fingers, first + 2 * n_fingers),
             "slip": slice(first + 2 * n_fingers, first + 2 * n_fingers + 1)}
+
+
+def control_columns(nu: int) -> slice:
+    """Where a trace row (:meth:`Simulator.trace_row`) holds the actuators' set points: its
+    last ``nu`` (``model.nu``) columns."""
+    return slice(-nu, None)
 
 
 def pose_of_state(poly: Polyhedron, state: State, position: Sequence[float] = (0.0, 0.0),
@@ -196,15 +203,17 @@ class Simulator:
     def trace_row(self, now: float, target: FloatArray | None = None) -> FloatArray:
         """``[t, x, y, z, qw, qx, qy, qz, finger qpos ...]`` now (see :meth:`run`); given
         the fingertips' commanded ``target`` (shape (n_fingers, 3)), followed by the signals
-        of :func:`signal_columns`."""
+        of :func:`signal_columns`; last, the actuators' set points (``data.ctrl``, the
+        ``model.nu`` columns of :func:`control_columns`: what a recorded execution's action
+        is)."""
         d = self.data
         row = np.concatenate(([now], d.qpos[self._qadr:self._qadr + 7],
                               d.qpos[self._finger_qadr]))
         if target is None:
-            return row
+            return np.concatenate((row, d.ctrl))
         error = np.linalg.norm(self.driver.tips(d) - target, axis=1)
         force, slip = self.judge.forces_and_slip(d, self.n_fingers)
-        return np.concatenate((row, error, force, [slip]))
+        return np.concatenate((row, error, force, [slip], d.ctrl))
 
     def check_targets(self, targets: Mapping[int, FloatArray], rate: float) -> int:
         """Validate fingertip targets (see :meth:`run`); returns their number of frames."""
