@@ -82,6 +82,10 @@ def _report(title: str, r: SweepResult) -> None:
             reasons[key] = reasons.get(key, 0) + 1
     top = sorted(reasons.items(), key=lambda kv: -kv[1])[:6]
     print("     commonest failures: " + "; ".join(f"{k} x{v}" for k, v in top))
+    crashed = [rec for rec in r.records if rec.extra.get("executor_error")]
+    if crashed:
+        print(f"     executions where the executor raised (counted as failures): "
+              f"{len(crashed)}: {crashed[0].reason[:120]}")
 
 
 def bare_step_time(spec: SweepSpec, picks: list[tuple[int, int]]) -> tuple[float, float, int]:

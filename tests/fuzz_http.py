@@ -258,7 +258,8 @@ def _zip_bytes(files: list[tuple[str, bytes]], method: int = zipfile.ZIP_DEFLATE
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=method) as zf:
         for name, data in files:
-            with contextlib.suppress(ValueError, UnicodeError):  # names zip cannot hold
+            # names zip cannot hold (writestr("") is an IndexError)
+            with contextlib.suppress(ValueError, UnicodeError, IndexError):
                 zf.writestr(name, data)
     return buf.getvalue()
 
@@ -275,12 +276,16 @@ def _member_names(data: bytes) -> list[str]:
 
 
 def _tar_bytes(files: list[tuple[str, bytes]], mode: str,
-               links: list[tuple[str, str]] | None = None) -> bytes:
+               links: list[tuple[str, str]] | None = None, pax: bool = False) -> bytes:
+    """A tar (``pax``: its first member carrying a PAX record of 25 times the server's
+    limit, which a reader holds whole in memory)."""
     buf = io.BytesIO()
-    with tarfile.open(fileobj=buf, mode=mode) as tf:  # type: ignore[call-overload]
-        for name, data in files:
+    with tarfile.open(fileobj=buf, mode=mode, format=tarfile.PAX_FORMAT) as tf:  # type: ignore[call-overload]
+        for k, (name, data) in enumerate(files):
             ti = tarfile.TarInfo(name)
             ti.size = len(data)
+            if pax and k == 0:
+                ti.pax_headers = {"comment": "x" * (25 * MAX_BYTES)}
             with contextlib.suppress(ValueError, UnicodeError):  # names tar cannot hold
                 tf.addfile(ti, io.BytesIO(data))
         for name, target in links or []:
@@ -528,7 +533,7 @@ def case_archive(run: StoreRun, rng: random.Random, i: int) -> None:
     fmt = rng.choice(["zip", "zip", "tar", "tar:gz", "tar:gz", "tar:bz2", "tar:xz"])
     how = rng.choice(["none", "bytes", "bytes", "annotations", "annotations", "yaml", "member",
                       "clash", "twice", "link", "encrypted", "method", "key", "setting",
-                      "mentor", "truncate"])
+                      "mentor", "truncate", "bomb"])
     want: set[int] | None = None
     ann_name, ann = prefix + "annotations.json", json.dumps(doc, indent=1)
     links: list[tuple[str, str]] = []
@@ -575,6 +580,15 @@ def case_archive(run: StoreRun, rng: random.Random, i: int) -> None:
                                  ("tolerance_mm", 1e308), ("axes", "y-up")])
         doc = {**doc, key: value}
         ann, want = json.dumps(doc), {422}
+    elif how == "bomb":
+        bomb = rng.choice(["many", "big", "pax"] if fmt.startswith("tar") else ["many", "big"])
+        note += f" {bomb}"
+        if bomb == "many":  # more members than an archive may have
+            files += [(f"{prefix}e/{k}", b"") for k in range(5001)]
+        elif bomb == "big":  # one member unpacking to 3 times the limit (compresses to kB)
+            files.append((prefix + "zeros.bin", bytes(3 * MAX_BYTES)))
+            fmt = "tar:gz" if fmt == "tar" else fmt
+        want = {413}
     elif how == "mentor":
         other = rng.choice([m for m in MENTORS if m != mentor])
         doc = {**doc, "demonstrations": [{**d, "mentor": other} for d in doc["demonstrations"]]}
@@ -590,7 +604,8 @@ def case_archive(run: StoreRun, rng: random.Random, i: int) -> None:
             data, want = _zip_patch(data, method=rng.choice([1, 6, 9, 97, 98, 99])), {400}
     else:
         mode = "w" if fmt == "tar" else "w:" + fmt.split(":")[1]
-        data = _tar_bytes(files, mode, links)
+        pax = how == "bomb" and "pax" in note
+        data = _tar_bytes(files, "w:gz" if pax else mode, links, pax=pax)
     if how == "member" and hostile and hostile in _member_names(data):
         want = {400}  # (zip cuts a name at a NUL; tar cannot hold some: then any answer)
     if how == "bytes":

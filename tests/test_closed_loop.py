@@ -33,7 +33,7 @@ from nonprehensile.observation import (
 )
 from nonprehensile.skills.contacts import Edge, Face
 from nonprehensile.states import State, state_pose
-from nonprehensile.transit import hull_distance, limits_of, transit
+from nonprehensile.transit import hull_distance, limit_speed, limits_of, transit
 
 CUBE = cube()
 SCALE = 0.05
@@ -154,6 +154,22 @@ def test_a_transit_clears_the_object_within_its_bounds() -> None:
     assert (hull_distance(CUBE, pose, path[:, 0]) > 0).all()
     speed, accel = limits_of(path, 0.001)
     assert speed <= 0.45 + 1e-9 and accel <= 10.0 + 1e-6
+
+
+def test_limit_speed_retimes_only_what_is_too_fast() -> None:
+    t = np.linspace(0.0, 1.0, 1001)
+    fast = np.zeros((1001, 1, 3))
+    fast[:, 0, 0] = 0.2 * t + 0.3 * (t > 0.5) * (t - 0.5) * 4  # 0.2 then 1.4 m/s
+    out = limit_speed(fast, 0.001, 0.5)
+    speed, _ = limits_of(out, 0.001)
+    assert speed <= 0.5 + 1e-9
+    np.testing.assert_allclose(out[0], fast[0])
+    np.testing.assert_allclose(out[-1], fast[-1])
+    assert len(out) > len(fast)  # run slower where it was too fast
+    np.testing.assert_allclose(out[:400], fast[:400])  # and unchanged where it was not
+    slow = fast[:400]
+    assert limit_speed(slow, 0.001, 0.5) is slow or np.array_equal(
+        limit_speed(slow, 0.001, 0.5), slow)
 
 
 def test_correction_pushes_span_the_displacement() -> None:

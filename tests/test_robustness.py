@@ -345,3 +345,26 @@ def test_record_under_the_distribution_varies_the_scene_take_by_take(tmp_path: P
     for p in phys:
         assert 0.3 <= p["friction_table"] <= 1.0 and 0.05 <= p["mass"] <= 0.4
         assert 0.005 <= p["finger_radius"] <= 0.012
+
+
+def test_an_executor_that_raises_is_a_failed_sample_not_a_lost_sweep(
+        small_spec: SweepSpec, monkeypatch: pytest.MonkeyPatch) -> None:
+    from dataclasses import replace
+
+    import nonprehensile.sim.robustness as rob
+
+    calls = {"n": 0}
+    real = rob.EXECUTORS["open"]
+
+    def flaky(worker: object, unit: object, sample: object) -> dict[str, object]:
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise RuntimeError("boom")
+        return real(worker, unit, sample)  # type: ignore[arg-type]
+
+    monkeypatch.setitem(rob.EXECUTORS, "open", flaky)
+    res = run_sweep(replace(small_spec, units=small_spec.units[:2], n_samples=1), workers=1)
+    assert len(res.records) == 2  # nothing dropped
+    bad = [r for r in res.records if not r.success and r.extra.get("executor_error")]
+    assert len(bad) == 1 and "RuntimeError: boom" in bad[0].reason
+    assert res.overall()["open"].n == 2

@@ -121,3 +121,46 @@ def test_simulate_dataset_cli_json_exit_codes() -> None:
     res = runner.invoke(main, ["simulate", "dataset", "cube", "--friction", "1e9"])
     assert res.exit_code == 2 and "friction_table" in res.stderr
     assert "Traceback" not in res.stderr
+
+
+def test_contact_reading_memos_give_what_a_fresh_reading_gives() -> None:
+    """The judge keeps elements, pairs and contact sets it has named: a second judge of the
+    same scene, reading every state afresh, must name the same sets (and the same object
+    comes back for the same set)."""
+    import mujoco
+
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.planning import step_for
+    from nonprehensile.sim.execute import step_targets
+    from nonprehensile.sim.judge import Judge
+    from nonprehensile.states import states_by_step
+
+    root = os.path.join(os.path.dirname(__file__), "..", "examples", "cube_skills.json")
+    poly, skills = read_skills(root)
+    exp = expand(poly, skills, states_by_step(poly, 90))
+    ds, motions = motions_from_dataset("cube", skills=skills, poly=poly)
+    t = next(t for t in exp.transitions if t.skill.name == "push-roll")
+    st = step_for(poly, t, motions=motions, scale=ds.scale)
+    sim = Simulator(poly, scale=ds.scale, n_fingers=1)
+    tg, rate, _ = step_targets(st, ds.fingers)
+    ctrl = sim.driver.controls(sim.resample(tg, rate, len(tg[1])))
+    mujoco.mj_resetData(sim.model, sim.data)
+    sim.set_pose(st.start_pose)
+    sim.driver.place(sim.data, ctrl[0])
+    mujoco.mj_forward(sim.model, sim.data)
+    seen = set()
+    for i, row in enumerate(ctrl):
+        sim.data.ctrl[:] = row
+        mujoco.mj_step(sim.model, sim.data)
+        if i % 5:
+            continue
+        fresh = Judge(poly, ds.scale, sim.params, sim.model, 1)
+        got, want = sim.judge.contacts(sim.data), fresh.contacts(sim.data)
+        assert got == want
+        assert sim.judge.contacts(sim.data)[0] is got[0]
+        seen.add(got[0])
+    # the reading went through the roll's contact sets: a face, the pivot edge, the landing
+    assert len(seen) >= 3
+    assert any("E(" in str(p) for s in seen for p in s)

@@ -22,6 +22,8 @@ from nonprehensile.geometry.build import typed_decimals
 from nonprehensile.geometry.units import UNITS, in_metres
 from nonprehensile.io import model_from_dict, read_model
 
+ROOT_SKILLS = Path(__file__).resolve().parents[1] / "examples" / "cube_skills.json"
+
 trimesh = pytest.importorskip("trimesh", reason="the mesh extra (trimesh) is not installed")
 
 if not os.environ.get("DISPLAY"):
@@ -190,3 +192,25 @@ def test_a_failing_skill_gets_its_reasons_and_keep_going_writes_the_rest(
     r = runner.invoke(main, [*base, str(tmp_path / "x"), "--only", "nope"])
     assert r.exit_code == 2 and "no skill named ['nope']" in r.output
     assert "\n" not in r.output.strip()
+
+
+def test_advice_follows_what_physics_did() -> None:
+    from nonprehensile.io import read_skills
+    from nonprehensile.sim.record import TakeReason, what_to_change
+
+    _, skills = read_skills(ROOT_SKILLS)
+    by = {s.name: s for s in skills}
+    twist, push, tumble = by["twist"], by["push-roll"], by["tumble-lift"]
+    assert "tipped the object over" in what_to_change(
+        twist, TakeReason("elsewhere", "ended on face b", "ended in b:0"))
+    assert "went on past" in what_to_change(
+        push, TakeReason("elsewhere", "ended on face b", "ended in b:0"))
+    assert "pinch" in what_to_change(tumble, TakeReason("pushed", "slid", "slid"))
+    assert "push higher" in what_to_change(push, TakeReason("pushed", "slid", "slid"))
+    landing = what_to_change(push, TakeReason("events", "k", "t", ("landed",)))
+    assert "topple" in landing and "'landed'" in landing
+    pivot = what_to_change(push, TakeReason("events", "k", "t", ("pivot",)))
+    assert "leave the pivot event out" in pivot and "topple" not in pivot
+    kinds = ("stayed", "untouched", "turned", "no-rest", "slid", "fragile", "unfit")
+    advice = {what_to_change(push, TakeReason(k, k, k)) for k in kinds}
+    assert len(advice) == len(kinds) and all("check which faces" not in a for a in advice)

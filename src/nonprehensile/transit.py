@@ -23,7 +23,8 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose
 from nonprehensile.step_paths import ease
 
-__all__ = ["PEAK_ACCEL", "PEAK_SPEED", "hull_distance", "limits_of", "straight", "transit"]
+__all__ = ["PEAK_ACCEL", "PEAK_SPEED", "hull_distance", "limit_speed", "limits_of", "straight",
+           "transit"]
 
 FloatArray = NDArray[np.float64]
 
@@ -150,3 +151,23 @@ def limits_of(targets: FloatArray, dt: float) -> tuple[float, float]:
     v = np.diff(t, axis=0) / dt
     a = np.diff(v, axis=0) / dt
     return float(np.linalg.norm(v, axis=-1).max()), float(np.linalg.norm(a, axis=-1).max())
+
+
+def limit_speed(targets: FloatArray, dt: float, max_speed: float) -> FloatArray:
+    """``targets`` (shape (n, n_fingers, 3), one sample every ``dt``) retimed so that no
+    fingertip moves faster than ``max_speed``: each step that would is stretched to the time
+    the bound allows, and the path is sampled again every ``dt`` (the same path, run slower
+    where it was too fast; unchanged where it was not)."""
+    t = np.asarray(targets, dtype=np.float64)
+    if len(t) < 2:
+        return t
+    step = np.linalg.norm(np.diff(t, axis=0), axis=-1).max(axis=1)
+    if float(step.max()) <= max_speed * dt * (1.0 + 1e-9):
+        return t
+    durations = np.maximum(dt, step / max_speed)
+    clock = np.concatenate([[0.0], np.cumsum(durations)])
+    new = np.arange(0.0, clock[-1] + 0.5 * dt, dt)
+    flat = t.reshape(len(t), -1)
+    out = np.column_stack([np.interp(new, clock, flat[:, j]) for j in range(flat.shape[1])])
+    out[-1] = flat[-1]
+    return np.asarray(out.reshape((len(new), *t.shape[1:])))

@@ -400,13 +400,21 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     from nonprehensile.planning import plan
     from nonprehensile.sim.closed_loop import execute_plan, scene_fingers
 
-    # bad settings are refused before any work (one line, exit 2)
-    cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol, max_replans=max_replans)
+    # bad settings are refused before any work (one line naming the option, exit 2)
+    options = {"angle_tol": "--tol-deg", "position_tol": "--position-tol",
+               "max_replans": "--max-replans", "observation rate": "--observation-rate",
+               "observation latency": "--latency"}
+    try:
+        cfg = ControlConfig(angle_tol=tol_deg, position_tol=position_tol,
+                            max_replans=max_replans)
+        obs_model = ObservationModel(rate=observation_rate, latency=latency)
+    except InputError as exc:
+        named = next((o for k, o in options.items() if k in str(exc)), None)
+        raise InputError(f"{named}: {exc}" if named else str(exc)) from None
     if use_robot:  # an arm's fingertip accelerates less than a free 20 g sphere
         from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL
 
         cfg = replace(cfg, max_accel=ROBOT_MAX_ACCEL)
-    obs_model = ObservationModel(rate=observation_rate, latency=latency)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
     if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
         from nonprehensile.sim.execute import fingers_of
@@ -573,7 +581,6 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
     reason is kept, and a skill that cannot be recorded is reported with its commonest
     reasons, counts and what to change.
     """
-    del tol_deg
     params = _params(kw)
     from nonprehensile.errors import RecordError
     from nonprehensile.sim.record import record_dataset, write_recorded
@@ -589,6 +596,7 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
             ds, stats = record_dataset(skills_file, seed=seed, n_per_skill=n_per_skill,
                                        scale=scale, params=params, max_attempts=max_attempts,
                                        only=only or None, keep_going=keep_going,
+                                       angle_tol=tol_deg,
                                        progress=bar, distribution=dist)
         except RecordError as exc:
             raise InputError(f"{skills_file}: {exc}; nothing was written (--keep-going "

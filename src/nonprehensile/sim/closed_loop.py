@@ -60,7 +60,7 @@ from nonprehensile.sim.observe import SimObserver
 from nonprehensile.sim.run import SimResult, Simulator
 from nonprehensile.states import State, angle_diff
 from nonprehensile.step_paths import fingers_of, resample
-from nonprehensile.transit import hull_distance, limits_of, straight, transit
+from nonprehensile.transit import hull_distance, limit_speed, limits_of, straight, transit
 
 __all__ = ["Execution", "execute_plan", "scene_fingers", "transition_record"]
 
@@ -152,7 +152,8 @@ class _Runner:
 
     def __init__(self, sim: Simulator, observation: ObservationModel,
                  tracker_rng: np.random.Generator, finger_rng: np.random.Generator,
-                 finger_noise: float, keep_trace: int, signals: bool = False) -> None:
+                 finger_noise: float, keep_trace: int, signals: bool = False,
+                 max_speed: float = 0.5) -> None:
         self.sim = sim
         self.m, self.d = sim.model, sim.data
         self.dt = sim.params.timestep
@@ -168,6 +169,7 @@ class _Runner:
         self.tip_speed = 0.0
         self.keep_trace = keep_trace
         self.signals = signals
+        self.max_speed = max_speed  # every commanded motion is retimed to stay within it
         self.trace: list[FloatArray] = []
         self.contact_reads = 0  # fingertip-object contacts read during transits
         self._tail: FloatArray | None = None
@@ -208,6 +210,7 @@ class _Runner:
         if self._tail is not None:  # the last drive stopped mid-motion: fade out of it
             seg = self._crossfade(self._tail, 0, seg)
             self._tail = None
+        seg = limit_speed(seg, dt, self.max_speed)
         ctrl = sim.driver.controls(self._noisy(seg))
         self.commanded.append(seg)
         i = 0
@@ -245,7 +248,8 @@ class _Runner:
                     cur = seg[min(i, len(seg) - 1)]
                     dec = react(obs, cur)
                     if dec.segment is not None:
-                        new = self._crossfade(seg, i, dec.segment, dec.fade)
+                        new = limit_speed(self._crossfade(seg, i, dec.segment, dec.fade),
+                                          dt, self.max_speed)
                         self.commanded[-1] = seg[:i]
                         self.commanded.append(new)
                         seg, i = new, 0
@@ -372,7 +376,7 @@ def execute_plan(
     ex = Execution(loop, plan.goal, last.end_pose.position)
     p = sim.params
     run = _Runner(sim, obs_model, perturbation.rng("tracker"), perturbation.rng("finger"),
-                  perturbation.finger_noise, keep_trace, signals)
+                  perturbation.finger_noise, keep_trace, signals, cfg.max_speed)
     m, d = sim.model, sim.data
     mujoco.mj_resetData(m, d)
     sim.set_pose(perturbation.start_pose(first.start_pose))
@@ -495,7 +499,7 @@ def execute_plan(
                     norm = float(np.hypot(*away))
                     if norm > 1e-9:
                         off[k - 1, :2] += away / norm * max(
-                            0.0, p.finger_radius + 0.005 - float(gap[k - 1]))
+                            0.0, p.finger_radius + cfg.clearance - float(gap[k - 1]))
                     off[k - 1, 2] += 0.005
                 run.drive(straight(run.command, off, dt=run.dt, max_speed=0.1,
                                    max_accel=cfg.max_accel / 2))

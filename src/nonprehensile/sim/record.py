@@ -55,7 +55,7 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.geometry.units import in_metres
 from nonprehensile.io import read_skills
 from nonprehensile.maneuvers import classify, move_pose
-from nonprehensile.sim.compare import Comparison, compare, events_text
+from nonprehensile.sim.compare import DEFAULT_ANGLE_TOL_DEG, Comparison, compare, events_text
 from nonprehensile.sim.distribution import PhysicsDistribution
 from nonprehensile.sim.execute import fingers_of, smooth_markers
 from nonprehensile.sim.run import SimResult, Simulator, default_scale, pose_of_state
@@ -175,6 +175,9 @@ def what_to_change(skill: Skill, reason: TakeReason) -> str:
         return (f"it reached face {skill.final.face} but turned on the way: more table "
                 f"friction (--friction) holds it; if every take ends at the same angle, the "
                 f"skill's final theta may be wrong ({see} lists the final states)")
+    if reason.kind == "elsewhere" and skill.maneuver == "rotating":
+        return ("the turn tipped the object over instead of turning it on its face: grip it "
+                "lower on its sides (nearer the table), or on faces that hold it upright")
     if reason.kind == "elsewhere":
         return (f"it went on past {skill.final} (or fell another way): the push carries it "
                 f"too far, or {skill.final.face} is not a stable face; {see} lists where each "
@@ -201,9 +204,7 @@ def what_to_change(skill: Skill, reason: TakeReason) -> str:
                            "to be seen (it turned over another element, or passed it in a "
                            "few ms): name what physics shows, or leave the pivot event out")
         return head + "write them as physics makes them, or leave them out"
-    if reason.kind == "elsewhere" and skill.maneuver == "rotating":
-        return ("the turn tipped the object over instead of turning it on its face: grip it "
-                "lower on its sides (nearer the table), or on faces that hold it upright")
+
     if reason.kind == "slid":
         return ("the pivot slid along the table: more table friction (--friction), or a "
                 "second finger holding the object down on its pivot")
@@ -318,6 +319,7 @@ def record_demonstration(
     corrections: int = 3,
     aim_tol_deg: float = AIM_TOL_DEG,
     robust: bool = True,
+    angle_tol: float = DEFAULT_ANGLE_TOL_DEG,
 ) -> tuple[MarkerTrajectory, tuple[EventTime, ...]]:
     """One take of ``skill`` by ``mentor`` pushed through physics.
 
@@ -369,7 +371,7 @@ def record_demonstration(
             j = names.index(DEFAULT_FINGERS[f"R{k}"])
             pos[:, j:j + 2] += (tr - pos[:, j])[:, None]  # the tip and its knuckle
         res = sim.run(start, targets, rate, keep_trace=1)
-        cmp = compare(poly, skill, res)
+        cmp = compare(poly, skill, res, angle_tol=angle_tol)
         slip = float(np.hypot(*(np.asarray(res.final_pose.com[:2]) - exact[:2])))
         if cmp.success and cmp.chain_ok and slip <= max_slip:
             err = abs(cmp.theta_error or 0.0)
@@ -393,7 +395,7 @@ def record_demonstration(
         tips = {k: pos[:, names.index(DEFAULT_FINGERS[f"R{k}"])] for k in fingers}
         shaken = {k: smooth_markers(p + rng.normal(0.0, noise_mm / 1000.0, p.shape), 9)
                   for k, p in tips.items()}
-        again = compare(poly, skill, sim.run(start, shaken, rate))
+        again = compare(poly, skill, sim.run(start, shaken, rate), angle_tol=angle_tol)
         if not again.success:
             text = f"with other tracker noise it ends in {again.simulated}"
             raise TakeFailed(f"take of {skill.name!r} by {mentor.name}: not robust ({text})",
@@ -451,6 +453,7 @@ def record_dataset(
     max_attempts: int = 60,
     only: Sequence[str] | None = None,
     keep_going: bool = False,
+    angle_tol: float = DEFAULT_ANGLE_TOL_DEG,
     with_object_markers: bool = True,
     progress: Progress | None = None,
     distribution: PhysicsDistribution | None = None,
@@ -469,6 +472,8 @@ def record_dataset(
     only : sequence of str, optional
         Record these skills only (the dataset keeps every skill); an unknown name is an
         error naming the skills.
+    angle_tol : float
+        A take ends in the skill's final state when its theta is within this many degrees.
     keep_going : bool
         When a skill cannot be recorded, go on with the others and return what succeeded
         (``stats[name]["failed"]`` says why) instead of raising.
@@ -539,7 +544,7 @@ def record_dataset(
                     traj, events = record_demonstration(
                         sim, skill, mentor, rng, rate=rate, noise_mm=noise_mm,
                         dropouts=dropouts, gap_limit=gap_limit, press_mm=press_mm,
-                        max_slip=max_slip, markers=markers_si)
+                        max_slip=max_slip, markers=markers_si, angle_tol=angle_tol)
                     break
                 except TakeFailed as exc:
                     fragile += exc.fragile

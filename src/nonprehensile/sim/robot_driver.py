@@ -193,6 +193,7 @@ class _OnlineControls:
         self.targets = targets
         self._i = -1
         self._row: FloatArray | None = None
+        # (q at the segment's start, its joint displacement, first row, rows)
         self.seg: tuple[FloatArray, FloatArray, int, int] | None = None
         driver.begin()
 
@@ -257,6 +258,7 @@ class RobotArms:
         m = scene.model
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
         self._obj_geom = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
+        self._tip_sites = np.asarray(scene.tip_sites, dtype=np.int64)
         self._tip_geoms = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"finger{k}")
                                     for k in range(1, scene.n_fingers + 1)])
         self._link_geoms = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g)
@@ -296,7 +298,7 @@ class RobotArms:
 
     def tips(self, data: Any) -> FloatArray:
         """The fingertip sites' positions now, shape (n_fingers, 3)."""
-        return np.array([data.site_xpos[int(s)] for s in self.scene.tip_sites])
+        return np.array(data.site_xpos[self._tip_sites])
 
     def qpos_indices(self) -> NDArray[np.int64]:
         """The arms' joint positions in ``qpos``."""
@@ -331,11 +333,10 @@ class RobotArms:
             self.ik.dt = k * self.dt
             q1, _ = self.ik.step(targets[min(j + k, len(targets) - 1)])
             self.ik.dt = self.dt
-            seg = ctl.seg = (q0, q1, j, k)
-        q0, q1, j0, k = seg
-        f = (j - j0) / k
-        q = q0 + f * (q1 - q0)
-        qd = (q1 - q0) / (k * self.dt)
+            seg = ctl.seg = (q0, q1 - q0, j, k)
+        q0, dq, j0, k = seg
+        q = q0 + ((j - j0) / k) * dq
+        qd = dq / (k * self.dt)
         if last:
             qd = np.zeros_like(qd)
         self._record(targets[j], q, qd, solved=j == j0)
@@ -346,7 +347,8 @@ class RobotArms:
         self._q_set = q
         row = np.array(self.data.ctrl, dtype=np.float64)
         row[sc.pos_act] = q
-        row[sc.vel_act] = np.clip(qd, -sc.velocity, sc.velocity)
+        v = sc.velocity
+        row[sc.vel_act] = np.maximum(np.minimum(qd, v), -v)
         return row
 
     def solve(self, targets: FloatArray, *, last: bool = False) -> FloatArray:
@@ -385,7 +387,8 @@ class RobotArms:
         d, sc, log = self.data, self.scene, self.log
         if self._n % CONTACT_EVERY == 0:  # as often as the judge reads contacts
             self._touch, self._other = self._contacts(d)
-        err = np.linalg.norm(self.tips(d) - targets, axis=1).max()
+        e = d.site_xpos[self._tip_sites] - targets
+        err = math.sqrt(float((e * e).sum(axis=1).max()))
         log.time.append(float(d.time))
         self._n += 1
         log.error.append(float(err))

@@ -475,7 +475,16 @@ class _Worker:
         out = []
         for loop in self.spec.loops:
             wall0 = time.perf_counter()
-            got = EXECUTORS[loop](self, self.spec.units[unit], s)
+            try:
+                got = EXECUTORS[loop](self, self.spec.units[unit], s)
+            except Exception as exc:  # an executor's bug is a failed sample
+                # one execution that raises must neither end the sweep (losing every other
+                # result) nor vanish from it: it counts as a failure, saying why
+                got = {"success": False,
+                       "reason": f"the executor raised {type(exc).__name__}: {exc}",
+                       "final": None, "theta_error": None, "position_error": None,
+                       "physics_steps": 0, "sim_seconds": 0.0,
+                       "extra": {"executor_error": True}}
             out.append(SampleRecord(
                 unit, sample, loop, got["success"], got["reason"], got["final"],
                 got["theta_error"], got["position_error"], int(got["physics_steps"]),
