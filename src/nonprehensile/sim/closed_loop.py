@@ -653,12 +653,6 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
         do_transit(obs.pose, target, (1,), "correction")
         obs = run.wait_observation()
         origin = obs.pose.com[:2].copy()
-        speed = 0.03
-        length = push.distance + p.finger_radius + cfg.clearance + 0.015
-        n = round(length / speed / run.dt) + 1
-        s = np.arange(n) * run.dt * speed
-        path = np.repeat(run.command[None], n, axis=0)
-        path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
         entry = {"kind": "slide", **push.to_dict()}
 
         def react(o: Observation, cmd: FloatArray, origin: FloatArray = origin,
@@ -668,17 +662,32 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                 return Decision(done=True, outcome="finished")
             return Decision()
 
-        dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
-                        max_time=length / speed + 0.5)
-        back = np.array(run.command)
-        back[0, :2] -= push.direction[:2] * (p.finger_radius + cfg.clearance)
-        run.drive(straight(run.command, back, dt=run.dt, max_speed=0.1,
-                           max_accel=cfg.max_accel / 2))
-        obs = run.wait_observation()
+        dec, obs = _push(run, push, 0.03, push.distance + p.finger_radius + cfg.clearance
+                         + 0.015, react, p.finger_radius + cfg.clearance, cfg.max_accel)
         entry["moved_m"] = round(float((obs.pose.com[:2] - origin) @ push.direction[:2]), 5)
         entry["outcome"] = dec.outcome if dec is not None else ""
         entry["error_after_m"] = round(math.dist(obs.pose.com[:2], ex.goal_position), 5)
         ex.corrections.append(entry)
+
+
+def _push(run: _Runner, push: Any, speed: float, length: float,
+          react: Callable[[Observation, FloatArray], Decision], back_off: float,
+          max_accel: float) -> tuple[Decision | None, Observation]:
+    """Drive finger 1 ``length`` (m) along ``push.direction`` from ``push.start`` at ``speed``
+    (m/s) until ``react`` says done (or a timeout), back it off ``back_off`` (m), and observe.
+
+    The slide and turn corrections differ only in their speeds, lengths and stopping rules.
+    """
+    n = round(length / speed / run.dt) + 1
+    s = np.arange(n) * run.dt * speed
+    path = np.repeat(run.command[None], n, axis=0)
+    path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
+    dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
+                    max_time=length / speed + 0.5)
+    back = np.array(run.command)
+    back[0, :2] -= push.direction[:2] * back_off
+    run.drive(straight(run.command, back, dt=run.dt, max_speed=0.1, max_accel=max_accel / 2))
+    return dec, run.wait_observation()
 
 
 def _yaw_error(poly: Any, pose: ObjectPose, theta: float) -> float | None:
@@ -705,12 +714,6 @@ def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
         target = np.array(rest)
         target[0] = push.start
         do_transit(obs.pose, target, (1,), "turn")
-        speed = 0.02
-        length = p.finger_radius + cfg.clearance + 0.03
-        n = round(length / speed / run.dt) + 1
-        s = np.arange(n) * run.dt * speed
-        path = np.repeat(run.command[None], n, axis=0)
-        path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
 
         def react(o: Observation, cmd: FloatArray, err0: float = err0) -> Decision:
             e = _yaw_error(sim.poly, o.pose, theta)
@@ -720,13 +723,8 @@ def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                 return Decision(done=True, outcome="finished")
             return Decision()
 
-        dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
-                        max_time=length / speed + 0.5)
-        back = np.array(run.command)
-        back[0, :2] -= push.direction[:2] * (p.finger_radius + cfg.clearance)
-        run.drive(straight(run.command, back, dt=run.dt, max_speed=0.1,
-                           max_accel=cfg.max_accel / 2))
-        obs = run.wait_observation()
+        dec, obs = _push(run, push, 0.02, p.finger_radius + cfg.clearance + 0.03, react,
+                         p.finger_radius + cfg.clearance, cfg.max_accel)
         after = _yaw_error(sim.poly, obs.pose, theta)
         ex.corrections.append({"kind": "turn", **push.to_dict(),
                                "theta_error_before_deg": round(err0, 3),
