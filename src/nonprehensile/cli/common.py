@@ -39,6 +39,7 @@ __all__ = [
     "handle_errors",
     "out",
     "progress_bar",
+    "record_options",
     "stage_bars",
 ]
 
@@ -86,6 +87,23 @@ def bounded(kind: type[int] | type[float], low: float, high: float) -> Number:
 
 #: The former name of the option type (every numeric option is a ``Number`` now).
 Bounded = Number
+
+
+def record_options(what: str) -> Callable[[F], F]:
+    """``--record OUT`` and ``--record-fps``: write ``what`` to a new folder as a LeRobot v3.0
+    dataset (``simulate plan`` and ``simulate robustness`` share them)."""
+    record = click.option(
+        "--record", "record", type=click.Path(file_okay=False), default=None,
+        help=f"Also write {what} to this new folder as a LeRobot v3.0 dataset "
+             "(docs/dataset.md#executions-as-datasets).")
+    fps = click.option(
+        "--record-fps", type=bounded(float, 1.0, 1e4), default=100.0, show_default=True,
+        help="Frame rate of --record (a divisor of the physics rate keeps its values).")
+
+    def apply(f: F) -> F:
+        return record(fps(f))
+
+    return apply
 
 
 def _check_text_arguments(kwargs: dict[str, Any]) -> None:

@@ -8,7 +8,15 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, out, stage_bars
+from nonprehensile.cli.common import (
+    bounded,
+    emit_json,
+    err,
+    handle_errors,
+    out,
+    record_options,
+    stage_bars,
+)
 from nonprehensile.cli.options import (
     COORDINATE,
     angle_tol_option,
@@ -90,12 +98,7 @@ def _pct(d: dict[str, Any]) -> str:
                    "observed state toward the goal, as `simulate plan`).")
 @click.option("--no-records", is_flag=True,
               help="Leave the per-execution records out of the JSON.")
-@click.option("--record", "record", type=click.Path(file_okay=False), default=None,
-              help="Also write every execution's steps to this new folder as a LeRobot v3.0 "
-                   "dataset (docs/dataset.md#executions-as-datasets).")
-@click.option("--record-fps", type=bounded(float, 1.0, 1e4), default=100.0,
-              show_default=True,
-              help="Frame rate of --record (a divisor of the physics rate keeps its values).")
+@record_options("every execution's steps")
 @angle_tol_option
 @json_option
 @handle_errors

@@ -24,6 +24,7 @@ from nonprehensile.cli.common import (
     handle_errors,
     out,
     progress_bar,
+    record_options,
     stage_bars,
 )
 from nonprehensile.cli.options import (
@@ -356,13 +357,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
               help="Closed loop: the tracker's latency, seconds.")
 @click.option("--max-replans", type=count(0, 100), default=8, show_default=True,
               help="Closed loop: retries and re-plans allowed in one execution.")
-@click.option("--record", "record", type=click.Path(file_okay=False), default=None,
-              help="Also write the executed steps to this new folder as a LeRobot v3.0 "
-                   "dataset (one episode per executed step; "
-                   "docs/dataset.md#executions-as-datasets).")
-@click.option("--record-fps", type=bounded(float, 1.0, 1e4), default=100.0,
-              show_default=True,
-              help="Frame rate of --record (a divisor of the physics rate keeps its values).")
+@record_options("the executed steps, one episode per executed step,")
 @step_option
 @states_option
 @angle_tol_option
