@@ -26,6 +26,13 @@ from nonprehensile.cli.options import (
     states_option,
     step_option,
 )
+from nonprehensile.cli.robot import (
+    control_every,
+    load_robot,
+    placement_doc,
+    robot_options,
+    wants_robot,
+)
 from nonprehensile.errors import InputError
 from nonprehensile.states import State
 
@@ -100,6 +107,7 @@ def _pct(d: dict[str, Any]) -> str:
               help="Leave the per-execution records out of the JSON.")
 @record_options("every execution's steps")
 @angle_tol_option
+@robot_options
 @json_option
 @handle_errors
 def robustness_cmd(skills_file: str, dataset: str, step: float | None,
@@ -110,9 +118,16 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
                    n_bins: int, tol_deg: float, position_tol: float, rates_file: str | None,
                    figure: str | None, no_replan: bool, no_records: bool,
                    record: str | None, record_fps: float, angle_tol: float,
-                   as_json: bool) -> None:
+                   as_json: bool, **robot_kw: Any) -> None:
     """Execute every transition (or the plan --from --to) across the physics distribution:
-    success rates with 95 % intervals per transition, per skill and per parameter bin."""
+    success rates with 95 % intervals per transition, per skill and per parameter bin. With
+    --robot or --robot-xml robot arms execute them, one base placement for the whole sweep
+    (searched over the units' fingertip paths, or --base) (docs/robot.md)."""
+    use_robot = wants_robot(robot_kw)
+    if use_robot and record:
+        raise InputError("--record writes free-fingertip episodes; it does not take a robot "
+                         "yet (drop --robot, or --record)")
+    robot = load_robot(robot_kw) if use_robot else None
     if (start is None) != (goal is None):
         raise InputError("give both --from and --to (a plan), or neither (every transition)")
     if start is not None and rates_file is not None:
@@ -143,6 +158,9 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
     from nonprehensile.planning import plan
     from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION
 
+    # the physics rate is the distribution's (it does not vary the timestep)
+    every = control_every(robot_kw, DEFAULT_DISTRIBUTION.base.timestep) if use_robot else 1
+
     loops = _loops(loop)
     rob.check_loops(loops)  # before any work: a missing loop is never replaced
     if figure is not None:
@@ -150,6 +168,13 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
 
         require_matplotlib()
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
+    if robot is not None:  # sweep (and re-plan) only skills the robot has fingers for
+        from nonprehensile.sim.execute import fingers_of
+
+        n_tips = len(robot.tip_sites) * robot_kw["n_arms"]
+        skills = [s for s in skills if max(fingers_of(s), default=1) <= n_tips]
+        if not skills:
+            raise InputError(f"every skill needs more than the robot's {n_tips} fingertip(s)")
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
@@ -180,14 +205,21 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
         replan = {}
         if not no_replan:  # closed loop re-plans from what it observes, as `simulate plan`
             replan = {"expansion": exp, "library": rob.frozen_library(exp, motions)}
-        spec = rob.SweepSpec(poly, ds.scale, tuple(units),
-                             DEFAULT_DISTRIBUTION.for_object(poly, ds.scale), seed, samples,
+        dist = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale)
+        sweep_robot, placement = None, None
+        if robot is not None:
+            sweep_robot, placement = _sweep_robot(robot_kw, robot, units, poly, ds, dist,
+                                                  every)
+        spec = rob.SweepSpec(poly, ds.scale, tuple(units), dist, seed, samples,
                              tuple(loops), dict(ds.fingers), tol_deg, position_tol, **replan,
-                             record_fps=record_fps if record else None)
+                             record_fps=record_fps if record else None, robot=sweep_robot)
         result = rob.run_sweep(spec, workers=workers, scheduler=scheduler,
                                progress=lambda d, n: bars("executing", d, n))
     doc = result.to_dict(records=not no_records, n_bins=n_bins)
     doc["dataset"] = dataset
+    if sweep_robot is not None:
+        doc["placement"] = placement_doc(placement)
+        doc["robot_metrics"] = _robot_summary(result)
     if record:
         from nonprehensile.export import write_episodes
 
@@ -214,6 +246,47 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
         emit_json(doc)
         return
     _print(doc, loops)
+
+
+def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds: Any,
+                 dist: Any, every: int) -> tuple[Any, Any]:
+    """The sweep's arms: at --base, or placed once for all units."""
+    import nonprehensile.sim.robustness as rob
+
+    n_arms = int(kw.get("n_arms", 1))
+    bases = list(kw.get("base") or ())
+    if bases:
+        if len(bases) != n_arms:
+            raise InputError(f"--base given {len(bases)} time(s) for {n_arms} arm(s): give one "
+                             "X Y YAW per arm, or none to search them")
+        from nonprehensile.sim.robot import BasePose
+        from nonprehensile.sim.robot_scene import Arm
+
+        arms = [Arm(robot, BasePose(x, y, yaw)) for x, y, yaw in bases]
+        placement = None
+    else:
+        arms, found = rob.place_sweep_arms(robot, units, poly, ds.scale, ds.fingers,
+                                           n_arms=n_arms, params=dist.base)
+        placement = found[0] if n_arms == 1 else found
+    return rob.SweepRobot(tuple(arms), every), placement
+
+
+def _robot_summary(result: Any) -> dict[str, Any]:
+    """The robot's worst figures over every execution (None where no execution gave one)."""
+    ms = [r.extra["robot"] for r in result.records if "robot" in r.extra]
+
+    def worst(key: str, pick: Any) -> Any:
+        vals = [m[key] for m in ms if m.get(key) is not None]
+        return pick(vals) if vals else None
+
+    return {
+        "executions": len(ms),
+        "tracking_error_contact_max_m": worst("tracking_error_contact_max_m", max),
+        "longest_at_limit_s": worst("longest_at_limit_s",
+                                    lambda v: max(max(d.values(), default=0.0) for d in v)),
+        "other_contact_s_max": worst("other_contact_s", max),
+        "ik_median_ms_max": worst("ik_median_ms", max),
+    }
 
 
 def _print(doc: dict[str, Any], loops: list[str]) -> None:
@@ -246,5 +319,17 @@ def _print(doc: dict[str, Any], loops: list[str]) -> None:
             b.add_row(name if i == 0 else "", f"{bn['low']:.4g} - {bn['high']:.4g}",
                       *(_pct(bn[lp]) for lp in loops))
     out.print(b)
+    if doc.get("robot_metrics"):
+        m, rb = doc["robot_metrics"], doc["robot"]
+        where = "; ".join(f"{r['robot']} at ({r['base']['x']:.3f}, {r['base']['y']:.3f}) m, "
+                          f"{r['base']['yaw_deg']:.1f} deg" for r in rb["robots"])
+
+        def mm(v: Any) -> str:
+            return "-" if v is None else f"{1000 * v:.1f}"
+
+        out.print(f"robot: {where}; worst over {m['executions']} executions: tracking in "
+                  f"contact {mm(m['tracking_error_contact_max_m'])} mm, longest at a limit "
+                  f"{mm(m['longest_at_limit_s'])} ms, link/rod contact "
+                  f"{mm(m['other_contact_s_max'])} ms, IK median {m['ik_median_ms_max']} ms")
     out.print(f"{doc['physics_steps']} physics steps in {doc['wall_seconds']:.1f} s wall "
               f"({doc['how']})")

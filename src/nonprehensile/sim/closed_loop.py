@@ -186,6 +186,9 @@ class _Runner:
         out, zf = lfilter([1.0], [1.0, -a], w, axis=0, zi=(a * self._noise_state)[None])
         self._noise_state = out[-1]
         del zf
+        split = getattr(self.sim.driver, "with_noise", None)
+        if split is not None:  # a robot puts the error on its position set points only
+            return np.asarray(split(seg, out))
         return np.asarray(seg + out)
 
     # -------------------------------------------------------------------------- loop

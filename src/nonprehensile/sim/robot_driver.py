@@ -188,9 +188,11 @@ class _OnlineControls:
     between interpolate the joint set points linearly (their velocity is the segment's), so
     the servos get a set point every physics step without lagging the reference."""
 
-    def __init__(self, driver: RobotArms, targets: FloatArray) -> None:
+    def __init__(self, driver: RobotArms, targets: FloatArray,
+                 noise: FloatArray | None = None) -> None:
         self.driver = driver
         self.targets = targets
+        self.noise = noise  # the fingertip position error per row (see with_noise)
         self._i = -1
         self._row: FloatArray | None = None
         # (q at the segment's start, its joint displacement, first row, rows)
@@ -266,12 +268,33 @@ class RobotArms:
         self._n = 0
         self._touch = False
         self._other = False
+        self._noise_next: FloatArray | None = None
+        self._jac = np.zeros((3, m.nv))
+        self._pinv: FloatArray | None = None  # tip position -> joints, at the last solve
 
     # --------------------------------------------------------------------- protocol
     def controls(self, targets: FloatArray) -> Any:
         """The actuator rows along ``targets`` (shape (n_samples, n_fingers, 3)), each solved
         by the IK when the step loop reads it (a sequence of rows, shape (model.nu,))."""
-        return _OnlineControls(self, np.asarray(targets, dtype=np.float64))
+        arr = np.asarray(targets, dtype=np.float64)
+        noise, self._noise_next = self._noise_next, None
+        if noise is not None and noise.shape != arr.shape:
+            noise = None
+        return _OnlineControls(self, arr, noise)
+
+    def with_noise(self, targets: FloatArray, noise: FloatArray) -> FloatArray:
+        """The targets of the next :meth:`controls` with a fingertip position error ``noise``
+        (shape of ``targets``; the distribution's ``finger_noise``, a Gauss-Markov process).
+
+        The free fingertips get it added to their targets; an arm gets it on its position
+        servos' set points only, as a joint offset ``J^+ noise`` (``J``: the tip sites'
+        position Jacobian at the last solve), never through the IK and the velocity
+        feed-forward: the process has no derivative (its 1 kHz differences are 0.2 m/s for a
+        1 mm, 50 ms process), and a feed-forward of them holds the Panda's joints at their
+        torque limits for seconds (measured: 2.7 s, 36 mm tracking error on the main plan's
+        first step), where the free fingertips' servo filters them out."""
+        self._noise_next = np.asarray(noise, dtype=np.float64)
+        return targets
 
     def place(self, data: Any, targets: FloatArray) -> None:
         """Before a run: the arm stands at rest with its fingertips on ``targets`` (shape
@@ -322,8 +345,9 @@ class RobotArms:
         """Row ``j`` of ``ctl``'s targets (see :class:`_OnlineControls`)."""
         targets = ctl.targets
         last = j == len(targets) - 1
+        noise = None if ctl.noise is None else ctl.noise[j]
         if not self.placed or self.every == 1:
-            return self.solve(targets[j], last=last)
+            return self.solve(targets[j], last=last, noise=noise)
         d = self.data
         seg = ctl.seg
         if seg is None or j >= seg[2] + seg[3]:
@@ -334,25 +358,44 @@ class RobotArms:
             q1, _ = self.ik.step(targets[min(j + k, len(targets) - 1)])
             self.ik.dt = self.dt
             seg = ctl.seg = (q0, q1 - q0, j, k)
+            self._pinv = None
         q0, dq, j0, k = seg
         q = q0 + ((j - j0) / k) * dq
         qd = dq / (k * self.dt)
         if last:
             qd = np.zeros_like(qd)
         self._record(targets[j], q, qd, solved=j == j0)
-        return self._row_of(q, qd)
+        return self._row_of(q, qd, noise)
 
-    def _row_of(self, q: FloatArray, qd: FloatArray) -> FloatArray:
+    def _offset(self, noise: FloatArray) -> FloatArray:
+        """Joint offset moving the tips by ``noise`` (shape (n_fingers, 3)): damped least
+        squares on the tip sites' position Jacobian, computed once per solve."""
+        sc = self.scene
+        if self._pinv is None:
+            m, d = sc.model, self.data
+            rows = []
+            for s in self._tip_sites:
+                mujoco.mj_jacSite(m, d, self._jac, None, int(s))
+                rows.append(self._jac[:, sc.dadr])
+            jac = np.concatenate(rows)
+            self._pinv = jac.T @ np.linalg.inv(jac @ jac.T + 1e-6 * np.eye(len(jac)))
+        return np.asarray(self._pinv @ np.asarray(noise).reshape(-1))
+
+    def _row_of(self, q: FloatArray, qd: FloatArray,
+                noise: FloatArray | None = None) -> FloatArray:
         sc = self.scene
         self._q_set = q
         row = np.array(self.data.ctrl, dtype=np.float64)
-        row[sc.pos_act] = q
+        row[sc.pos_act] = q if noise is None else q + self._offset(noise)
         v = sc.velocity
         row[sc.vel_act] = np.maximum(np.minimum(qd, v), -v)
         return row
 
-    def solve(self, targets: FloatArray, *, last: bool = False) -> FloatArray:
-        """The actuator row for the fingertip ``targets`` (shape (n_fingers, 3)) now."""
+    def solve(self, targets: FloatArray, *, last: bool = False,
+              noise: FloatArray | None = None) -> FloatArray:
+        """The actuator row for the fingertip ``targets`` (shape (n_fingers, 3)) now, its
+        position set points offset by the fingertip error ``noise`` (see
+        :meth:`with_noise`)."""
         d, sc = self.data, self.scene
         self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
         if not self.placed:  # a new start: converge from home onto the first targets
@@ -362,9 +405,10 @@ class RobotArms:
         else:
             q, qd = self.ik.step(targets)
             self._record(targets, q, qd)
+            self._pinv = None
         if last:
             qd = np.zeros_like(qd)  # the set point holds still after the motion
-        return self._row_of(q, qd)
+        return self._row_of(q, qd, noise)
 
     def _contacts(self, d: Any) -> tuple[bool, bool]:
         """Whether a fingertip touches the object, and whether a link or the rod touches the

@@ -45,12 +45,14 @@ __all__ = [
     "EXECUTORS",
     "SampleRecord",
     "SweepResult",
+    "SweepRobot",
     "SweepSpec",
     "SweepUnit",
     "available_loops",
     "check_loops",
     "demonstration_units",
     "frozen_library",
+    "place_sweep_arms",
     "plan_unit",
     "run_sweep",
     "transition_units",
@@ -300,10 +302,12 @@ def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
 
     spec = worker.spec
     replan = worker.replanner(unit)
+    cfg = ControlConfig(angle_tol=spec.angle_tol, position_tol=spec.position_tol)
+    if spec.robot is not None:  # an arm's fingertip accelerates less than a free sphere
+        cfg = replace(cfg, max_accel=spec.robot.max_accel)
     ex = execute_plan(worker.sim, unit.plan, fingers=spec.fingers,
                       loop="closed" if loop == "closed" else "open", replan=replan,
-                      config=ControlConfig(angle_tol=spec.angle_tol,
-                                           position_tol=spec.position_tol),
+                      config=cfg,
                       perturbation=sample.perturbation, angle_tol=spec.angle_tol,
                       position_tol=spec.position_tol,
                       keep_trace=1 if spec.record_fps else 0)
@@ -319,14 +323,17 @@ def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
                                "n_steps": len(ex.executed), "loop": loop,
                                "sample": sample.index, **params})
             for i, (st, o) in enumerate(ex.executed))
+    extra: dict[str, Any] = {"replans": len(ex.replans), "corrections": len(ex.corrections),
+                             "fingertip_max_speed": round(ex.tip_speed, 4),
+                             "transit_contact_s": round(ex.transit_contact_s, 4)}
+    if spec.robot is not None:  # tracking, limits, link contacts, IK time of the whole run
+        extra["robot"] = worker.sim.robot_log.metrics().to_dict()  # type: ignore[attr-defined]
     return {
         "success": bool(ex.success), "reason": "" if ex.success else ex.reason,
         "final": ex.final_state.to_dict() if ex.final_state is not None else None,
         "theta_error": ex.theta_error, "position_error": ex.position_error,
         "physics_steps": ex.n_steps, "sim_seconds": ex.sim_time,
-        "extra": {"replans": len(ex.replans), "corrections": len(ex.corrections),
-                  "fingertip_max_speed": round(ex.tip_speed, 4),
-                  "transit_contact_s": round(ex.transit_contact_s, 4)},
+        "extra": extra,
         "episodes": episodes,
     }
 
@@ -372,6 +379,127 @@ def check_loops(loops: Sequence[str]) -> tuple[str, ...]:
     return tuple(out)
 
 
+# ----------------------------------------------------------------------------- the robot
+@dataclass(frozen=True)
+class SweepRobot:
+    """Robot arms that execute every unit of a sweep in place of the free fingertips.
+
+    Each worker builds the robot scene once (:class:`~nonprehensile.sim.robot_run.
+    RobotSimulator`) and retunes it per sample like the free fingertips' scene: the object's
+    mass, every pair's friction and softness, the fingertip sphere's radius; the free
+    fingertips' ``stiffness``, ``max_force`` and ``finger_mass`` do not apply to an arm.
+
+    Attributes
+    ----------
+    arms : tuple of Arm
+        Robots at their base poses (:func:`place_sweep_arms`, or given); their tip sites are
+        fingers R1, R2, ... in order.
+    control_every : int
+        Physics steps per IK solve (the control rate is the physics rate / it).
+    max_accel : float, optional
+        Fingertip acceleration bound of the executor's motions (m/s^2; transits half of it);
+        default :data:`~nonprehensile.sim.robot_run.ROBOT_MAX_ACCEL`, as ``simulate plan
+        --robot``.
+    """
+
+    arms: tuple[Any, ...]
+    control_every: int = 1
+    max_accel: float = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if self.max_accel is None:
+            from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL
+
+            object.__setattr__(self, "max_accel", ROBOT_MAX_ACCEL)
+        object.__setattr__(self, "arms", tuple(self.arms))
+        if not self.arms:
+            raise InputError("a sweep's robot needs at least one arm")
+        c = self.control_every
+        if isinstance(c, bool) or not isinstance(c, int) or not 1 <= c <= 100:
+            raise InputError(f"control_every must be a whole number in [1, 100], got {c!r}")
+        if not (isinstance(self.max_accel, (int, float)) and math.isfinite(self.max_accel)
+                and self.max_accel > 0):
+            raise InputError(f"max_accel must be a finite positive number, got "
+                             f"{self.max_accel!r}")
+
+    @property
+    def n_fingers(self) -> int:
+        """Fingertips over all arms."""
+        return sum(len(a.robot.tip_sites) for a in self.arms)
+
+    def simulator(self, poly: Polyhedron, scale: float, params: Any) -> Simulator:
+        """The robot scene of these arms (one per worker)."""
+        from nonprehensile.sim.robot_run import RobotSimulator
+
+        return RobotSimulator(poly, self.arms, scale=scale, params=params,
+                              control_every=self.control_every)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON form: robots, bases, rates."""
+        return {"robots": [{"robot": a.robot.name, "tip_sites": list(a.robot.tip_sites),
+                            "base": a.base.to_dict()} for a in self.arms],
+                "control_every": self.control_every, "max_accel": self.max_accel}
+
+
+def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, scale: float,
+                     fingers: Mapping[str, str], *, n_arms: int = 1, params: Any = None,
+                     max_units: int = 24) -> tuple[list[Any], list[Any]]:
+    """Base poses for ``n_arms`` copies of ``robot`` that reach every unit of a sweep.
+
+    A worker keeps one robot scene for all units, so one placement serves them all:
+    :func:`~nonprehensile.sim.placement.place_base` (arm by arm, each for its first
+    fingertip, away from the bases placed before) over the fingertip paths of up to
+    ``max_units`` units spread evenly over the sweep (a transition sweep has every object
+    at the origin: its paths overlap), one after another, joined by straight moves 5 cm
+    above the higher end (each unit starts from a transit in the execution).
+
+    Returns
+    -------
+    arms : list of Arm
+    placements : list of Placement
+        One per arm (its reach error and joint margin).
+    """
+    from nonprehensile.sim.placement import place_base, plan_targets
+    from nonprehensile.sim.robot_scene import Arm
+    from nonprehensile.sim.scene import DEFAULT_PARAMS
+
+    if isinstance(n_arms, bool) or not isinstance(n_arms, int) or not 1 <= n_arms <= 4:
+        raise InputError(f"n_arms must be a whole number in [1, 4], got {n_arms!r}")
+    if not units:
+        raise InputError("nothing to place the robot for: no unit")
+    n_tips = len(robot.tip_sites) * n_arms
+    pick = np.unique(np.linspace(0, len(units) - 1, min(len(units), max_units)).round()
+                     ).astype(int)
+    rate = 0.0
+    parts: list[np.ndarray] = []
+    for u in pick:
+        for arr, r in plan_targets(units[int(u)].plan, fingers, n_tips):
+            rate = max(rate, r)
+            if parts:  # a bridge from the last path's end to this one's start, lifted
+                a, b = parts[-1][-1], arr[0]
+                top = max(float(a[..., 2].max()), float(b[..., 2].max())) + 0.05
+                lift = [np.concatenate([a[..., :2], np.full(a.shape[:-1] + (1,), top)], -1),
+                        np.concatenate([b[..., :2], np.full(b.shape[:-1] + (1,), top)], -1)]
+                way = [a, *lift, b]
+                steps = []
+                for p0, p1 in zip(way[:-1], way[1:], strict=True):
+                    n = max(2, int(np.ceil(float(np.abs(p1 - p0).max()) / 0.005)))
+                    steps.append(p0 + np.linspace(0, 1, n)[:, None, None] * (p1 - p0))
+                parts.append(np.concatenate(steps))
+            parts.append(arr)
+    # one path at the fastest rate: the slower ones' frames are a little denser (the search
+    # follows them at its own rate)
+    paths = [(np.concatenate(parts), rate)]
+    placements: list[Any] = []
+    per_arm = len(robot.tip_sites)
+    for i in range(n_arms):
+        placements.append(place_base(robot, poly, scale, paths,
+                                     params=params if params is not None else DEFAULT_PARAMS,
+                                     finger=i * per_arm,
+                                     avoid=[p.base for p in placements]))
+    return [Arm(robot, p.base) for p in placements], placements
+
+
 # ------------------------------------------------------------------------------ the spec
 @dataclass(frozen=True)
 class SweepSpec:
@@ -399,6 +527,9 @@ class SweepSpec:
     record_fps : float or None
         Record every execution's steps as episodes at this frame rate
         (``simulate robustness --record``); None: do not.
+    robot : SweepRobot or None
+        Robot arms execute every unit (each worker builds their scene once); None: the free
+        fingertips.
     """
 
     poly: Polyhedron
@@ -414,9 +545,15 @@ class SweepSpec:
     expansion: Any = None
     library: Any = None
     record_fps: float | None = None
+    robot: SweepRobot | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "loops", check_loops(self.loops))
+        if self.robot is not None and not isinstance(self.robot, SweepRobot):
+            raise InputError(f"robot must be a SweepRobot, got {type(self.robot).__name__}")
+        if self.robot is not None and self.record_fps:
+            raise InputError("recording episodes writes free-fingertip actions; a robot's "
+                             "sweep does not record (drop the robot, or the recording)")
         if isinstance(self.n_samples, bool) or not isinstance(self.n_samples, int) or \
                 not 1 <= self.n_samples <= 100_000:
             raise InputError(f"the number of samples must be a whole number in [1, 100000], "
@@ -429,6 +566,10 @@ class SweepSpec:
         for name, v in (("angle_tol", self.angle_tol), ("position_tol", self.position_tol)):
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a finite positive number, got {v!r}")
+        if self.robot is not None and self.robot.n_fingers < self.n_fingers:
+            raise InputError(f"the units need {self.n_fingers} fingers; the robot has "
+                             f"{self.robot.n_fingers} fingertip site(s) (more arms: n_arms, "
+                             "--arms; or sweep the skills it has fingers for)")
 
     @property
     def n_fingers(self) -> int:
@@ -447,8 +588,9 @@ class _Worker:
 
     def __init__(self, spec: SweepSpec) -> None:
         self.spec = spec
-        self.sim = Simulator(spec.poly, scale=spec.scale, n_fingers=spec.n_fingers,
-                             params=spec.distribution.base)
+        self.sim = (Simulator(spec.poly, scale=spec.scale, n_fingers=spec.n_fingers,
+                              params=spec.distribution.base) if spec.robot is None
+                    else spec.robot.simulator(spec.poly, spec.scale, spec.distribution.base))
         self.tuner = SceneTuner(self.sim.model, self.sim.data, self.sim.params)
         self._replanners: dict[int, Any] = {}
 
@@ -717,6 +859,7 @@ class SweepResult:
         doc: dict[str, Any] = {
             "object": self.spec.poly.name, "seed": self.spec.seed,
             "samples": self.spec.n_samples, "loops": list(self.spec.loops),
+            "robot": None if self.spec.robot is None else self.spec.robot.to_dict(),
             "distribution": self.spec.distribution.to_dict(),
             "angle_tol_deg": self.spec.angle_tol, "position_tol_m": self.spec.position_tol,
             "overall": rates(self.overall()),

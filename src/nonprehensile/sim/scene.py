@@ -303,19 +303,28 @@ class SceneTuner:
         self._inertia_per_kg = np.array(m.body_inertia[self._obj]) / float(
             m.body_mass[self._obj])
         obj_g, table_g = name2id(g, "object"), name2id(g, "table")
-        self._pair_kind = []
-        for i in range(m.npair):
-            pair = {int(m.pair_geom1[i]), int(m.pair_geom2[i])}
-            self._pair_kind.append("table" if pair == {obj_g, table_g} else
-                                   "finger" if obj_g in pair else "finger_table")
         self._fingers: list[tuple[int, int, list[int], list[int]]] = []
         k = 1
         while (geom := name2id(g, f"finger{k}")) >= 0:
-            dofs = [int(m.jnt_dofadr[name2id(mujoco.mjtObj.mjOBJ_JOINT, f"finger{k}_{a}")])
-                    for a in "xyz"]
-            acts = [name2id(mujoco.mjtObj.mjOBJ_ACTUATOR, f"finger{k}_{a}") for a in "xyz"]
-            self._fingers.append((geom, name2id(b, f"finger{k}"), dofs, acts))
+            if name2id(mujoco.mjtObj.mjOBJ_JOINT, f"finger{k}_x") < 0:
+                # a robot scene's fingertip: a sphere on an arm's link (the arm's own body,
+                # joints and servos are the robot's, not retuned)
+                self._fingers.append((geom, -1, [], []))
+            else:
+                dofs = [int(m.jnt_dofadr[name2id(mujoco.mjtObj.mjOBJ_JOINT, f"finger{k}_{a}")])
+                        for a in "xyz"]
+                acts = [name2id(mujoco.mjtObj.mjOBJ_ACTUATOR, f"finger{k}_{a}") for a in "xyz"]
+                self._fingers.append((geom, name2id(b, f"finger{k}"), dofs, acts))
             k += 1
+        tips = {f[0] for f in self._fingers}
+        self._pair_kind = []
+        for i in range(m.npair):
+            pair = {int(m.pair_geom1[i]), int(m.pair_geom2[i])}
+            # a robot scene also pairs the arms' links and rods with the object and the
+            # table (robot_scene.py): low torsional friction, no finger friction
+            self._pair_kind.append("table" if pair == {obj_g, table_g} else
+                                   ("finger" if pair & tips else "link") if obj_g in pair
+                                   else "finger_table" if pair & tips else "link_table")
         self.params = params
 
     def tune(self, new: SimParams) -> None:
@@ -341,6 +350,8 @@ class SceneTuner:
             "finger": (new.friction_finger, new.friction_finger, new.torsional_friction,
                        1e-4, 1e-4),
             "finger_table": (new.friction_table, new.friction_table, 0.005, 1e-4, 1e-4),
+            "link": (new.friction_finger, new.friction_finger, 0.005, 1e-4, 1e-4),
+            "link_table": (new.friction_table, new.friction_table, 0.005, 1e-4, 1e-4),
         }
         for i, kind in enumerate(self._pair_kind):
             m.pair_solref[i] = (new.contact_timeconst, 1.0)
@@ -352,6 +363,8 @@ class SceneTuner:
             m.geom_size[geom, 0] = r
             m.geom_rbound[geom] = r
             m.geom_aabb[geom] = (0.0, 0.0, 0.0, r, r, r)
+            if body < 0:
+                continue
             m.body_inertia[body] = 0.4 * new.finger_mass * r * r
             for dof in dofs:
                 m.dof_damping[dof] = kv
