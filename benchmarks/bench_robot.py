@@ -16,18 +16,38 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
    the file with ``mujoco.MjSpec``, adds a joint position servo per joint (the project's Panda
    gains, the datasheet's torque limits as force ranges), a finger rod and a tip site on the
    flange body ``panda_link8``, writes the result next to the wheel's meshes, and runs the main
-   plan's first step with ``simulate plan --robot-xml FILE --tip-site tip --base ...``.
+   plan's first step with ``simulate plan --robot-xml FILE --tip-site tip --base ...``;
+3. ``sweep``: the main plan on the bundled Panda, closed loop (transits, re-plans), one
+   continuous simulation per sample, over ``NP_ROBOT_SAMPLES`` (100) samples of the
+   closed-loop issue's distribution (``DEFAULT_DISTRIBUTION``: friction, mass, fingertip
+   radius, contact softness, start error, tracker and fingertip noise; the free fingertips'
+   stiffness and force limit do not apply to an arm), ``simulate robustness --robot panda``'s
+   library path: the rate with its 95 % interval, the failures' reasons, the robot's worst
+   tracking error in contact, time at a limit and link contact;
+4. ``transitions``: every cube transition at nominal physics (one sample, no perturbation),
+   closed loop with re-plans: the single-finger ones by one Panda (placed once for all of
+   them), the two-finger ones by two Pandas; the rates per group and per source skill.
+
+``NP_PARTS`` picks parts (default ``plan,wheel``; ``sweep`` and ``transitions`` are long:
+``NP_PARTS=sweep NP_ROBOT_SAMPLES=100 NP_WORKERS=2 nice python -m benchmarks robot``);
+``NP_ROBOT_UNITS=K`` runs every K-th transition only (development).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 WHEEL = "dm-robotics-panda==0.4.8"
+PARTS = os.environ.get("NP_PARTS", "plan,wheel").split(",")
+SAMPLES = int(os.environ.get("NP_ROBOT_SAMPLES", "100"))
+WORKERS = int(os.environ.get("NP_WORKERS", "2"))
+SEED = int(os.environ.get("NP_SEED", "0"))
+EVERY_UNIT = int(os.environ.get("NP_ROBOT_UNITS", "1"))
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 
@@ -158,9 +178,137 @@ def wheel_robot(folder: Path) -> Path:
     return out
 
 
+def _cube() -> tuple:
+    from nonprehensile.cli.options import state_set
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+
+    poly, skills = read_skills(_skills())
+    ds, motions = motions_from_dataset("cube", skills=skills, poly=poly)
+    return poly, skills, ds, motions, lambda sk: expand(poly, sk, state_set(poly, 90.0, None,
+                                                                           1e-6))
+
+
+def _robot_report(res) -> None:
+    from collections import Counter
+
+    for lp, rate in res.overall().items():
+        lo, hi = rate.interval
+        print(f"   {lp} loop: {rate.k}/{rate.n} = {100 * rate.rate:.1f} % (95 % interval "
+              f"{100 * lo:.1f}-{100 * hi:.1f})")
+    for name, rates in res.per_source().items():
+        print(f"     {name:16s} " + "; ".join(f"{lp} {r.k}/{r.n}" for lp, r in rates.items()))
+    why = Counter(r.reason.split(":")[0] for r in res.records if not r.success)
+    for reason, n in why.most_common(8):
+        print(f"     failed {n}x: {reason}")
+    ms = [r.extra["robot"] for r in res.records if "robot" in r.extra]
+    ok = [r.extra["robot"] for r in res.records if "robot" in r.extra and r.success]
+    for label, group in (("all", ms), ("successful", ok)):
+        if not group:
+            continue
+        trk = [m["tracking_error_contact_max_m"] for m in group
+               if m["tracking_error_contact_max_m"] is not None]
+        lim = [max(m["longest_at_limit_s"].values(), default=0.0) for m in group]
+        oth = [m["other_contact_s"] for m in group]
+        print(f"   robot, {label} {len(group)} executions: tracking in contact max "
+              f"{1000 * max(trk, default=0):.1f} mm (median of the maxima "
+              f"{1000 * sorted(trk)[len(trk) // 2] if trk else 0:.1f} mm); longest at a "
+              f"limit {1000 * max(lim):.0f} ms ({sum(v > 0.010 for v in lim)} over 10 ms); "
+              f"link/rod contact max {1000 * max(oth):.0f} ms ({sum(v > 0 for v in oth)} "
+              f"with any); IK median {max(m['ik_median_ms'] for m in group):.3f} ms (worst)")
+    print(f"   {res.steps()} physics steps, {res.wall_seconds:.0f} s wall ({res.how})")
+
+
+def sweep() -> None:
+    """The main plan on the Panda across the distribution (part 3)."""
+    from nonprehensile.planning import plan
+    from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION
+    from nonprehensile.sim.execute import fingers_of
+    from nonprehensile.sim.robot import Robot
+    from nonprehensile.sim.robustness import (
+        SweepRobot,
+        SweepSpec,
+        frozen_library,
+        place_sweep_arms,
+        plan_unit,
+        run_sweep,
+    )
+    from nonprehensile.states import State
+
+    poly, skills, ds, motions, expand_ = _cube()
+    skills = [s for s in skills if max(fingers_of(s), default=1) <= 1]  # one arm, one finger
+    exp = expand_(skills)
+    p = plan(poly, exp, State("b", 200), State("e", 110), position=(0.3, 0.1),
+             motions=motions, scale=ds.scale)
+    units = (plan_unit(p),)
+    dist = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale)
+    arms, found = place_sweep_arms(Robot.builtin("panda"), units, poly, ds.scale, ds.fingers,
+                                   params=dist.base)
+    print(f"main plan ({len(p.steps)} steps) on the Panda at {found[0].to_dict()}, "
+          f"{SAMPLES} samples, seed {SEED}, {WORKERS} workers")
+    spec = SweepSpec(poly, ds.scale, units, dist, SEED, SAMPLES, ("closed",),
+                     dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
+                     robot=SweepRobot(tuple(arms)))
+    _robot_report(run_sweep(spec, workers=WORKERS))
+
+
+def transitions() -> None:
+    """Every cube transition at nominal physics by one arm or two (part 4)."""
+    from dataclasses import replace
+
+    from nonprehensile.sim.closed_loop import scene_fingers
+    from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION, PhysicsDistribution
+    from nonprehensile.sim.execute import fingers_of
+    from nonprehensile.sim.robot import Robot
+    from nonprehensile.sim.robustness import (
+        SweepRobot,
+        SweepSpec,
+        frozen_library,
+        place_sweep_arms,
+        run_sweep,
+        transition_units,
+    )
+
+    poly, skills, ds, motions, expand_ = _cube()
+    dist = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale)
+    b = dist.base
+    nominal = replace(dist, **{n: (getattr(b, n), getattr(b, n))
+                               for n in PhysicsDistribution.RANGED},
+                      start_offset=0.0, start_yaw=0.0, tracking_noise=0.0, finger_noise=0.0)
+    panda = Robot.builtin("panda")
+    full = expand_(skills)
+    everything = transition_units(poly, full, motions, scale=ds.scale, angle_tol=1e-6)
+    print(f"{len(everything)} cube transitions at nominal physics, closed loop, "
+          f"{WORKERS} workers" + (f", every {EVERY_UNIT}th only" if EVERY_UNIT > 1 else ""))
+    for n_arms in (1, 2):
+        # one arm: re-plans among the single-finger skills only (it has one fingertip)
+        sk = [s for s in skills if max(fingers_of(s), default=1) <= n_arms]
+        exp = expand_(sk) if n_arms == 1 else full
+        units = [u for u in transition_units(poly, exp, motions, scale=ds.scale,
+                                             angle_tol=1e-6)
+                 if scene_fingers(u.plan) == n_arms][::EVERY_UNIT]
+        t0 = time.perf_counter()
+        arms, found = place_sweep_arms(panda, units, poly, ds.scale, ds.fingers,
+                                       n_arms=n_arms, params=dist.base)
+        print(f"  {n_arms}-finger transitions by {n_arms} Panda(s): {len(units)}; bases "
+              f"{[f.to_dict()['base'] for f in found]} "
+              f"({time.perf_counter() - t0:.0f} s search)")
+        spec = SweepSpec(poly, ds.scale, tuple(units), nominal, SEED, 1, ("closed",),
+                         dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
+                         robot=SweepRobot(tuple(arms)))
+        _robot_report(run_sweep(spec, workers=WORKERS, chunk_size=1))
+
+
 def main(plan: bool = True) -> None:
-    if plan:
+    if "sweep" in PARTS:
+        sweep()
+    if "transitions" in PARTS:
+        transitions()
+    if plan and "plan" in PARTS:
         main_plan()
+    if "wheel" not in PARTS:
+        return
     folder = Path("/tmp/nonprehensile-bench-robot")
     folder.mkdir(exist_ok=True)
     try:

@@ -128,6 +128,10 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
                          "yet (drop --robot, or --record)")
     robot = load_robot(robot_kw) if use_robot else None
+    n_bases, n_arms = len(robot_kw.get("base") or ()), int(robot_kw.get("n_arms", 1))
+    if n_bases and n_bases != n_arms:  # before any work
+        raise InputError(f"--base given {n_bases} time(s) for {n_arms} arm(s): give one "
+                         "X Y YAW per arm, or none to search them")
     if (start is None) != (goal is None):
         raise InputError("give both --from and --to (a plan), or neither (every transition)")
     if start is not None and rates_file is not None:
@@ -255,10 +259,7 @@ def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds
 
     n_arms = int(kw.get("n_arms", 1))
     bases = list(kw.get("base") or ())
-    if bases:
-        if len(bases) != n_arms:
-            raise InputError(f"--base given {len(bases)} time(s) for {n_arms} arm(s): give one "
-                             "X Y YAW per arm, or none to search them")
+    if bases:  # as many as arms (checked before any work)
         from nonprehensile.sim.robot import BasePose
         from nonprehensile.sim.robot_scene import Arm
 

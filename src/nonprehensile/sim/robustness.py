@@ -22,6 +22,7 @@ angle tolerance, centre of mass within the position tolerance of the plan's pred
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import time
@@ -478,11 +479,11 @@ def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, s
             if parts:  # a bridge from the last path's end to this one's start, lifted
                 a, b = parts[-1][-1], arr[0]
                 top = max(float(a[..., 2].max()), float(b[..., 2].max())) + 0.05
-                lift = [np.concatenate([a[..., :2], np.full(a.shape[:-1] + (1,), top)], -1),
-                        np.concatenate([b[..., :2], np.full(b.shape[:-1] + (1,), top)], -1)]
+                lift = [np.concatenate([a[..., :2], np.full((*a.shape[:-1], 1), top)], -1),
+                        np.concatenate([b[..., :2], np.full((*b.shape[:-1], 1), top)], -1)]
                 way = [a, *lift, b]
                 steps = []
-                for p0, p1 in zip(way[:-1], way[1:], strict=True):
+                for p0, p1 in itertools.pairwise(way):
                     n = max(2, int(np.ceil(float(np.abs(p1 - p0).max()) / 0.005)))
                     steps.append(p0 + np.linspace(0, 1, n)[:, None, None] * (p1 - p0))
                 parts.append(np.concatenate(steps))
