@@ -162,3 +162,35 @@ def test_cli_robustness_by_the_panda_equals_the_robot_simulator() -> None:
     assert rec["final"]["theta"] == pytest.approx(ex.final_state.theta, abs=0.01)
     assert abs(rec["physics_steps"] - ex.n_steps) <= max(20, ex.n_steps // 100)
     assert rec["position_error_m"] == pytest.approx(ex.position_error, abs=1e-3)
+
+
+def test_place_sweep_arms_reaches_every_unit() -> None:
+    """One base for a sweep's units: from it the IK (an independent solve, converged from
+    home at every sampled target) reaches each unit's fingertip targets."""
+    from nonprehensile.cli.options import state_set
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.sim.ik import FingertipIK, IKConfig
+    from nonprehensile.sim.placement import plan_targets
+    from nonprehensile.sim.robot_scene import build_robot_scene
+    from nonprehensile.sim.robustness import place_sweep_arms, transition_units
+
+    poly, skills = read_skills(SKILLS)
+    skills = [s for s in skills if s.name == "push-roll"]
+    exp = expand(poly, skills, state_set(poly, 90.0, None, 1e-6))
+    ds, motions = motions_from_dataset("cube", skills=skills, poly=poly)
+    units = transition_units(poly, exp, motions, scale=ds.scale, angle_tol=1e-6)[:3]
+    arms, (found,) = place_sweep_arms(Robot.builtin(), units, poly, ds.scale, ds.fingers,
+                                      max_units=3)
+    assert found.feasible and arms[0].base == found.base
+    scene = build_robot_scene(poly, scale=ds.scale, arms=arms, mocap_object=True)
+    ik = FingertipIK(scene, 0.02, IKConfig(collisions=False))
+    ik.set_object(np.array([0.0, 0.0, -10.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+    for u in units:
+        for arr, _ in plan_targets(u.plan, ds.fingers):
+            for x in arr[:: max(1, len(arr) // 5)]:
+                ik.reset(scene.home)
+                assert ik.converge(x, iterations=300) < 0.005
+    with pytest.raises(InputError, match="n_arms"):
+        place_sweep_arms(Robot.builtin(), units, poly, ds.scale, ds.fingers, n_arms=0)

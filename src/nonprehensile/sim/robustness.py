@@ -444,7 +444,8 @@ class SweepRobot:
 
 def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, scale: float,
                      fingers: Mapping[str, str], *, n_arms: int = 1, params: Any = None,
-                     max_units: int = 24) -> tuple[list[Any], list[Any]]:
+                     max_units: int = 16, search_rate: float = 10.0
+                     ) -> tuple[list[Any], list[Any]]:
     """Base poses for ``n_arms`` copies of ``robot`` that reach every unit of a sweep.
 
     A worker keeps one robot scene for all units, so one placement serves them all:
@@ -452,7 +453,9 @@ def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, s
     fingertip, away from the bases placed before) over the fingertip paths of up to
     ``max_units`` units spread evenly over the sweep (a transition sweep has every object
     at the origin: its paths overlap), one after another, joined by straight moves 5 cm
-    above the higher end (each unit starts from a transit in the execution).
+    above the higher end (each unit starts from a transit in the execution), followed at
+    ``search_rate`` Hz (a plan's own search uses 50 Hz; a sweep's paths are many times
+    longer).
 
     Returns
     -------
@@ -494,7 +497,7 @@ def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, s
     placements: list[Any] = []
     per_arm = len(robot.tip_sites)
     for i in range(n_arms):
-        placements.append(place_base(robot, poly, scale, paths,
+        placements.append(place_base(robot, poly, scale, paths, search_rate=search_rate,
                                      params=params if params is not None else DEFAULT_PARAMS,
                                      finger=i * per_arm,
                                      avoid=[p.base for p in placements]))
