@@ -194,3 +194,37 @@ def test_place_sweep_arms_reaches_every_unit() -> None:
                 assert ik.converge(x, iterations=300) < 0.005
     with pytest.raises(InputError, match="n_arms"):
         place_sweep_arms(Robot.builtin(), units, poly, ds.scale, ds.fingers, n_arms=0)
+
+
+def test_robot_contact_flags_match_a_plain_reading() -> None:
+    """The driver's contact flags (fingertip on the object; a link or the rod on the object
+    or the table) equal a plain reading of MuJoCo's contact list, over random arm poses with
+    the cube put under the fingertip."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.5, 0.0, 180.0))], scale=SCALE)
+    m, d, drv, sc = sim.model, sim.data, sim.robot_driver, sim.scene
+    obj = m.geom("object").id
+    tips = {m.geom("finger1").id}
+    links = {m.geom(g).id for g in sc.collision_geoms}
+    rng = np.random.default_rng(7)
+    qadr = int(m.jnt_qposadr[m.body("object").jntadr[0]])
+    seen = set()
+    for i in range(40):
+        d.qpos[sc.qadr] = rng.uniform(sc.lower, sc.upper)
+        mujoco.mj_kinematics(m, d)
+        tip = d.site_xpos[sc.tip_sites[0]]
+        # every other pose: the cube's top face just under the fingertip
+        d.qpos[qadr:qadr + 3] = (tip - [0, 0, 0.025 + DEFAULT_PARAMS.finger_radius - 2e-4]
+                                 if i % 2 else [0.0, 0.0, 0.025])
+        d.qpos[qadr + 3:qadr + 7] = [1.0, 0.0, 0.0, 0.0]
+        mujoco.mj_forward(m, d)
+        touch = other = False
+        for c in d.contact[:d.ncon]:
+            if c.dist > 1e-4:
+                continue
+            pair = {int(c.geom1), int(c.geom2)}
+            touch |= obj in pair and bool(pair & tips)
+            other |= bool(pair & links)
+        assert drv._contacts(d) == (touch, other)
+        seen.add((touch, other))
+    assert (True, False) in seen or (True, True) in seen
+    assert any(o for _, o in seen)
