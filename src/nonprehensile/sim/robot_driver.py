@@ -443,7 +443,7 @@ class RobotArms:
 
     def _record(self, targets: FloatArray, q_ref: FloatArray, qd_ref: FloatArray, *,
                 solved: bool = True) -> None:
-        d, sc, log = self.data, self.scene, self.log
+        d, log = self.data, self.log
         if self._n % CONTACT_EVERY == 0:  # as often as the judge reads contacts
             self._touch, self._other = self._contacts(d)
         e = d.site_xpos[self._tip_sites] - targets
