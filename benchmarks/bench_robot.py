@@ -30,7 +30,8 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
 
 ``NP_PARTS`` picks parts (default ``plan,wheel``; ``sweep`` and ``transitions`` are long:
 ``NP_PARTS=sweep NP_ROBOT_SAMPLES=100 NP_WORKERS=2 nice python -m benchmarks robot``);
-``NP_ROBOT_UNITS=K`` runs every K-th transition only (development).
+``NP_ROBOT_UNITS=K`` runs every K-th transition only (development); ``NP_ROBOT_ARMS=1`` or
+``2`` runs one group of ``transitions`` only.
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ SAMPLES = int(os.environ.get("NP_ROBOT_SAMPLES", "100"))
 WORKERS = int(os.environ.get("NP_WORKERS", "2"))
 SEED = int(os.environ.get("NP_SEED", "0"))
 EVERY_UNIT = int(os.environ.get("NP_ROBOT_UNITS", "1"))
+ARMS = [int(a) for a in os.environ.get("NP_ROBOT_ARMS", "1,2").split(",")]
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 
@@ -281,7 +283,7 @@ def transitions() -> None:
     everything = transition_units(poly, full, motions, scale=ds.scale, angle_tol=1e-6)
     print(f"{len(everything)} cube transitions at nominal physics, closed loop, "
           f"{WORKERS} workers" + (f", every {EVERY_UNIT}th only" if EVERY_UNIT > 1 else ""))
-    for n_arms in (1, 2):
+    for n_arms in ARMS:
         # one arm: re-plans among the single-finger skills only (it has one fingertip)
         sk = [s for s in skills if max(fingers_of(s), default=1) <= n_arms]
         exp = expand_(sk) if n_arms == 1 else full
