@@ -63,27 +63,27 @@ def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float
     that its :func:`hull_distance` is at least ``reach``; points already that far stay.
 
     A normal that points down (a face of a tilted object that looks at the table) is
-    followed horizontally, so that no point is driven into the table. ``points`` has shape
-    (n, 3); returns the same shape.
+    followed horizontally, so that no point is driven into the table; faces looking more
+    than 45 degrees down are not left through. ``points`` has shape (n, 3); returns the
+    same shape.
     """
     p = np.array(points, dtype=np.float64)
     normals, offsets = _planes(poly)
     x = (p - pose.translation) @ pose.rotation / pose.scale
     dist = (x @ normals.T - offsets) * pose.scale  # (n, faces)
-    best = dist.argmax(axis=1)
+    world = normals @ pose.rotation.T
+    # a face that looks down at the table (its normal more than 45 degrees below the
+    # horizon) is no way out: the point would be driven into the table
+    usable = world[:, 2] >= -math.sqrt(0.5)
     for k in range(len(p)):
-        short = reach - float(dist[k, best[k]])
-        if short <= 0:
+        if float(dist[k].max()) >= reach:
             continue
-        n = pose.rotation @ normals[best[k]]
-        go = n.copy()
-        go[2] = max(go[2], 0.0)
-        norm = float(np.linalg.norm(go))
-        if norm < 1e-6:  # a face looking straight down (under the object): up is out
-            go, norm = np.array([0.0, 0.0, 1.0]), 1.0
-        go /= norm
-        # the plane's distance grows by go . n per metre along go
-        p[k] += go * min(short / max(float(go @ n), 1e-3), 0.1)  # bounded: 10 cm
+        best = int(np.flatnonzero(usable)[dist[k, usable].argmax()])
+        n = world[best]
+        go = np.array([n[0], n[1], max(n[2], 0.0)])
+        go /= float(np.linalg.norm(go))
+        # the plane's distance grows by go . n (>= 0.7) per metre along go
+        p[k] += go * (reach - float(dist[k, best])) / float(go @ n)
     return p
 
 

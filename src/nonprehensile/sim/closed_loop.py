@@ -123,6 +123,7 @@ class Execution:
     tip_speed: float = 0.0
     transit_contact_s: float = 0.0
     let_go_contact_s: float = 0.0
+    transit_accel: float = 0.0
     finger_table: bool = False
     sim_time: float = 0.0
     wall_time: float = 0.0
@@ -155,6 +156,7 @@ class Execution:
                        "fingertip_max_speed": round(self.tip_speed, 4),
                        "transit_finger_object_contact_s": round(self.transit_contact_s, 4),
                        "let_go_finger_object_contact_s": round(self.let_go_contact_s, 4),
+                       "transit_commanded_max_accel": round(self.transit_accel, 3),
                        "finger_table_contact": self.finger_table},
             "sim_seconds": round(self.sim_time, 4),
             "wall_seconds": round(self.wall_time, 4),
@@ -305,15 +307,17 @@ class _Runner:
         out[:n] = (1.0 - w) * rest + w * new[:n]
         return out
 
-    def wait_observation(self) -> Observation:
-        """Hold the fingertips until an observation arrives (latency included)."""
+    def wait_observation(self, transit_leg: bool = False) -> Observation:
+        """Hold the fingertips until an observation arrives (latency included); with
+        ``transit_leg``, contact meanwhile counts as a transit's."""
         got: list[Observation] = []
 
         def react(obs: Observation, cmd: FloatArray) -> Decision:
             got.append(obs)
             return Decision(done=True)
 
-        self.drive(np.array([self.command]), react=react, max_time=5.0)
+        self.drive(np.array([self.command]), react=react, transit_leg=transit_leg,
+                   max_time=5.0)
         return got[-1] if got else self._truth()
 
     def _truth(self) -> Observation:
@@ -471,7 +475,9 @@ def execute_plan(
     rest = home.copy()
 
     def do_transit(pose: ObjectPose, target: FloatArray, used: tuple[int, ...],
-                   label: str) -> None:
+                   label: str) -> Observation | None:
+        """The transit to ``target``; closed loop, it ends on the observation that what
+        follows starts from (returned)."""
         moving = np.zeros(sim.n_fingers, dtype=bool)
         moving[[k - 1 for k in used]] = True
         # fingers the step does not use go home
@@ -495,18 +501,24 @@ def execute_plan(
                        clearance=cfg.clearance, finger_radius=p.finger_radius,
                        max_speed=cfg.max_speed, max_accel=cfg.max_accel / 2,
                        moving=moving)
-        before, t0 = run.contact_reads, run.t
+        before, t0, k0 = run.contact_reads, run.t, len(run.commanded)
         run.drive(path, transit_leg=True)
+        # closed loop, held at its end until the observation that what follows starts from
+        seen = run.wait_observation(transit_leg=True) if loop == "closed" else None
         # on the execution's clock: the transit runs from ``start_s`` (the fingertips let
         # go) to ``end_s``, the first sample of what follows (a step's first arc, a push)
+        segs = [c for c in run.commanded[k0:] if len(c)]
+        v_max, a_max = limits_of(np.concatenate(segs), run.dt) if segs else (0.0, 0.0)
         entry.update({
             "start_s": round(t0, 4), "end_s": round(run.t, 4),
+            "commanded_max_speed": round(v_max, 4), "commanded_max_accel": round(a_max, 3),
             "seconds": round(run.t - t0, 4),
             "length_m": round(float(np.linalg.norm(np.diff(path, axis=0), axis=2)
                                     .sum(axis=0).max()), 4),
             "finger_object_contact_s": round((run.contact_reads - before) * CONTACT_EVERY
                                              * run.dt, 4)})
         ex.transits.append(entry)
+        return seen
 
     steps = list(plan.steps)
     avoid: frozenset[str] = frozenset()
@@ -557,8 +569,9 @@ def execute_plan(
             first_pts = np.array(rest)
             for j, k in enumerate(spec.used):
                 first_pts[k - 1] = tf.apply(spec.arcs[0].positions[0, j])
-            do_transit(obs.pose, first_pts, spec.used, f"step {number}")
-            obs = run.wait_observation()
+            seen = do_transit(obs.pose, first_pts, spec.used, f"step {number}")
+            assert seen is not None
+            obs = seen
             mon = StepMonitor(sim.poly, spec, cfg, dt=run.dt, finger_radius=p.finger_radius,
                               rest=rest, noise=obs_model.position_noise)
             t_begin = run.t
@@ -703,6 +716,7 @@ def execute_plan(
     ex.commanded_speed, ex.commanded_accel = limits_of(allcmd, run.dt)
     ex.tip_speed = run.tip_speed
     ex.transit_contact_s = sum(t["finger_object_contact_s"] for t in ex.transits)
+    ex.transit_accel = max((t["commanded_max_accel"] for t in ex.transits), default=0.0)
     ex.let_go_contact_s = sum(t["let_go"]["finger_object_contact_s"]
                               for t in [*ex.transits, *ex.steps] if "let_go" in t)
     ex.finger_table = run.log.finger_table
@@ -713,7 +727,7 @@ def execute_plan(
 
 
 def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
-             rest: FloatArray, do_transit: Callable[..., None]) -> None:
+             rest: FloatArray, do_transit: Callable[..., Observation | None]) -> None:
     """Slide the object onto the goal position by pushes low on its side faces, each run
     until the observed object has moved as far as asked (or a timeout)."""
     p = sim.params
@@ -730,8 +744,8 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
         push = max(pushes, key=lambda q: q.distance)  # the largest part first
         target = np.array(rest)
         target[0] = push.start
-        do_transit(obs.pose, target, (1,), "correction")
-        obs = run.wait_observation()
+        seen = do_transit(obs.pose, target, (1,), "correction")
+        obs = seen if seen is not None else run.wait_observation()
         origin = obs.pose.com[:2].copy()
         entry = {"kind": "slide", **push.to_dict()}
 
@@ -777,7 +791,7 @@ def _yaw_error(poly: Any, pose: ObjectPose, theta: float) -> float | None:
 
 
 def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
-           rest: FloatArray, do_transit: Callable[..., None], theta: float,
+           rest: FloatArray, do_transit: Callable[..., Observation | None], theta: float,
            toward: tuple[float, float], tol_deg: float = 1.5) -> None:
     """Turn the object about the vertical onto ``theta`` by pushes off its centre line
     (:func:`~nonprehensile.control.turn_push`), each run until the observed turn is done."""
