@@ -373,7 +373,9 @@ def _let_go(sim: Simulator, run: _Runner, cfg: ControlConfig, moving: NDArray[np
     def react(o: Observation, cur: FloatArray) -> Decision:
         last[:] = [o]
         is_still = still(o) if until_still else True
-        if clear(o) and is_still:
+        # done once clear and at rest at its aim: the transit starts from rest (a transit
+        # faded in from a moving command would leave its acceleration bound)
+        if clear(o) and is_still and float(np.abs(cur - aim).max()) < 1e-9:
             return Decision(done=True, outcome="finished")
         gap = hull_distance(poly, o.pose, o.tips[idx])
         aimed = hull_distance(poly, o.pose, aim[idx])
@@ -384,19 +386,30 @@ def _let_go(sim: Simulator, run: _Runner, cfg: ControlConfig, moving: NDArray[np
         return Decision(segment=straight(cur, aim, dt=run.dt, max_speed=cfg.max_speed,
                                          max_accel=cfg.max_accel / 2))
 
-    obs = run.wait_observation()
-    last.append(obs)
     t0, before = run.t, run.contact_reads
-    if clear(obs) and not until_still:
-        return {"seconds": 0.0, "finger_object_contact_s": 0.0, "outcome": "clear"}, obs
-    dec = run.drive(np.array([run.command]), react=react, transit_leg=True,
-                    max_time=max_time)
+    first = np.array([run.command])
+    if run._tail is not None and not until_still:
+        # the last motion stopped mid-way (a step ends on its observed event while its
+        # release still rises): it runs on 0.1 s more and comes to rest over 0.15 s
+        tail, run._tail = run._tail, None
+        first = run._crossfade(tail, 0, tail[min(len(tail) - 1, round(0.1 / run.dt))][None],
+                               fade=0.15)
+    aim[:] = first[-1]
+    if len(first) == 1:
+        obs = run.wait_observation(transit_leg=True)
+        last.append(obs)
+        if clear(obs) and not until_still:
+            return {"seconds": round(run.t - t0, 4),
+                    "finger_object_contact_s": round((run.contact_reads - before)
+                                                     * CONTACT_EVERY * run.dt, 4),
+                    "outcome": "clear"}, obs
+    dec = run.drive(first, react=react, transit_leg=True, max_time=max_time)
     return {"seconds": round(run.t - t0, 4),
             "finger_object_contact_s": round((run.contact_reads - before) * CONTACT_EVERY
                                              * run.dt, 4),
             "outcome": "finished" if dec is not None and dec.outcome == "finished"
             else "timeout"}, \
-        last[-1]
+        (last[-1] if last else run.wait_observation())
 
 
 def execute_plan(
