@@ -147,6 +147,10 @@ def main(argv: list[str] | None = None) -> None:
             lim["transit_accel"] = max(lim["transit_accel"], ex.transit_accel)
             lim["let_go"] = max(lim["let_go"], ex.let_go_contact_s)
             let_go[loop] += ex.let_go_contact_s > 0
+            let_go["aborted"] += any(st.get("let_go", {}).get("finger_object_contact_s", 0) > 0
+                                     for st in ex.steps)
+            let_go["transit"] += any(t.get("let_go", {}).get("finger_object_contact_s", 0) > 0
+                                     for t in ex.transits)
             if ex.transit_contact_s > 0:
                 touched[loop] += 1
                 where.update(t["before"].split(" ")[0] for t in ex.transits
@@ -175,7 +179,8 @@ def main(argv: list[str] | None = None) -> None:
           f"(transits before: {dict(where)}); commanded acceleration in transits <= "
           f"{lim['transit_accel']:.1f} m/s^2")
     print(f"   letting go (the end of a step's or push's contact, before its transit; closed "
-          f"loop): executions with contact while letting go: {let_go['closed']}/{n}, "
+          f"loop): executions with contact while letting go: {let_go['closed']}/{n} (of an "
+          f"aborted step {let_go['aborted']}, before a transit {let_go['transit']}), "
           f"{lim['let_go']:.3f} s at most in one execution")
     us, us_open, bare = overhead(poly, ds, pl, rp)
     print(f"4. at nominal physics: closed-loop execution {us:.1f} us per physics step "
