@@ -404,6 +404,10 @@ def _let_go(sim: Simulator, run: _Runner, cfg: ControlConfig, moving: NDArray[np
                                                      * CONTACT_EVERY * run.dt, 4),
                     "outcome": "clear"}, obs
     dec = run.drive(first, react=react, transit_leg=True, max_time=max_time)
+    if run._tail is not None and float(np.abs(run._tail - run.command).max()) < 1e-6:
+        # at rest: nothing to fade out of (a fade from rest would delay the transit's start
+        # and steepen its acceleration)
+        run._tail = None
     return {"seconds": round(run.t - t0, 4),
             "finger_object_contact_s": round((run.contact_reads - before) * CONTACT_EVERY
                                              * run.dt, 4),
