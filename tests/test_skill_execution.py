@@ -142,7 +142,8 @@ def _tipping_monitor(cfg: ControlConfig) -> tuple[StepMonitor, ObjectPose]:
     edge = frozenset({"a", "d"})
     pivot = frozenset({_pair(Ground(), Edge(edge))})
     landed = frozenset({_pair(Ground(), Face("d"))})
-    path = np.repeat(np.array([[[0.0, -0.04, 0.04]]]), 3, axis=0)
+    # a push toward +y (face d's side), 1 mm a frame
+    path = np.array([[[0.0, -0.042, 0.04]], [[0.0, -0.041, 0.04]], [[0.0, -0.04, 0.04]]])
     arcs = (ArcSpec("pivot", "landed", path, Edge(edge), False, seeks=False, tips=True),)
     step = SimpleNamespace(transition=SimpleNamespace(start=State("a", 0.0),
                                                       end=State("d", 0.0)))
@@ -192,8 +193,17 @@ def test_no_follow_through_when_switched_off_or_not_on_a_pivot() -> None:
     command = np.array([[0.01, -0.03, 0.045]])
     mon.begin(Observation(0.0, tilted, far), command)
     assert mon.update(Observation(0.1, tilted, far), command).segment is None
-    # flat on its start face (it slid, or never tipped): nothing to follow through
-    mon, _ = _tipping_monitor(ControlConfig())
+    # flat on its start face (it has not tipped yet): no turn about a pivot, the push goes
+    # on along its last direction, slowly and for a bounded length
+    cfg = ControlConfig()
+    mon, _ = _tipping_monitor(cfg)
     flat = _pose(CUBE, State("a", 0.0), SCALE)
+    command = mon.spec.arcs[0].positions[0]  # on the reference: no blend into it
     mon.begin(Observation(0.0, flat, far), command)
-    assert mon.update(Observation(0.1, flat, far), command).segment is None
+    dec = mon.update(Observation(0.1, flat, far), command)
+    assert dec.segment is not None
+    step = dec.segment[-1, 0] - dec.segment[0, 0]
+    np.testing.assert_allclose(step / np.linalg.norm(step), [0.0, 1.0, 0.0], atol=1e-9)
+    assert float(np.linalg.norm(step)) == pytest.approx(cfg.reach, rel=0.02)
+    speed = np.linalg.norm(np.diff(dec.segment[:, 0], axis=0), axis=1) / 0.002
+    assert float(speed.max()) <= cfg.reach_speed + 1e-9

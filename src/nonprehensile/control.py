@@ -645,7 +645,10 @@ class StepMonitor:
             follow = self._follow_through(obs, command)
             if follow is not None:
                 return follow
-        if self.phase == "run" and elapsed > length and (arc.seeks or arc.releases):
+        # a single finger's push that has not tipped the object yet pushes on, slowly
+        pushes = arc.tips and len(self.spec.used) == 1 and not self._pivoted \
+            and isinstance(ground, Face)
+        if self.phase == "run" and elapsed > length and (arc.seeks or arc.releases or pushes):
             self.phase = "seek"
             step = self._seek_dir
             if arc.releases:  # let go: straight up, away from the object
@@ -659,7 +662,8 @@ class StepMonitor:
                 path = start[None] + s[:, None, None] * direction[None]
                 return Decision(segment=self._full(path))
         limit = length + self.cfg.grace + (
-            self.cfg.reach / self.cfg.reach_speed if arc.seeks or arc.releases else 0.0) + (
+            self.cfg.reach / self.cfg.reach_speed if arc.seeks or arc.releases or pushes
+            else 0.0) + (
             self._followed if arc.tips else 0.0)
         if elapsed > limit:
             seen = " ∧ ".join(str(p) for p in ContactEvent("", self.current).ordered_pairs) \
