@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import gc
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +59,9 @@ class ReportContext:
     arcs: list[dict[str, Any]]
     result: Plan
     summary: dict[str, Any]
+    #: The physics runs kept between reports (:mod:`nonprehensile.sim.report_runs`):
+    #: ``sweep`` and ``robot``, each its document or ``{"error": why}``.
+    runs: dict[str, Any] = field(default_factory=dict)
 
 
 #: The report's sections, in order: ``"module:function"``, each function taking a
