@@ -62,8 +62,10 @@ DEMO_SWEEP_BINS = 7
 #: The sweep the package ships, in its data folder.
 SHIPPED_SWEEP = "demo_sweep.json"
 
-#: Bumped when what the keys cover or the kept documents hold changes.
+#: Bumped when what the keys cover or the kept documents hold changes (the sweep's, the
+#: robot execution's).
 _FORMAT = "report-runs/1"
+_ROBOT_FORMAT = "robot/2"
 
 #: The executor's source files (package-relative): the closed loop's decisions and the
 #: simulation (what a sweep's numbers depend on besides its inputs).
@@ -115,7 +117,8 @@ def executor_digest() -> str:
     for name in _EXECUTOR_FILES:
         p = root / name
         files = sorted(p.glob("*.py")) if p.is_dir() else [p]
-        for f in files:
+        # this module keeps the runs; it is not what runs them
+        for f in (f for f in files if f.name != "report_runs.py"):
             with contextlib.suppress(OSError):
                 h.update(f.relative_to(root).as_posix().encode())
                 h.update(f.read_bytes())
@@ -149,10 +152,11 @@ def _read_json(path: Path) -> dict[str, Any] | None:
     return doc if isinstance(doc, dict) else None
 
 
-def _write_json(path: Path, doc: Mapping[str, Any]) -> None:
+def _write_json(path: Path, doc: Mapping[str, Any], mode: int = 0o600) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".sweep-", suffix=".tmp")
     try:
+        os.chmod(tmp, mode)
         with os.fdopen(fd, "w") as fh:
             json.dump(doc, fh, separators=(",", ":"))
             fh.write("\n")
@@ -166,7 +170,7 @@ def _write_json(path: Path, doc: Mapping[str, Any]) -> None:
 def plan_sweep(
     poly: Polyhedron, expansion: Any, plan: Plan, motions: Any, *, scale: float,
     fingers: Mapping[str, str], skills: Sequence[Any], samples: int = DEMO_SWEEP_SAMPLES,
-    seed: int = DEMO_SWEEP_SEED, cache: Path | None = None, shipped: Path | None | bool = True,
+    seed: int = DEMO_SWEEP_SEED, cache: Path | None = None, shipped: Path | bool | None = True,
     write: Path | None = None, command: str = "", workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> dict[str, Any]:
@@ -245,8 +249,8 @@ def plan_sweep(
         "created": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         "what": "the main job's plan, closed and open loop, across DEFAULT_DISTRIBUTION "
                 "(sim.robustness.run_sweep: the executor of `simulate robustness`)"}
-    if write is not None:
-        _write_json(write, doc)
+    if write is not None:  # a file to ship: readable by everyone, as the package's data
+        _write_json(write, doc, 0o644)
     if cache is not None:
         with contextlib.suppress(OSError):  # a read-only cache only costs the next run
             _write_json(cache / f"sweep-{key}.json", doc)
@@ -256,8 +260,88 @@ def plan_sweep(
 
 
 # --------------------------------------------------------------------- robot execution
+def arm_frames(sim: Any, log: Mapping[str, Any], trace: Any,
+               steps: Sequence[tuple[int, float, float]],
+               per_step: int | None = None) -> list[dict[str, Any]]:
+    """The arm and the object at a few instants of a robot execution, as drawable shapes.
+
+    At the start, ``per_step`` instants across each executed step (``steps``: ``(number, t0,
+    t1)``, each step's end the last) and the run's end (``step`` 0),
+    the recorded joint positions (``log["q"]`` at the nearest ``log["time"]``) and the
+    object's pose (the execution's ``trace`` row nearest in time) are put into the robot
+    model and its forward kinematics read: every capsule, cylinder and sphere of the arms
+    (collision shapes: the links, the rod, the fingertip) as a segment ``(p0, p1)`` with its
+    radius, the object's vertices, the fingertip site, whether the fingertip touched the
+    object then (the robot's log), and the trace's own joint positions at that instant (the
+    execution's record, beside the robot's log: the two agree when they are of the same
+    instant).
+
+    Returns
+    -------
+    list of dict
+        ``step``, ``time`` (s), ``q`` (n_joints,), ``segments`` (m, 2, 3), ``radii`` (m,),
+        ``object`` (n_vertices, 3), ``tip`` (3,) (metres), ``touch`` (bool), ``q_trace``
+        (n_joints,) or None.
+    """
+    import mujoco
+
+    n_per = per_step or ROBOT_FRAMES_PER_STEP
+    m = sim.model
+    d = mujoco.MjData(m)
+    sc = sim.scene
+    times = np.asarray(log["time"], dtype=float)
+    qs = np.asarray(log["q"], dtype=float)
+    if not len(times):
+        return []
+    kinds = {int(mujoco.mjtGeom.mjGEOM_CAPSULE), int(mujoco.mjtGeom.mjGEOM_CYLINDER),
+             int(mujoco.mjtGeom.mjGEOM_SPHERE)}
+    arm_bodies = {b for b in range(m.nbody)
+                  if (mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, b) or "").startswith("arm")}
+    geoms = [g for g in range(m.ngeom)
+             if int(m.geom_bodyid[g]) in arm_bodies and int(m.geom_type[g]) in kinds]
+    qadr = sim.judge.qadr
+    verts = sim.scale * np.asarray(sim.poly.vertices, dtype=float)  # the mesh, body frame
+    tr = None if trace is None or not len(trace) else np.asarray(trace, dtype=float)
+    out = []
+    touch = np.asarray(log["touch"], dtype=bool)
+    n_joints = qs.shape[1]
+    # the start, n_per instants across each step (its end the last), and the run's end (after
+    # any correction push): step 0 there
+    instants = [(int(steps[0][0]), float(steps[0][1]))] if steps else []
+    for number, t0, t1 in steps:
+        instants += [(int(number), float(t)) for t in np.linspace(t0, t1, n_per + 1)[1:]]
+    instants.append((0, float(times[-1])))
+    for number, t in instants:
+        q_trace = None
+        if tr is not None:  # the trace's row nearest t, and the log at the row's time
+            row = tr[int(np.clip(np.searchsorted(tr[:, 0], t), 0, len(tr) - 1))]
+            d.qpos[qadr:qadr + 7] = row[1:8]
+            q_trace = np.array(row[8:8 + n_joints])
+            t = float(row[0])
+        i = int(np.clip(np.searchsorted(times, t - 1e-9), 0, len(times) - 1))
+        d.qpos[sc.qadr] = qs[i]
+        mujoco.mj_kinematics(m, d)
+        segs, radii = [], []
+        for g in geoms:
+            c, axis = d.geom_xpos[g], d.geom_xmat[g].reshape(3, 3)[:, 2]
+            half = 0.0 if int(m.geom_type[g]) == int(mujoco.mjtGeom.mjGEOM_SPHERE) \
+                else float(m.geom_size[g, 1])
+            segs.append([c - half * axis, c + half * axis])
+            radii.append(float(m.geom_size[g, 0]))
+        body = sim.judge.body
+        rot = d.xmat[body].reshape(3, 3)
+        out.append({
+            "step": int(number), "time": float(times[i]), "q": qs[i].copy(),
+            "segments": np.array(segs), "radii": np.array(radii),
+            "object": verts @ rot.T + d.xpos[body],
+            "tip": np.array(d.site_xpos[int(sc.tip_sites[0])]),
+            "touch": bool(touch[i]), "q_trace": q_trace})
+    return out
+
+
+
 #: Instants of the robot's filmstrip: this many per executed step, across it.
-ROBOT_FRAMES_PER_STEP = 4
+ROBOT_FRAMES_PER_STEP = 3
 
 
 def robot_key(poly: Polyhedron, scale: float, plan: Plan, skills: Sequence[Any],
@@ -268,7 +352,7 @@ def robot_key(poly: Polyhedron, scale: float, plan: Plan, skills: Sequence[Any],
 
     labels = np.asarray(getattr(motions, "labels", ()), dtype=np.int64)
     return _digest({
-        "format": _FORMAT, "robot": "panda", "version": __version__,
+        "format": _ROBOT_FORMAT, "robot": "panda", "version": __version__,
         "executor": executor_digest(), "object": [poly.name, _array_digest(poly.vertices)],
         "scale": round(float(scale), 9), "plan": _plan_identity(plan),
         "skills": [repr(s) for s in skills],
@@ -364,6 +448,7 @@ def robot_execution(
         "steps": [(int(n), float(t0), float(t1)) for n, t0, t1 in ex.step_traces],
         "trace": None if ex.trace is None else np.array(ex.trace),
     }
+    got["frames"] = arm_frames(sim, got["log"], got["trace"], got["steps"])
     if path is not None:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
