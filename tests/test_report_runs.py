@@ -6,6 +6,7 @@ counts, the judge's final pose, the table's plane, the fingertip's radius)."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ import pytest
 
 pytest.importorskip("matplotlib")
 pytest.importorskip("mujoco")
+os.environ.setdefault("MUJOCO_GL", "egl")  # the demo's physics filmstrip, headless
 
 from nonprehensile.inference import expand
 from nonprehensile.pipeline import (
@@ -76,6 +78,20 @@ def test_the_sweep_is_kept_and_shipped_by_what_it_sweeps(main_job: dict[str, Any
     # a damaged shipped file is never trusted: the sweep runs
     ship.write_text("{not json")
     assert _sweep(main_job, samples=1, cache=None, shipped=ship)["source"] == "computed"
+
+
+def test_write_sweep_to_a_folder_one_cannot_write_is_one_line_and_exit_2(
+        tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from nonprehensile.cli import main
+
+    blocked = tmp_path / "file"
+    blocked.write_text("")
+    res = CliRunner().invoke(main, ["demo", "--out", str(tmp_path / "r"), "--write-sweep",
+                                    str(blocked / "sweep.json"), "--sweep-samples", "1"])
+    assert res.exit_code == 2 and "--write-sweep" in res.stderr
+    assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
 
 
 def _distribution(job: dict[str, Any]) -> Any:

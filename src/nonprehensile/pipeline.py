@@ -402,6 +402,8 @@ def _physics_runs(ds: Dataset, exp: Any, result: Plan, motions: ClusteredMotions
             cache=folder, write=Path(write_sweep) if write_sweep else None,
             command=command, progress=lambda d, n: progress("robustness sweep", d, n))
     except NonprehensileError as exc:
+        if write_sweep:  # asked for the file: its failure is the command's
+            raise
         runs["sweep"] = {"error": str(exc)}
     progress("robot", 0, 1)
     try:  # an ImportError past mink's own check: a part of the extra missing
@@ -471,6 +473,13 @@ def run_demo(
     -------
     DemoResult
     """
+    if write_sweep is not None:  # before any work: the sweep is written at the end
+        try:
+            from nonprehensile.sim.report_runs import check_writable
+        except ImportError as exc:
+            raise InputError(f"--write-sweep runs the sweep in MuJoCo: pip install "
+                             f"'nonprehensile[sim]' ({exc})") from None
+        check_writable(Path(write_sweep))
     times: dict[str, float] = {}
     t0 = time.perf_counter()
 

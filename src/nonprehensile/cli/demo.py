@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import click
 
 from nonprehensile.cli.common import emit_json, handle_errors, out, stage_bars
-from nonprehensile.cli.options import SEED, json_option, parse_state
+from nonprehensile.cli.options import SEED, count, json_option, parse_state
 
 if TYPE_CHECKING:
     from nonprehensile.states import State
@@ -48,7 +48,7 @@ def _command_line() -> str | None:
 @click.option("--to", "goal", default=DEMO_GOAL, show_default=True,
               callback=parse_state, help="Goal state of the task.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the clustering.")
-@click.option("--sweep-samples", type=click.IntRange(1, 100_000), default=None,
+@click.option("--sweep-samples", type=count(1, 100_000), default=None,
               help="Samples of the physics distribution in the report's robustness sweep "
                    "[default: 200, the sweep the package ships for the default task].")
 @click.option("--write-sweep", type=click.Path(dir_okay=False), default=None,

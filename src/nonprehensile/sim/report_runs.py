@@ -46,6 +46,7 @@ __all__ = [
     "DEMO_SWEEP_SAMPLES",
     "DEMO_SWEEP_SEED",
     "SHIPPED_SWEEP",
+    "check_writable",
     "executor_digest",
     "plan_sweep",
     "robot_execution",
@@ -167,6 +168,25 @@ def _write_json(path: Path, doc: Mapping[str, Any], mode: int = 0o600) -> None:
         raise
 
 
+def check_writable(path: Path) -> None:
+    """Refuse a sweep file that cannot be written, before minutes of sweeping.
+
+    Raises
+    ------
+    InputError
+        Its folder cannot be made or written, or it is a folder.
+    """
+    if path.is_dir():
+        raise InputError(f"--write-sweep {path}: is a folder; give a file name")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=path.parent):
+            pass
+    except OSError as exc:
+        raise InputError(f"--write-sweep {path}: cannot write there ({exc}); give a file in "
+                         "a folder you can write") from None
+
+
 def plan_sweep(
     poly: Polyhedron, expansion: Any, plan: Plan, motions: Any, *, scale: float,
     fingers: Mapping[str, str], skills: Sequence[Any], samples: int = DEMO_SWEEP_SAMPLES,
@@ -237,6 +257,8 @@ def plan_sweep(
             doc["executor_current"] = (doc.get("provenance", {}).get("executor_digest")
                                        == current)
             return doc
+    if write is not None:
+        check_writable(write)
     spec = rob.SweepSpec(poly, scale, (rob.plan_unit(plan),), distribution, seed, samples,
                          DEMO_SWEEP_LOOPS, dict(fingers), DEFAULT_ANGLE_TOL_DEG,
                          DEFAULT_POSITION_TOL, expansion=expansion,
