@@ -253,10 +253,12 @@ def test_demo_report_has_the_robustness_and_robot_sections(
     """Issue 21 item 8 and issue 22 item 8: the robustness figure (success against table
     friction and mass, open and closed loop) with its samples and seed stated, and the
     robot's filmstrip and its tracking error / joint margins over time, from real runs."""
+    import html as html_lib
+
     out, _ = demo_run
     page = (out / "index.html").read_text()
     summary = json.loads((out / "summary.json").read_text())
-    alts = re.findall(r'<img alt="([^"]*)"', page)
+    alts = [html_lib.unescape(a) for a in re.findall(r'<img alt="([^"]*)"', page)]
     rob = summary["robustness"]
     if "error" in rob:  # only without the sim extra
         pytest.importorskip("mujoco")
