@@ -22,6 +22,7 @@ The QP is solved by daqp through qpsolvers. mink is imported lazily (extra ``rob
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -83,6 +84,10 @@ class IKConfig:
     side_tilt_band : float
         The lean grows from none ``side_tilt_band`` m above the top to full at the top (and
         from none on the object's vertical axis to full this far from it).
+    velocity_fraction : float
+        The IK moves each joint at most this fraction of its velocity limit (a margin for
+        the servo's overshoot: a joint asked for its full limit runs at it, and a fast
+        transit of an extended arm would hold the elbow there for ~0.1 s).
     tilt_rate, tilt_accel : float
         The pointing direction's fastest turn, rad/s, and its angular acceleration, rad/s^2.
     """
@@ -100,13 +105,15 @@ class IKConfig:
     side_tilt_band: float = 0.02
     tilt_rate: float = 1.0
     tilt_accel: float = 4.0
+    velocity_fraction: float = 0.9
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
         return asdict(self)
 
 
-def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95) -> Any:
+def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
+                     velocity_fraction: float = 1.0) -> Any:
     """Joint position and velocity limits as one box on the step ``dq``:
     ``max(-v dt, gain (lo - q)) <= dq <= min(v dt, gain (hi - q))``.
 
@@ -121,7 +128,7 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95) -> Any:
             n = scene.model.nv
             self.lower = scene.lower
             self.upper = scene.upper
-            self.velocity = scene.velocity
+            self.velocity = scene.velocity * velocity_fraction
             self.qadr = scene.qadr
             self.dadr = scene.dadr
             self.n = n
@@ -222,7 +229,8 @@ class FingertipIK:
         q_home[scene.qadr] = scene.home
         self.posture.set_target(q_home)
         self.tasks = [*self.position_tasks, self.posture]
-        self.limits: list[Any] = [_joint_box_limit(mink, scene)]
+        self.limits: list[Any] = [_joint_box_limit(mink, scene,
+                                                   velocity_fraction=cfg.velocity_fraction)]
         if cfg.collisions:
             links_obj = list(scene.collision_geoms)
             pairs = [(links_obj, ["object"])]
@@ -241,6 +249,8 @@ class FingertipIK:
         rot = np.empty(9)
         mujoco.mju_quat2Mat(rot, m.geom_quat[g])
         self._verts = np.asarray(verts, dtype=np.float64) @ rot.reshape(3, 3).T + m.geom_pos[g]
+        self._vmean = self._verts.mean(axis=0)
+        self._rot = np.empty(9)
         self._tilt = np.radians(self.config.side_tilt_deg)
         # each fingertip's arm base (the root body below the world), xy
         full = np.zeros(m.nq)
@@ -252,7 +262,7 @@ class FingertipIK:
             while int(m.body_parentid[body]) != 0:
                 body = int(m.body_parentid[body])
             bases.append(np.array(self.configuration.data.xpos[body][:2]))
-        self._bases = np.array(bases).reshape(-1, 2)
+        self._bases = [(float(b[0]), float(b[1])) for b in bases]
         self.solve_times: list[float] = []
         self.reset(scene.home)
 
@@ -270,7 +280,7 @@ class FingertipIK:
         self.solve_times = []
         for task in self.position_tasks:  # pointing down again, not turning
             task.axis = np.array([0.0, 0.0, -1.0])
-        self._turn = np.zeros(len(self.position_tasks))
+        self._turn = [0.0] * len(self.position_tasks)
 
     def set_q(self, q: FloatArray) -> None:
         """Carry on from joint positions ``q`` (scene joint order), keeping the timings."""
@@ -304,30 +314,33 @@ class FingertipIK:
         out[:, 2] = -1.0
         if self._tilt <= 0.0:
             return out
+        # scalar arithmetic: this runs every solve, for one to a few fingers
         d = self.configuration.data
-        rot = np.empty(9)
+        rot = self._rot
         mujoco.mju_quat2Mat(rot, d.mocap_quat[self._mocap])
-        world = self._verts @ rot.reshape(3, 3).T + d.mocap_pos[self._mocap]
-        top = float(world[:, 2].max())
-        centre = world[:, :2].mean(axis=0)
+        pos = d.mocap_pos[self._mocap]
+        top = float((self._verts @ rot[6:9]).max()) + float(pos[2])
+        cx = float(rot[0:3] @ self._vmean) + float(pos[0])
+        cy = float(rot[3:6] @ self._vmean) + float(pos[1])
         band = max(self.config.side_tilt_band, 1e-6)
-        for k, x in enumerate(targets):
-            h = x[:2] - centre
-            n = float(np.hypot(h[0], h[1]))
-            b = self._bases[k] - x[:2]
-            nb = float(np.hypot(b[0], b[1]))
+        for k, (x, y, z) in enumerate(targets.tolist()):
+            hx, hy = x - cx, y - cy
+            n = math.hypot(hx, hy)
+            bx, by = self._bases[k][0] - x, self._bases[k][1] - y
+            nb = math.hypot(bx, by)
             if n < 1e-6 or nb < 1e-6:
                 continue
-            b = b / nb
+            bx, by = bx / nb, by / nb
             # full lean at the top and below, none ``band`` above it (an approach from
             # above turns the finger gradually), none over the object's vertical axis
-            frac = min(max((top + band - x[2]) / band, 0.0), 1.0) * min(n / band, 1.0) \
-                * max(float(b @ h) / n, 0.0)
+            frac = min(max((top + band - z) / band, 0.0), 1.0) * min(n / band, 1.0) \
+                * max((bx * hx + by * hy) / n, 0.0)
             if frac <= 0.0:
                 continue
-            a = self._tilt * frac
+            ang = self._tilt * frac
+            sa = math.sin(ang)
             # +z runs from the flange to the tip: the flange sits towards the base
-            out[k] = (-b[0] * np.sin(a), -b[1] * np.sin(a), -np.cos(a))
+            out[k] = (-bx * sa, -by * sa, -math.cos(ang))
         return out
 
     # -------------------------------------------------------------------------- solve
@@ -351,16 +364,19 @@ class FingertipIK:
             # the pointing turns towards its new direction with a bounded rate and
             # acceleration (stopping in time): a sudden turn of the goal swings the wrist at
             # its velocity limits, a sudden start at its torque limit
-            c = float(np.clip(task.axis @ a, -1.0, 1.0))
-            ang = float(np.arccos(c))
+            ax = task.axis
+            c = min(max(float(ax @ a), -1.0), 1.0)
+            ang = math.acos(c)
             w = min(cfg.tilt_rate, self._turn[k] + cfg.tilt_accel * self.dt,
-                    float(np.sqrt(2.0 * cfg.tilt_accel * ang)))
+                    math.sqrt(2.0 * cfg.tilt_accel * ang))
             self._turn[k] = w
             turn = w * self.dt
+            if ang <= 1e-9:
+                continue
             if ang > turn:
-                perp = a - c * task.axis
-                perp /= max(float(np.linalg.norm(perp)), 1e-12)
-                a = np.cos(turn) * task.axis + np.sin(turn) * perp
+                perp = a - c * ax
+                perp /= max(math.sqrt(float(perp @ perp)), 1e-12)
+                a = math.cos(turn) * ax + math.sin(turn) * perp
             task.axis = a / float(np.linalg.norm(a))
         try:
             v = mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
