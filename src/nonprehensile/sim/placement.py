@@ -194,7 +194,8 @@ def place_base(
                     else -best.reach_error_m):
                 best = cand
     if best is None:
-        raise InputError("no candidate base is far enough from the other arms' bases")
+        raise InputError("no candidate base is far enough from the other arms' bases on "
+                         "this finger's side: give --base X Y YAW for each arm")
     return Placement(best.base, best.reach_error_m, best.joint_margin_rad, best.feasible,
                      tried)
 
