@@ -299,3 +299,28 @@ def test_simulate_plan_cli_records_events_and_refuses_bad_options(tmp_path) -> N
         lines = [ln for ln in (got.stderr or got.output).strip().splitlines() if ln.strip()]
         assert "Traceback" not in got.output
         assert len(lines) <= 3, (bad, lines)  # click's usage line, or the project's one
+
+
+def test_a_step_begun_on_an_object_touching_nothing_logs_no_contacts(first_step) -> None:  # type: ignore[no-untyped-def]
+    """An object observed in the air at a step's start (thrown by the last push, or tracked
+    above the table) is an observation with no contact pair, not an event: the monitor logs
+    none and runs the step (a bundled demonstration's replay raised ``ContactError`` here)."""
+    from nonprehensile.control import StepMonitor, step_spec
+    from nonprehensile.planning import ObjectPose
+
+    poly, ds, pl, _, _ = first_step
+    spec = step_spec(poly, pl.steps[0], ds.fingers)
+    p = spec.start_pose
+    up = np.array([0.0, 0.0, 0.03])  # 3 cm above the table: geometry says nothing touches
+    lifted = ObjectPose(p.rotation, p.translation + up, p.com + up, p.scale)
+    tips = np.array([[0.0, 0.0, 0.5]])
+    obs = Observation(0.0, lifted, tips)
+    kw = {"finger_radius": 0.006, "tol": 0.0015, "ground_tol": 0.0015}
+    assert observed_contacts(poly, obs, **kw) == frozenset()
+    mon = StepMonitor(poly, spec, ControlConfig(), dt=0.002, finger_radius=0.006, rest=tips)
+    dec = mon.begin(obs, tips)
+    assert dec.segment is not None and not dec.done
+    assert mon.log[0]["contacts"] == []
+    # resting where the plan put it, the same monitor reads the table under face b
+    later = mon.update(Observation(0.01, p, tips), tips)
+    assert not later.done and mon.log[0]["contacts"] == []
