@@ -36,7 +36,7 @@ Pure core: no simulator; :mod:`nonprehensile.sim.closed_loop` runs this in MuJoC
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 

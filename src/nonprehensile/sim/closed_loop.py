@@ -558,7 +558,7 @@ def execute_plan(
             assert nxt.target is not None
             target = nxt.target
             _align(sim, run, ex, cfg, rest, do_transit, target.theta,
-                   tuple(spec.end_pose.position) if target != plan.goal
+                   spec.end_pose.position if target != plan.goal
                    else ex.goal_position)
             look = run.wait_observation()
             now = observed_state(sim.poly, look.pose.rotation)
