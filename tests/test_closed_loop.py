@@ -30,6 +30,7 @@ from nonprehensile.observation import (
     ObservationModel,
     ObservationStream,
     observed_contacts,
+    rotvec_matrix,
 )
 from nonprehensile.skills.contacts import Edge, Face
 from nonprehensile.states import State, state_pose
@@ -88,6 +89,38 @@ def test_observed_contacts_read_geometry_only() -> None:
     kw = {"finger_radius": 0.006, "tol": 0.0015, "ground_tol": 0.0015}
     assert {str(p) for p in observed_contacts(CUBE, touching, **kw)} == {"(G,a)", "(R1,f)"}
     assert {str(p) for p in observed_contacts(CUBE, apart, **kw)} == {"(G,a)"}
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-4.0, 4.0), min_size=3, max_size=3),
+       st.sampled_from([1.0, 1e-3, 1e-7, 1e-12]))
+def test_rotvec_matrix_is_scipys_rotation(v: list[float], size: float) -> None:
+    """The observation noise's rotation (Rodrigues by hand) against scipy's, from large
+    angles down to the series branch."""
+    from scipy.spatial.transform import Rotation
+
+    rv = np.array(v) * size
+    np.testing.assert_allclose(rotvec_matrix(rv), Rotation.from_rotvec(rv).as_matrix(),
+                               atol=1e-14)
+
+
+def test_observed_contacts_two_fingers_one_pressed_in() -> None:
+    """Two fingertips at once, one pressed into a face (a compliant pad), one clear of the
+    object, one on an edge: each named by geometry, in the order of ``fingers``."""
+    pose = _pose(State("a", 0.0))
+    centre = pose.to_world(CUBE.face_centroids["f"][None])[0]
+    n = pose.rotation @ CUBE.normals["f"]
+    kw = {"finger_radius": 0.006, "tol": 0.0015, "ground_tol": 0.0015}
+    tips = np.array([centre - 0.002 * n, centre + 0.03 * n])
+    got = observed_contacts(CUBE, Observation(0.0, pose, tips), fingers=(2, 3), **kw)
+    assert {str(p) for p in got} == {"(G,a)", "(R2,f)"}
+    g = next(g for g in CUBE.face_ids if g not in "af" and frozenset("f" + g) in CUBE.edges)
+    shared = [v for v in CUBE.faces["f"] if v in CUBE.faces[g]]
+    mid = pose.to_world(CUBE.vertices[shared].mean(axis=0)[None])[0]
+    out = pose.rotation @ (CUBE.normals["f"] + CUBE.normals[g]) / math.sqrt(2.0)
+    got = observed_contacts(CUBE, Observation(0.0, pose, np.array([mid + 0.0065 * out,
+                                                                   tips[0]])), **kw)
+    assert {str(p) for p in got} == {"(G,a)", f"(R1,{Edge(frozenset('f' + g))})", "(R2,f)"}
 
 
 def test_observation_stream_rate_latency_and_seeded_noise() -> None:

@@ -164,3 +164,38 @@ def test_contact_reading_memos_give_what_a_fresh_reading_gives() -> None:
     # the reading went through the roll's contact sets: a face, the pivot edge, the landing
     assert len(seen) >= 3
     assert any("E(" in str(p) for s in seen for p in s)
+
+
+def test_ground_pair_kept_between_reads_is_the_one_read_afresh() -> None:
+    """The judge reads the ground element again only when the object has moved enough to
+    change its low vertices: along a walk of poses that tips a cube from face to edge to
+    face (crossing the contact tolerance back and forth), every read must equal a fresh
+    judge's."""
+    from scipy.spatial.transform import Rotation
+
+    from nonprehensile.sim.judge import Judge
+
+    poly = cube()
+    sim = Simulator(poly, scale=0.05, n_fingers=1)
+    judge = sim.judge
+    rng = np.random.default_rng(3)
+    half = 0.025
+    seen = set()
+    recomputed = 0
+    for tilt in np.concatenate([np.linspace(0.0, 0.08, 400), np.linspace(0.08, 0.0, 400),
+                                rng.uniform(0.0, 0.06, 400)]):
+        r = Rotation.from_rotvec([0.0, float(tilt), 0.0]).as_matrix()
+        # resting on the edge x = +half of the bottom face, tilted about it
+        t = np.array([0.0, 0.0, 0.0]) - 0.05 * r @ (poly.vertices.mean(axis=0)) \
+            + np.array([0.0, 0.0, half])
+        t = t + rng.normal(0.0, 1e-5, 3)
+        before = judge._ground_last
+        got = judge._ground_pair_at(r, t)
+        recomputed += judge._ground_last is not before
+        seen.add(str(got))
+        fresh = Judge(poly, 0.05, sim.params, sim.model, 1)
+        assert got == fresh._ground_pair_at(r, t)
+        assert got.y == fresh.ground_element(r, t)
+    # both elements were read, and most reads kept the last one
+    assert len(seen) >= 2, seen
+    assert recomputed < 600, recomputed

@@ -20,11 +20,11 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
@@ -46,6 +46,7 @@ __all__ = [
     "element_at",
     "ground_element",
     "observed_contacts",
+    "rotvec_matrix",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -156,17 +157,16 @@ class ObservationStream:
         """Record the true pose and tips at ``now`` (degraded by the model)."""
         m = self.model
         self._next = max(self._next + self.period, now + 0.5 * self.period)
-        rot, trans = pose.rotation, pose.translation
         if m.position_noise > 0 or (m.angle_noise_deg or 0.0) > 0:
-            dr = Rotation.from_rotvec(self.rng.normal(
-                0.0, math.radians(m.angle_noise_deg or 0.0), 3)).as_matrix()
+            dr = rotvec_matrix(self.rng.normal(0.0, math.radians(m.angle_noise_deg or 0.0), 3))
             com = pose.com + self.rng.normal(0.0, m.position_noise, 3)
             # the noisy rotation turns the body about its (noisy) centre of mass
             trans = com - dr @ (pose.com - pose.translation)
-            pose = ObjectPose(dr @ rot, trans, com, pose.scale)
-        tips = np.array(tips, dtype=np.float64)
+            pose = ObjectPose(dr @ pose.rotation, trans, com, pose.scale)
         if m.finger_noise > 0:
-            tips = tips + self.rng.normal(0.0, m.finger_noise, tips.shape)
+            tips = tips + self.rng.normal(0.0, m.finger_noise, np.shape(tips))
+        else:
+            tips = np.array(tips, dtype=np.float64)
         self._queue.append(Observation(now, pose, tips))
 
     def next_time(self) -> float:
@@ -183,6 +183,28 @@ class ObservationStream:
         while q and q[0].time + lat <= now + 1e-9:
             self._latest = q.popleft()
         return self._latest
+
+
+def rotvec_matrix(v: FloatArray) -> FloatArray:
+    """The rotation matrix (shape (3, 3)) of a rotation vector ``v`` (shape (3,), radians:
+    axis times angle), by Rodrigues' formula.
+
+    Written by hand: :class:`scipy.spatial.transform.Rotation` does the same in about 20
+    times the time, and the observation noise draws one rotation per sample (120 Hz and
+    more, every execution of a sweep).
+    """
+    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    th2 = x * x + y * y + z * z
+    if th2 < 1e-12:  # the series to second order: exact in double precision here
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = math.sqrt(th2)
+        a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    return np.array([
+        [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
+        [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
+        [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
+    ])
 
 
 # ---------------------------------------------------------------- contacts from geometry
@@ -232,6 +254,12 @@ def ground_element(poly: Polyhedron, rotation: FloatArray, translation: FloatArr
     that face, two on one edge that edge, else the lowest vertex.
     """
     z = scale * (poly.vertices @ rotation[2]) + translation[2]
+    return _ground_of_heights(poly, z, rotation, tol, planes)
+
+
+def _ground_of_heights(poly: Polyhedron, z: FloatArray, rotation: FloatArray, tol: float,
+                       planes: tuple[FloatArray, FloatArray] | None) -> ObjectElement:
+    """:func:`ground_element` from the vertices' heights ``z`` (shape (n_vertices,), m)."""
     low = np.flatnonzero(z < z.min() + tol)
     vf = poly.vertex_faces
     common = frozenset.intersection(*(vf[i] for i in low))
@@ -243,6 +271,13 @@ def ground_element(poly: Polyhedron, rotation: FloatArray, translation: FloatArr
     if len(low) == 2 and len(common) == 2:
         return Edge(common)
     return Vertex(vf[int(np.argmin(z))])
+
+
+@lru_cache(maxsize=4096)
+def _pair(a: Ground | Finger, b: ObjectElement) -> ContactPair:
+    """One :class:`ContactPair` per pair of elements: the same few pairs are observed at
+    every sample, and building one checks and orders its elements."""
+    return ContactPair(a, b)
 
 
 def observed_contacts(
@@ -266,27 +301,31 @@ def observed_contacts(
     planes = planes if planes is not None else _planes(poly)
     pose = obs.pose
     s = pose.scale
-    pairs: set[ContactPair] = set()
-    z = s * (poly.vertices @ pose.rotation[2]) + pose.translation[2]
+    rot, trans = pose.rotation, pose.translation
+    pairs: list[ContactPair] = []
+    z = s * (poly.vertices @ rot[2]) + trans[2]
     if float(z.min()) < ground_tol:
-        pairs.add(ContactPair(Ground(), ground_element(poly, pose.rotation, pose.translation,
-                                                       s, ground_tol, planes)))
+        pairs.append(_pair(Ground(), _ground_of_heights(poly, z, rot, ground_tol, planes)))
     normals, offsets = planes
-    numbers = fingers if fingers is not None else tuple(range(1, len(obs.tips) + 1))
-    for k, tip in zip(numbers, obs.tips, strict=True):
-        x = pose.rotation.T @ (np.asarray(tip) - pose.translation) / s  # model frame
-        d = normals @ x - offsets  # signed distances to the face planes, model units
+    tips = np.asarray(obs.tips, dtype=np.float64)
+    numbers = fingers if fingers is not None else tuple(range(1, len(tips) + 1))
+    if len(numbers) != len(tips):
+        raise InputError(f"{len(numbers)} finger numbers for {len(tips)} fingertips")
+    xs = (tips - trans) @ rot / s  # the tips in the model frame, shape (n_fingers, 3)
+    ds = xs @ normals.T - offsets  # signed distances to the face planes, model units
+    reach = finger_radius + tol
+    for j in np.flatnonzero(ds.max(axis=1) * s <= reach).tolist():
+        # (a larger top distance is a lower bound of the distance: surely apart)
+        x, d = xs[j], ds[j]
         top = float(d.max())
-        if top * s > finger_radius + tol:  # a lower bound of the distance: surely apart
-            continue
         if top > 0:
             y = _nearest_on_hull(x, d, planes)
             dist = float(np.linalg.norm(x - y)) * s
         else:  # pressed inside (a compliant pad): nearest the plane it is least inside
             y = x - normals[int(np.argmax(d))] * top
             dist = top * s
-        if dist <= finger_radius + tol:
-            pairs.add(ContactPair(Finger(k), element_at(poly, y, tol / s, planes)))
+        if dist <= reach:
+            pairs.append(_pair(Finger(numbers[j]), element_at(poly, y, tol / s, planes)))
     return frozenset(pairs)
 
 

@@ -232,8 +232,8 @@ class _Runner:
             self.n += 1
             self.t += dt
             if self.n % CONTACT_EVERY == 0:
-                log.observe(d, self.t)
-                if transit_leg and judge.finger_object_contact(d):
+                pairs = log.observe(d, self.t)
+                if transit_leg and judge.touches_finger(pairs):
                     self.contact_reads += 1
                 if finger_dofs is not None:
                     v = d.qvel[finger_dofs].reshape(-1, 3)

@@ -122,8 +122,10 @@ class Judge:
         jnt = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "object")
         self.qadr = int(m.jnt_qposadr[jnt])
         self.dadr = int(m.jnt_dofadr[jnt])
-        self._ground_key: tuple[bytes, float] | None = None
-        self._ground_pair: ContactPair | None = None
+        # the ground pair last read, the pose row and height it was read at, and how far
+        # the vertices' heights may move before the set of low vertices can change
+        self._ground_last: tuple[float, float, float, float, float, ContactPair] | None = None
+        self._reach = scale * float(np.linalg.norm(poly.vertices, axis=1).max())
         # face planes in the model frame (model units), to name touched elements
         self._normals = np.array([poly.normals[f] for f in poly.face_ids])
         self._offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
@@ -187,12 +189,21 @@ class Judge:
     def ground_element(self, pose_r: FloatArray, pose_t: FloatArray) -> ObjectElement:
         """The face, edge or vertex of the object lowest on the table (within
         ``contact_tol``) at the pose ``(R, t)``."""
+        return self._ground_and_margin(pose_r, pose_t)[0]
+
+    def _ground_and_margin(self, pose_r: FloatArray, pose_t: FloatArray
+                           ) -> tuple[ObjectElement, float]:
+        """:meth:`ground_element`, and the margin (m) by which the vertices' heights above
+        the lowest one clear ``contact_tol`` when the set of low vertices alone decides the
+        element (else 0: the pose itself decides)."""
+        tol = self.params.contact_tol
         z = self.scale * (self.poly.vertices @ pose_r[2]) + pose_t[2]
-        mask = z < z.min() + self.params.contact_tol
-        key = (self.params.contact_tol, mask.tobytes())
+        above = z - z.min() - tol
+        mask = above < 0
+        key = (tol, mask.tobytes())
         got = self._ground_memo.get(key)
         if got is not None:
-            return got
+            return got, float(np.abs(above).min())
         low = np.flatnonzero(mask)
         vf = self.poly.vertex_faces
         common = frozenset.intersection(*(vf[i] for i in low))
@@ -201,15 +212,15 @@ class Judge:
             el = Face(next(iter(common)))
         elif len(low) >= 3:  # several vertices low, no single face: the lowest face's plane
             normals_z = self._normals @ pose_r[2]
-            return Face(self.poly.face_ids[int(np.argmin(normals_z))])  # the pose decides
+            return Face(self.poly.face_ids[int(np.argmin(normals_z))]), 0.0  # the pose decides
         elif len(low) == 2 and len(common) == 2:
             el = Edge(common)
         elif len(low) == 1:
             el = Vertex(vf[int(low[0])])
         else:  # two low vertices on no common edge: the lower one, the pose decides
-            return Vertex(vf[int(np.argmin(z))])
+            return Vertex(vf[int(np.argmin(z))]), 0.0
         self._ground_memo[key] = el
-        return el
+        return el, float(np.abs(above).min())
 
     def _pair(self, a: Any, b: ObjectElement) -> ContactPair:
         key = (a, b)
@@ -226,15 +237,15 @@ class Judge:
         if n == 0:
             return _NO_CONTACT, False, False
         con = data.contact
-        g1, g2, dist = con.geom1[:n], con.geom2[:n], con.dist[:n]
+        # the arrays read in bulk, once: each field read builds a numpy view
+        geoms, dist = con.geom[:n].tolist(), con.dist[:n].tolist()
         r = data.xmat[self.body].reshape(3, 3)
         t = data.xpos[self.body]
         found: list[ContactPair] = []
         finger_table = other_contact = ground = False
         obj, table, tips = self.obj_geom, self.table, self.finger_geoms
         pos = None
-        for a, b, dd, i in zip(g1.tolist(), g2.tolist(), dist.tolist(), range(n),
-                               strict=True):
+        for i, ((a, b), dd) in enumerate(zip(geoms, dist, strict=True)):
             if dd > 1e-4:
                 continue
             if obj in (a, b):
@@ -253,14 +264,7 @@ class Judge:
             else:
                 other_contact = True
         if ground:
-            # the object at rest (transits, settling: most of an execution) keeps its
-            # orientation and height bit for bit: its ground element is read once
-            gkey = (r.tobytes(), float(t[2]))
-            if gkey != self._ground_key:
-                self._ground_key = gkey
-                self._ground_pair = self._pair(Ground(), self.ground_element(r, t))
-            assert self._ground_pair is not None
-            found.append(self._ground_pair)
+            found.append(self._ground_pair_at(r, t))
         # the same contact set comes back read after read: one frozenset per set, so that
         # comparing two reads is mostly comparing an object with itself
         key = frozenset(map(id, found))
@@ -268,6 +272,25 @@ class Judge:
         if got is None:
             got = self._set_memo[key] = frozenset(found)
         return got, finger_table, other_contact
+
+    def _ground_pair_at(self, r: FloatArray, t: FloatArray) -> ContactPair:
+        """The ground's contact pair at the pose ``(r, t)``, read again only when the
+        object has moved enough since the last read to change the set of low vertices: a
+        vertex's height changes by at most ``|dR[2]| * reach + |dt_z|`` and its height above
+        the lowest one by twice that (most reads find the object resting or rolling on the
+        same element: the pair is then the one computed afresh)."""
+        rx, ry, rz = r[2].tolist()
+        tz = float(t[2])
+        last = self._ground_last
+        if last is not None:
+            dx, dy, dz = rx - last[0], ry - last[1], rz - last[2]
+            move = self._reach * math.sqrt(dx * dx + dy * dy + dz * dz) + abs(tz - last[3])
+            if 2.0 * move + 1e-12 < last[4]:  # (1e-12 m: the heights' rounding)
+                return last[5]
+        el, margin = self._ground_and_margin(r, t)
+        pair = self._pair(Ground(), el)
+        self._ground_last = (rx, ry, rz, tz, margin, pair)
+        return pair
 
     def forces_and_slip(self, data: Any, n_fingers: int) -> tuple[FloatArray, float]:
         """Each fingertip's normal force on the object now (N, shape (n_fingers,)), and the
@@ -301,13 +324,17 @@ class Judge:
             return False
         con = data.contact
         obj, tips = self.obj_geom, self.finger_geoms
-        for i in range(n):
-            if con.dist[i] > 1e-4:
-                continue
-            a, b = int(con.geom1[i]), int(con.geom2[i])
-            if (a == obj and b in tips) or (b == obj and a in tips):
+        for (a, b), dd in zip(con.geom[:n].tolist(), con.dist[:n].tolist(), strict=True):
+            if dd <= 1e-4 and ((a == obj and b in tips) or (b == obj and a in tips)):
                 return True
         return False
+
+    @staticmethod
+    def touches_finger(pairs: frozenset[ContactPair]) -> bool:
+        """Whether a contact set of :meth:`contacts` has a fingertip on the object (what
+        :meth:`finger_object_contact` reads from the simulator, without reading it
+        again)."""
+        return any(isinstance(p.x, Finger) for p in pairs)
 
 
 class EventLog:
