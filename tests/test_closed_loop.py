@@ -310,7 +310,7 @@ def test_replans_are_made_in_the_goals_frame(first_step) -> None:  # type: ignor
     from nonprehensile.errors import NonprehensileError
     from nonprehensile.planning import plan
 
-    poly, ds, pl, rp, exp = first_step
+    poly, ds, _pl, rp, exp = first_step
     # the goal a:290 sits 20 deg off the model's 90-degree grid: so does every frame state
     by_face: dict[str, set[float]] = {}
     for s in rp.frame:
@@ -337,7 +337,7 @@ def test_after_step_turns_back_a_turned_end_state(first_step, observed, action, 
                                                    target) -> None:
     from nonprehensile.control import after_step, step_spec
 
-    poly, ds, pl, rp, exp = first_step
+    poly, ds, pl, _rp, _exp = first_step
     spec = step_spec(poly, pl.steps[0], ds.fingers)  # b:200 -> a:290
     cfg = ControlConfig()
     for replans in (0, cfg.max_replans):
