@@ -9,7 +9,10 @@ distribution, and the no-teleport figures.
    side, with a 95 % Wilson interval, the failures' reasons, and the share per table-friction
    and mass bin;
 3. no teleport, over every execution of 2: the largest commanded fingertip speed and
-   acceleration, the largest simulated fingertip speed, fingertip-object contact in transits;
+   acceleration (overall and in transits), the largest simulated fingertip speed,
+   fingertip-object contact in transits (a transit runs from the moment its fingertips are
+   observed to have let go of the object to the observation the next motion starts from),
+   and, beside it, the contact while letting go (the end of the previous motion's contact);
 4. the executors' Python overhead at nominal physics: wall time per physics step (planning of
    re-plans excluded: there are none) against bare ``mj_step`` on the same model, same run.
 
@@ -115,7 +118,9 @@ def main(argv: list[str] | None = None) -> None:
     ok: dict[str, int] = Counter()
     reasons: dict[str, Counter[str]] = defaultdict(Counter)
     bins: dict[tuple[str, str, str], list[int]] = defaultdict(lambda: [0, 0])
-    lim = {"speed": 0.0, "accel": 0.0, "tip": 0.0, "contact": 0.0}
+    lim = {"speed": 0.0, "accel": 0.0, "tip": 0.0, "contact": 0.0, "transit_accel": 0.0,
+           "let_go": 0.0}
+    let_go: dict[str, int] = Counter()
     wall: dict[str, float] = Counter()
     replans = corrections = 0
     touched: dict[str, int] = Counter()
@@ -139,6 +144,13 @@ def main(argv: list[str] | None = None) -> None:
             lim["accel"] = max(lim["accel"], ex.commanded_accel)
             lim["tip"] = max(lim["tip"], ex.tip_speed)
             lim["contact"] = max(lim["contact"], ex.transit_contact_s)
+            lim["transit_accel"] = max(lim["transit_accel"], ex.transit_accel)
+            lim["let_go"] = max(lim["let_go"], ex.let_go_contact_s)
+            let_go[loop] += ex.let_go_contact_s > 0
+            let_go["aborted"] += any(st.get("let_go", {}).get("finger_object_contact_s", 0) > 0
+                                     for st in ex.steps)
+            let_go["transit"] += any(t.get("let_go", {}).get("finger_object_contact_s", 0) > 0
+                                     for t in ex.transits)
             if ex.transit_contact_s > 0:
                 touched[loop] += 1
                 where.update(t["before"].split(" ")[0] for t in ex.transits
@@ -164,7 +176,12 @@ def main(argv: list[str] | None = None) -> None:
           f"{lim['accel']:.1f} m/s^2; simulated fingertip speed <= {lim['tip']:.3f} m/s; "
           f"fingertip-object contact in transits: {lim['contact']:.3f} s at most; executions "
           f"with any: closed {touched['closed']}/{n}, open {touched['open']}/{n} "
-          f"(transits before: {dict(where)})")
+          f"(transits before: {dict(where)}); commanded acceleration in transits <= "
+          f"{lim['transit_accel']:.1f} m/s^2")
+    print(f"   letting go (the end of a step's or push's contact, before its transit; closed "
+          f"loop): executions with contact while letting go: {let_go['closed']}/{n} (of an "
+          f"aborted step {let_go['aborted']}, before a transit {let_go['transit']}), "
+          f"{lim['let_go']:.3f} s at most in one execution")
     us, us_open, bare = overhead(poly, ds, pl, rp)
     print(f"4. at nominal physics: closed-loop execution {us:.1f} us per physics step "
           f"({us / bare:.2f}x), open loop {us_open:.1f} us ({us_open / bare:.2f}x), bare "

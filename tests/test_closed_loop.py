@@ -34,7 +34,7 @@ from nonprehensile.observation import (
 )
 from nonprehensile.skills.contacts import Edge, Face
 from nonprehensile.states import State, state_pose
-from nonprehensile.transit import hull_distance, limit_speed, limits_of, transit
+from nonprehensile.transit import escape, hull_distance, limit_speed, limits_of, transit
 
 CUBE = cube()
 SCALE = 0.05
@@ -189,6 +189,94 @@ def test_a_transit_clears_the_object_within_its_bounds() -> None:
     assert speed <= 0.45 + 1e-9 and accel <= 10.0 + 1e-6
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from(["a", "b", "c", "d", "e", "f"]), st.sampled_from([0.0, 90.0, 180.0]),
+       st.lists(st.tuples(st.floats(-0.04, 0.04), st.floats(-0.04, 0.04),
+                          st.floats(0.0, 0.08)), min_size=1, max_size=4),
+       st.floats(0.001, 0.03))
+def test_escape_leaves_the_object_along_its_normal(face: str, theta: float,
+                                                   pts: list[tuple[float, float, float]],
+                                                   reach: float) -> None:
+    pose = _pose(State(face, theta), (0.3, 0.1))
+    world = pose.to_world(CUBE.vertices)
+    lo, hi = world.min(axis=0), world.max(axis=0)  # an axis-aligned box: exact distances
+    p = np.array(pts) + np.array([0.3, 0.1, 0.0])
+    out = escape(CUBE, pose, p, reach)
+    d_out = _box_distance(out, lo, hi)
+    # beyond one face's plane by the reach already (off an edge, nearer may do)
+    far = np.maximum(lo - p, p - hi).max(axis=1) >= reach
+    assert (d_out >= reach - 1e-9).all()  # out of the object by the reach at least
+    # a bounded move (the way out is never a face looking down: at most the object's size
+    # and the reach, over cos 45 degrees)
+    assert (np.linalg.norm(out - p, axis=1) <= (reach + SCALE) * math.sqrt(2.0) + 1e-9).all()
+    np.testing.assert_allclose(out[far], p[far])  # what was that far stays
+    assert (out[:, 2] >= p[:, 2] - 1e-12).all()  # never down, into the table
+    moved = out - p
+    # one straight move per point, along a face's normal (a box's normals are its axes)
+    assert ((np.abs(moved) > 1e-9).sum(axis=1) <= 1).all()
+
+
+def _surface_samples(pose, n: int = 41) -> np.ndarray:  # type: ignore[no-untyped-def]
+    """Points every 1.25 mm over the posed cube's faces (an independent distance truth)."""
+    g = np.linspace(-0.5, 0.5, n)
+    u, v = (a.ravel() for a in np.meshgrid(g, g))
+    pts = []
+    for axis in range(3):
+        for side in (-0.5, 0.5):
+            q = np.zeros((len(u), 3))
+            q[:, axis] = side
+            q[:, (axis + 1) % 3], q[:, (axis + 2) % 3] = u, v
+            pts.append(q)
+    model = np.concatenate(pts) + CUBE.com  # the unit cube's faces about its centre
+    return np.asarray(pose.to_world(model))
+
+
+def test_a_transit_clears_a_tilted_object_along_its_normals() -> None:
+    from nonprehensile.planning import ObjectPose
+
+    # the cube tipped 30 degrees onto an edge (a tumble mid-way): its upper side overhangs
+    c, s_ = math.cos(math.radians(30.0)), math.sin(math.radians(30.0))
+    rot = np.array([[c, 0.0, s_], [0.0, 1.0, 0.0], [-s_, 0.0, c]])
+    world = (CUBE.vertices @ rot.T) * SCALE
+    t = np.array([0.3, 0.1, 0.0]) - np.array([0.0, 0.0, world[:, 2].min()])
+    pose = ObjectPose(rot, t, SCALE * (rot @ CUBE.com) + t, SCALE)
+    surface = _surface_samples(pose)
+    r, clearance = 0.006, 0.015
+    # from pressing the upper side face (1 mm into the pad's radius) to 3 mm off the
+    # opposite one, which overhangs the table
+    n_up = next(n for n in (rot @ CUBE.normals[f] for f in CUBE.face_ids)
+                if n[0] < -0.8 and n[2] > 0.4)
+    centre = pose.com + n_up * 0.5 * SCALE
+    start = (centre + n_up * (r - 0.001))[None]
+    n_low = -n_up
+    end = (pose.com + n_low * (0.5 * SCALE + r + 0.003))[None]
+    end[0, 2] = max(end[0, 2], r + 0.002)
+    path = transit(CUBE, pose, start, end, dt=0.001, clearance=clearance, finger_radius=r,
+                   max_speed=0.45, max_accel=10.0)
+    np.testing.assert_allclose(path[0], start)
+    np.testing.assert_allclose(path[-1], end)
+    dist = np.linalg.norm(path[:, 0, None] - surface[None], axis=2).min(axis=1)
+    # it leaves along the pressed face's normal (straight away, no scraping) ...
+    first = path[1:40, 0] - start
+    cos = first @ n_up / np.maximum(np.linalg.norm(first, axis=1), 1e-12)
+    assert (cos > 0.999).all()
+    # ... stays clear by the margin between the retreat and the approach (the overhang
+    # included), and approaches the end along the end face's normal
+    away = np.flatnonzero(dist >= r + clearance - 0.0015)
+    last = np.flatnonzero(dist < r + clearance - 0.0015)
+    assert away.size and last[last > away[0]].size
+    approach = last[last > away[0]]
+    assert (np.diff(approach) == 1).all()  # one approach, at the end
+    tail = path[approach, 0] - end
+    # the end face looks down at the table: approached horizontally, never from below
+    level = np.array([n_low[0], n_low[1], 0.0]) / math.hypot(n_low[0], n_low[1])
+    cos = tail @ level / np.maximum(np.linalg.norm(tail, axis=1), 1e-12)
+    assert (cos[:-1] > 0.999).all()
+    assert dist.min() >= r - 0.001 - 0.0015  # never nearer than where it started
+    speed, accel = limits_of(path, 0.001)
+    assert speed <= 0.45 + 1e-9 and accel <= 10.0 + 1e-6
+
+
 def test_limit_speed_retimes_only_what_is_too_fast() -> None:
     t = np.linspace(0.0, 1.0, 1001)
     fast = np.zeros((1001, 1, 3))
@@ -274,6 +362,32 @@ def test_a_closed_loop_step_recovers_where_open_loop_fails(first_step, physics) 
     assert closed.transit_contact_s == 0.0 and len(closed.transits) >= 2
 
 
+def test_no_contact_in_the_transits_after_aborted_steps(first_step) -> None:  # type: ignore[no-untyped-def]
+    """A push on a slippery table with a large, stiff fingertip slides the cube instead of
+    tipping it: the step is aborted with the pad pressed on the moving cube. Its fingertip
+    lets go (out along the contact normal, fleeing the cube until it rests) before the
+    recovery transit, which touches nothing; the executor before this let go straight up
+    and away from the centre and touched the cube for 0.115 s in 4 recovery transits."""
+    ex = _execute(first_step, "closed", friction_table=0.3, finger_radius=0.011,
+                  stiffness=3000.0, max_force=15.0)
+    aborted = [s for s in ex.steps if s["outcome"] == "aborted"]
+    assert len(aborted) >= 2
+    # every aborted step ends with its fingertips observed off the object and it at rest
+    assert all(s["let_go"]["outcome"] == "finished" for s in aborted), aborted
+    recoveries = [t for t in ex.transits if t["before"].startswith("recovery")]
+    assert len(recoveries) >= 2
+    assert ex.transit_contact_s == 0.0, [t for t in ex.transits
+                                         if t["finger_object_contact_s"] > 0]
+    # the record says where each transit ends and what follows begins: a step's first arc
+    # starts on the observation its transit ended on; transits follow one another in time
+    ends = {t["end_s"] for t in ex.transits}
+    assert all(s["arc_start_s"] in ends for s in ex.steps)
+    starts = [t["start_s"] for t in ex.transits]
+    assert starts == sorted(starts)
+    assert all(t["end_s"] >= t["start_s"] for t in ex.transits)
+    assert ex.commanded_speed <= 0.5 and ex.transit_accel <= 10.0 + 1e-6
+
+
 def test_simulate_plan_cli_records_events_and_refuses_bad_options(tmp_path) -> None:  # type: ignore[no-untyped-def]
     from click.testing import CliRunner
 
@@ -348,3 +462,28 @@ def test_after_step_turns_back_a_turned_end_state(first_step, observed, action, 
             assert nxt.action == "fail"
             continue
         assert nxt.action == action and nxt.target == target
+
+
+def test_a_step_begun_on_an_object_touching_nothing_logs_no_contacts(first_step) -> None:  # type: ignore[no-untyped-def]
+    """An object observed in the air at a step's start (thrown by the last push, or tracked
+    above the table) is an observation with no contact pair, not an event: the monitor logs
+    none and runs the step (a bundled demonstration's replay raised ``ContactError`` here)."""
+    from nonprehensile.control import StepMonitor, step_spec
+    from nonprehensile.planning import ObjectPose
+
+    poly, ds, pl, _, _ = first_step
+    spec = step_spec(poly, pl.steps[0], ds.fingers)
+    p = spec.start_pose
+    up = np.array([0.0, 0.0, 0.03])  # 3 cm above the table: geometry says nothing touches
+    lifted = ObjectPose(p.rotation, p.translation + up, p.com + up, p.scale)
+    tips = np.array([[0.0, 0.0, 0.5]])
+    obs = Observation(0.0, lifted, tips)
+    kw = {"finger_radius": 0.006, "tol": 0.0015, "ground_tol": 0.0015}
+    assert observed_contacts(poly, obs, **kw) == frozenset()
+    mon = StepMonitor(poly, spec, ControlConfig(), dt=0.002, finger_radius=0.006, rest=tips)
+    dec = mon.begin(obs, tips)
+    assert dec.segment is not None and not dec.done
+    assert mon.log[0]["contacts"] == []
+    # resting where the plan put it, the same monitor reads the table under face b
+    later = mon.update(Observation(0.01, p, tips), tips)
+    assert not later.done and mon.log[0]["contacts"] == []

@@ -170,3 +170,36 @@ def test_plan_cli_json_and_exit_codes() -> None:
     res = runner.invoke(main, ["plan", str(SKILLS), "--from", "a:0", "--to", "c:90",
                                "--step", "90"])
     assert (res.exit_code == 0 and "push-roll" in res.stdout) or "roll" in res.stdout
+
+
+def test_a_reference_is_computed_once_and_is_the_medoid() -> None:
+    """The library keeps each arc's reference: asked again it is the same object, and it is
+    the medoid of the arc's main cluster computed afresh (by brute force here)."""
+    import pickle
+    from collections import Counter
+
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+
+    root = Path(__file__).resolve().parents[1] / "examples" / "cube_skills.json"
+    poly, skills = read_skills(root)
+    _, motions = motions_from_dataset("cube", skills=skills, poly=poly)
+    seg = motions.segments[0]
+    skill, src, tgt = seg.skill, seg.motion.source, seg.motion.target
+    got = motions.reference(skill, src, tgt)
+    assert got is not None and motions.reference(skill, src, tgt) is got
+    rows = [i for i, s in enumerate(motions.segments)
+            if s.skill == skill and (s.motion.source, s.motion.target) == (src, tgt)]
+    counts = Counter(int(motions.labels[i]) for i in rows)
+    top = max(counts, key=lambda c: (counts[c], -c))
+    members = [i for i in rows if motions.labels[i] == top]
+    x = motions.vectors[members]
+    total = [sum(float(np.linalg.norm(x[a] - x[b])) for b in range(len(x)))
+             for a in range(len(x))]
+    best = members[int(np.argmin(total))]
+    want = motions.segments[best].trajectory.to_units("m").positions
+    np.testing.assert_allclose(got.positions, want)
+    # a library pickled before it kept references still answers (and keeps them)
+    old = pickle.loads(pickle.dumps(motions))
+    old.__dict__.pop("_reference_memo", None)
+    assert old.reference(skill, src, tgt) is not None

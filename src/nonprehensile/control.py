@@ -339,6 +339,13 @@ def _ground_of(pairs: Pairs) -> ObjectElement | None:
     return None
 
 
+def _pair_names(pairs: Pairs | None) -> list[str]:
+    """The observed pairs in canonical order as text; none when the object is seen touching
+    nothing (airborne after a push, or tracked above the table): an event needs a pair, a
+    log line does not."""
+    return [str(p) for p in ContactEvent("", pairs).ordered_pairs] if pairs else []
+
+
 def _fingers_in(pairs: Pairs) -> set[int]:
     return {el.index for p in pairs for el in (p.x, p.y) if isinstance(el, Finger)}
 
@@ -553,8 +560,7 @@ class StepMonitor:
             self.poly, obs, finger_radius=self.radius, tol=self.cfg.contact_tol,
             ground_tol=self.cfg.ground_tol, planes=self._planes)
         self._since = obs.time
-        self.log.append({"time": 0.0, "contacts": [
-            str(p) for p in ContactEvent("", self.current).ordered_pairs],
+        self.log.append({"time": 0.0, "contacts": _pair_names(self.current),
             **({"event": self.spec.event_ids[0]} if self.current == self.spec.events[0]
                else {})})
         return Decision(segment=self._arc_segment(obs, command))
@@ -611,8 +617,7 @@ class StepMonitor:
         limit = length + self.cfg.grace + (
             self.cfg.reach / self.cfg.reach_speed if arc.seeks or arc.releases else 0.0)
         if elapsed > limit:
-            seen = " ∧ ".join(str(p) for p in ContactEvent("", self.current).ordered_pairs) \
-                if self.current else "nothing"
+            seen = " ∧ ".join(_pair_names(self.current)) or "nothing"
             return self._abort(obs, f"event {arc.target!r} not observed within "
                                     f"{limit:.2f} s of {arc.source!r} (observed {seen})")
         return Decision()
@@ -674,7 +679,7 @@ class StepMonitor:
                 self.current = None
                 return None
         entry: dict[str, Any] = {
-            "time": t, "contacts": [str(p) for p in ContactEvent("", pairs).ordered_pairs]}
+            "time": t, "contacts": _pair_names(pairs)}
         if j is not None:
             entry["event"] = spec.event_ids[j]
         entry["moved_mm"] = round(1000 * float(np.hypot(*(obs.pose.com[:2]

@@ -258,9 +258,11 @@ def ground_element(poly: Polyhedron, rotation: FloatArray, translation: FloatArr
 
 
 def _ground_of_heights(poly: Polyhedron, z: FloatArray, rotation: FloatArray, tol: float,
-                       planes: tuple[FloatArray, FloatArray] | None) -> ObjectElement:
-    """:func:`ground_element` from the vertices' heights ``z`` (shape (n_vertices,), m)."""
-    low = np.flatnonzero(z < z.min() + tol)
+                       planes: tuple[FloatArray, FloatArray] | None,
+                       zmin: float | None = None) -> ObjectElement:
+    """:func:`ground_element` from the vertices' heights ``z`` (shape (n_vertices,), m;
+    ``zmin`` their least, when known)."""
+    low = np.flatnonzero(z < (z.min() if zmin is None else zmin) + tol)
     vf = poly.vertex_faces
     common = frozenset.intersection(*(vf[i] for i in low))
     if len(low) >= 3 and len(common) == 1:
@@ -304,8 +306,10 @@ def observed_contacts(
     rot, trans = pose.rotation, pose.translation
     pairs: list[ContactPair] = []
     z = s * (poly.vertices @ rot[2]) + trans[2]
-    if float(z.min()) < ground_tol:
-        pairs.append(_pair(Ground(), _ground_of_heights(poly, z, rot, ground_tol, planes)))
+    zmin = float(z.min())
+    if zmin < ground_tol:
+        pairs.append(_pair(Ground(), _ground_of_heights(poly, z, rot, ground_tol, planes,
+                                                        zmin)))
     normals, offsets = planes
     tips = np.asarray(obs.tips, dtype=np.float64)
     numbers = fingers if fingers is not None else tuple(range(1, len(tips) + 1))

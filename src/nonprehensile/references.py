@@ -116,7 +116,19 @@ class ClusteredMotions:
         """The medoid of the skill's main cluster on the arc ``source -> target``.
 
         Positions are in metres, in the frame of the skill's demonstrated initial state.
+        Each arc's reference is computed once and kept (a medoid costs a distance matrix, and
+        a closed loop's re-plans ask for the same arcs again and again).
         """
+        # (in the instance's __dict__, not a field: a value is equal to another whatever it
+        # has been asked, and a library unpickled from an older cache has no memo yet)
+        memo: dict[tuple[str, str, str], ReferenceMotion | None] = \
+            self.__dict__.setdefault("_reference_memo", {})
+        key = (skill, source, target)
+        if key not in memo:
+            memo[key] = self._reference(skill, source, target)
+        return memo[key]
+
+    def _reference(self, skill: str, source: str, target: str) -> ReferenceMotion | None:
         rows = self._rows(skill, source, target)
         if not rows:
             return None

@@ -1,8 +1,10 @@
 """Transit motions: how the fingertips get from one place to the next without touching.
 
-Between two steps (and before the first) a fingertip **retreats** from the object, **moves
-clear** of the object's posed hull by a margin (up to a safe height above it, across, and
-down), and **approaches** the next reference's first point. Each leg is a rest-to-rest
+Between two steps (and before the first) a fingertip **retreats** from the object along
+the outward normal of the face it is nearest (:func:`escape`), **moves clear** of the
+object's posed hull by a margin (up to a safe height above it, across, and down to a point
+the margin out along the next point's normal), and **approaches** the next reference's
+first point along that normal, slowly. Each leg is a rest-to-rest
 minimum-jerk motion timed so that its peak speed and acceleration stay within the given
 bounds (a minimum-jerk leg of length ``L`` and duration ``T`` peaks at ``1.875 L / T`` and
 ``5.774 L / T^2``). Several fingers move together, each on its own legs, all legs timed
@@ -23,8 +25,8 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose
 from nonprehensile.step_paths import ease
 
-__all__ = ["PEAK_ACCEL", "PEAK_SPEED", "hull_distance", "limit_speed", "limits_of", "straight",
-           "transit"]
+__all__ = ["APPROACH_SPEED", "PEAK_ACCEL", "PEAK_SPEED", "escape", "hull_distance",
+           "limit_speed", "limits_of", "straight", "transit"]
 
 FloatArray = NDArray[np.float64]
 
@@ -32,6 +34,9 @@ FloatArray = NDArray[np.float64]
 #: (``L / T``) and per ``L / T^2``.
 PEAK_SPEED = 1.875
 PEAK_ACCEL = 5.7735
+#: Peak speed (m/s) of a transit's last leg, the approach along the next point's normal: a
+#: compliant fingertip lags and overshoots its targets in proportion to its speed.
+APPROACH_SPEED = 0.1
 
 
 def hull_distance(poly: Polyhedron, pose: ObjectPose, points: FloatArray) -> FloatArray:
@@ -40,10 +45,70 @@ def hull_distance(poly: Polyhedron, pose: ObjectPose, points: FloatArray) -> Flo
     inside). ``points`` has shape (..., 3)."""
     p = np.asarray(points, dtype=np.float64)
     x = (p - pose.translation) @ pose.rotation / pose.scale  # model frame
+    normals, offsets = _planes(poly)
+    return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
+
+
+def _planes(poly: Polyhedron) -> tuple[FloatArray, FloatArray]:
     normals = np.array([poly.normals[f] for f in poly.face_ids])
     offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
                         for f in poly.face_ids])
-    return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
+    return normals, offsets
+
+
+def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float
+           ) -> FloatArray:
+    """Each point moved straight out of the posed object until it is ``reach`` (m) beyond
+    the face plane it is farthest beyond (its contact normal when it touches a face), so
+    that its :func:`hull_distance` is at least ``reach``; points already that far stay.
+
+    A normal that points down (a face of a tilted object that looks at the table) is
+    followed horizontally, so that no point is driven into the table; faces looking more
+    than 45 degrees down are not left through. ``points`` has shape (n, 3); returns the
+    same shape.
+    """
+    p = np.array(points, dtype=np.float64)
+    normals, offsets = _planes(poly)
+    x = (p - pose.translation) @ pose.rotation / pose.scale
+    dist = (x @ normals.T - offsets) * pose.scale  # (n, faces)
+    world = normals @ pose.rotation.T
+    # a face that looks down at the table (its normal more than 45 degrees below the
+    # horizon) is no way out: the point would be driven into the table
+    usable = world[:, 2] >= -math.sqrt(0.5)
+    for k in range(len(p)):
+        if float(dist[k].max()) >= reach:
+            continue
+        best = int(np.flatnonzero(usable)[dist[k, usable].argmax()])
+        n = world[best]
+        go = np.array([n[0], n[1], max(n[2], 0.0)])
+        go /= float(np.linalg.norm(go))
+        # the plane's distance grows by go . n (>= 0.7) per metre along go
+        p[k] += go * (reach - float(dist[k, best])) / float(go @ n)
+    return p
+
+
+def _clear_column(poly: Polyhedron, pose: ObjectPose, point: FloatArray, z_top: float,
+                  need: float) -> FloatArray:
+    """``point`` (shape (3,)) moved horizontally until the vertical segment from it up to
+    ``z_top`` stays ``need`` (m) from the posed object (a tilted object may overhang it)."""
+    q = np.array(point, dtype=np.float64)
+    for _ in range(8):
+        zs = np.linspace(q[2], max(q[2], z_top), max(2, math.ceil((z_top - q[2]) / 0.002)))
+        col = np.repeat(q[None], len(zs), axis=0)
+        col[:, 2] = zs
+        gap = hull_distance(poly, pose, col)
+        worst = int(gap.argmin())
+        if gap[worst] >= need - 1e-9:
+            return q
+        moved = escape(poly, pose, col[worst:worst + 1], need)[0]
+        step = moved[:2] - col[worst, :2]
+        if float(np.hypot(*step)) < 1e-9:  # straight up only: away from the centre
+            away = q[:2] - pose.com[:2]
+            norm = float(np.hypot(*away))
+            step = (away / norm if norm > 1e-9 else np.array([1.0, 0.0])) * (
+                need - float(gap[worst]))
+        q[:2] += step
+    return q
 
 
 def _leg(a: FloatArray, b: FloatArray, n: int) -> FloatArray:
@@ -95,34 +160,31 @@ def transit(
     end = np.where(mv[:, None], end, start)
     top = float(pose.to_world(poly.vertices)[:, 2].max())
     safe = top + finger_radius + clearance
-    # waypoints per finger: retreat (straight away from the object to the margin, then up
-    # to the safe height), across at the safe height, down onto the end point
     need = clearance + finger_radius
-    ways = [start]
-    d0 = hull_distance(poly, pose, start)
+    # waypoints per finger: retreat (along the contact normal to the margin, and clear of
+    # any overhang above), up to the safe height, across, down to the margin out along the
+    # end point's normal, and the approach along that normal onto the end point
     out = start.copy()
-    for k in range(nf):
-        # a fingertip above the object goes straight up; one beside it first backs away
-        if mv[k] and d0[k] < need and start[k, 2] < top:
-            away = start[k, :2] - pose.com[:2]
-            norm = float(np.hypot(*away))
-            if norm > 1e-9:
-                out[k, :2] += away / norm * (need - d0[k])
-    ways.append(out)
-    up = ways[-1].copy()
-    up[:, 2] = np.where(mv, np.maximum(up[:, 2], safe), up[:, 2])
-    ways.append(up)
-    across = end.copy()
-    across[:, 2] = np.where(mv, np.maximum(end[:, 2], safe), end[:, 2])
+    pre = end.copy()
+    for k in np.flatnonzero(mv):
+        out[k] = _clear_column(poly, pose, escape(poly, pose, start[k:k + 1], need)[0],
+                               safe, need)
+        pre[k] = _clear_column(poly, pose, escape(poly, pose, end[k:k + 1], need)[0],
+                               safe, need)
+    up = out.copy()
+    up[:, 2] = np.where(mv, np.maximum(out[:, 2], safe), out[:, 2])
+    across = pre.copy()
+    across[:, 2] = np.where(mv, np.maximum(pre[:, 2], safe), pre[:, 2])
     # a straight line between the two safe points may not be clear (the end point beside the
     # object, low): the safe height clears the whole hull
-    ways += [across, end]
+    ways = [start, out, up, across, pre, end]
+    speeds = [max_speed] * 4 + [min(max_speed, APPROACH_SPEED)]
     legs = []
-    for a, b in itertools.pairwise(ways):
+    for (a, b), vmax in zip(itertools.pairwise(ways), speeds, strict=True):
         length = float(np.linalg.norm(b - a, axis=1).max())
         if length < 1e-6:
             continue
-        t = max(PEAK_SPEED * length / max_speed, math.sqrt(PEAK_ACCEL * length / max_accel))
+        t = max(PEAK_SPEED * length / vmax, math.sqrt(PEAK_ACCEL * length / max_accel))
         n = max(2, math.ceil(t / dt) + 1)
         legs.append(_leg(a, b, n).transpose(1, 0, 2))
     if not legs:

@@ -62,7 +62,14 @@ from nonprehensile.sim.observe import SimObserver
 from nonprehensile.sim.run import SimResult, Simulator
 from nonprehensile.states import State, angle_diff
 from nonprehensile.step_paths import fingers_of, resample
-from nonprehensile.transit import hull_distance, limit_speed, limits_of, straight, transit
+from nonprehensile.transit import (
+    escape,
+    hull_distance,
+    limit_speed,
+    limits_of,
+    straight,
+    transit,
+)
 
 __all__ = ["Execution", "execute_plan", "scene_fingers", "transition_record"]
 
@@ -71,6 +78,12 @@ Replanner = Callable[[State, tuple[float, float], frozenset[str]], Plan]
 #: Cross-fade (s) from the running targets into new ones, so the commanded velocity never
 #: jumps.
 CROSSFADE = 0.06
+#: A fingertip has let go of the object once it is observed this far (m) beyond its radius
+#: from the observed object: the executor reads "touching" within ``contact_tol`` (1.5 mm),
+#: and the rest covers the pad's own position error (1 mm, a slow Gauss-Markov process) ...
+LET_GO_CLEAR = 0.004
+#: ... and it lets go along its contact normal aiming this far (m) beyond its radius.
+LET_GO_REACH = 0.007
 
 
 def scene_fingers(plan: Plan, expansion: Expansion | None = None) -> int:
@@ -111,6 +124,8 @@ class Execution:
     commanded_accel: float = 0.0
     tip_speed: float = 0.0
     transit_contact_s: float = 0.0
+    let_go_contact_s: float = 0.0
+    transit_accel: float = 0.0
     finger_table: bool = False
     sim_time: float = 0.0
     wall_time: float = 0.0
@@ -142,6 +157,8 @@ class Execution:
                        "commanded_max_accel": round(self.commanded_accel, 3),
                        "fingertip_max_speed": round(self.tip_speed, 4),
                        "transit_finger_object_contact_s": round(self.transit_contact_s, 4),
+                       "let_go_finger_object_contact_s": round(self.let_go_contact_s, 4),
+                       "transit_commanded_max_accel": round(self.transit_accel, 3),
                        "finger_table_contact": self.finger_table},
             "sim_seconds": round(self.sim_time, 4),
             "wall_seconds": round(self.wall_time, 4),
@@ -292,15 +309,17 @@ class _Runner:
         out[:n] = (1.0 - w) * rest + w * new[:n]
         return out
 
-    def wait_observation(self) -> Observation:
-        """Hold the fingertips until an observation arrives (latency included)."""
+    def wait_observation(self, transit_leg: bool = False) -> Observation:
+        """Hold the fingertips until an observation arrives (latency included); with
+        ``transit_leg``, contact meanwhile counts as a transit's."""
         got: list[Observation] = []
 
         def react(obs: Observation, cmd: FloatArray) -> Decision:
             got.append(obs)
             return Decision(done=True)
 
-        self.drive(np.array([self.command]), react=react, max_time=5.0)
+        self.drive(np.array([self.command]), react=react, transit_leg=transit_leg,
+                   max_time=5.0)
         return got[-1] if got else self._truth()
 
     def _truth(self) -> Observation:
@@ -316,6 +335,87 @@ def _retreat_target(sim: Simulator, pose: ObjectPose, command: FloatArray,
     for k in used:
         out[k - 1, 2] = max(out[k - 1, 2], top + sim.params.finger_radius + 3 * clearance)
     return out
+
+
+def _let_go(sim: Simulator, run: _Runner, cfg: ControlConfig, moving: NDArray[np.bool_], *,
+            reach: float = LET_GO_REACH, until_still: bool = False, noise: float = 0.0,
+            max_time: float = 1.0) -> tuple[dict[str, Any], Observation]:
+    """Let go of the object before a transit (closed loop): every moving fingertip observed
+    within its radius plus :data:`LET_GO_CLEAR` of the observed object goes out along its
+    contact normal (:func:`~nonprehensile.transit.escape`) to its radius plus ``reach``,
+    aimed again whenever the object (still moving after an aborted step) comes nearer. It
+    ends once every moving fingertip is observed clear (and, with ``until_still``, the
+    object has kept still for ``cfg.still_time``, ``noise`` being the observations'
+    position noise), or after ``max_time`` s.
+
+    This is where the previous motion's contact ends (the executor's "no finger on the
+    object" reading); the transit begins after it. Returns the record (seconds, the
+    fingertip-object contact read while letting go, how it ended) and the last observation.
+    """
+    poly, r = sim.poly, sim.params.finger_radius
+    idx = np.flatnonzero(moving)
+    aim = np.array(run.command, dtype=np.float64)
+    window: list[tuple[float, FloatArray]] = []
+    last: list[Observation] = []
+
+    def clear(o: Observation) -> bool:
+        gap = hull_distance(poly, o.pose, o.tips[idx])
+        return bool((gap >= r + LET_GO_CLEAR).all())
+
+    def still(o: Observation) -> bool:
+        window.append((o.time, o.pose.com.copy()))
+        while len(window) > 2 and window[1][0] <= o.time - cfg.still_time:
+            window.pop(0)
+        if window[-1][0] - window[0][0] < cfg.still_time - 1e-9:
+            return False
+        coms = np.array([w[1] for w in window])
+        spread = float(np.linalg.norm(coms - coms.mean(axis=0), axis=1).max())
+        return spread <= cfg.still_tol + 3.0 * noise
+
+    def react(o: Observation, cur: FloatArray) -> Decision:
+        last[:] = [o]
+        is_still = still(o) if until_still else True
+        # done once clear and at rest at its aim: the transit starts from rest (a transit
+        # faded in from a moving command would leave its acceleration bound)
+        if clear(o) and is_still and float(np.abs(cur - aim).max()) < 1e-9:
+            return Decision(done=True, outcome="finished")
+        gap = hull_distance(poly, o.pose, o.tips[idx])
+        aimed = hull_distance(poly, o.pose, aim[idx])
+        again = idx[(gap < r + LET_GO_CLEAR) & (aimed < r + reach - 0.001)]
+        if not len(again):
+            return Decision()
+        aim[again] = escape(poly, o.pose, o.tips[again], r + reach)
+        return Decision(segment=straight(cur, aim, dt=run.dt, max_speed=cfg.max_speed,
+                                         max_accel=cfg.max_accel / 2))
+
+    t0, before = run.t, run.contact_reads
+    first = np.array([run.command])
+    if run._tail is not None and not until_still:
+        # the last motion stopped mid-way (a step ends on its observed event while its
+        # release still rises): it runs on 0.1 s more and comes to rest over 0.15 s
+        tail, run._tail = run._tail, None
+        first = run._crossfade(tail, 0, tail[min(len(tail) - 1, round(0.1 / run.dt))][None],
+                               fade=0.15)
+    aim[:] = first[-1]
+    if len(first) == 1:
+        obs = run.wait_observation(transit_leg=True)
+        last.append(obs)
+        if clear(obs) and not until_still:
+            return {"seconds": round(run.t - t0, 4),
+                    "finger_object_contact_s": round((run.contact_reads - before)
+                                                     * CONTACT_EVERY * run.dt, 4),
+                    "outcome": "clear"}, obs
+    dec = run.drive(first, react=react, transit_leg=True, max_time=max_time)
+    if run._tail is not None and float(np.abs(run._tail - run.command).max()) < 1e-6:
+        # at rest: nothing to fade out of (a fade from rest would delay the transit's start
+        # and steepen its acceleration)
+        run._tail = None
+    return {"seconds": round(run.t - t0, 4),
+            "finger_object_contact_s": round((run.contact_reads - before) * CONTACT_EVERY
+                                             * run.dt, 4),
+            "outcome": "finished" if dec is not None and dec.outcome == "finished"
+            else "timeout"}, \
+        (last[-1] if last else run.wait_observation())
 
 
 def execute_plan(
@@ -394,38 +494,50 @@ def execute_plan(
     rest = home.copy()
 
     def do_transit(pose: ObjectPose, target: FloatArray, used: tuple[int, ...],
-                   label: str) -> None:
+                   label: str) -> Observation | None:
+        """The transit to ``target``; closed loop, it ends on the observation that what
+        follows starts from (returned)."""
         moving = np.zeros(sim.n_fingers, dtype=bool)
         moving[[k - 1 for k in used]] = True
         # fingers the step does not use go home
         goal = np.where(moving[:, None], target, rest)
         moving |= np.linalg.norm(run.command - rest, axis=1) > 1e-9
         # a transit ends clear of the object: a reference recorded with a smaller fingertip
-        # may begin within this one's radius; it stops short, away from the object, and the
-        # step's first arc blends in from there (touching is the step's business)
+        # may begin within this one's radius; it stops short, out along the normal of the
+        # face it approaches, and the step's first arc blends in from there (touching is the
+        # step's business)
         need = p.finger_radius + 0.003
-        gap = hull_distance(sim.poly, pose, goal)
-        top = float(pose.to_world(sim.poly.vertices)[:, 2].max())
-        for k in np.flatnonzero(moving & (gap < need)):
-            if goal[k, 2] >= top:
-                goal[k, 2] += need - gap[k]
-            else:
-                away = goal[k, :2] - pose.com[:2]
-                norm = float(np.hypot(*away))
-                if norm > 1e-9:
-                    goal[k, :2] += away / norm * (need - gap[k])
+        near = np.flatnonzero(moving & (hull_distance(sim.poly, pose, goal) < need))
+        goal[near] = escape(sim.poly, pose, goal[near], need)
+        entry: dict[str, Any] = {"before": label}
+        if loop == "closed":
+            # the previous motion's contact ends first (the fingertips observed off the
+            # object); the transit is planned on the object as observed then
+            let_go, look = _let_go(sim, run, cfg, moving, noise=obs_model.position_noise)
+            entry["let_go"] = let_go
+            pose = look.pose
         path = transit(sim.poly, pose, run.command, goal, dt=run.dt,
                        clearance=cfg.clearance, finger_radius=p.finger_radius,
                        max_speed=cfg.max_speed, max_accel=cfg.max_accel / 2,
                        moving=moving)
-        before, t0 = run.contact_reads, run.t
+        before, t0, k0 = run.contact_reads, run.t, len(run.commanded)
         run.drive(path, transit_leg=True)
-        ex.transits.append({
-            "before": label, "seconds": round(run.t - t0, 4),
+        # closed loop, held at its end until the observation that what follows starts from
+        seen = run.wait_observation(transit_leg=True) if loop == "closed" else None
+        # on the execution's clock: the transit runs from ``start_s`` (the fingertips let
+        # go) to ``end_s``, the first sample of what follows (a step's first arc, a push)
+        segs = [c for c in run.commanded[k0:] if len(c)]
+        v_max, a_max = limits_of(np.concatenate(segs), run.dt) if segs else (0.0, 0.0)
+        entry.update({
+            "start_s": round(t0, 4), "end_s": round(run.t, 4),
+            "commanded_max_speed": round(v_max, 4), "commanded_max_accel": round(a_max, 3),
+            "seconds": round(run.t - t0, 4),
             "length_m": round(float(np.linalg.norm(np.diff(path, axis=0), axis=2)
                                     .sum(axis=0).max()), 4),
             "finger_object_contact_s": round((run.contact_reads - before) * CONTACT_EVERY
                                              * run.dt, 4)})
+        ex.transits.append(entry)
+        return seen
 
     steps = list(plan.steps)
     avoid: frozenset[str] = frozenset()
@@ -476,11 +588,13 @@ def execute_plan(
             first_pts = np.array(rest)
             for j, k in enumerate(spec.used):
                 first_pts[k - 1] = tf.apply(spec.arcs[0].positions[0, j])
-            do_transit(obs.pose, first_pts, spec.used, f"step {number}")
-            obs = run.wait_observation()
+            seen = do_transit(obs.pose, first_pts, spec.used, f"step {number}")
+            assert seen is not None
+            obs = seen
             mon = StepMonitor(sim.poly, spec, cfg, dt=run.dt, finger_radius=p.finger_radius,
                               rest=rest, noise=obs_model.position_noise)
             t_begin = run.t
+            record["arc_start_s"] = round(t_begin, 4)  # the transit ended here
             dec = mon.begin(obs, run.command)
             assert dec.segment is not None
             budget = mon.expected_duration + 3.0 * cfg.grace + cfg.max_settle + 2.0
@@ -488,28 +602,22 @@ def execute_plan(
                             react=mon.update, max_time=budget)
             reason = end.reason if end is not None else ""
             if end is not None and end.outcome == "aborted":
-                # get out of the way and let the object come to rest, then look
-                pose_now = run.wait_observation().pose
-                # let go first (straight up off the object: the fingertip may still press
-                # it), then move clear as a transit
-                off = np.array(run.command)
-                gap = hull_distance(sim.poly, pose_now, off)
-                for k in spec.used:
-                    # away from the object's centre (a pinch opens), as far as the pad is
-                    # pressed in plus its radius and a margin, and up
-                    away = off[k - 1, :2] - pose_now.com[:2]
-                    norm = float(np.hypot(*away))
-                    if norm > 1e-9:
-                        off[k - 1, :2] += away / norm * max(
-                            0.0, p.finger_radius + cfg.clearance - float(gap[k - 1]))
-                    off[k - 1, 2] += 0.005
-                run.drive(straight(run.command, off, dt=run.dt, max_speed=0.1,
-                                   max_accel=cfg.max_accel / 2))
-                up = _retreat_target(sim, pose_now, run.command, spec.used, cfg.clearance)
-                do_transit(pose_now, up, spec.used, f"recovery after step {number}")
+                # let go (out along the contact normals from where the pads are observed,
+                # fleeing the object while it still moves) and watch it come to rest, the
+                # fingertips held clear of it; then move away as a transit
+                moving = np.zeros(sim.n_fingers, dtype=bool)
+                moving[[k - 1 for k in spec.used]] = True
+                let_go, _ = _let_go(sim, run, cfg, moving, reach=cfg.clearance,
+                                    until_still=True,
+                                    noise=obs_model.position_noise,
+                                    max_time=cfg.max_settle + 0.5)
+                record["let_go"] = let_go
                 mon.watch_rest(run.t)
                 run.drive(np.array([run.command]), react=mon.update,
                           max_time=cfg.max_settle + 0.5)
+                pose_now = run.wait_observation().pose
+                up = _retreat_target(sim, pose_now, run.command, spec.used, cfg.clearance)
+                do_transit(pose_now, up, spec.used, f"recovery after step {number}")
             record.update(outcome=end.outcome if end is not None else "", reason=reason,
                           observed=mon.log)
             observed_end = mon.final_state
@@ -646,7 +754,7 @@ def execute_plan(
                 break
     # park the fingers and let everything come to rest before the verdict
     if loop == "closed":
-        pose_now = sim.pose()
+        pose_now = run.wait_observation().pose
         up = _retreat_target(sim, pose_now, run.command, tuple(range(1, sim.n_fingers + 1)),
                              cfg.clearance)
         do_transit(pose_now, up, tuple(range(1, sim.n_fingers + 1)), "end")
@@ -670,6 +778,9 @@ def execute_plan(
     ex.commanded_speed, ex.commanded_accel = limits_of(allcmd, run.dt)
     ex.tip_speed = run.tip_speed
     ex.transit_contact_s = sum(t["finger_object_contact_s"] for t in ex.transits)
+    ex.transit_accel = max((t["commanded_max_accel"] for t in ex.transits), default=0.0)
+    ex.let_go_contact_s = sum(t["let_go"]["finger_object_contact_s"]
+                              for t in [*ex.transits, *ex.steps] if "let_go" in t)
     ex.finger_table = run.log.finger_table
     ex.sim_time, ex.n_steps = run.t, run.n
     ex.wall_time = time.perf_counter() - wall0
@@ -678,7 +789,7 @@ def execute_plan(
 
 
 def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
-             rest: FloatArray, do_transit: Callable[..., None]) -> None:
+             rest: FloatArray, do_transit: Callable[..., Observation | None]) -> None:
     """Slide the object onto the goal position by pushes low on its side faces, each run
     until the observed object has moved as far as asked (or a timeout)."""
     p = sim.params
@@ -695,8 +806,8 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
         push = max(pushes, key=lambda q: q.distance)  # the largest part first
         target = np.array(rest)
         target[0] = push.start
-        do_transit(obs.pose, target, (1,), "correction")
-        obs = run.wait_observation()
+        seen = do_transit(obs.pose, target, (1,), "correction")
+        obs = seen if seen is not None else run.wait_observation()
         origin = obs.pose.com[:2].copy()
         entry = {"kind": "slide", **push.to_dict()}
 
@@ -742,7 +853,7 @@ def _yaw_error(poly: Any, pose: ObjectPose, theta: float) -> float | None:
 
 
 def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
-           rest: FloatArray, do_transit: Callable[..., None], theta: float,
+           rest: FloatArray, do_transit: Callable[..., Observation | None], theta: float,
            toward: tuple[float, float], tol_deg: float = 1.5) -> None:
     """Turn the object about the vertical onto ``theta`` by pushes off its centre line
     (:func:`~nonprehensile.control.turn_push`), each run until the observed turn is done."""

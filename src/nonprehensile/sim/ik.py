@@ -6,6 +6,12 @@ to where the simulation says the object is before each solve) and mink's tasks a
 * a position task per fingertip site (the fingertip's centre on its target);
 * an axis-alignment task per fingertip: the site's +z (out of the finger) pointing down,
   soft (the recorded finger direction is not used: the motion library keeps tip markers);
+  where the target lies below the object's top (a push or a pinch on a side face) the
+  finger leans inwards by ``side_tilt_deg``, so that the rod above the fingertip stands
+  clear of the face instead of grazing it (a vertical 8 mm rod above a 6 mm tip sphere
+  touching a face has 2 mm of clearance, less than the contact's own penetration and
+  the collision limit's detection distance: the limit then fights the position task and
+  the arm chatters against the object);
 * posture regularisation towards the robot's home configuration;
 * limits: joint positions, joint velocities (the datasheet's, or the user's), and collision
   avoidance of every link and the rod against the object and the table (the base against the
@@ -16,6 +22,7 @@ The QP is solved by daqp through qpsolvers. mink is imported lazily (extra ``rob
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -71,6 +78,18 @@ class IKConfig:
         How fast geoms may approach each other, in (0, 1].
     collisions : bool
         Whether to avoid collisions at all (the base search skips them for speed).
+    side_tilt_deg : float
+        How far from vertical the finger leans towards the object's vertical axis where its
+        target lies at or below the object's top (a side face).
+    side_tilt_band : float
+        The lean grows from none ``side_tilt_band`` m above the top to full at the top (and
+        from none on the object's vertical axis to full this far from it).
+    velocity_fraction : float
+        The IK moves each joint at most this fraction of its velocity limit (a margin for
+        the servo's overshoot: a joint asked for its full limit runs at it, and a fast
+        transit of an extended arm would hold the elbow there for ~0.1 s).
+    tilt_rate, tilt_accel : float
+        The pointing direction's fastest turn, rad/s, and its angular acceleration, rad/s^2.
     """
 
     position_cost: float = 1.0
@@ -82,13 +101,19 @@ class IKConfig:
     collision_detection: float = 0.02
     collision_gain: float = 0.5
     collisions: bool = True
+    side_tilt_deg: float = 30.0
+    side_tilt_band: float = 0.02
+    tilt_rate: float = 1.0
+    tilt_accel: float = 4.0
+    velocity_fraction: float = 0.9
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
         return asdict(self)
 
 
-def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95) -> Any:
+def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
+                     velocity_fraction: float = 1.0) -> Any:
     """Joint position and velocity limits as one box on the step ``dq``:
     ``max(-v dt, gain (lo - q)) <= dq <= min(v dt, gain (hi - q))``.
 
@@ -103,7 +128,7 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95) -> Any:
             n = scene.model.nv
             self.lower = scene.lower
             self.upper = scene.upper
-            self.velocity = scene.velocity
+            self.velocity = scene.velocity * velocity_fraction
             self.qadr = scene.qadr
             self.dadr = scene.dadr
             self.n = n
@@ -131,21 +156,23 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
     mink's ``FrameTask`` (zero orientation cost) with an ``AxisAlignTask`` give the same
     least-squares problem; this computes it with one Jacobian call instead of three (the
     IK's time per solve went from 0.12 to about 0.09 ms).
+
+    The pointing direction is the task's ``axis`` (unit, world), set before each solve.
     """
-    down = np.array([0.0, 0.0, -1.0])
 
     class FingertipTask(mink.Task):  # type: ignore[misc]
         def __init__(self) -> None:
             super().__init__(cost=np.array([position_cost] * 3 + [pointing_cost] * 3,
                                            dtype=np.float64))
             self.target = np.zeros(3)
+            self.axis = np.array([0.0, 0.0, -1.0])
             self._jp = np.zeros((3, model.nv))
             self._jr = np.zeros((3, model.nv))
 
         def compute_error(self, configuration: Any) -> FloatArray:
             d = configuration.data
             z = d.site_xmat[site].reshape(3, 3)[:, 2]
-            return np.concatenate([d.site_xpos[site] - self.target, z - down])
+            return np.concatenate([d.site_xpos[site] - self.target, z - self.axis])
 
         def compute_jacobian(self, configuration: Any) -> FloatArray:
             d = configuration.data
@@ -202,7 +229,8 @@ class FingertipIK:
         q_home[scene.qadr] = scene.home
         self.posture.set_target(q_home)
         self.tasks = [*self.position_tasks, self.posture]
-        self.limits: list[Any] = [_joint_box_limit(mink, scene)]
+        self.limits: list[Any] = [_joint_box_limit(mink, scene,
+                                                   velocity_fraction=cfg.velocity_fraction)]
         if cfg.collisions:
             links_obj = list(scene.collision_geoms)
             pairs = [(links_obj, ["object"])]
@@ -214,6 +242,27 @@ class FingertipIK:
                 collision_detection_distance=cfg.collision_detection))
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
         self._mocap = int(m.body_mocapid[self._obj])
+        # the object's vertices in its body frame (the mesh is stored about its own frame)
+        g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
+        mesh = int(m.geom_dataid[g])
+        verts = m.mesh_vert[m.mesh_vertadr[mesh]:m.mesh_vertadr[mesh] + m.mesh_vertnum[mesh]]
+        rot = np.empty(9)
+        mujoco.mju_quat2Mat(rot, m.geom_quat[g])
+        self._verts = np.asarray(verts, dtype=np.float64) @ rot.reshape(3, 3).T + m.geom_pos[g]
+        self._vmean = self._verts.mean(axis=0)
+        self._rot = np.empty(9)
+        self._tilt = np.radians(self.config.side_tilt_deg)
+        # each fingertip's arm base (the root body below the world), xy
+        full = np.zeros(m.nq)
+        full[scene.qadr] = scene.home
+        self.configuration.update(full)
+        bases = []
+        for sid in scene.tip_sites:
+            body = int(m.site_bodyid[int(sid)])
+            while int(m.body_parentid[body]) != 0:
+                body = int(m.body_parentid[body])
+            bases.append(np.array(self.configuration.data.xpos[body][:2]))
+        self._bases = [(float(b[0]), float(b[1])) for b in bases]
         self.solve_times: list[float] = []
         self.reset(scene.home)
 
@@ -229,6 +278,9 @@ class FingertipIK:
         full[self.scene.qadr] = np.clip(q, self.scene.lower, self.scene.upper)
         self.configuration.update(full)
         self.solve_times = []
+        for task in self.position_tasks:  # pointing down again, not turning
+            task.axis = np.array([0.0, 0.0, -1.0])
+        self._turn = [0.0] * len(self.position_tasks)
 
     def set_q(self, q: FloatArray) -> None:
         """Carry on from joint positions ``q`` (scene joint order), keeping the timings."""
@@ -247,6 +299,50 @@ class FingertipIK:
         d = self.configuration.data
         return np.array([d.site_xpos[int(s)] for s in self.scene.tip_sites])
 
+    def pointing(self, targets: FloatArray) -> FloatArray:
+        """The fingers' pointing directions (unit, world) for ``targets`` (shape
+        (n_fingers, 3)), shape (n_fingers, 3).
+
+        Down, except where a target lies at or below the object's top beside it (a side
+        face): there the rod leans back towards its arm's base by up to ``side_tilt_deg``,
+        as far as that direction points away from the object's vertical axis (a lean towards
+        the object would put the rod over it; a lean along the face's outward normal alone
+        would make the wrist follow the face round in a twist, to its joint limits).
+        """
+        targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
+        out = np.zeros_like(targets)
+        out[:, 2] = -1.0
+        if self._tilt <= 0.0:
+            return out
+        # scalar arithmetic: this runs every solve, for one to a few fingers
+        d = self.configuration.data
+        rot = self._rot
+        mujoco.mju_quat2Mat(rot, d.mocap_quat[self._mocap])
+        pos = d.mocap_pos[self._mocap]
+        top = float((self._verts @ rot[6:9]).max()) + float(pos[2])
+        cx = float(rot[0:3] @ self._vmean) + float(pos[0])
+        cy = float(rot[3:6] @ self._vmean) + float(pos[1])
+        band = max(self.config.side_tilt_band, 1e-6)
+        for k, (x, y, z) in enumerate(targets.tolist()):
+            hx, hy = x - cx, y - cy
+            n = math.hypot(hx, hy)
+            bx, by = self._bases[k][0] - x, self._bases[k][1] - y
+            nb = math.hypot(bx, by)
+            if n < 1e-6 or nb < 1e-6:
+                continue
+            bx, by = bx / nb, by / nb
+            # full lean at the top and below, none ``band`` above it (an approach from
+            # above turns the finger gradually), none over the object's vertical axis
+            frac = min(max((top + band - z) / band, 0.0), 1.0) * min(n / band, 1.0) \
+                * max((bx * hx + by * hy) / n, 0.0)
+            if frac <= 0.0:
+                continue
+            ang = self._tilt * frac
+            sa = math.sin(ang)
+            # +z runs from the flange to the tip: the flange sits towards the base
+            out[k] = (-bx * sa, -by * sa, -math.cos(ang))
+        return out
+
     # -------------------------------------------------------------------------- solve
     def step(self, targets: FloatArray) -> tuple[FloatArray, FloatArray]:
         """One control step towards ``targets`` (shape (n_fingers, 3), world metres).
@@ -260,8 +356,28 @@ class FingertipIK:
         """
         mink = self.mink
         t0 = time.perf_counter()
-        for task, x in zip(self.position_tasks, targets, strict=True):
+        axes = self.pointing(targets)
+        cfg = self.config
+        for k, (task, x, a) in enumerate(zip(self.position_tasks, targets, axes,
+                                             strict=True)):
             task.target = np.asarray(x, dtype=np.float64)
+            # the pointing turns towards its new direction with a bounded rate and
+            # acceleration (stopping in time): a sudden turn of the goal swings the wrist at
+            # its velocity limits, a sudden start at its torque limit
+            ax = task.axis
+            c = min(max(float(ax @ a), -1.0), 1.0)
+            ang = math.acos(c)
+            w = min(cfg.tilt_rate, self._turn[k] + cfg.tilt_accel * self.dt,
+                    math.sqrt(2.0 * cfg.tilt_accel * ang))
+            self._turn[k] = w
+            turn = w * self.dt
+            if ang <= 1e-9:
+                continue
+            if ang > turn:
+                perp = a - c * ax
+                perp /= max(math.sqrt(float(perp @ perp)), 1e-12)
+                a = math.cos(turn) * ax + math.sin(turn) * perp
+            task.axis = a / float(np.linalg.norm(a))
         try:
             v = mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
                               damping=self.config.damping, limits=self.limits)

@@ -107,6 +107,7 @@ def place_base(
     n_directions: int = 16, search_rate: float = 50.0, reach_tol: float = 0.005,
     params: SimParams = DEFAULT_PARAMS, finger: int = 0,
     avoid: Sequence[BasePose] = (), min_separation: float = 0.4,
+    side_cone_deg: float = 60.0,
 ) -> Placement:
     """Search a base pose for one arm that reaches the whole plan with the most joint margin.
 
@@ -131,6 +132,13 @@ def place_base(
     avoid : sequence of BasePose
         Bases of other arms already placed: candidates closer than ``min_separation`` (m)
         to one are skipped.
+    side_cone_deg : float
+        With several fingers in the paths, the arm stands on its own finger's side: only
+        bases within this angle of the direction from the fingers' common centre to this
+        finger's targets are tried (in a pinch each arm then reaches the face nearest to it
+        and its finger leans over no object; the search would otherwise pick, by joint
+        margin, an arm reaching across the object to the far face). Ignored when the
+        fingers' centres are within 5 mm of each other.
     """
     if not paths:
         raise InputError("the plan has no steps: nothing to place the robot for")
@@ -147,6 +155,10 @@ def place_base(
         sampled.append(arr[::every, finger:finger + 1])
     allt = np.concatenate(sampled)
     centre = allt.reshape(-1, 3)[:, :2].mean(axis=0)
+    every_finger = np.concatenate([arr[::max(1, round(rate / search_rate))]
+                                   for arr, rate in paths]).reshape(-1, 3)[:, :2].mean(axis=0)
+    side = centre - every_finger
+    side_ok = float(np.hypot(*side)) > 0.005
     best: Placement | None = None
     tried = 0
     for r in radii:
@@ -154,6 +166,9 @@ def place_base(
             a = 2 * math.pi * k / n_directions
             bx, by = centre[0] + r * math.cos(a), centre[1] + r * math.sin(a)
             if any(math.hypot(bx - o.x, by - o.y) < min_separation for o in avoid):
+                continue
+            if side_ok and math.cos(a - math.atan2(side[1], side[0])) < math.cos(
+                    math.radians(side_cone_deg)):
                 continue
             yaw = math.degrees(math.atan2(centre[1] - by, centre[0] - bx))
             base = BasePose(float(bx), float(by), yaw)
@@ -179,7 +194,8 @@ def place_base(
                     else -best.reach_error_m):
                 best = cand
     if best is None:
-        raise InputError("no candidate base is far enough from the other arms' bases")
+        raise InputError("no candidate base is far enough from the other arms' bases on "
+                         "this finger's side: give --base X Y YAW for each arm")
     return Placement(best.base, best.reach_error_m, best.joint_margin_rad, best.feasible,
                      tried)
 

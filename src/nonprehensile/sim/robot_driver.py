@@ -237,11 +237,17 @@ class RobotArms:
     control_every : int
         The IK runs every this many physics steps (the control rate is the physics rate over
         it); the joint set points are interpolated in between.
+    force_limit : float
+        The largest contact force (N, norm) a fingertip holds before it gives way (see
+        :meth:`_yield`); the free fingertips' ``max_force`` is 8 N per axis, 13.9 N at most.
+        Off (``inf``) by default: at 15 N it halved the tracking error and the time at a
+        torque limit of a two-arm tumble-lift, but doubled them in the two-arm twist (whose
+        pinch needs its squeeze) and in the single-arm main plan (docs/benchmarks.md).
     """
 
     def __init__(self, scene: RobotScene, ik_scene: RobotScene, data: Any, judge: Judge,
-                 dt: float, ik_config: IKConfig | None = None, control_every: int = 1
-                 ) -> None:
+                 dt: float, ik_config: IKConfig | None = None, control_every: int = 1,
+                 force_limit: float = math.inf) -> None:
         if isinstance(control_every, bool) or not isinstance(control_every, int) or not \
                 1 <= control_every <= 100:
             raise InputError(f"the IK runs every 1..100 physics steps, got {control_every!r}")
@@ -266,6 +272,12 @@ class RobotArms:
         self._n = 0
         self._touch = False
         self._other = False
+        self.force_limit = force_limit
+        self.yield_rate = 0.01
+        self.return_speed = 0.02
+        self._offset = np.zeros((scene.n_fingers, 3))
+        self._fbuf = np.zeros(6)
+        self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
 
     # --------------------------------------------------------------------- protocol
     def controls(self, targets: FloatArray) -> Any:
@@ -311,6 +323,7 @@ class RobotArms:
         self.ik.reset(self.scene.home)
         self.log.clear()
         self._n = 0
+        self._offset[:] = 0.0
 
     def begin(self) -> None:
         """A new target trajectory: the IK starts from the set point the servos have now (a
@@ -331,7 +344,7 @@ class RobotArms:
             q0 = self.ik.q
             self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
             self.ik.dt = k * self.dt
-            q1, _ = self.ik.step(targets[min(j + k, len(targets) - 1)])
+            q1, _ = self.ik.step(self._yield(targets[min(j + k, len(targets) - 1)], k))
             self.ik.dt = self.dt
             seg = ctl.seg = (q0, q1 - q0, j, k)
         q0, dq, j0, k = seg
@@ -360,11 +373,60 @@ class RobotArms:
             self.ik.converge(targets)
             q, qd = self.ik.q, np.zeros(len(sc.qadr))
         else:
-            q, qd = self.ik.step(targets)
+            q, qd = self.ik.step(self._yield(targets, 1))
             self._record(targets, q, qd)
         if last:
             qd = np.zeros_like(qd)  # the set point holds still after the motion
         return self._row_of(q, qd)
+
+    def _yield(self, targets: FloatArray, steps: int) -> FloatArray:
+        """The IK's targets: ``targets`` moved by each fingertip's yield, over ``steps``
+        physics steps.
+
+        A fingertip pushed by the object harder than ``force_limit`` (N, the norm of the
+        contact force) gives way along that force at ``yield_rate`` (m/s per newton of the
+        excess), and comes back towards its target at ``return_speed`` (m/s) when the force
+        is under the limit: the force limit of the compliant free fingertip the references
+        were recorded with, which a stiff position-controlled arm does not have (in a pinch
+        or a lift against the table it would squeeze up to its joints' torque limits).
+        """
+        off = self._offset
+        if not math.isfinite(self.force_limit):
+            return targets
+        dt = steps * self.dt
+        if self._touch or self._n % CONTACT_EVERY == 0 or np.any(off):
+            f = self._tip_forces()
+            for k in range(self.n_fingers):
+                mag = float(np.linalg.norm(f[k]))
+                excess = mag - self.force_limit
+                if excess > 0.0:
+                    off[k] += (self.yield_rate * excess * dt / mag) * f[k]
+                else:
+                    n = float(np.linalg.norm(off[k]))
+                    if n > 0.0:
+                        off[k] *= max(0.0, 1.0 - self.return_speed * dt / n)
+        return np.asarray(targets, dtype=np.float64) + off
+
+    def _tip_forces(self) -> FloatArray:
+        """The contact force on each fingertip (world, N; from the object and the table),
+        shape (n_fingers, 3)."""
+        d, m = self.data, self.scene.model
+        out = np.zeros((self.n_fingers, 3))
+        n = d.ncon
+        if n == 0:
+            return out
+        con = d.contact
+        g1, g2 = con.geom1[:n], con.geom2[:n]
+        tips = self._tip_geoms
+        buf = self._fbuf
+        for i in np.nonzero(np.isin(g1, tips) | np.isin(g2, tips))[0]:
+            on2 = int(g2[i]) in self._tip_index
+            k = self._tip_index[int(g2[i]) if on2 else int(g1[i])]
+            mujoco.mj_contactForce(m, d, int(i), buf)
+            # the force geom1 exerts on geom2, in the contact frame (normal: 1 -> 2)
+            fw = d.contact[int(i)].frame.reshape(3, 3).T @ buf[:3]
+            out[k] += fw if on2 else -fw
+        return out
 
     def _contacts(self, d: Any) -> tuple[bool, bool]:
         """Whether a fingertip touches the object, and whether a link or the rod touches the

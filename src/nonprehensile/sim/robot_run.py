@@ -10,6 +10,7 @@ robot's own records (tracking error, limits, other contacts, IK time) are in
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -57,11 +58,14 @@ class RobotSimulator(Simulator):
     control_every : int
         The IK runs every this many physics steps (control rate = physics rate / it); the
         servos' set points are interpolated in between.
+    force_limit : float
+        Contact force (N) above which a fingertip gives way
+        (:class:`~nonprehensile.sim.robot_driver.RobotArms`; off by default).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
-                 control_every: int = 1) -> None:
+                 control_every: int = 1, force_limit: float = math.inf) -> None:
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self.params = params
@@ -77,7 +81,8 @@ class RobotSimulator(Simulator):
         self.data = mujoco.MjData(self.model)
         self.judge = Judge(poly, self.scale, params, self.model, self.n_fingers)
         self.robot_driver = RobotArms(self.scene, self.ik_scene, self.data, self.judge,
-                                      params.timestep, ik_config, control_every)
+                                      params.timestep, ik_config, control_every,
+                                      force_limit)
         self.driver = self.robot_driver
         self._body = self.judge.body
         self._qadr = self.judge.qadr
