@@ -23,9 +23,20 @@ from test_report import CHROMIUM, loaded_dom, loaded_images
 
 
 @pytest.fixture(scope="module")
-def demo_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, object]]:
+def demo_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The demo's own cache folder: its robot execution and sweep are run, not found."""
+    return tmp_path_factory.mktemp("demo-cache")
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory: pytest.TempPathFactory,
+             demo_cache: Path) -> tuple[Path, dict[str, object]]:
     out = tmp_path_factory.mktemp("demo") / "report"
-    res = CliRunner().invoke(main, ["demo", "--out", str(out), "--json"])
+    # a CI-sized robustness sweep (3 samples, run here: the shipped 200-sample one has its
+    # own tests, tests/test_report_runs.py)
+    cache = demo_cache
+    res = CliRunner(env={"NONPREHENSILE_CACHE": str(cache)}).invoke(
+        main, ["demo", "--out", str(out), "--json", "--sweep-samples", "3"])
     assert res.exit_code == 0, res.stderr
     return out, json.loads(res.stdout)
 
@@ -234,3 +245,35 @@ def test_motion_library_is_built_once_and_rebuilt_when_a_file_changes(
     pipeline.motions_from_dataset(root, cache=cache)
     pipeline.motions_from_dataset(root, cache=False)
     assert len(built) == 5
+
+
+def test_demo_report_has_the_robustness_and_robot_sections(
+    demo_run: tuple[Path, dict[str, object]], demo_cache: Path,
+) -> None:
+    """Issue 21 item 8 and issue 22 item 8: the robustness figure (success against table
+    friction and mass, open and closed loop) with its samples and seed stated, and the
+    robot's filmstrip and its tracking error / joint margins over time, from real runs."""
+    import html as html_lib
+
+    out, _ = demo_run
+    page = (out / "index.html").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    alts = [html_lib.unescape(a) for a in re.findall(r'<img alt="([^"]*)"', page)]
+    rob = summary["robustness"]
+    if "error" in rob:  # only without the sim extra
+        pytest.importorskip("mujoco")
+        raise AssertionError(rob["error"])
+    assert rob["samples"] == 3 and rob["seed"] == 0 and rob["source"] == "computed"
+    assert any(a.startswith("Success rate against table friction and object mass")
+               for a in alts)
+    assert "3 times, once per sample" in page and "(seed 0;" in page
+    sweep = json.loads(next(demo_cache.glob("sweep-*.json")).read_text())
+    assert sweep["key"] == rob["key"] and len(sweep["records"]) == 6
+    robot = summary["robot"]
+    if "error" in robot:
+        pytest.importorskip("mink")  # skips only when mink is really absent
+        raise AssertionError(robot["error"])
+    assert any(a.startswith("Filmstrip of the arm") for a in alts)
+    assert any(a.startswith("The robot's records over the whole execution") for a in alts)
+    assert robot["success"] and not robot["cached"]
+    assert list(demo_cache.glob("robot-*.pickle"))

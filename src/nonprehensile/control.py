@@ -144,6 +144,12 @@ class ControlConfig:
         the centre line (:func:`turn_push`) and the plan goes on, instead of a re-plan:
         the same face, turned, is a turn away, whatever skill made it. Keep it below half
         the model's angular step (the nearest state must be the predicted one).
+    follow_deg : float
+        A tipping arc whose reference ends with the object still on a pivot of its landing
+        face follows through: the fingers turn on about the pivot by at most this (degrees;
+        0: never) ...
+    follow_speed : float
+        ... at this rate (degrees/s).
     """
 
     confirm: float = 0.015
@@ -169,6 +175,8 @@ class ControlConfig:
     correction_tol: float = 0.003
     max_corrections: int = 4
     align_tol: float = 30.0
+    follow_deg: float = 30.0
+    follow_speed: float = 60.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -176,7 +184,7 @@ class ControlConfig:
                 continue
             ok = isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
             if name in ("max_speed", "max_accel", "reach_speed", "still_time",
-                        "slow_retry") and ok:
+                        "slow_retry", "follow_speed") and ok:
                 ok = value > 0
             if name == "max_speed" and ok:
                 ok = value <= 0.5  # the issue's bound on every fingertip
@@ -231,11 +239,18 @@ def _element_vertices(poly: Polyhedron, element: ObjectElement) -> list[int]:
 
 
 def anchor_transform(poly: Polyhedron, element: ObjectElement | None,
-                     predicted: ObjectPose, observed: ObjectPose) -> PlanarTransform:
+                     predicted: ObjectPose, observed: ObjectPose, *,
+                     yaw: float | None = None) -> PlanarTransform:
     """The planar transform that carries ``element`` (on the table) from the predicted pose
     to the observed one: a 2-D least-squares fit of its vertices (a face's, an edge's two);
-    a single vertex (or no element) keeps the turn of the best vertical-axis fit of the two
-    rotations and matches the point (the centre of mass without an element)."""
+    a single vertex (or no element) matches the point (the centre of mass without an
+    element) and turns by ``yaw`` (radians) when given, else by the best vertical-axis fit
+    of the two rotations.
+
+    A vertex pivot is given the turn of the anchor before it: an object tipped onto a
+    corner is tilted, and the vertical-axis part of its rotation against the (untilted)
+    predicted pose is the skill's own twist as much as any error (a tumble that twists
+    while it tips), which re-anchoring would add to the reference a second time."""
     idx = _element_vertices(poly, element) if element is not None else []
     a = predicted.to_world(poly.vertices[idx])[:, :2] if idx else predicted.com[None, :2]
     b = observed.to_world(poly.vertices[idx])[:, :2] if idx else observed.com[None, :2]
@@ -243,6 +258,8 @@ def anchor_transform(poly: Polyhedron, element: ObjectElement | None,
     if len(a) >= 2:
         h = (a - ca).T @ (b - cb)
         yaw = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
+    elif yaw is not None:
+        pass
     else:
         rel = observed.rotation @ predicted.rotation.T
         yaw = math.atan2(rel[1, 0] - rel[0, 1], rel[0, 0] + rel[1, 1])
@@ -408,21 +425,49 @@ def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
 
 
 def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
-    """The step with a single finger's contact moved up its face: every arc's reference
-    raised so that the fingertip touches ``finger_radius + 2 mm`` below the object's top
-    (another contact point on the same face). Pushed higher, a tipping push needs less table
-    friction: with a push at height ``h`` on a cube of width ``w`` whose pad lifts the face
-    by friction ``mu_f``, it tips before sliding when the table's friction exceeds
-    ``(w / 2) / (h + mu_f w / 2)``. Skills of several fingers (a pinch) are left as they are.
+    """The step with a single finger's contact moved up its face (another contact point on
+    the same face). Pushed higher, a tipping push needs less table friction: with a push at
+    height ``h`` on a cube of width ``w`` whose pad lifts the face by friction ``mu_f``, it
+    tips before sliding when the table's friction exceeds ``(w / 2) / (h + mu_f w / 2)``.
+
+    * A vertical face: every arc's reference raised so that the fingertip touches
+      ``finger_radius + 2 mm`` below the object's top.
+    * A face that leans back (its normal points up, as a hexagonal prism's upper side
+      faces do): a round pad pushing it horizontally touches it ``finger_radius`` times the
+      normal's height below its own centre, low on the face, and presses along the normal,
+      partly down. The reference is moved up the face (along its steepest ascent, so also
+      toward the object) until the contact is 4 mm below the face's top edge. For a
+      hexagonal prism of side ``r`` rolled about a bottom edge by a push along the normal
+      of the opposite upper face, the table friction needed falls from ``1 / sqrt(3)``
+      (0.58) at the face's middle to ``(sqrt(3) / 2) / (5 / 2)`` (0.35) at its top edge.
+
+    Skills of several fingers (a pinch) are left as they are.
     """
     if len(spec.used) != 1 or not spec.arcs:
         return spec
-    top = float(spec.start_pose.to_world(poly.vertices)[:, 2].max())
-    z_touch = float(spec.arcs[0].positions[-1, 0, 2])
-    dz = top - finger_radius - 0.002 - z_touch
-    if dz <= 0.0:
+    touched = next((el.id for ev in spec.events for q in ev for el in (q.x, q.y)
+                    if isinstance(el, Face) and any(isinstance(o, Finger) for o in (q.x, q.y))),
+                   None)
+    if touched is None:
         return spec
-    lift = np.array([0.0, 0.0, dz])
+    z_centre = float(spec.arcs[0].positions[-1, 0, 2])
+    normal = spec.start_pose.rotation @ poly.normals[touched]
+    if 0.05 < normal[2] < 0.95:  # leans back (not a top face): up the face
+        up = np.array([0.0, 0.0, 1.0]) - normal[2] * normal
+        up /= float(np.linalg.norm(up))
+        edge_top = float(spec.start_pose.to_world(poly.vertices[list(poly.faces[touched])])[:, 2]
+                         .max())
+        z_contact = z_centre - finger_radius * float(normal[2])
+        length = (edge_top - 0.004 * float(up[2]) - z_contact) / float(up[2])
+        if length <= 0.0:
+            return spec
+        lift = length * up
+    else:
+        top = float(spec.start_pose.to_world(poly.vertices)[:, 2].max())
+        dz = top - finger_radius - 0.002 - z_centre
+        if dz <= 0.0:
+            return spec
+        lift = np.array([0.0, 0.0, dz])
     arcs = tuple(replace(a, positions=a.positions + lift) for a in spec.arcs)
     return replace(spec, arcs=arcs, targets={k: v + lift for k, v in spec.targets.items()})
 
@@ -505,6 +550,8 @@ class StepMonitor:
                         np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
                                   for f in poly.face_ids]))
         self._seek_dir = np.zeros((len(spec.used), 3))
+        self._yaw: float | None = None  # the last anchor's turn (radians)
+        self._followed = 0.0  # how long (s) the current arc's follow-through runs
 
     # ---------------------------------------------------------------------------- helpers
     def _full(self, used_path: FloatArray) -> FloatArray:
@@ -520,7 +567,10 @@ class StepMonitor:
         commanded point, at the physics step."""
         arc = self.spec.arcs[self.arc]
         predicted = self.spec.end_pose if arc.anchor_end else self.spec.start_pose
-        tf = anchor_transform(self.poly, arc.anchor, predicted, obs.pose)
+        # a corner pivot keeps the turn of the last anchor (see anchor_transform)
+        keep = self._yaw if isinstance(arc.anchor, Vertex) else None
+        tf = anchor_transform(self.poly, arc.anchor, predicted, obs.pose, yaw=keep)
+        self._yaw = tf.yaw
         ref = tf.apply(arc.positions)
         now = np.asarray(command, dtype=np.float64)[[k - 1 for k in self.spec.used]]
         gap = now - ref[0]
@@ -601,7 +651,14 @@ class StepMonitor:
                                         f"{arc.source}->{arc.target}")
         elapsed = obs.time - self._arc_t0
         length = (len(arc.positions) - 1) / self.spec.rate
-        if self.phase == "run" and elapsed > length and (arc.seeks or arc.releases):
+        if self.phase == "run" and elapsed > length and arc.tips:
+            follow = self._follow_through(obs, command)
+            if follow is not None:
+                return follow
+        # a single finger's push that has not tipped the object yet pushes on, slowly
+        pushes = arc.tips and len(self.spec.used) == 1 and not self._pivoted \
+            and isinstance(ground, Face)
+        if self.phase == "run" and elapsed > length and (arc.seeks or arc.releases or pushes):
             self.phase = "seek"
             step = self._seek_dir
             if arc.releases:  # let go: straight up, away from the object
@@ -615,12 +672,55 @@ class StepMonitor:
                 path = start[None] + s[:, None, None] * direction[None]
                 return Decision(segment=self._full(path))
         limit = length + self.cfg.grace + (
-            self.cfg.reach / self.cfg.reach_speed if arc.seeks or arc.releases else 0.0)
+            self.cfg.reach / self.cfg.reach_speed if arc.seeks or arc.releases or pushes
+            else 0.0) + (
+            self._followed if arc.tips else 0.0)
         if elapsed > limit:
             seen = " ∧ ".join(_pair_names(self.current)) or "nothing"
             return self._abort(obs, f"event {arc.target!r} not observed within "
                                     f"{limit:.2f} s of {arc.source!r} (observed {seen})")
         return Decision()
+
+    def _follow_through(self, obs: Observation, command: FloatArray) -> Decision | None:
+        """A tipping arc whose reference is over while the object still pivots on an edge
+        or corner of its landing face (a compliant or slipping pinch lags the recorded
+        turn, a light push leaves the object short of its balance point): the fingers go
+        on turning about the observed pivot, toward the landing face, by at most
+        ``config.follow_deg`` at ``config.follow_speed``, so that the object goes over
+        instead of falling back. Once per arc; None when it does not apply."""
+        if self._followed > 0.0 or self.cfg.follow_deg <= 0.0:
+            return None
+        landing = self.spec.grounds[self.arc + 1] if self.arc + 1 < len(self.spec.grounds) \
+            else None
+        ground = _ground_of(self.current) if self.current is not None else None
+        if not isinstance(landing, Face) or not isinstance(ground, (Edge, Vertex)) \
+                or landing.id not in ground.faces:
+            return None
+        pts = obs.pose.to_world(self.poly.vertices[_element_vertices(self.poly, ground)])
+        pivot = pts.mean(axis=0)
+        normal = obs.pose.rotation @ self.poly.normals[landing.id]
+        if isinstance(ground, Edge):
+            axis = pts[1] - pts[0]
+        else:  # about the horizontal across the landing face's fall line
+            axis = np.cross([0.0, 0.0, 1.0], [normal[0], normal[1], 0.0])
+        norm = float(np.linalg.norm(axis))
+        if norm < 1e-9:
+            return None
+        axis = axis / norm
+        if np.cross(axis, normal)[2] > 0.0:  # turn so that the landing face goes down
+            axis = -axis
+        angle = math.radians(self.cfg.follow_deg)
+        duration = angle / math.radians(self.cfg.follow_speed)
+        n = max(2, round(duration / self.dt))
+        used = [k - 1 for k in self.spec.used]
+        start = np.asarray(command, dtype=np.float64)[used] - pivot
+        s = ease(np.linspace(0.0, 1.0, n))
+        path = np.stack([Rotation.from_rotvec(axis * angle * si).apply(start) + pivot
+                         for si in s])
+        self._followed = duration
+        self.log.append({"time": round(obs.time - self._t0, 4), "follow_through": str(ground),
+                         "deg": self.cfg.follow_deg})
+        return Decision(segment=self._full(path))
 
     def _turned_enough(self, obs: Observation, command: FloatArray) -> Decision | None:
         """A turn in place (start and end on the same face) watched by its angle: once the
@@ -697,6 +797,7 @@ class StepMonitor:
                 return None
             self.arc = j
             self.phase = "run"
+            self._followed = 0.0
             self._arc_t0 = obs.time
             self._arc_com = obs.pose.com[:2].copy()
             # blend from the commanded points, not the observed tips: a compliant pad in

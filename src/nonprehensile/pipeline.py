@@ -377,6 +377,49 @@ def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
     return written
 
 
+def _physics_runs(ds: Dataset, exp: Any, result: Plan, motions: ClusteredMotions,
+                  states: Sequence[State], *, seed: int, folder: Path | None,
+                  samples: int | None, write_sweep: str | Path | None,
+                  progress: StageProgress, command: str) -> dict[str, Any]:
+    """The report's robustness sweep and robot execution (:mod:`nonprehensile.sim.report_runs`),
+    each as its document or ``{"error": why}`` (no ``sim`` or ``robot`` extra, no plan)."""
+    runs: dict[str, Any] = {}
+    if not result.steps:
+        return {"sweep": {"error": "the plan has no step"},
+                "robot": {"error": "the plan has no step"}}
+    try:
+        from nonprehensile.sim import report_runs
+    except ImportError as exc:
+        why = f"the simulation needs the `sim` extra: pip install 'nonprehensile[sim]' ({exc})"
+        return {"sweep": {"error": why}, "robot": {"error": why}}
+    from nonprehensile.errors import NonprehensileError
+
+    del seed  # the clustering's seed: the sweep has its own (DEMO_SWEEP_SEED)
+    try:
+        runs["sweep"] = report_runs.plan_sweep(
+            ds.poly, exp, result, motions, scale=ds.scale, fingers=ds.fingers,
+            skills=list(ds.skills), samples=samples or report_runs.DEMO_SWEEP_SAMPLES,
+            cache=folder, write=Path(write_sweep) if write_sweep else None,
+            command=command, progress=lambda d, n: progress("robustness sweep", d, n))
+    except NonprehensileError as exc:
+        if write_sweep:  # asked for the file: its failure is the command's
+            raise
+        runs["sweep"] = {"error": str(exc)}
+    progress("robot", 0, 1)
+    try:  # an ImportError past mink's own check: a part of the extra missing
+
+        runs["robot"] = report_runs.robot_execution(
+            ds.poly, result, motions, scale=ds.scale, fingers=ds.fingers,
+            skills=list(ds.skills), states=states, cache=folder)
+    except NonprehensileError as exc:
+        runs["robot"] = {"error": str(exc)}
+    except ImportError as exc:
+        runs["robot"] = {"error": f"robot arms need mink: pip install 'nonprehensile[robot]' "
+                                  f"({exc})"}
+    progress("robot", 1, 1)
+    return runs
+
+
 @one_thread()  # BLAS on one thread for the whole job: steady on a busy machine (issue 16)
 def run_demo(
     out_dir: str | Path = "report",
@@ -389,6 +432,9 @@ def run_demo(
     seed: int = 0,
     progress: StageProgress = _quiet,
     command: str | None = None,
+    cache: str | Path | bool | None = True,
+    sweep_samples: int | None = None,
+    write_sweep: str | Path | None = None,
 ) -> DemoResult:
     """Run the whole pipeline on a dataset and write the report.
 
@@ -411,11 +457,29 @@ def run_demo(
     command : str, optional
         The command line that ran the job, written on the report (default: the equivalent
         ``nonprehensile demo`` command).
+    cache : str, Path or bool
+        Where the physics runs too slow to repeat are kept (the plan's robustness sweep, its
+        execution by the Panda: :mod:`nonprehensile.sim.report_runs`): a folder, True for
+        :func:`cache_dir`, False for none.
+    sweep_samples : int, optional
+        Samples of the report's robustness sweep (default
+        :data:`~nonprehensile.sim.report_runs.DEMO_SWEEP_SAMPLES`; the package ships that
+        sweep for the default task).
+    write_sweep : str or Path, optional
+        Run the robustness sweep afresh and write it here with its provenance (the file the
+        package ships is ``src/nonprehensile/data/demo_sweep.json``).
 
     Returns
     -------
     DemoResult
     """
+    if write_sweep is not None:  # before any work: the sweep is written at the end
+        try:
+            from nonprehensile.sim.report_runs import check_writable
+        except ImportError as exc:
+            raise InputError(f"--write-sweep runs the sweep in MuJoCo: pip install "
+                             f"'nonprehensile[sim]' ({exc})") from None
+        check_writable(Path(write_sweep))
     times: dict[str, float] = {}
     t0 = time.perf_counter()
 
@@ -440,6 +504,12 @@ def run_demo(
     result: Plan = plan(poly, exp, start, goal, position=position, motions=motions,
                         scale=ds.scale)
     lap("planning")
+    folder = cache_dir() if cache is True else (Path(cache) if cache else None)
+    runs = _physics_runs(ds, exp, result, motions, states, seed=seed, folder=folder,
+                         samples=sweep_samples, write_sweep=write_sweep, progress=progress,
+                         command=command or f"nonprehensile demo --dataset {dataset} "
+                                            f"--from {start} --to {goal}")
+    lap("physics runs")
 
     summary: dict[str, Any] = {
         "object": {"name": poly.name, "faces": len(poly.faces),
@@ -468,7 +538,7 @@ def run_demo(
     summary["meta"] = dict(meta)
     from nonprehensile.viz.demo_report import ReportContext, write_demo_report
 
-    ctx = ReportContext(ds, exp, graphs, segments, motions, arcs, result, summary)
+    ctx = ReportContext(ds, exp, graphs, segments, motions, arcs, result, summary, runs)
     report = write_demo_report(out, ctx, progress, meta)
     lap("report")
     summary["seconds"] = times

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import click
 
 from nonprehensile.cli.common import emit_json, handle_errors, out, stage_bars
-from nonprehensile.cli.options import SEED, json_option, parse_state
+from nonprehensile.cli.options import SEED, count, json_option, parse_state
 
 if TYPE_CHECKING:
     from nonprehensile.states import State
@@ -48,10 +48,17 @@ def _command_line() -> str | None:
 @click.option("--to", "goal", default=DEMO_GOAL, show_default=True,
               callback=parse_state, help="Goal state of the task.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the clustering.")
+@click.option("--sweep-samples", type=count(1, 100_000), default=None,
+              help="Samples of the physics distribution in the report's robustness sweep "
+                   "[default: 200, the sweep the package ships for the default task].")
+@click.option("--write-sweep", type=click.Path(dir_okay=False), default=None,
+              help="Run the report's robustness sweep afresh and write it to this file with "
+                   "its provenance (command, commit, seed); the package ships "
+                   "src/nonprehensile/data/demo_sweep.json.")
 @json_option
 @handle_errors
 def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
-         as_json: bool) -> None:
+         sweep_samples: int | None, write_sweep: str | None, as_json: bool) -> None:
     """The main job: the whole pipeline on a dataset, ending in an HTML report."""
     from nonprehensile.cli.plan import print_plan
     from nonprehensile.pipeline import run_demo
@@ -59,7 +66,8 @@ def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
     t0 = time.perf_counter()
     with stage_bars(as_json) as bars:
         result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
-                          progress=bars, command=_command_line())
+                          progress=bars, command=_command_line(),
+                          sweep_samples=sweep_samples, write_sweep=write_sweep)
     elapsed = time.perf_counter() - t0
     summary = result.summary
     if as_json:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import contextlib
 import gc
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +59,9 @@ class ReportContext:
     arcs: list[dict[str, Any]]
     result: Plan
     summary: dict[str, Any]
+    #: The physics runs kept between reports (:mod:`nonprehensile.sim.report_runs`):
+    #: ``sweep`` and ``robot``, each its document or ``{"error": why}``.
+    runs: dict[str, Any] = field(default_factory=dict)
 
 
 #: The report's sections, in order: ``"module:function"``, each function taking a
@@ -71,6 +74,8 @@ REPORT_SECTIONS: list[str] = [
     "nonprehensile.viz.demo_report:motion_section",
     "nonprehensile.viz.demo_report:plan_section",
     "nonprehensile.viz.demo_report:physics_section",
+    "nonprehensile.viz.demo_report:robustness_section",
+    "nonprehensile.viz.demo_report:robot_section",
 ]
 
 
@@ -327,3 +332,181 @@ def plan_section(ctx: ReportContext) -> Section:
         [(["step", "transition", "agent", "event", "contacts", "then", "reference motion"],
           rows)],
     )
+
+
+def _rate_text(d: dict[str, Any]) -> str:
+    """``181/200 = 90.5 % (85.6-93.8 %)`` from a rate's JSON."""
+    if not d["n"]:
+        return "-"
+    lo, hi = d["ci95"]
+    return f"{d['k']}/{d['n']} = {100 * d['rate']:.1f} % ({100 * lo:.1f}-{100 * hi:.1f} %)"
+
+
+#: The quantities the report's robustness figure plots (the issue's "friction and mass").
+ROBUSTNESS_PARAMETERS = ("friction_table", "mass")
+
+
+def robustness_section(ctx: ReportContext) -> Section:
+    """The plan's robustness across the physics distribution, open and closed loop: success
+    against table friction and mass (:func:`nonprehensile.sim.report_runs.plan_sweep`)."""
+    from nonprehensile.viz.robustness import PARAMETER_AXES, robustness_figure
+
+    title = "Robustness: the plan across the physics distribution"
+    doc = ctx.runs.get("sweep") or {"error": "not run"}
+    if "error" in doc:
+        ctx.summary["robustness"] = {"error": doc["error"]}
+        return Section(title, [f"Not swept: {doc['error']}"])
+    loops = list(doc["loops"])
+    prov = doc.get("provenance", {})
+    dist = doc["distribution"]
+    ranges = "; ".join(
+        f"{PARAMETER_AXES.get(k, (k, 1.0))[0]} {v}" for k, v in _ranges(dist).items())
+    where = {
+        "shipped": f"shipped with the package (src/nonprehensile/data/demo_sweep.json), "
+                   f"computed by `{prov.get('command', '?')}` at commit "
+                   f"{prov.get('commit', '?')} on {prov.get('created', '?')}",
+        "cache": f"kept in the cache folder from an earlier run (computed by "
+                 f"`{prov.get('command', '?')}` at commit {prov.get('commit', '?')} on "
+                 f"{prov.get('created', '?')})",
+        "computed": "computed by this run (and kept in the cache folder for the next)",
+    }[doc["source"]]
+    stale = "" if doc.get("executor_current", True) else (
+        " The executor's code in this installation differs from the code that computed it "
+        "(its source digest " f"{prov.get('executor_digest', '?')} is not this one's): the "
+        "numbers are that commit's; `nonprehensile demo --write-sweep FILE` runs it afresh.")
+    overall = doc["overall"]
+    counts = ", ".join(f"{lp} loop {_rate_text(overall[lp])}" for lp in loops)
+    paras = [
+        f"The plan ({doc['units'][0]['skill']}) executed {doc['samples']} times, once per "
+        f"sample of the documented physics distribution (seed {doc['seed']}; "
+        "`sim.distribution.DEFAULT_DISTRIBUTION`, docs/physics.md), closed and open loop on "
+        "the same samples, by the executor of `simulate robustness` (`sim.robustness."
+        "run_sweep`). It succeeds when the object ends on the goal's face, theta within "
+        f"{doc['angle_tol_deg']:g} degrees and its centre of mass within "
+        f"{1000 * doc['position_tol_m']:g} mm of the goal position: {counts} (95 % Wilson "
+        f"intervals). Distribution: {ranges}. This sweep was {where}.{stale}",
+    ]
+    reasons: dict[str, int] = {}
+    for r in doc["records"]:
+        if r["loop"] == "closed" and not r["success"]:
+            why = str(r["reason"]).split(":")[0][:80] or "?"
+            reasons[why] = reasons.get(why, 0) + 1
+    if reasons:
+        paras.append("Closed-loop failures: " + "; ".join(
+            f"{n} {why}" for why, n in sorted(reasons.items(), key=lambda kv: -kv[1])) + ".")
+    names = [p for p in ROBUSTNESS_PARAMETERS if p in doc["bins"]]
+    png = figure_to_png(robustness_figure(doc, parameters=names))
+    rows = []
+    for name in names:
+        label, k = PARAMETER_AXES.get(name, (name, 1.0))
+        for b in doc["bins"][name]:
+            rows.append([label, f"{k * b['low']:.3g}-{k * b['high']:.3g}",
+                         *(_rate_text(b[lp]) for lp in loops)])
+    ctx.summary["robustness"] = {
+        "samples": doc["samples"], "seed": doc["seed"], "source": doc["source"],
+        "key": doc.get("key"), "provenance": prov,
+        "executor_current": doc.get("executor_current", True),
+        "overall": overall}
+    return Section(
+        title, paras,
+        [(png, "Success rate against table friction and object mass, closed loop (blue) and "
+               "open loop (orange): each point one bin of the parameter's range, with its 95 % "
+               "Wilson interval; every other quantity varies across its own range within "
+               "each bin")],
+        [(["parameter", "bin", *(f"{lp} loop" for lp in loops)], rows)],
+    )
+
+
+def _ranges(dist: dict[str, Any]) -> dict[str, str]:
+    """Each varied quantity's range as shown (``0.3-1``), from the distribution's JSON."""
+    from nonprehensile.viz.robustness import PARAMETER_AXES
+
+    out = {}
+    for name, v in dist.items():
+        if name not in PARAMETER_AXES:
+            continue
+        k = PARAMETER_AXES[name][1]
+        if isinstance(v, (list, tuple)) and len(v) == 2:
+            out[name] = f"{k * float(v[0]):g}-{k * float(v[1]):g}"
+        elif isinstance(v, (int, float)):
+            out[name] = ("up to " if name.startswith("start_") else "") + f"{k * float(v):g}"
+    return out
+
+
+def robot_section(ctx: ReportContext) -> Section:
+    """The plan executed closed loop by the bundled Panda: a filmstrip of the arm, the
+    tracking error and joint margins over time
+    (:func:`nonprehensile.sim.report_runs.robot_execution`)."""
+    from nonprehensile.viz.robot_execution import arm_filmstrip_figure, robot_signals_figure
+
+    title = "Robot: the plan executed by the bundled Franka Panda"
+    doc = ctx.runs.get("robot") or {"error": "not run"}
+    if "error" in doc:
+        ctx.summary["robot"] = {"error": doc["error"]}
+        return Section(title, [f"Not executed: {doc['error']}. With the `robot` extra "
+                               "(pip install 'nonprehensile[robot]': mink and daqp) the "
+                               "bundled Panda executes the plan here."])
+    ex, m, pl = doc["execution"], doc["metrics"], doc["placement"]
+    base = pl["base"]
+    fs = ex["final_state"]
+    at = m["longest_at_limit_s"]
+    worst = max(at, key=lambda k: at[k]) if at else None
+    contact = m["tracking_error_contact_max_m"]
+    verdict = ("reached the goal" if ex["success"] else f"did NOT reach the goal "
+               f"({ex['reason']})")
+    paras = [
+        "The bundled Panda (a mesh-free MJCF the project writes from Franka's published "
+        "kinematics and limits, a finger rod with a spherical tip at the flange; docs/robot.md)"
+        f" stands at the base the placement search chose, ({base['x']:.3f}, {base['y']:.3f}) m "
+        f"heading {base['yaw_deg']:g} degrees ({pl['candidates']} candidates, reach error "
+        f"{1000 * pl['reach_error_m']:.1f} mm, joint margin {pl['joint_margin_rad']:.2f} rad). "
+        "It executes the plan closed loop in one continuous simulation, transits included "
+        "(`simulate plan --robot panda`): mink's differential IK at "
+        f"{doc['robot']['rates']['control_hz']:g} Hz, joint position servos with velocity "
+        f"feed-forward and gravity compensation. It {verdict}: resting on "
+        f"{'no face' if fs is None else str(fs['face']) + ':' + format(fs['theta'], '.1f')}, "
+        f"{1000 * (ex['position_error_m'] or 0.0):.1f} mm from the goal position. "
+        "Fingertip tracking error in contact at most "
+        + ("-" if contact is None else f"{1000 * contact:.1f} mm")
+        + f" ({1000 * m['tracking_error_max_m']:.1f} mm over the whole run); longest time "
+        f"at a joint limit {1000 * (at[worst] if worst else 0.0):.0f} ms"
+        + (f" ({worst})" if worst and at[worst] > 0 else "")
+        + f"; contact of a link or the rod with the cube or the table "
+        f"{1000 * m['other_contact_s']:.0f} ms; joint margin at least "
+        f"{m['position_margin_min_rad']:.2f} rad; IK {m['ik_median_ms']:.3f} ms a solve "
+        f"(median of {m['ik_solves']}). "
+        + ("Kept in the cache folder from an earlier run." if doc.get("cached")
+           else "Computed by this run (kept in the cache folder for the next)."),
+    ]
+    rows = []
+    for r in ex["steps"]:
+        rm = r.get("robot") or {}
+        c = rm.get("tracking_error_contact_max_m")
+        rows.append([str(r["step"]), r["skill"],
+                     "-" if c is None else f"{1000 * c:.1f}",
+                     f"{1000 * rm.get('tracking_error_max_m', float('nan')):.1f}",
+                     f"{rm.get('position_margin_min_rad', float('nan')):.2f}",
+                     f"{1000 * rm.get('time_at_limit_s', 0.0):.0f}",
+                     f"{1000 * rm.get('other_contact_s', 0.0):.0f}",
+                     "yes" if r["success"] else "NO"])
+    figures: list[tuple[bytes | HtmlFigure, str]] = []
+    if doc.get("frames"):
+        figures.append((figure_to_png(arm_filmstrip_figure(doc["frames"])), (
+            "Filmstrip of the arm, seen from the side (across the line from its base to the "
+            "cube): its collision capsules, rod and fingertip (red while touching the cube) "
+            "and the cube, drawn from the recorded joint positions and object pose at the "
+            "start, across each executed step and at the end (after any correction).")))
+    figures.append((figure_to_png(robot_signals_figure(doc["log"], doc["limits"],
+                                                       doc["steps"])), (
+        "The robot's records over the whole execution: the fingertip's distance from its "
+        "target (shaded: touching the cube), each joint's distance to the nearer end of its "
+        "range, and the largest share of a joint's velocity or torque limit in use. Dotted: "
+        "where each executed step starts and ends; before, between and after them, transits "
+        "and corrections.")))
+    ctx.summary["robot"] = {"success": ex["success"], "final_state": fs,
+                            "position_error_m": ex["position_error_m"], "base": base,
+                            "metrics": m, "cached": bool(doc.get("cached"))}
+    return Section(title, paras, figures, [(
+        ["step", "skill", "tracking in contact, max (mm)", "tracking, max (mm)",
+         "joint margin (rad)", "at a limit (ms)", "link/rod contact (ms)",
+         "in the predicted state"], rows)])

@@ -48,6 +48,8 @@ def robustness_figure(doc: Mapping[str, Any], *, title: str | None = None,
     parameters : list of str, optional
         Which quantities (default every binned one).
     """
+    from matplotlib.ticker import MaxNLocator
+
     bins = doc["bins"]
     names = [p for p in (parameters or list(bins)) if p in bins]
     loops = list(doc.get("loops", ["closed", "open"]))
@@ -75,6 +77,7 @@ def robustness_figure(doc: Mapping[str, Any], *, title: str | None = None,
         if i % cols == 0:
             ax.set_ylabel("success rate", fontsize=8)
         ax.tick_params(labelsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(5))  # mass in kg: six labels would collide
         ax.grid(alpha=0.3)
         if i == 0:
             ax.legend(fontsize=7, loc="lower left")
