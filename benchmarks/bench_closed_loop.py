@@ -147,10 +147,10 @@ def main(argv: list[str] | None = None) -> None:
             lim["transit_accel"] = max(lim["transit_accel"], ex.transit_accel)
             lim["let_go"] = max(lim["let_go"], ex.let_go_contact_s)
             let_go[loop] += ex.let_go_contact_s > 0
-            let_go["aborted"] += any(st.get("let_go", {}).get("finger_object_contact_s", 0) > 0
-                                     for st in ex.steps)
-            let_go["transit"] += any(t.get("let_go", {}).get("finger_object_contact_s", 0) > 0
-                                     for t in ex.transits)
+            touched_in = [r for r in (*ex.steps, *ex.transits)
+                          if r.get("let_go", {}).get("finger_object_contact_s", 0) > 0]
+            let_go[f"{loop} aborted"] += any("step" in r for r in touched_in)
+            let_go[f"{loop} transit"] += any("before" in r for r in touched_in)
             if ex.transit_contact_s > 0:
                 touched[loop] += 1
                 where.update(t["before"].split(" ")[0] for t in ex.transits
@@ -178,10 +178,11 @@ def main(argv: list[str] | None = None) -> None:
           f"with any: closed {touched['closed']}/{n}, open {touched['open']}/{n} "
           f"(transits before: {dict(where)}); commanded acceleration in transits <= "
           f"{lim['transit_accel']:.1f} m/s^2")
-    print(f"   letting go (the end of a step's or push's contact, before its transit; closed "
-          f"loop): executions with contact while letting go: {let_go['closed']}/{n} (of an "
-          f"aborted step {let_go['aborted']}, before a transit {let_go['transit']}), "
-          f"{lim['let_go']:.3f} s at most in one execution")
+    print("   letting go (the end of a step's or push's contact, before its transit): "
+          "executions with contact while letting go: " + ", ".join(
+              f"{lp} {let_go[lp]}/{n} (of an aborted step {let_go[lp + ' aborted']}, before "
+              f"a transit {let_go[lp + ' transit']})" for lp in ("closed", "open"))
+          + f"; {lim['let_go']:.3f} s at most in one execution")
     us, us_open, bare = overhead(poly, ds, pl, rp)
     print(f"4. at nominal physics: closed-loop execution {us:.1f} us per physics step "
           f"({us / bare:.2f}x), open loop {us_open:.1f} us ({us_open / bare:.2f}x), bare "

@@ -516,6 +516,21 @@ def execute_plan(
             let_go, look = _let_go(sim, run, cfg, moving, noise=obs_model.position_noise)
             entry["let_go"] = let_go
             pose = look.pose
+        else:
+            # open loop nothing is observed: the fingertips let go along the predicted
+            # object's normals from where they are commanded, by the same reach
+            idx = np.flatnonzero(moving)
+            aim = np.array(run.command)
+            aim[idx] = escape(sim.poly, pose, aim[idx], p.finger_radius + LET_GO_REACH)
+            if float(np.abs(aim - run.command).max()) > 1e-9:
+                t0, before = run.t, run.contact_reads
+                run.drive(straight(run.command, aim, dt=run.dt, max_speed=cfg.max_speed,
+                                   max_accel=cfg.max_accel / 2), transit_leg=True)
+                entry["let_go"] = {
+                    "seconds": round(run.t - t0, 4),
+                    "finger_object_contact_s": round((run.contact_reads - before)
+                                                     * CONTACT_EVERY * run.dt, 4),
+                    "outcome": "finished"}
         path = transit(sim.poly, pose, run.command, goal, dt=run.dt,
                        clearance=cfg.clearance, finger_radius=p.finger_radius,
                        max_speed=cfg.max_speed, max_accel=cfg.max_accel / 2,
