@@ -415,6 +415,55 @@ def test_simulate_plan_cli_records_events_and_refuses_bad_options(tmp_path) -> N
         assert len(lines) <= 3, (bad, lines)  # click's usage line, or the project's one
 
 
+def test_replans_are_made_in_the_goals_frame(first_step) -> None:  # type: ignore[no-untyped-def]
+    """A tumble can leave the object turned on a face the plan never visits: planned from
+    there as observed, no route reaches the goal's theta (a turn of the scene changes no
+    transition, so every reachable theta keeps the start's offset); from the nearest state of
+    the re-planner's frame it does."""
+    from nonprehensile.control import snap_state
+    from nonprehensile.errors import NonprehensileError
+    from nonprehensile.planning import plan
+
+    poly, ds, _pl, rp, exp = first_step
+    # the goal a:290 sits 20 deg off the model's 90-degree grid: so does every frame state
+    by_face: dict[str, set[float]] = {}
+    for s in rp.frame:
+        by_face.setdefault(s.face, set()).add(round(s.theta, 6))
+    assert by_face == {f: {20.0, 110.0, 200.0, 290.0} for f in "abcdef"}
+    turned = State("c", 152.5)
+    with pytest.raises(NonprehensileError, match="no sequence of known skills"):
+        plan(poly, exp, turned, rp.goal, position=(0.3, 0.1), motions=None, scale=ds.scale)
+    near = snap_state(turned, rp.frame, 45.0)
+    assert near == State("c", 110.0)
+    again = rp(near, (0.3, 0.1), frozenset())
+    assert again.steps[0].start_world == near and again.steps[-1].end_world == rp.goal
+
+
+@pytest.mark.parametrize(("observed", "action", "target"), [
+    (State("a", 290.0 + 2.0), "next", None),     # within the 5 deg tolerance
+    (State("a", 290.0 - 9.0), "align", State("a", 290.0)),  # turned: turned back, on
+    (State("a", 290.0 + 29.0), "align", State("a", 290.0)),
+    (State("a", 290.0 - 40.0), "replan", None),  # past align_tol: another state
+    (State("e", 97.0), "align", State("e", 110.0)),  # the goal's face, turned
+    (State("b", 200.0), "retry", None),          # never tipped: the same step again
+])
+def test_after_step_turns_back_a_turned_end_state(first_step, observed, action,  # type: ignore[no-untyped-def]
+                                                   target) -> None:
+    from nonprehensile.control import after_step, step_spec
+
+    poly, ds, pl, _rp, _exp = first_step
+    spec = step_spec(poly, pl.steps[0], ds.fingers)  # b:200 -> a:290
+    cfg = ControlConfig()
+    for replans in (0, cfg.max_replans):
+        nxt = after_step(spec, "", observed, State("e", 110.0), replans=replans,
+                         avoid=frozenset(), last=False, config=cfg)
+        if replans and action in ("replan", "retry"):
+            # retries and re-plans are bounded; a turn back is not a re-plan
+            assert nxt.action == "fail"
+            continue
+        assert nxt.action == action and nxt.target == target
+
+
 def test_a_step_begun_on_an_object_touching_nothing_logs_no_contacts(first_step) -> None:  # type: ignore[no-untyped-def]
     """An object observed in the air at a step's start (thrown by the last push, or tracked
     above the table) is an observation with no contact pair, not an event: the monitor logs

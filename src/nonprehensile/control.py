@@ -36,7 +36,7 @@ Pure core: no simulator; :mod:`nonprehensile.sim.closed_loop` runs this in MuJoC
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
@@ -67,7 +67,9 @@ __all__ = [
     "ArcSpec",
     "ControlConfig",
     "Decision",
+    "NextAction",
     "PlanarTransform",
+    "Replanner",
     "StepMonitor",
     "StepSpec",
     "after_step",
@@ -136,6 +138,12 @@ class ControlConfig:
         Position error (m) left alone at the end; larger errors are slid away.
     max_corrections : int
         Correction pushes allowed.
+    align_tol : float
+        A step that ends on its predicted face (or the goal's) within this many degrees of
+        the predicted ``theta`` (but past ``angle_tol``) is turned onto it by pushes off
+        the centre line (:func:`turn_push`) and the plan goes on, instead of a re-plan:
+        the same face, turned, is a turn away, whatever skill made it. Keep it below half
+        the model's angular step (the nearest state must be the predicted one).
     follow_deg : float
         A tipping arc whose reference ends with the object still on a pivot of its landing
         face follows through: the fingers turn on about the pivot by at most this (degrees;
@@ -155,7 +163,7 @@ class ControlConfig:
     still_time: float = 0.08
     still_tol: float = 0.0005
     max_settle: float = 2.0
-    max_replans: int = 8
+    max_replans: int = 12
     max_tries: int = 2
     slow_retry: float = 1.25
     clearance: float = 0.015
@@ -166,6 +174,7 @@ class ControlConfig:
     correct_position: bool = True
     correction_tol: float = 0.003
     max_corrections: int = 4
+    align_tol: float = 30.0
     follow_deg: float = 30.0
     follow_speed: float = 60.0
 
@@ -874,7 +883,10 @@ class NextAction:
 
     Attributes
     ----------
-    action : {"next", "retry", "replan", "done", "fail"}
+    action : {"next", "retry", "replan", "align", "done", "fail"}
+        ``"align"``: turn the object onto ``target`` (same face), then go on as if the
+        step had ended there (``done`` when ``target`` is the goal); a re-plan if the turn
+        falls short.
     reason : str
     avoid : frozenset of str
         Skills (demonstrated names) the re-plan must avoid.
@@ -882,13 +894,16 @@ class NextAction:
         A retry runs the step's reference this many times slower ...
     higher : bool
         ... and a single finger's contact higher on its face (:func:`raised`).
+    target : State, optional
+        The state an ``"align"`` turns the object onto.
     """
 
-    action: Literal["next", "retry", "replan", "done", "fail"]
+    action: Literal["next", "retry", "replan", "align", "done", "fail"]
     reason: str = ""
     avoid: frozenset[str] = frozenset()
     slow: float = 1.0
     higher: bool = False
+    target: State | None = None
 
 
 def snap_state(observed: State, candidates: Sequence[State], angle_tol: float) -> State:
@@ -914,6 +929,9 @@ def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal
     * the predicted state: the next step (or, after the last, done);
     * the goal itself (reached early): done;
     * no resting state: fail;
+    * the predicted face (or the goal's), turned by more than ``config.angle_tol`` but at
+      most ``config.align_tol`` degrees: align (turn it onto the predicted state, or the
+      goal, by pushes; then on);
     * still the step's start state (it slid, was kicked away, never tipped): the same step
       again, anchored anew, its single finger's contact higher on the face (:func:`raised`)
       and its reference ``config.slow_retry`` times slower (a higher, slower push), at most
@@ -927,6 +945,11 @@ def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal
         return NextAction("done" if last else "next")
     if observed is None:
         return NextAction("fail", "the object came to rest on no face of the model")
+    for target in (goal, spec.end_state):
+        off = angle_diff(observed.theta, target.theta)
+        if observed.face == target.face and abs(off) <= config.align_tol:
+            return NextAction("align", f"ended in {observed}, {off:+.1f} deg off {target}",
+                              avoid, target=target)
     if replans >= config.max_replans:
         return NextAction("fail", f"ended in {observed} instead of {spec.end_state} with "
                                   f"{replans} re-plans spent ({monitor_reason or 'no anomaly'})")
@@ -1020,32 +1043,59 @@ def correction_pushes(poly: Polyhedron, pose: ObjectPose, target: Sequence[float
 AVOID_COST = 1000.0
 
 
+class Replanner:
+    """A re-planner for :func:`nonprehensile.sim.closed_loop.execute_plan`: from an
+    observed state and position to ``goal`` (call it as ``replanner(observed, position,
+    avoid)``).
+
+    The states a plan can reach from a start are the model's states turned by the start's
+    offset from them (a turn of the whole scene about the vertical changes no transition):
+    a re-plan from an object that turned off that frame can never reach the goal's
+    ``theta``. :attr:`frame` is the model's states turned into the goal's frame; the
+    executor turns a turned object back onto the nearest of them on its face before it
+    re-plans (:func:`snap_state`). The observed ``theta`` is snapped to the nearest state
+    of :attr:`frame` on the same face when within ``angle_tol`` degrees (the step's
+    reference is anchored on the observed pose anyway); skills to avoid cost
+    :data:`AVOID_COST`.
+
+    Attributes
+    ----------
+    frame : tuple of State
+        The model's states in the goal's frame.
+    """
+
+    def __init__(self, poly: Polyhedron, expansion: Expansion, goal: State, *,
+                 motions: MotionLibrary | None, scale: float,
+                 costs: Mapping[str, float] | None = None,
+                 angle_tol: float = 5.0) -> None:
+        self.poly, self.expansion, self.goal = poly, expansion, goal
+        self.motions, self.scale, self.costs = motions, scale, costs
+        self.angle_tol = angle_tol
+        states = list(expansion.graph.states)
+        on_goal = [s for s in states if s.face == goal.face]
+        offset = (angle_diff(goal.theta, min(
+            on_goal, key=lambda s: abs(angle_diff(goal.theta, s.theta))).theta)
+            if on_goal else 0.0)
+        self.frame: tuple[State, ...] = tuple(
+            State(s.face, (s.theta + offset) % 360.0) for s in states)
+
+    def __call__(self, observed: State, position: tuple[float, float],
+                 avoid: frozenset[str]) -> Plan:
+        """A plan from ``observed`` at ``position`` (x, y) to the goal avoiding ``avoid``."""
+        start = snap_state(observed, self.frame, self.angle_tol)
+        c = dict(self.costs or {})
+        c.update(dict.fromkeys(avoid, AVOID_COST))
+        return plan(self.poly, self.expansion, start, self.goal, position=position,
+                    motions=self.motions, scale=self.scale, costs=c or None)
+
+
 def replanner(poly: Polyhedron, expansion: Expansion, goal: State, *,
               motions: MotionLibrary | None, scale: float,
               costs: Mapping[str, float] | None = None,
-              angle_tol: float = 5.0) -> Callable[[State, tuple[float, float],
-                                                   frozenset[str]], Plan]:
-    """A re-planner for :func:`nonprehensile.sim.closed_loop.execute_plan`: from an
-    observed state and position to ``goal``.
-
-    The observed ``theta`` is snapped to the nearest state of the model on the same face
-    when within ``angle_tol`` degrees (the step's reference is anchored on the observed pose
-    anyway); skills to avoid cost :data:`AVOID_COST`.
-    """
-    states = expansion.graph.states
-
-    def replan(observed: State, position: tuple[float, float],
-               avoid: frozenset[str]) -> Plan:
-        near = [s for s in states if s.face == observed.face
-                and abs(angle_diff(s.theta, observed.theta)) <= angle_tol]
-        start = min(near, key=lambda s: abs(angle_diff(s.theta, observed.theta))) \
-            if near else observed
-        c = dict(costs or {})
-        c.update(dict.fromkeys(avoid, AVOID_COST))
-        return plan(poly, expansion, start, goal, position=position, motions=motions,
-                    scale=scale, costs=c or None)
-
-    return replan
+              angle_tol: float = 5.0) -> Replanner:
+    """A :class:`Replanner` to ``goal`` (the same arguments)."""
+    return Replanner(poly, expansion, goal, motions=motions, scale=scale, costs=costs,
+                     angle_tol=angle_tol)
 
 
 @dataclass(frozen=True)

@@ -355,7 +355,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @click.option("--latency", type=number(0.0, 1.0, unit="s"), default=0.0, show_default=True,
               metavar="S",
               help="Closed loop: the tracker's latency, seconds.")
-@click.option("--max-replans", type=count(0, 100), default=8, show_default=True,
+@click.option("--max-replans", type=count(0, 100), default=12, show_default=True,
               help="Closed loop: retries and re-plans allowed in one execution.")
 @record_options("the executed steps, one episode per executed step,")
 @step_option

@@ -38,12 +38,14 @@ from scipy.signal import lfilter
 from nonprehensile.control import (
     ControlConfig,
     Decision,
+    NextAction,
     StepMonitor,
     after_step,
     anchor_transform,
     correction_pushes,
     observed_state,
     raised,
+    same_state,
     snap_state,
     step_spec,
     turn_push,
@@ -637,6 +639,18 @@ def execute_plan(
             record.update(outcome=end.outcome if end is not None else "", reason=reason,
                           observed=mon.log)
             observed_end = mon.final_state
+            if observed_end is None and not (end is not None and end.outcome == "aborted"):
+                # at rest on no face with the fingers still on it (leaning on a pad, held
+                # on an edge): let go, move clear and look again; only an object that rests
+                # on no face once free fails the step
+                pose_now = run.wait_observation().pose
+                up = _retreat_target(sim, pose_now, run.command, spec.used, cfg.clearance)
+                do_transit(pose_now, up, spec.used, f"let go after step {number}")
+                mon.watch_rest(run.t)
+                run.drive(np.array([run.command]), react=mon.update,
+                          max_time=cfg.max_settle + 0.5)
+                observed_end = mon.final_state
+                record["looked_again"] = observed_end.to_dict() if observed_end else None
         truth = sim.state()
         record["simulated_events"] = [
             {"time": round(e.time - t_step, 4),
@@ -664,6 +678,28 @@ def execute_plan(
         nxt = after_step(spec, record["reason"], observed_end, plan.goal,
                          replans=len(ex.replans), avoid=avoid,
                          last=index == len(steps) - 1, config=cfg, tries=tries)
+        if nxt.action == "align":
+            # the predicted face, turned: turned back by pushes off the centre line (toward
+            # where the plan predicted the object), then on; a re-plan if that falls short
+            assert nxt.target is not None
+            target = nxt.target
+            _align(sim, run, ex, cfg, rest, do_transit, target.theta,
+                   spec.end_pose.position if target != plan.goal
+                   else ex.goal_position)
+            look = run.wait_observation()
+            now = observed_state(sim.poly, look.pose.rotation)
+            mon.final_pose = look.pose
+            record["aligned"] = {"target": target.to_dict(),
+                                 "observed": now.to_dict() if now else None}
+            if same_state(now, target, cfg.angle_tol):
+                nxt = NextAction("done" if target == plan.goal or index == len(steps) - 1
+                                 else "next", nxt.reason + ": turned onto it")
+            else:
+                observed_end = now
+                nxt = after_step(spec, record["reason"] or nxt.reason + ", the turn fell short",
+                                 observed_end, plan.goal, replans=len(ex.replans),
+                                 avoid=avoid, last=index == len(steps) - 1,
+                                 config=replace(cfg, align_tol=0.0), tries=tries)
         record["next"] = nxt.action
         if nxt.action != "retry":
             tries, slow, higher = 0, 1.0, False
@@ -687,10 +723,14 @@ def execute_plan(
         else:
             assert observed_end is not None
             avoid = nxt.avoid
-            # in the plan's own frame: turned onto the nearest of its states on the observed
+            # in the goal's frame: turned onto the nearest of its states on the observed
             # face when it is off by more than the tolerance (a re-plan keeps the agent's
-            # frame, so a turned object would miss the goal's theta), then snapped to it
+            # frame, so a turned object would miss the goal's theta), then snapped to it;
+            # the plan's own states, and every state of the model turned into the goal's
+            # frame when the re-planner knows them (an object that tumbled onto a face
+            # the plan never visits, turned, is still put back in the frame)
             frame = [x for s in steps for x in (s.start_world, s.end_world)]
+            frame += getattr(replan, "frame", ())
             near = snap_state(observed_end, frame, 45.0)
             if near is not observed_end and abs(angle_diff(
                     observed_end.theta, near.theta)) > cfg.angle_tol / 2:
@@ -722,9 +762,14 @@ def execute_plan(
             index = 0
     # at the end: slide the object onto the goal position if it rests off it
     if loop == "closed" and not ex.reason and cfg.correct_position:
-        for _ in range(2):  # sliding may turn it a little: look again
+        for _ in range(3):  # sliding may turn it a little (on a grippy table, 5-8 deg):
             _align(sim, run, ex, cfg, rest, do_transit, plan.goal.theta, ex.goal_position)
             _correct(sim, run, ex, cfg, rest, do_transit)
+            # look again: the round is over once the slides left theta within half the
+            # tolerance
+            err = _yaw_error(sim.poly, run.wait_observation().pose, plan.goal.theta)
+            if err is None or abs(err) <= cfg.angle_tol / 2:
+                break
     # park the fingers and let everything come to rest before the verdict
     if loop == "closed":
         pose_now = run.wait_observation().pose

@@ -84,6 +84,12 @@ class IKConfig:
     side_tilt_band : float
         The lean grows from none ``side_tilt_band`` m above the top to full at the top (and
         from none on the object's vertical axis to full this far from it).
+    joint_accel : float
+        The IK's joint acceleration bound, rad/s^2 (``inf``: none): the servos follow set
+        points whose velocity changes smoothly (a step ``dv`` in the feed-forward is a torque
+        step ``kv dv``; when the velocity margin let a transit's tip catch up, the sudden stop
+        held the shoulder, elbow and wrist at their torque limits for 11 ms). It gives way
+        where it conflicts with the position or velocity limits.
     velocity_fraction : float
         The IK moves each joint at most this fraction of its velocity limit (a margin for
         the servo's overshoot: a joint asked for its full limit runs at it, and a fast
@@ -106,6 +112,7 @@ class IKConfig:
     tilt_rate: float = 1.0
     tilt_accel: float = 4.0
     velocity_fraction: float = 0.9
+    joint_accel: float = 30.0
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
@@ -113,9 +120,11 @@ class IKConfig:
 
 
 def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
-                     velocity_fraction: float = 1.0) -> Any:
-    """Joint position and velocity limits as one box on the step ``dq``:
-    ``max(-v dt, gain (lo - q)) <= dq <= min(v dt, gain (hi - q))``.
+                     velocity_fraction: float = 1.0, accel: float = math.inf) -> Any:
+    """Joint position, velocity and acceleration limits as one box on the step ``dq``:
+    ``max(-v dt, gain (lo - q), (v_prev - a dt) dt) <= dq <= min(v dt, gain (hi - q),
+    (v_prev + a dt) dt)`` (``v_prev``: the last solve's joint velocities, attribute ``prev``;
+    the acceleration rows give way where they conflict with the others).
 
     The same bounds as mink's ``ConfigurationLimit`` (its default gain) and
     ``VelocityLimit`` together, in one constraint of ``2 n`` rows instead of two: a quarter of
@@ -134,14 +143,23 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             self.n = n
             self.G = np.vstack([np.eye(n), -np.eye(n)])
             self.h = np.zeros(2 * n)
+            self.prev = np.zeros(len(self.dadr))
 
         def compute_qp_inequalities(self, configuration: Any, dt: float) -> Any:
             q = configuration.q[self.qadr]
             h = self.h
             # rows: dq[dof] <= up, then -dq[dof] <= down (a joint outside its range may only
             # move back in, as with mink's own limit)
-            h[self.dadr] = np.minimum(self.velocity * dt, gain * (self.upper - q))
-            h[self.n + self.dadr] = np.minimum(self.velocity * dt, gain * (q - self.lower))
+            up = np.minimum(self.velocity * dt, gain * (self.upper - q))
+            down = np.minimum(self.velocity * dt, gain * (q - self.lower))
+            if math.isfinite(accel):
+                up_a = np.minimum(up, (self.prev + accel * dt) * dt)
+                down_a = np.minimum(down, (accel * dt - self.prev) * dt)
+                ok = up_a + down_a >= 0.0
+                up = np.where(ok, up_a, up)
+                down = np.where(ok, down_a, down)
+            h[self.dadr] = up
+            h[self.n + self.dadr] = down
             return mink.limits.Constraint(G=self.G, h=h.copy())
 
     return JointBoxLimit()
@@ -229,8 +247,9 @@ class FingertipIK:
         q_home[scene.qadr] = scene.home
         self.posture.set_target(q_home)
         self.tasks = [*self.position_tasks, self.posture]
-        self.limits: list[Any] = [_joint_box_limit(mink, scene,
-                                                   velocity_fraction=cfg.velocity_fraction)]
+        self._box = _joint_box_limit(mink, scene, velocity_fraction=cfg.velocity_fraction,
+                                     accel=cfg.joint_accel)
+        self.limits: list[Any] = [self._box]
         if cfg.collisions:
             links_obj = list(scene.collision_geoms)
             pairs = [(links_obj, ["object"])]
@@ -281,6 +300,7 @@ class FingertipIK:
         for task in self.position_tasks:  # pointing down again, not turning
             task.axis = np.array([0.0, 0.0, -1.0])
         self._turn = [0.0] * len(self.position_tasks)
+        self._box.prev = np.zeros(len(self.scene.dadr))  # at rest
 
     def set_q(self, q: FloatArray) -> None:
         """Carry on from joint positions ``q`` (scene joint order), keeping the timings."""
@@ -384,6 +404,7 @@ class FingertipIK:
         except mink.NoSolutionFound:
             v = np.zeros(self.configuration.nv)  # hold: the limits admit no step
         self.configuration.integrate_inplace(v, self.dt)
+        self._box.prev = np.asarray(v[self.scene.dadr], dtype=np.float64)
         self.solve_times.append(time.perf_counter() - t0)
         return self.q, np.asarray(v[self.scene.dadr], dtype=np.float64)
 
