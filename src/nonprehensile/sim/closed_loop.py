@@ -51,6 +51,7 @@ from nonprehensile.control import (
     turn_push,
 )
 from nonprehensile.demonstrations.dataset import DEFAULT_FINGERS
+from nonprehensile.errors import NonprehensileError
 from nonprehensile.inference import Expansion
 from nonprehensile.observation import Observation, ObservationModel
 from nonprehensile.planning import ObjectPose, Plan, PlanStep
@@ -122,7 +123,7 @@ class Execution:
     transits: list[dict[str, Any]] = field(default_factory=list)
     commanded_speed: float = 0.0
     commanded_accel: float = 0.0
-    tip_speed: float = 0.0
+    tip_speed: float | None = None
     transit_contact_s: float = 0.0
     let_go_contact_s: float = 0.0
     transit_accel: float = 0.0
@@ -155,7 +156,8 @@ class Execution:
             "transits": self.transits,
             "limits": {"commanded_max_speed": round(self.commanded_speed, 4),
                        "commanded_max_accel": round(self.commanded_accel, 3),
-                       "fingertip_max_speed": round(self.tip_speed, 4),
+                       "fingertip_max_speed": (None if self.tip_speed is None
+                                               else round(self.tip_speed, 4)),
                        "transit_finger_object_contact_s": round(self.transit_contact_s, 4),
                        "let_go_finger_object_contact_s": round(self.let_go_contact_s, 4),
                        "transit_commanded_max_accel": round(self.transit_accel, 3),
@@ -323,11 +325,15 @@ class _Runner:
 
         self.drive(np.array([self.command]), react=react, transit_leg=transit_leg,
                    max_time=5.0)
-        return got[-1] if got else self._truth()
-
-    def _truth(self) -> Observation:
-        sim = self.sim
-        return Observation(self.t, sim.pose(), sim.driver.tips(sim.data))
+        if not got:
+            # never the simulator's true pose in place of an observation: a controller that
+            # sees nothing must not act on what a real one could not know (the observation
+            # model's bounds, rate >= 1 Hz and latency <= 1 s, make this unreachable)
+            model = self.observer.stream.model
+            raise NonprehensileError(
+                f"no observation arrived within 5 s at t={self.t:.3f} s; expected one every "
+                f"1/{model.rate:g} s after {model.latency:g} s of latency")
+        return got[-1]
 
 
 def _retreat_target(sim: Simulator, pose: ObjectPose, command: FloatArray,
@@ -734,14 +740,18 @@ def execute_plan(
             near = snap_state(observed_end, frame, 45.0)
             if near is not observed_end and abs(angle_diff(
                     observed_end.theta, near.theta)) > cfg.angle_tol / 2:
+                # toward where the object is observed (the controller's knowledge, never
+                # the simulator's true pose)
+                seen = (mon.final_pose if mon.final_pose is not None
+                        else run.wait_observation().pose)
                 _align(sim, run, ex, cfg, rest, do_transit, near.theta,
-                       sim.pose().position)
+                       (float(seen.position[0]), float(seen.position[1])))
                 look = run.wait_observation()
                 observed_end = observed_state(sim.poly, look.pose.rotation) or observed_end
                 mon.final_pose = look.pose
             observed_end = snap_state(observed_end, frame, cfg.angle_tol)
-            here = mon.final_pose.position if mon.final_pose is not None else \
-                sim.pose().position
+            here = (mon.final_pose if mon.final_pose is not None
+                    else run.wait_observation().pose).position
             entry: dict[str, Any] = {"after_step": number, "reason": nxt.reason,
                                      "from": observed_end.to_dict(),
                                      "position": [round(v, 6) for v in here],
@@ -794,7 +804,9 @@ def execute_plan(
     cmd = [c for c in run.commanded if len(c)]
     allcmd = np.concatenate(cmd) if cmd else np.zeros((0, sim.n_fingers, 3))
     ex.commanded_speed, ex.commanded_accel = limits_of(allcmd, run.dt)
-    ex.tip_speed = run.tip_speed
+    # measured from the free fingertips' joint velocities; a robot's driver has none, and
+    # its tips' speed is then not measured (None, never a 0.0 that reads like a pass)
+    ex.tip_speed = run.tip_speed if getattr(sim.driver, "dadr", None) is not None else None
     ex.transit_contact_s = sum(t["finger_object_contact_s"] for t in ex.transits)
     ex.transit_accel = max((t["commanded_max_accel"] for t in ex.transits), default=0.0)
     ex.let_go_contact_s = sum(t["let_go"]["finger_object_contact_s"]

@@ -70,7 +70,10 @@ _ROBOT_FORMAT = "robot/2"
 
 #: The executor's source files (package-relative): the closed loop's decisions and the
 #: simulation (what a sweep's numbers depend on besides its inputs).
-_EXECUTOR_FILES = ("control.py", "transit.py", "observation.py", "planning.py", "sim")
+# what decides an execution: the controller, its transits and observations, the planner and
+# what it plans with (references, step paths, inference, states), and the simulator
+_EXECUTOR_FILES = ("control.py", "transit.py", "observation.py", "planning.py", "references.py",
+                   "step_paths.py", "inference.py", "states.py", "equivalence.py", "sim")
 
 
 def _digest(parts: Any) -> str:

@@ -306,6 +306,9 @@ def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
     cfg = ControlConfig(angle_tol=spec.angle_tol, position_tol=spec.position_tol)
     if spec.robot is not None:  # an arm's fingertip accelerates less than a free sphere
         cfg = replace(cfg, max_accel=spec.robot.max_accel)
+        # every sample a new start: the arm placed anew and its records (tracking, limits,
+        # IK times) this sample's alone, not left to the driver's re-placement test
+        worker.sim.robot_driver.reset()  # type: ignore[attr-defined]
     ex = execute_plan(worker.sim, unit.plan, fingers=spec.fingers,
                       loop="closed" if loop == "closed" else "open", replan=replan,
                       config=cfg,
@@ -325,7 +328,8 @@ def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
                                "sample": sample.index, **params})
             for i, (st, o) in enumerate(ex.executed))
     extra: dict[str, Any] = {"replans": len(ex.replans), "corrections": len(ex.corrections),
-                             "fingertip_max_speed": round(ex.tip_speed, 4),
+                             "fingertip_max_speed": (None if ex.tip_speed is None
+                                                     else round(ex.tip_speed, 4)),
                              "transit_contact_s": round(ex.transit_contact_s, 4)}
     if spec.robot is not None:  # tracking, limits, link contacts, IK time of the whole run
         extra["robot"] = worker.sim.robot_log.metrics().to_dict()  # type: ignore[attr-defined]
