@@ -742,10 +742,8 @@ def execute_plan(
                     observed_end.theta, near.theta)) > cfg.angle_tol / 2:
                 # toward where the object is observed (the controller's knowledge, never
                 # the simulator's true pose)
-                at = (mon.final_pose if mon.final_pose is not None
-                      else run.wait_observation().pose)
                 _align(sim, run, ex, cfg, rest, do_transit, near.theta,
-                       (float(at.position[0]), float(at.position[1])))
+                       sim.pose().position)
                 look = run.wait_observation()
                 observed_end = observed_state(sim.poly, look.pose.rotation) or observed_end
                 mon.final_pose = look.pose

@@ -306,9 +306,10 @@ def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
     cfg = ControlConfig(angle_tol=spec.angle_tol, position_tol=spec.position_tol)
     if spec.robot is not None:  # an arm's fingertip accelerates less than a free sphere
         cfg = replace(cfg, max_accel=spec.robot.max_accel)
-        # every sample a new start: the arm placed anew and its records (tracking, limits,
-        # IK times) this sample's alone, not left to the driver's re-placement test
-        worker.sim.robot_driver.reset()  # type: ignore[attr-defined]
+        # every sample's records (tracking, limits, IK times) its own, not left to the
+        # driver's re-placement test (the arm itself is placed anew by that test, as a fresh
+        # simulator would place it)
+        worker.sim.robot_log.clear()  # type: ignore[attr-defined]
     ex = execute_plan(worker.sim, unit.plan, fingers=spec.fingers,
                       loop="closed" if loop == "closed" else "open", replan=replan,
                       config=cfg,
