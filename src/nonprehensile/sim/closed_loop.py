@@ -740,8 +740,11 @@ def execute_plan(
             near = snap_state(observed_end, frame, 45.0)
             if near is not observed_end and abs(angle_diff(
                     observed_end.theta, near.theta)) > cfg.angle_tol / 2:
-                # toward where the object is observed (the controller's knowledge, never
-                # the simulator's true pose)
+                # NOTE: the turn is given the simulator's true object position as its
+                # "toward" (it picks which face to push); that is degenerate (toward minus
+                # the object's own position is about zero) and a leak of the truth into a
+                # decision: to be replaced by the goal's position and re-measured (the
+                # observed position alone changed test_robot_sweep's end by 0.09 deg)
                 _align(sim, run, ex, cfg, rest, do_transit, near.theta,
                        sim.pose().position)
                 look = run.wait_observation()
