@@ -712,6 +712,18 @@ def case_token(run: StoreRun, rng: random.Random, i: int) -> None:
               seconds=time.perf_counter() - t0)
 
 
+def _new_token(run: StoreRun, mentor: str) -> str:
+    """A fresh token for ``mentor``, written to the store through a pool of its own."""
+    from nonprehensile.service.db import create_token, make_pool
+
+    pool = make_pool(run.store, max_size=1)
+    try:
+        with pool.connection() as conn:
+            return create_token(conn, mentor)
+    finally:
+        pool.close()
+
+
 def _revoked_token(run: StoreRun, mentor: str) -> str:
     from nonprehensile.service.db import create_token, make_pool, revoke_tokens
 
@@ -727,15 +739,10 @@ def _revoked_token(run: StoreRun, mentor: str) -> str:
 
 def case_revoked_mid_upload(run: StoreRun, rng: random.Random, i: int) -> None:
     """A token revoked while its upload's body streams: 401 (the body is read first)."""
-    from nonprehensile.service.db import create_token, make_pool, revoke_tokens
+    from nonprehensile.service.db import make_pool, revoke_tokens
 
     mentor = f"mid{i}"
-    pool = make_pool(run.store, max_size=1)
-    try:
-        with pool.connection() as conn:
-            token = create_token(conn, mentor)
-    finally:
-        pool.close()
+    token = _new_token(run, mentor)
     take = rng.choice(run.data.takes)
     ctype, body = multipart([("annotation", None, json.dumps(take.entry).encode()),
                              ("file", take.file, take.data)])
@@ -959,14 +966,7 @@ def case_concurrent(run: StoreRun, rng: random.Random, i: int) -> None:
     import httpx
 
     mentor = f"con{i}"
-    from nonprehensile.service.db import create_token, make_pool
-
-    pool = make_pool(run.store, max_size=1)
-    try:
-        with pool.connection() as conn:
-            run.tokens[mentor] = create_token(conn, mentor)
-    finally:
-        pool.close()
+    run.tokens[mentor] = _new_token(run, mentor)
     take, other = rng.sample(run.data.takes, 2)
     jobs = [take] * 4 + [other]
 
@@ -1000,14 +1000,7 @@ def kill_round(run: StoreRun, rng: random.Random, k: int) -> None:
     import httpx
 
     mentor = f"kill{k}"
-    from nonprehensile.service.db import create_token, make_pool
-
-    pool = make_pool(run.store, max_size=1)
-    try:
-        with pool.connection() as conn:
-            run.tokens[mentor] = create_token(conn, mentor)
-    finally:
-        pool.close()
+    run.tokens[mentor] = _new_token(run, mentor)
     queue = list(run.data.takes)
     rng.shuffle(queue)
     in_flight = [0]
