@@ -144,6 +144,7 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             self.G = np.vstack([np.eye(n), -np.eye(n)])
             self.h = np.zeros(2 * n)
             self.prev = np.zeros(len(self.dadr))
+            self.relaxed = False  # True: the acceleration rows are left out (see step)
 
         def compute_qp_inequalities(self, configuration: Any, dt: float) -> Any:
             q = configuration.q[self.qadr]
@@ -152,7 +153,7 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             # move back in, as with mink's own limit)
             up = np.minimum(self.velocity * dt, gain * (self.upper - q))
             down = np.minimum(self.velocity * dt, gain * (q - self.lower))
-            if math.isfinite(accel):
+            if math.isfinite(accel) and not self.relaxed:
                 up_a = np.minimum(up, (self.prev + accel * dt) * dt)
                 down_a = np.minimum(down, (accel * dt - self.prev) * dt)
                 ok = up_a + down_a >= 0.0
@@ -283,6 +284,8 @@ class FingertipIK:
             bases.append(np.array(self.configuration.data.xpos[body][:2]))
         self._bases = [(float(b[0]), float(b[1])) for b in bases]
         self.solve_times: list[float] = []
+        #: QPs that had no solution (see :meth:`_solve`), since construction
+        self.infeasible = 0
         self.reset(scene.home)
 
     # -------------------------------------------------------------------------- state
@@ -398,15 +401,43 @@ class FingertipIK:
                 perp /= max(math.sqrt(float(perp @ perp)), 1e-12)
                 a = math.cos(turn) * ax + math.sin(turn) * perp
             task.axis = a / float(np.linalg.norm(a))
-        try:
-            v = mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
-                              damping=self.config.damping, limits=self.limits)
-        except mink.NoSolutionFound:
-            v = np.zeros(self.configuration.nv)  # hold: the limits admit no step
+        v = self._solve()
         self.configuration.integrate_inplace(v, self.dt)
         self._box.prev = np.asarray(v[self.scene.dadr], dtype=np.float64)
         self.solve_times.append(time.perf_counter() - t0)
         return self.q, np.asarray(v[self.scene.dadr], dtype=np.float64)
+
+    def _solve(self) -> FloatArray:
+        """The QP's joint velocities (the configuration's ``nv``), with the fallbacks of an
+        infeasible QP.
+
+        The acceleration rows give way only where they conflict with the position and
+        velocity rows; a collision row (a tipping object swinging into the rod) can conflict
+        with them too, and the QP then has no solution. Holding (zero velocity) there is a
+        velocity step in the servos' feed-forward, and the acceleration bound then brings
+        the joints back at 30 rad/s^2 each way: measured, the shoulder and the wrist of a
+        roll-arc's let-go held their torque limits for 18 ms. So the QP is solved again
+        without the acceleration rows, and if it still has no solution, the joints brake
+        from their last velocities at the acceleration bound (within the position box),
+        never a step to rest.
+        """
+        mink, box, cfg = self.mink, self._box, self.config
+        try:
+            return np.asarray(mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
+                                            damping=cfg.damping, limits=self.limits))
+        except mink.NoSolutionFound:
+            self.infeasible += 1
+        v = np.zeros(self.configuration.nv)
+        if math.isfinite(cfg.joint_accel):
+            prev = box.prev
+            slow = np.sign(prev) * np.maximum(np.abs(prev) - cfg.joint_accel * self.dt, 0.0)
+            q = self.q
+            sc = self.scene
+            # stay inside the range: a braking joint near an end stops at it
+            hi = np.maximum((sc.upper - q) / self.dt, 0.0)
+            lo = np.minimum((sc.lower - q) / self.dt, 0.0)
+            v[sc.dadr] = np.clip(slow, lo, hi)
+        return v
 
     def converge(self, targets: FloatArray, *, iterations: int = 400,
                  tol: float = 1e-4) -> float:
