@@ -211,14 +211,23 @@ def _robot_report(res) -> None:
             continue
         trk = [m["tracking_error_contact_max_m"] for m in group
                if m["tracking_error_contact_max_m"] is not None]
+        ref = [m.get("reference_error_contact_max_m") for m in group]
+        ref = [v for v in ref if v is not None]
         lim = [max(m["longest_at_limit_s"].values(), default=0.0) for m in group]
         oth = [m["other_contact_s"] for m in group]
         print(f"   robot, {label} {len(group)} executions: tracking in contact max "
               f"{1000 * max(trk, default=0):.1f} mm (median of the maxima "
-              f"{1000 * sorted(trk)[len(trk) // 2] if trk else 0:.1f} mm); longest at a "
+              f"{1000 * sorted(trk)[len(trk) // 2] if trk else 0:.1f} mm; against the "
+              f"noise-free reference {1000 * max(ref, default=0):.1f} mm, median "
+              f"{1000 * sorted(ref)[len(ref) // 2] if ref else 0:.1f} mm); longest at a "
               f"limit {1000 * max(lim):.0f} ms ({sum(v > 0.010 for v in lim)} over 10 ms); "
               f"link/rod contact max {1000 * max(oth):.0f} ms ({sum(v > 0 for v in oth)} "
               f"with any); IK median {max(m['ik_median_ms'] for m in group):.3f} ms (worst)")
+        kinds = Counter(k for m in group for k, v in m["longest_at_limit_s"].items()
+                        if v > 0.010)
+        if kinds:
+            print("     over 10 ms at a limit, by kind: " + ", ".join(
+                f"{k} {n}" for k, n in kinds.most_common()))
     print(f"   {res.steps()} physics steps, {res.wall_seconds:.0f} s wall ({res.how})")
 
 

@@ -377,7 +377,6 @@ class FingertipIK:
         qd : ndarray, shape (n_joints,)
             Joint velocities (feed-forward), rad/s.
         """
-        mink = self.mink
         t0 = time.perf_counter()
         axes = self.pointing(targets)
         cfg = self.config

@@ -263,6 +263,10 @@ class RobotArms:
         Off (``inf``) by default: at 15 N it halved the tracking error and the time at a
         torque limit of a two-arm tumble-lift, but doubled them in the two-arm twist (whose
         pinch needs its squeeze) and in the single-arm main plan (docs/benchmarks.md).
+    tracking_gain : float
+        Gain (1/s) of the contact tracking correction (:meth:`_correct`; 0: off): in
+        contact, the fingertip's error against its command is integrated into its IK
+        target.
     """
 
     def __init__(self, scene: RobotScene, ik_scene: RobotScene, data: Any, judge: Judge,
@@ -272,6 +276,10 @@ class RobotArms:
                 1 <= control_every <= 100:
             raise InputError(f"the IK runs every 1..100 physics steps, got {control_every!r}")
         self.every = control_every
+        if not (isinstance(tracking_gain, (int, float)) and math.isfinite(tracking_gain)
+                and 0.0 <= tracking_gain <= 1000.0):
+            raise InputError(f"the contact tracking gain is 0..1000 1/s (0: off), got "
+                             f"{tracking_gain!r}")
         self._q_set: FloatArray | None = None
         self.scene = scene
         self.n_fingers = scene.n_fingers
@@ -312,6 +320,8 @@ class RobotArms:
         self.tracking_bound = 0.004
         self.torque_guard = 0.85
         self.release_rate = 50.0
+        self.tracking_rate = 0.05
+        self.block_error = 0.006
         self._corr = np.zeros((scene.n_fingers, 3))
         self._torque_finite = np.isfinite(scene.torque)
         self._fbuf = np.zeros(6)
@@ -504,11 +514,13 @@ class RobotArms:
         correction integrates the fingertip's error against its command (the target
         ``now``, plus ``noise``) while it touches the object, at ``tracking_gain`` (1/s),
         so the set points lead by what the contact takes. It is bounded by
-        ``tracking_bound`` (m), is held (not grown) while any joint's torque is above
-        ``torque_guard`` of its limit (a fingertip against an object that does not move
-        must not press harder, up to the limits), and fades with the time constant
-        ``1 / release_rate`` once the fingertip is off the object (a let-go or a transit
-        must not carry it).
+        ``tracking_bound`` (m) and grows at most ``tracking_rate`` (m/s). It fades with the
+        time constant ``1 / release_rate`` instead of growing while any joint's torque is
+        above ``torque_guard`` of its limit, or while the fingertip is more than
+        ``block_error`` (m) from its command (more than the arm's deflection: the object
+        does not give, and a fingertip against it must not press harder, up to the
+        limits), and once the fingertip is off the object (a let-go or a transit must not
+        carry it).
         """
         c = self._corr
         gain = self.tracking_gain
@@ -524,13 +536,22 @@ class RobotArms:
             finite = self._torque_finite
             guard = bool(finite.any()) and float(
                 (tau[finite] / sc.torque[finite]).max()) > self.torque_guard
-            if not guard:
-                c -= min(gain * dt, 1.0) * e
-            bound = self.tracking_bound
+            n_e = np.sqrt((e * e).sum(axis=1))
+            grow = (n_e <= self.block_error) & (not guard)
+            # grow at most tracking_rate (m/s): the target must not run away from the arm
+            step = -min(gain * dt, 1.0) * e
+            n_s = np.sqrt((step * step).sum(axis=1))
+            cap = self.tracking_rate * dt
+            fast = n_s > cap
+            step[fast] *= (cap / n_s[fast])[:, None]
+            c[grow] += step[grow]
+            # blocked (the fingertip further from its command than any deflection: the
+            # object does not give) or near a torque limit: press no harder, let go of it
+            c[~grow] *= math.exp(-self.release_rate * dt)
             n = np.sqrt((c * c).sum(axis=1))
-            over = n > bound
+            over = n > self.tracking_bound
             if over.any():
-                c[over] *= (bound / n[over])[:, None]
+                c[over] *= (self.tracking_bound / n[over])[:, None]
         elif c.any():
             c *= math.exp(-self.release_rate * dt)
             if float(np.abs(c).max()) < 1e-7:

@@ -61,11 +61,15 @@ class RobotSimulator(Simulator):
     force_limit : float
         Contact force (N) above which a fingertip gives way
         (:class:`~nonprehensile.sim.robot_driver.RobotArms`; off by default).
+    tracking_gain : float
+        Gain (1/s) of the fingertips' contact tracking correction
+        (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
-                 control_every: int = 1, force_limit: float = math.inf) -> None:
+                 control_every: int = 1, force_limit: float = math.inf,
+                 tracking_gain: float = 20.0) -> None:
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self.params = params
@@ -82,7 +86,7 @@ class RobotSimulator(Simulator):
         self.judge = Judge(poly, self.scale, params, self.model, self.n_fingers)
         self.robot_driver = RobotArms(self.scene, self.ik_scene, self.data, self.judge,
                                       params.timestep, ik_config, control_every,
-                                      force_limit)
+                                      force_limit, tracking_gain)
         self.driver = self.robot_driver
         self._body = self.judge.body
         self._qadr = self.judge.qadr
