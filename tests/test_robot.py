@@ -188,6 +188,45 @@ def test_ik_tracks_a_line_within_limits() -> None:
     assert worst < 1e-3
 
 
+def test_ik_fast_qp_equals_mink_solve_ik_near_the_object() -> None:
+    """The IK's own QP assembly (daqp called directly, the joint box as simple bounds, only
+    the collision pairs in range as rows) gives mink's ``solve_ik`` step, solve by solve,
+    along a descent onto the cube's side face where the rod comes within the collision
+    limit's detection distance and the joint box is active (two Pandas: two tasks)."""
+    path = np.tile(np.array([[[0.27, 0.1, 0.03], [0.33, 0.1, 0.03]]]), (2, 1, 1))
+    bases = [BasePose(-0.25, 0.1, 0.0), BasePose(0.85, 0.1, 180.0)]
+    sc = build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.builtin(), b) for b in bases],
+                           mocap_object=True)
+    ik = FingertipIK(sc, 0.004, IKConfig())
+    v = np.asarray(CUBE.vertices, dtype=float) * SCALE
+    c = v.mean(axis=0)
+    ik.set_object(np.array([0.3 - c[0], 0.1 - c[1], -v[:, 2].min()]),
+                  np.array([1.0, 0.0, 0.0, 0.0]))
+    start = path[0] + np.array([[-0.03, 0.0, 0.06], [0.03, 0.0, 0.06]])
+    assert ik.converge(start) < 1e-3
+    rows = box_active = held = 0
+    for i in range(120):  # down and in onto the faces, then pressing 1 cm past them
+        s = min(1.0, i / 80)
+        x = (1 - s) * start + s * (path[0] + np.array([[0.01, 0.0, 0.0], [-0.01, 0.0, 0.0]]))
+        ik.position_tasks[0].target, ik.position_tasks[1].target = x[0], x[1]
+        ref = ik.solve_mink()
+        fast = ik._solve()
+        assert (ref is None) == (fast is None)  # infeasible for both, or solved by both
+        if ref is None:
+            held += 1
+            ik.step(x)
+            continue
+        assert np.abs(fast - ref).max() <= 1e-7 * max(1.0, float(np.abs(ref).max()))
+        got = ik._collision_rows(ik.configuration, ik.dt)
+        rows += got is not None
+        upper, lower = ik._box.bounds(ik.configuration.q, ik.dt)
+        box_active += bool(np.any(np.isclose(fast * ik.dt, upper, atol=1e-9)
+                                  | np.isclose(fast * ik.dt, lower, atol=1e-9)))
+        ik.step(x)
+    assert rows > 10 and box_active > 0  # both kinds of constraint were in the QP
+    assert held < 60
+
+
 def test_robot_executes_a_push_roll_step() -> None:
     """Step 1 of the main plan's skill, by the bundled Panda at a fixed base: the cube rolls
     onto the predicted face; the judge's records are those of the free fingertips."""
