@@ -293,6 +293,8 @@ class FingertipIK:
         self._verts = np.asarray(verts, dtype=np.float64) @ rot.reshape(3, 3).T + m.geom_pos[g]
         self._vmean = self._verts.mean(axis=0)
         self._rot = np.empty(9)
+        self._pose_key: tuple[float, ...] = ()  # the object's pose at the last pointing
+        self._pose_top = (0.0, 0.0, 0.0)  # its top height and centre (x, y) there
         self._tilt = np.radians(self.config.side_tilt_deg)
         # each fingertip's arm base (the root body below the world), xy
         full = np.zeros(m.nq)
@@ -359,12 +361,17 @@ class FingertipIK:
             return out
         # scalar arithmetic: this runs every solve, for one to a few fingers
         d = self.configuration.data
-        rot = self._rot
-        mujoco.mju_quat2Mat(rot, d.mocap_quat[self._mocap])
         pos = d.mocap_pos[self._mocap]
-        top = float((self._verts @ rot[6:9]).max()) + float(pos[2])
-        cx = float(rot[0:3] @ self._vmean) + float(pos[0])
-        cy = float(rot[3:6] @ self._vmean) + float(pos[1])
+        quat = d.mocap_quat[self._mocap]
+        key = (*pos.tolist(), *quat.tolist())
+        if key != self._pose_key:  # the object moved since the last solve
+            rot = self._rot
+            mujoco.mju_quat2Mat(rot, quat)
+            self._pose_key = key
+            self._pose_top = (float((self._verts @ rot[6:9]).max()) + key[2],
+                              float(rot[0:3] @ self._vmean) + key[0],
+                              float(rot[3:6] @ self._vmean) + key[1])
+        top, cx, cy = self._pose_top
         band = max(self.config.side_tilt_band, 1e-6)
         for k, (x, y, z) in enumerate(targets.tolist()):
             hx, hy = x - cx, y - cy

@@ -29,9 +29,17 @@ from nonprehensile.sim.ik import FingertipIK, IKConfig
 from nonprehensile.sim.judge import CONTACT_EVERY, Judge
 from nonprehensile.sim.robot_scene import RobotScene
 
-__all__ = ["LIMIT_BANDS", "RobotArms", "RobotLog", "RobotMetrics"]
+__all__ = ["DEFAULT_CONTROL_EVERY", "LIMIT_BANDS", "RobotArms", "RobotLog", "RobotMetrics"]
 
 FloatArray = NDArray[np.float64]
+
+#: Physics steps per IK solve by default: 10, a 100 Hz control rate over the 1 kHz physics
+#: (the servos get set points interpolated every physics step). The main plan at nominal
+#: physics meets the contact bars at it (closed loop: tracking in contact 2.8 mm, 8 ms at a
+#: limit, no link contact; at 1 kHz 2.8 mm and 5 ms) at a tenth of the IK's cost; at 62.5 Hz
+#: the main plan's first push-roll, open loop, tracks 4.3 mm off and loses its contact on the
+#: edge (docs/robot.md).
+DEFAULT_CONTROL_EVERY = 10
 
 #: A joint is "at" a limit within these bands: position within 0.5 degrees of an end of its
 #: range, velocity and torque at or above 98 % of their limits.
@@ -358,7 +366,8 @@ class RobotArms:
     """
 
     def __init__(self, scene: RobotScene, ik_scene: RobotScene, data: Any, judge: Judge,
-                 dt: float, ik_config: IKConfig | None = None, control_every: int = 1,
+                 dt: float, ik_config: IKConfig | None = None,
+                 control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float = math.inf) -> None:
         if isinstance(control_every, bool) or not isinstance(control_every, int) or not \
                 1 <= control_every <= 100:
