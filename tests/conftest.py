@@ -95,6 +95,18 @@ def occupies_same_space(p: Polyhedron, a: State, b: State, atol: float = 1e-7) -
     return bool(d.min(axis=1).max() <= atol and d.min(axis=0).max() <= atol)
 
 
+# ------------------------------------------------------------------ the cache folder
+@pytest.fixture(scope="session", autouse=True)
+def _session_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Motion libraries, sweeps and robot runs the tests build go to one folder of this
+    session, as on CI's fresh machine: never to the user's ``~/.cache/nonprehensile``, which
+    gained a library for every test dataset's temporary path at every run, and whose kept
+    sweeps and robot runs hid from local timings what a fresh machine computes."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("NONPREHENSILE_CACHE", str(tmp_path_factory.mktemp("cache")))
+        yield
+
+
 # ------------------------------------------------------------------ PostgreSQL (tests/pgserver)
 @pytest.fixture(scope="session")
 def pg_server() -> Iterator[str]:
