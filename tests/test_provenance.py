@@ -61,7 +61,8 @@ def test_outside_a_checkout_or_untracked_the_commit_is_unknown(
     pkg = tmp_path / "site-packages" / "nonprehensile"
     (pkg / "sim").mkdir(parents=True)
     (pkg / "sim" / "report_runs.py").write_text("# a copy\n")
-    monkeypatch.setenv("GIT_CEILING_DIRECTORIES", str(tmp_path))  # the test's; git's is cleared
+    # (were the temporary folder inside some repository, that one would not track this
+    # file either: the answer is the same)
     outside = _commit(root=pkg)
     assert outside == "unknown (not a git checkout of nonprehensile's source)"
     # a repository around an installed copy that it does not track (a venv in a checkout)
