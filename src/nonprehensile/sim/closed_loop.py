@@ -44,7 +44,7 @@ from nonprehensile.control import (
     anchor_transform,
     correction_pushes,
     observed_state,
-    raised,
+    one_finger_push,
     same_state,
     snap_state,
     step_spec,
@@ -572,8 +572,9 @@ def execute_plan(
     while index < len(steps):
         step = steps[index]
         spec = step_spec(sim.poly, step, fingers)
-        if higher:  # a retry: the contact higher on its face ...
-            spec = raised(spec, sim.poly, p.finger_radius)
+        if loop == "closed":  # a leaning face's roll from the top; a retry: the contact
+            # higher on its face (or pressed deeper) ...
+            spec = one_finger_push(spec, sim.poly, p.finger_radius, higher=higher)
         if slow != 1.0:  # ... and the reference played slower
             spec = replace(spec, rate=spec.rate / slow)
         number = len(ex.steps) + 1
