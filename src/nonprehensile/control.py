@@ -1127,7 +1127,12 @@ def correction_pushes(poly: Polyhedron, pose: ObjectPose, target: Sequence[float
     Each side face whose outward normal is horizontal can be pushed low (at the fingertip's
     radius plus 2 mm, or a quarter of the object's height if higher), which slides the object
     along minus that normal without tipping it as long as ``friction * height < half width``
-    (a 5 cm cube pushed 10 mm up tips only above friction 2.5). The displacement is split
+    (a 5 cm cube pushed 10 mm up tips only above friction 2.5). A face that leans back
+    (its normal 0.1-0.7 up: a hexagonal prism lying on a side face shows no vertical face
+    but its end caps) is pushed horizontally 2 mm above its lowest edge: the prism's upper
+    side faces start at half its height, so pushed there (``z = sqrt(3) r / 2 + 2 mm``) it
+    slides across before it tips while ``friction < (r / 2) / z`` (about 0.53 for the
+    5 cm prism); the executor stops a push that tilts the object. The displacement is split
     over the one or two faces whose inward normals best span it (non-negative weights).
     """
     d = np.array([float(target[0]), float(target[1])]) - pose.com[:2]
@@ -1139,7 +1144,7 @@ def correction_pushes(poly: Polyhedron, pose: ObjectPose, target: Sequence[float
     side = []
     for f in poly.face_ids:
         n = pose.rotation @ poly.normals[f]
-        if abs(n[2]) < 0.1:
+        if abs(n[2]) < 0.1 or 0.1 <= n[2] <= 0.7:
             side.append((f, n[:2] / float(np.hypot(*n[:2]))))
     best: tuple[float, list[tuple[str, FloatArray, float]]] | None = None
     for i, (fa, na) in enumerate(side):
@@ -1161,10 +1166,19 @@ def correction_pushes(poly: Polyhedron, pose: ObjectPose, target: Sequence[float
     z = max(finger_radius + 0.002, 0.25 * height)
     for f, n, amount in best[1]:
         c = pose.to_world(poly.face_centroids[f][None])[0]
-        face_dist = float(n @ (c[:2] - pose.com[:2]))
-        xy = pose.com[:2] + n * (face_dist + finger_radius + clearance)
-        out.append(Push(f, np.array([xy[0], xy[1], z]), np.array([-n[0], -n[1], 0.0]),
-                        amount))
+        n3 = pose.rotation @ poly.normals[f]
+        if n3[2] >= 0.1:  # leans back: the pad on the face 2 mm above its lowest edge
+            up = np.array([0.0, 0.0, 1.0]) - n3[2] * n3
+            up /= float(np.linalg.norm(up))
+            low = float(pose.to_world(poly.vertices[list(poly.faces[f])])[:, 2].min())
+            q = c + (low + 0.002 - float(c[2])) / float(up[2]) * up
+            centre = q + finger_radius * n3
+            start = np.array([*(centre[:2] + clearance * n), centre[2]])
+        else:
+            face_dist = float(n @ (c[:2] - pose.com[:2]))
+            xy = pose.com[:2] + n * (face_dist + finger_radius + clearance)
+            start = np.array([xy[0], xy[1], z])
+        out.append(Push(f, start, np.array([-n[0], -n[1], 0.0]), amount))
     return out
 
 

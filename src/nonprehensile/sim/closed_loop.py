@@ -845,6 +845,11 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
 
         def react(o: Observation, cmd: FloatArray, origin: FloatArray = origin,
                   push: Any = push) -> Decision:
+            if observed_state(sim.poly, o.pose.rotation, tilt_deg=8.0) is None:
+                # tilting (pushed too high for this table): stop before it tips over (8
+                # degrees: well above the tracker's noise, far below a prism's 30-degree
+                # balance point)
+                return Decision(done=True, outcome="aborted", reason="tilted")
             moved = float((o.pose.com[:2] - origin) @ push.direction[:2])
             if moved >= push.distance - 0.0005:
                 return Decision(done=True, outcome="finished")
