@@ -426,6 +426,13 @@ def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
                     grounds, step.start_pose, step.end_pose, targets, tuple(times))
 
 
+def _touched_face(spec: StepSpec) -> str | None:
+    """The face the step's single finger touches first (None if none)."""
+    return next((el.id for ev in spec.events for q in ev for el in (q.x, q.y)
+                 if isinstance(el, Face) and any(isinstance(o, Finger) for o in (q.x, q.y))),
+                None)
+
+
 def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
     """The step with a single finger's contact moved up its face (another contact point on
     the same face). Pushed higher, a tipping push needs less table friction: with a push at
@@ -447,9 +454,7 @@ def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
     """
     if len(spec.used) != 1 or not spec.arcs:
         return spec
-    touched = next((el.id for ev in spec.events for q in ev for el in (q.x, q.y)
-                    if isinstance(el, Face) and any(isinstance(o, Finger) for o in (q.x, q.y))),
-                   None)
+    touched = _touched_face(spec)
     if touched is None:
         return spec
     z_centre = float(spec.arcs[0].positions[-1, 0, 2])
@@ -474,13 +479,6 @@ def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
     return replace(spec, arcs=arcs, targets={k: v + lift for k, v in spec.targets.items()})
 
 
-def _touched_face(spec: StepSpec) -> str | None:
-    """The face the step's single finger touches first (None if none)."""
-    return next((el.id for ev in spec.events for q in ev for el in (q.x, q.y)
-                 if isinstance(el, Face) and any(isinstance(o, Finger) for o in (q.x, q.y))),
-                None)
-
-
 def top_roll(spec: StepSpec, poly: Polyhedron, finger_radius: float, *,
              inset: float = 0.005, press: float = 0.006, standoff: float = 0.006,
              approach_speed: float = 0.03, drag: float = 0.03, drag_speed: float = 0.03,
@@ -490,8 +488,9 @@ def top_roll(spec: StepSpec, poly: Polyhedron, finger_radius: float, *,
     push-roll): the pad presses the top face down near the edge above the pivot and drags
     it toward the pivot side, then turns with it about the pivot edge and lets go.
 
-    Why not the recorded push on the face that leans back: a round pad pressing a face
-    that leans back 30 degrees pushes it partly down, and with the pad's set-point noise
+    Why not the recorded push on the face that leans back: its approach comes in at about
+    0.2 m/s and kicks a light prism away; a round pad pressing a face that leans back 30
+    degrees rides up it and pulls it down by friction; and with the pad's set-point noise
     (about 1 mm, as stiff as the finger: 0.6-3 N) against the 0.1-0.8 N that tips a
     0.03-0.26 kg prism, the force's direction is mostly noise; the object slides on any
     table below about 0.45. Pressed down near the edge above the pivot (``inset`` from
@@ -507,10 +506,11 @@ def top_roll(spec: StepSpec, poly: Polyhedron, finger_radius: float, *,
        ``approach_speed``, at ``inset`` from the top face's edge on the pivot side;
     2. **push**: ``press`` down into the face, then ``drag`` horizontally toward the pivot
        side at ``drag_speed``, until the object is seen pivoting;
-    3. **roll**: the pressed point turned about the predicted pivot edge (a rigid roll
+    3. **roll**: the touching point turned about the predicted pivot edge (a rigid roll
        carries it on a circle) by ``roll_deg`` (past the balance point: 30 degrees for a
-       hexagonal prism) at ``roll_speed`` degrees/s; the object falls onto its landing
-       face;
+       hexagonal prism) at ``roll_speed`` degrees/s, pressed by ``press`` down and toward
+       the pivot side in the world (along the face's turned normal the press would push
+       the object back, and its pivot slides); the object falls onto its landing face;
     4. **retreat**: straight up by ``lift``.
 
     The step's events name the top face instead of the pushed one. Several fingers, faces
