@@ -141,6 +141,12 @@ def test_robot_file_checks_one_line(tmp_path: Path) -> None:
     res = runner.invoke(main, ["simulate", "plan", SKILLS, "--from", "b:200", "--to", "a:290",
                                "--step", "90", "--robot", "panda", "--control-rate", "300"])
     assert res.exit_code == 2 and "--control-rate" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1  # refused before loading and planning
+    res = runner.invoke(main, ["plan", SKILLS, "--from", "b:200", "--to", "a:290", "--step",
+                               "90", "--robot", "panda", "--control-rate", "300", "--dataset",
+                               "cube", "--out", str(tmp_path / "out")])
+    assert res.exit_code == 2 and "--control-rate" in res.stderr
+    assert len(res.stderr.strip().splitlines()) == 1 and not (tmp_path / "out").exists()
 
 
 def test_user_robot_gets_velocity_servo_and_pairs(tmp_path: Path) -> None:
