@@ -253,6 +253,10 @@ class FingertipIK:
         self.mink = mink
         self.scene = scene
         self.dt = float(dt)
+        #: The control period (s) the task time constant is compared with: a driver that
+        #: solves every ``k`` physics steps sets it to ``k dt`` (a trajectory's last, shorter
+        #: segments then stay dead-beat at a rate that is dead-beat).
+        self.period = float(dt)
         self.config = config or IKConfig()
         m = scene.model
         if m.nq != len(scene.qadr):
@@ -431,7 +435,7 @@ class FingertipIK:
         axes = self.pointing(targets)
         cfg = self.config
         tau = 0.0 if self._deadbeat else cfg.task_time_constant
-        gain = min(1.0, self.dt / tau) if tau > 0.0 else 1.0
+        gain = min(1.0, max(self.dt, self.period) / tau) if tau > 0.0 else 1.0
         # a target that moves faster than this is a jump (a new trajectory), not a motion:
         # only this much of it is fed forward
         cap = _FEED_SPEED * self.dt
