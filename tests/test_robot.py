@@ -328,7 +328,7 @@ def test_closed_loop_main_plan_by_the_panda() -> None:
 def test_ik_neither_rings_on_a_step_nor_lags_a_moving_target() -> None:
     """A dead-beat IK (the whole error in one step) under the joint acceleration bound
     at 1 kHz overshoots a 5 mm step of its target by half of it and rings; with the default
-    task time constant (10 ms) and the target's motion fed forward it settles without
+    task time constant (8 ms) and the target's motion fed forward it settles without
     overshoot, and follows a target moving at 0.1 m/s within 0.2 mm (a 10 ms first-order
     task without the feed-forward lags 0.9 mm). Truth: MuJoCo's kinematics at the IK's
     joints."""

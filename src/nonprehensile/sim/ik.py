@@ -104,7 +104,7 @@ class IKConfig:
         motion since the last solve is fed forward (``J dq = dx_target - (dt / tau) e``), so
         a moving target is followed without lag. ``0`` is dead-beat (the whole error in one
         step, no feed-forward), as mink's default task gain 1; a control step as long as
-        ``tau`` or longer (the default 100 Hz) is dead-beat too. Dead-beat with the joint
+        ``tau`` or longer (the default 100 Hz, and 125 Hz) is dead-beat too. Dead-beat with the joint
         acceleration bound rings: a one-step QP asks for whatever velocity closes the error
         now, the bound lets it build up over many steps and cannot brake it in time, and
         the wrists swung between +-2.35 rad/s at 30 rad/s^2 (at their 12 N m limit) after a
@@ -126,7 +126,7 @@ class IKConfig:
     tilt_accel: float = 4.0
     velocity_fraction: float = 0.9
     joint_accel: float = 30.0
-    task_time_constant: float = 0.01
+    task_time_constant: float = 0.008
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
@@ -452,7 +452,9 @@ class FingertipIK:
         axes = self.pointing(targets)
         cfg = self.config
         tau = 0.0 if self._deadbeat else cfg.task_time_constant
-        gain = min(1.0, max(self.dt, self.period) / tau) if tau > 0.0 else 1.0
+        gain = max(self.dt, self.period) / tau if tau > 0.0 else 1.0
+        if gain >= 1.0 - 1e-9:  # a control step as long as tau: dead-beat, exactly
+            gain = 1.0
         # a target that moves faster than this is a jump (a new trajectory), not a motion:
         # only this much of it is fed forward
         cap = _FEED_SPEED * self.dt
