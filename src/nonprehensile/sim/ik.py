@@ -105,8 +105,9 @@ class IKConfig:
         a moving target is followed without lag. ``0`` is dead-beat (the whole error in one
         step, no feed-forward), as mink's default task gain 1; a control step as long as
         ``tau`` or longer (the default 100 Hz, and 125 Hz) is dead-beat too. Dead-beat with
-        the joint acceleration bound rings: a one-step QP asks for whatever velocity closes the error
-        now, the bound lets it build up over many steps and cannot brake it in time, and
+        the joint acceleration bound rings: a one-step QP asks for whatever velocity closes
+        the error now, the bound lets it build up over many steps and cannot brake it in
+        time, and
         the wrists swung between +-2.35 rad/s at 30 rad/s^2 (at their 12 N m limit) after a
         two-arm tumble-lift while both tips stayed on target (the other joints compensating).
     """
