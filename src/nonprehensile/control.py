@@ -493,7 +493,7 @@ def top_roll(spec: StepSpec, poly: Polyhedron, finger_radius: float, *,
     degrees rides up it and pulls it down by friction; and with the pad's set-point noise
     (about 1 mm, as stiff as the finger: 0.6-3 N) against the 0.1-0.8 N that tips a
     0.03-0.26 kg prism, the force's direction is mostly noise; the object slides on any
-    table below about 0.45. Pressed down near the edge above the pivot (``inset`` from
+    table below about 0.5 (measured). Pressed down near the edge above the pivot (``inset`` from
     it) with a normal force ``N`` and dragged by the pad's friction ``F <= mu_f N``, a
     prism of side ``r`` (centre of mass ``r / 2`` from the pivot, top ``sqrt(3) r`` high)
     tips when ``F sqrt(3) r >= m g r / 2 + N inset`` while the table holds
