@@ -26,7 +26,7 @@ from nonprehensile.planning import ObjectPose
 from nonprehensile.step_paths import ease
 
 __all__ = ["APPROACH_SPEED", "PEAK_ACCEL", "PEAK_SPEED", "escape", "hull_distance",
-           "limit_speed", "limits_of", "straight", "transit"]
+           "limit_speed", "limits_of", "release", "straight", "transit"]
 
 FloatArray = NDArray[np.float64]
 
@@ -202,6 +202,62 @@ def straight(start: FloatArray, end: FloatArray, *, dt: float, max_speed: float,
     t = max(PEAK_SPEED * length / max_speed, math.sqrt(PEAK_ACCEL * length / max_accel))
     n = max(2, math.ceil(t / dt) + 1)
     return np.asarray(_leg(a, b, n).transpose(1, 0, 2))
+
+
+def release(start: FloatArray, velocity: FloatArray, end: FloatArray, *, dt: float,
+            max_speed: float, max_accel: float) -> FloatArray:
+    """The quickest motion from ``start``, moving at ``velocity``, to rest at ``end``, its
+    speed within ``max_speed`` and its acceleration within ``max_accel`` (a let-go: the
+    fingertip off the object as soon as the bounds allow).
+
+    Each fingertip accelerates at the bound toward its end point (turning its initial
+    velocity into that direction), cruises at ``max_speed`` and brakes at the bound onto
+    it: a time-optimal bang-coast-bang profile, steered every ``dt`` (a closed-form
+    minimum-jerk leg, :func:`straight`, spends its first fifth below a tenth of its peak
+    speed, which is where a pad pressed into the object lingers on it). The acceleration is
+    bounded, its rate is not (the speed is continuous).
+
+    Parameters
+    ----------
+    start, velocity, end : array, shape (n_fingers, 3)
+        Fingertip positions (m), commanded velocities (m/s) and end points (m).
+    dt : float
+        Sample period (s).
+    max_speed, max_accel : float
+        Bounds (m/s, m/s^2).
+
+    Returns
+    -------
+    array, shape (n_samples, n_fingers, 3)
+        Targets every ``dt`` from ``start`` (first sample) to ``end`` (last), at least two.
+    """
+    x = np.array(start, dtype=np.float64)
+    v = np.array(velocity, dtype=np.float64)
+    goal = np.asarray(end, dtype=np.float64)
+    # braking a little below the bound leaves the steering room to absorb the sampling
+    brake = 0.8 * max_accel
+    dv_max = max_accel * dt
+    out = [x.copy()]
+    for _ in range(100_000):  # bounded: a 1 m let-go at 0.01 m/s^2 would take longer
+        gap = goal - x
+        dist = np.linalg.norm(gap, axis=1)
+        # snapped onto the end point once that step, and the stop after it, stay within
+        # the acceleration bound
+        done = (dist <= dv_max * dt) & (
+            np.linalg.norm(gap - v * dt, axis=1) <= dv_max * dt)
+        if done.all():
+            break
+        # the speed from which braking at ``brake`` stops at the end point
+        want = np.minimum(max_speed, np.sqrt(2.0 * brake * dist))
+        unit = np.divide(gap, dist[:, None], out=np.zeros_like(gap), where=dist[:, None] > 0)
+        dv = unit * want[:, None] - v
+        size = np.linalg.norm(dv, axis=1)
+        dv *= np.minimum(1.0, dv_max / np.maximum(size, 1e-300))[:, None]
+        v = np.where(done[:, None], 0.0, v + dv)
+        x = np.where(done[:, None], goal, x + v * dt)
+        out.append(x.copy())
+    out.append(goal.copy())
+    return np.asarray(np.stack(out))
 
 
 def limits_of(targets: FloatArray, dt: float) -> tuple[float, float]:
