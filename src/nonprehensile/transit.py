@@ -56,8 +56,8 @@ def _planes(poly: Polyhedron) -> tuple[FloatArray, FloatArray]:
     return normals, offsets
 
 
-def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float
-           ) -> FloatArray:
+def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float, *,
+           faces_of: FloatArray | None = None) -> FloatArray:
     """Each point moved straight out of the posed object until it is ``reach`` (m) beyond
     the face plane it is farthest beyond (its contact normal when it touches a face), so
     that its :func:`hull_distance` is at least ``reach``; points already that far stay.
@@ -65,12 +65,19 @@ def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float
     A normal that points down (a face of a tilted object that looks at the table) is
     followed horizontally, so that no point is driven into the table; faces looking more
     than 45 degrees down are not left through. ``points`` has shape (n, 3); returns the
-    same shape.
+    same shape. With ``faces_of`` (shape (n, 3)), each point leaves through the face plane
+    its ``faces_of`` point is farthest beyond instead (a compliant pad's command, deep in
+    the object and off to the side, leaves through the face its pad touches: outside one
+    face's plane a point is outside the whole convex object).
     """
     p = np.array(points, dtype=np.float64)
     normals, offsets = _planes(poly)
     x = (p - pose.translation) @ pose.rotation / pose.scale
     dist = (x @ normals.T - offsets) * pose.scale  # (n, faces)
+    by = dist
+    if faces_of is not None:
+        xf = (np.asarray(faces_of, dtype=np.float64) - pose.translation) @ pose.rotation
+        by = (xf / pose.scale @ normals.T - offsets) * pose.scale
     world = normals @ pose.rotation.T
     # a face that looks down at the table (its normal more than 45 degrees below the
     # horizon) is no way out: the point would be driven into the table
@@ -78,7 +85,7 @@ def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float
     for k in range(len(p)):
         if float(dist[k].max()) >= reach:
             continue
-        best = int(np.flatnonzero(usable)[dist[k, usable].argmax()])
+        best = int(np.flatnonzero(usable)[by[k, usable].argmax()])
         n = world[best]
         go = np.array([n[0], n[1], max(n[2], 0.0)])
         go /= float(np.linalg.norm(go))
