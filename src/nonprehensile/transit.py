@@ -8,7 +8,9 @@ first point along that normal, slowly. Each leg is a rest-to-rest
 minimum-jerk motion timed so that its peak speed and acceleration stay within the given
 bounds (a minimum-jerk leg of length ``L`` and duration ``T`` peaks at ``1.875 L / T`` and
 ``5.774 L / T^2``). Several fingers move together, each on its own legs, all legs timed
-by the slowest finger.
+by the slowest finger. Before a transit the fingertips **let go** of the object
+(:func:`release`): the quickest motion within the bounds, from the command as it moves, out
+of the plane of the face each pad touches (:func:`escape` with ``faces_of``).
 
 Pure core: numpy only.
 """
