@@ -83,6 +83,7 @@ def main_plan() -> None:
     from nonprehensile.sim.closed_loop import execute_plan
     from nonprehensile.sim.placement import place_base, plan_targets
     from nonprehensile.sim.robot import Robot
+    from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY
     from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL, RobotSimulator
     from nonprehensile.sim.robot_scene import Arm
     from nonprehensile.states import State
@@ -109,14 +110,15 @@ def main_plan() -> None:
         print(f"{loop} loop, free fingertips: success {exf.success}, final "
               f"{exf.to_dict()['final_state']}, {1000 * (exf.position_error or 0):.1f} mm; "
               f"{t_free:.3f} s CPU for {exf.sim_time:.2f} s simulated ({nf} physics steps)")
-        for (label, base), every in ((b, e) for b in bases for e in (1, 8)):
+        for (label, base), every in ((b, e) for b in bases
+                                 for e in (DEFAULT_CONTROL_EVERY, 1)):
             sim = RobotSimulator(poly, [Arm(robot, base)], scale=ds.scale, control_every=every)
             cfg = replace(ControlConfig(), max_accel=ROBOT_MAX_ACCEL)
             t0 = time.process_time()
             ex = execute_plan(sim, p, fingers=ds.fingers, loop=loop, replan=replan, config=cfg)
             t_robot = time.process_time() - t0
             log = sim.robot_log
-            print(f"{loop} loop, Panda (IK at {1000 // every} Hz) at the {label} base "
+            print(f"{loop} loop, Panda (IK at {1000 / every:g} Hz) at the {label} base "
                   f"{base.to_dict()}: success "
                   f"{ex.success}, final {ex.to_dict()['final_state']}, "
                   f"{1000 * (ex.position_error or 0):.1f} mm from the goal; {t_robot:.3f} s CPU "

@@ -95,6 +95,18 @@ def occupies_same_space(p: Polyhedron, a: State, b: State, atol: float = 1e-7) -
     return bool(d.min(axis=1).max() <= atol and d.min(axis=0).max() <= atol)
 
 
+# ------------------------------------------------------------------ the cache folder
+@pytest.fixture(scope="session", autouse=True)
+def _session_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Motion libraries, sweeps and robot runs the tests build go to one folder of this
+    session, as on CI's fresh machine: never to the user's ``~/.cache/nonprehensile``, which
+    gained a library for every test dataset's temporary path at every run, and whose kept
+    sweeps and robot runs hid from local timings what a fresh machine computes."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("NONPREHENSILE_CACHE", str(tmp_path_factory.mktemp("cache")))
+        yield
+
+
 # ------------------------------------------------------------------ PostgreSQL (tests/pgserver)
 @pytest.fixture(scope="session")
 def pg_server() -> Iterator[str]:
@@ -115,3 +127,33 @@ def pg_url(pg_server: str) -> Iterator[str]:
     from pgserver import fresh_database
 
     yield from fresh_database(pg_server)
+
+
+# ------------------------------------------------------------------ the main job, run once
+@pytest.fixture(scope="session")
+def demo_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The demo's own cache folder: its robot execution and sweep are run, not found."""
+    return tmp_path_factory.mktemp("demo-cache")
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory: pytest.TempPathFactory,
+             demo_cache: Path) -> tuple[Path, dict[str, object]]:
+    """``nonprehensile demo --json`` once for the session (tests/test_demo.py checks it;
+    tests/test_report_runs.py reuses its robot execution from ``demo_cache``)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from nonprehensile.cli import main
+
+    pytest.importorskip("matplotlib")
+    pytest.importorskip("sklearn")
+    pytest.importorskip("ezc3d")
+    out = tmp_path_factory.mktemp("demo") / "report"
+    # a CI-sized robustness sweep (3 samples, run here: the shipped 200-sample one has its
+    # own tests, tests/test_report_runs.py)
+    res = CliRunner(env={"NONPREHENSILE_CACHE": str(demo_cache)}).invoke(
+        main, ["demo", "--out", str(out), "--json", "--sweep-samples", "3"])
+    assert res.exit_code == 0, res.stderr
+    return out, json.loads(res.stdout)

@@ -981,18 +981,36 @@ def case_concurrent(run: StoreRun, rng: random.Random, i: int) -> None:
 
     with ThreadPoolExecutor(5) as ex:
         replies = list(ex.map(send, jobs))
-    statuses = []
-    for r in replies:
+    same: list[int] = []
+    for r, t in zip(replies, jobs, strict=True):  # each reply beside the job it answers
         if isinstance(r, str):
             run.judge("concurrent", None, note=r)
             continue
-        statuses.append(run.judge("concurrent", r, want={200, 201}, note="same take x4"))
+        status = run.judge("concurrent", r, want={200, 201}, note="same take x4")
         if r.status_code in (200, 201):
             run.ack(r.json())
-    same = [s for s, t in zip(statuses, jobs, strict=False) if t is take]
-    if sorted(same) != [200, 200, 200, 201]:
-        run.fail("concurrent", f"four identical uploads at once answered {sorted(same)}, "
-                 "expected one 201 and three 200")
+        if t is take and status is not None:
+            same.append(status)
+    problem = identical_uploads_problem(same, asked=4)
+    if problem:
+        run.fail("concurrent", problem)
+
+
+def identical_uploads_problem(statuses: list[int], asked: int) -> str | None:
+    """What is wrong with the answered statuses of ``asked`` identical uploads sent at once
+    (None if nothing): exactly one is stored (201) and the others find it (200). An upload
+    whose reply was lost (a transport error, judged on its own) may be the one stored, so
+    with fewer answers than uploads at most one 201 is required."""
+    got = sorted(statuses)
+    if len(got) == asked:
+        ok = got == [200] * (asked - 1) + [201]
+    else:
+        ok = set(got) <= {200, 201} and got.count(201) <= 1
+    if ok:
+        return None
+    return (f"{asked} identical uploads at once answered {got}"
+            + ("" if len(got) == asked else f" ({asked - len(got)} without a reply)")
+            + f", expected one 201 and {asked - 1} 200")
 
 
 def kill_round(run: StoreRun, rng: random.Random, k: int) -> None:

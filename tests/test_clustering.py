@@ -124,13 +124,23 @@ def test_chooses_the_number_of_clusters(method: str) -> None:
     assert c.n_clusters_ == 4 and adjusted_rand_score(y, c.labels_) == 1.0
 
 
+@pytest.fixture(scope="module")
+def whole_fits() -> dict[str, HilbertClusterer]:
+    """One batch fit per method for every generated cut list (it does not depend on them;
+    the tests only read it)."""
+    return {}
+
+
 @pytest.mark.parametrize("method", ["micro", "runs", "paper"])
 @settings(max_examples=8)
 @given(cuts=st.lists(st.integers(1, 239), max_size=4, unique=True))
-def test_fit_equals_partial_fit_sequence(method: str, cuts: list[int]) -> None:
+def test_fit_equals_partial_fit_sequence(method: str, cuts: list[int],
+                                         whole_fits: dict[str, HilbertClusterer]) -> None:
     x, _ = _blobs(240, 3, 12, seed=6, sep=2.0)
     kw = {"method": method, "init_size": 30, "random_state": 7}
-    whole = HilbertClusterer(3, **kw).fit(x)
+    if method not in whole_fits:
+        whole_fits[method] = HilbertClusterer(3, **kw).fit(x)
+    whole = whole_fits[method]
     parts = HilbertClusterer(3, **kw)
     bounds = [0, *sorted(cuts), 240]
     for a, b in itertools.pairwise(bounds):

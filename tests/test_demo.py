@@ -21,24 +21,8 @@ from nonprehensile.pipeline import write_plan_motions
 from nonprehensile.states import State
 from test_report import CHROMIUM, loaded_dom, loaded_images
 
-
-@pytest.fixture(scope="module")
-def demo_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The demo's own cache folder: its robot execution and sweep are run, not found."""
-    return tmp_path_factory.mktemp("demo-cache")
-
-
-@pytest.fixture(scope="module")
-def demo_run(tmp_path_factory: pytest.TempPathFactory,
-             demo_cache: Path) -> tuple[Path, dict[str, object]]:
-    out = tmp_path_factory.mktemp("demo") / "report"
-    # a CI-sized robustness sweep (3 samples, run here: the shipped 200-sample one has its
-    # own tests, tests/test_report_runs.py)
-    cache = demo_cache
-    res = CliRunner(env={"NONPREHENSILE_CACHE": str(cache)}).invoke(
-        main, ["demo", "--out", str(out), "--json", "--sweep-samples", "3"])
-    assert res.exit_code == 0, res.stderr
-    return out, json.loads(res.stdout)
+# demo_cache and demo_run (the main job run once by the CLI) are session fixtures in
+# conftest.py: tests/test_report_runs.py reads the same run's robot execution
 
 
 def test_demo_writes_report_and_summary(demo_run: tuple[Path, dict[str, object]]) -> None:

@@ -25,6 +25,7 @@ import pytest
 from click.testing import CliRunner
 
 from nonprehensile.cli import main
+from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.store import SQLiteStore
 
 SRC = str(Path(__file__).resolve().parents[1] / "src")
@@ -77,9 +78,16 @@ def test_sigkill_during_ingest_loses_nothing_committed(fitted: Path) -> None:
     (all or nothing per add), its samples unchanged and checksummed."""
     n0, x0, _ = _snapshot(fitted)
     big = fitted.parent / "big.npy"
-    delays = [0.3, 0.8, 1.5, 2.5, 4.0]
-    committed = n0
-    for delay in delays:
+    # one add left to finish says how long an add takes on this machine now; the kills
+    # then fall across that span (start-up, reading, the transaction, its commit) whatever
+    # the load, where fixed delays (0.3-4 s) mostly fell after the end on a quiet machine
+    t0 = time.monotonic()
+    whole = _cli("cluster", "add", fitted, "--arrays", big, "--json")
+    took = time.monotonic() - t0
+    assert whole.returncode == 0, whole.stderr
+    committed = n0 + 4000
+    assert _snapshot(fitted)[0] == committed
+    for delay in (f * took for f in (0.15, 0.35, 0.55, 0.75, 0.95)):
         proc = subprocess.Popen(
             [sys.executable, "-m", "nonprehensile.cli", "cluster", "add", str(fitted),
              "--arrays", str(big), "--json"],
@@ -97,7 +105,12 @@ def test_sigkill_during_ingest_loses_nothing_committed(fitted: Path) -> None:
 
 
 def test_four_concurrent_writers_complete_every_add(fitted: Path) -> None:
-    """4 processes x 3 adds each: every add waits its turn and completes."""
+    """4 processes x 3 adds each: every add waits its turn and completes.
+
+    It flaked under load (an add exiting 1): ``cluster add`` read its summary after its
+    commit, so another process's add landing in between made the clusterer's labels and the
+    store's keys disagree (an IndexError). The summary is now read under the write lock; the
+    next test forces that interleaving. A failed add prints its error here."""
     more = fitted.parent / "more.npy"
     script = (
         "import sys\nfrom click.testing import CliRunner\nfrom nonprehensile.cli import main\n"
@@ -105,20 +118,62 @@ def test_four_concurrent_writers_complete_every_add(fitted: Path) -> None:
         "    r = CliRunner().invoke(main, ['cluster', 'add', sys.argv[1], '--arrays', "
         "sys.argv[2], '--json'])\n"
         "    print(r.exit_code, flush=True)\n"
+        "    if r.exit_code:\n"
+        "        print(r.output[-1500:], repr(r.exception), file=sys.stderr, flush=True)\n"
     )
     n0, x0, _ = _snapshot(fitted)
     procs = [subprocess.Popen([sys.executable, "-c", script, str(fitted), str(more)],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                               env={**os.environ, "PYTHONPATH": SRC}) for _ in range(4)]
-    codes = []
+    codes, errors = [], []
     for p in procs:
         out, err = p.communicate(timeout=300)
         assert p.returncode == 0, err
         codes += out.split()
-    assert codes == ["0"] * 12
+        errors.append(err)
+    assert codes == ["0"] * 12, errors
     n, x, _ = _snapshot(fitted)
     assert n == n0 + 12 * 5
     np.testing.assert_array_equal(x[:n0], x0)
+
+
+def test_an_add_beside_another_reports_the_store_it_wrote(
+        fitted: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Another writer's add is ready to commit the moment this add has written its samples
+    (what a loaded machine did to the test above): this add's summary is still of the store
+    as it wrote it (it crashed, exit 1, when read after its own commit), and both adds are
+    kept."""
+    import nonprehensile.cli.cluster as cluster_cli
+
+    more_x = np.load(fitted.parent / "more.npy")
+    n0 = _snapshot(fitted)[0]
+    done = threading.Event()
+
+    def other_add() -> None:  # what another process's `cluster add` does, on its own thread
+        with SQLiteStore(fitted) as db, db.transaction():
+            c = HilbertClusterer.load_state(db.get_meta(cluster_cli.STATE), db)
+            c.partial_fit(more_x)
+            db.put_meta(cluster_cli.STATE, c.save_state())
+        done.set()
+
+    real = cluster_cli.summary
+    other = threading.Thread(target=other_add)
+
+    def summary_with_a_rival(*args: object) -> object:
+        other.start()
+        # read after the commit, the rival's add landed here; under the lock it waits
+        done.wait(1.0)
+        return real(*args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(cluster_cli, "summary", summary_with_a_rival)
+    r = CliRunner().invoke(main, ["cluster", "add", str(fitted), "--arrays",
+                                  str(fitted.parent / "more.npy"), "--json"])
+    other.join(60)
+    assert r.exit_code == 0, (r.output, r.exception)
+    doc = json.loads(r.output)
+    assert doc["n_samples"] == n0 + 5 == sum(c["size"] for c in doc["clusters"])
+    assert len(doc["labels"]) == 5
+    assert done.is_set() and _snapshot(fitted)[0] == n0 + 10
 
 
 def test_a_writer_waits_longer_than_the_busy_timeout(tmp_path: Path) -> None:

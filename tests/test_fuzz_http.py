@@ -26,3 +26,18 @@ def test_http_family_small_budget() -> None:
     # the campaign reached the refusals it is there for
     statuses = {k.split(":")[1] for k in run["statuses"]}
     assert {"201", "400", "401"} <= statuses, run["statuses"]
+
+
+def test_identical_uploads_judged_on_their_own_replies() -> None:
+    """case_concurrent pairs each reply with its job before skipping lost replies: a lost
+    reply neither shifts the fifth (other) take's status into the four identical ones nor
+    is taken for a wrong answer."""
+    check = fuzz_http.identical_uploads_problem
+    assert check([200, 201, 200, 200], asked=4) is None
+    assert check([201, 201, 200, 200], asked=4) is not None  # stored twice
+    assert check([200, 200, 200, 200], asked=4) is not None  # never stored
+    # one reply lost: the lost one may be the 201
+    assert check([200, 200, 200], asked=4) is None
+    assert check([200, 201, 200], asked=4) is None
+    assert check([201, 201, 200], asked=4) is not None
+    assert check([200, 409, 200], asked=4) is not None

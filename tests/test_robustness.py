@@ -193,6 +193,7 @@ mujoco = pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not ins
 from nonprehensile.sim import SimParams, Simulator  # noqa: E402
 from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION  # noqa: E402
 from nonprehensile.sim.robustness import (  # noqa: E402
+    SweepResult,
     SweepSpec,
     available_loops,
     run_sweep,
@@ -215,8 +216,16 @@ def small_spec(cube: tuple[object, object]) -> SweepSpec:
                      seed=3, n_samples=2, loops=("open",), fingers=dict(ds.fingers))
 
 
-def test_a_sweep_is_the_same_on_one_process_or_two(small_spec: SweepSpec) -> None:
-    one = run_sweep(small_spec, workers=1, chunk_size=1)
+@pytest.fixture(scope="module")
+def one_process_sweep(small_spec: SweepSpec) -> SweepResult:
+    """The small sweep on one process: the reference the pool of two and Dask must equal
+    (run once; the tests only read it)."""
+    return run_sweep(small_spec, workers=1, chunk_size=1)
+
+
+def test_a_sweep_is_the_same_on_one_process_or_two(small_spec: SweepSpec,
+                                                   one_process_sweep: SweepResult) -> None:
+    one = one_process_sweep
     two = run_sweep(small_spec, workers=2, chunk_size=1)
     assert [r.outcome() for r in one.records] == [r.outcome() for r in two.records]
     assert len(one.records) == 3 * 2
@@ -230,10 +239,11 @@ def test_a_sweep_is_the_same_on_one_process_or_two(small_spec: SweepSpec) -> Non
     assert sum(b["open"].n for b in one.bins(3)["mass"]) == 6
 
 
-def test_dask_local_cluster_equals_the_process_pool(small_spec: SweepSpec) -> None:
+def test_dask_local_cluster_equals_the_process_pool(small_spec: SweepSpec,
+                                                   one_process_sweep: SweepResult) -> None:
     distributed = pytest.importorskip("distributed",
                                       reason="the scale extra (dask.distributed) is absent")
-    pool = run_sweep(small_spec, workers=1, chunk_size=1)
+    pool = one_process_sweep
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:

@@ -47,7 +47,7 @@ from scipy.spatial.transform import Rotation
 from nonprehensile.errors import ContactError, GeometryError, InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import Expansion
-from nonprehensile.observation import Observation, observed_contacts
+from nonprehensile.observation import Observation, PairCache, observed_contacts
 from nonprehensile.planning import MotionLibrary, ObjectPose, Plan, PlanStep, plan
 from nonprehensile.skills.contacts import (
     ContactEvent,
@@ -586,6 +586,7 @@ class StepMonitor:
         self._planes = (np.array([poly.normals[f] for f in poly.face_ids]),
                         np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
                                   for f in poly.face_ids]))
+        self._pair_cache: PairCache = {}  # contact pairs seen by this step (observation.py)
         self._seek_dir = np.zeros((len(spec.used), 3))
         self._yaw: float | None = None  # the last anchor's turn (radians)
         self._followed = 0.0  # how long (s) the current arc's follow-through runs
@@ -645,7 +646,7 @@ class StepMonitor:
         # the same contacts (a turn in place ends as it began, (G,a)) must be seen anew
         self.current = self._candidate = observed_contacts(
             self.poly, obs, finger_radius=self.radius, tol=self.cfg.contact_tol,
-            ground_tol=self.cfg.ground_tol, planes=self._planes)
+            ground_tol=self.cfg.ground_tol, planes=self._planes, cache=self._pair_cache)
         self._since = obs.time
         self.log.append({"time": 0.0, "contacts": _pair_names(self.current),
             **({"event": self.spec.event_ids[0]} if self.current == self.spec.events[0]
@@ -658,7 +659,7 @@ class StepMonitor:
             return Decision(done=True)
         pairs = observed_contacts(self.poly, obs, finger_radius=self.radius,
                                   tol=self.cfg.contact_tol, ground_tol=self.cfg.ground_tol,
-                                  planes=self._planes)
+                                  planes=self._planes, cache=self._pair_cache)
         if pairs != self._candidate:
             self._candidate, self._since = pairs, obs.time
         if self.phase == "settle":

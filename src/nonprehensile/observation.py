@@ -20,7 +20,6 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -43,6 +42,7 @@ __all__ = [
     "Observation",
     "ObservationModel",
     "ObservationStream",
+    "PairCache",
     "element_at",
     "ground_element",
     "observed_contacts",
@@ -275,17 +275,28 @@ def _ground_of_heights(poly: Polyhedron, z: FloatArray, rotation: FloatArray, to
     return Vertex(vf[int(np.argmin(z))])
 
 
-@lru_cache(maxsize=4096)
-def _pair(a: Ground | Finger, b: ObjectElement) -> ContactPair:
+#: Contact pairs already built, by their elements (see :func:`observed_contacts`).
+PairCache = dict[tuple[Ground | Finger, ObjectElement], ContactPair]
+
+
+def _pair(a: Ground | Finger, b: ObjectElement, cache: PairCache | None) -> ContactPair:
     """One :class:`ContactPair` per pair of elements: the same few pairs are observed at
-    every sample, and building one checks and orders its elements."""
-    return ContactPair(a, b)
+    every sample, and building one checks and orders its elements. ``cache`` is the caller's
+    (a controller keeps one per step); it holds at most one pair per finger or the ground
+    and element of one object, so it stays small."""
+    if cache is None:
+        return ContactPair(a, b)
+    got = cache.get((a, b))
+    if got is None:
+        got = cache[(a, b)] = ContactPair(a, b)
+    return got
 
 
 def observed_contacts(
     poly: Polyhedron, obs: Observation, *, finger_radius: float, tol: float,
     ground_tol: float, fingers: tuple[int, ...] | None = None,
     planes: tuple[FloatArray, FloatArray] | None = None,
+    cache: PairCache | None = None,
 ) -> frozenset[ContactPair]:
     """The contact pairs an observation shows, by geometry.
 
@@ -299,6 +310,12 @@ def observed_contacts(
     ----------
     fingers : tuple of int, optional
         Finger numbers of the rows of ``obs.tips`` (default 1..n).
+    planes : tuple of array, optional
+        The face planes' unit normals, shape (n_faces, 3), and offsets, shape (n_faces,)
+        (model frame), when the caller keeps them.
+    cache : dict, optional
+        Pairs built by earlier calls on the same object (filled here): a caller observing at
+        the sensor rate passes its own and skips building the same few pairs again.
     """
     planes = planes if planes is not None else _planes(poly)
     pose = obs.pose
@@ -309,7 +326,7 @@ def observed_contacts(
     zmin = float(z.min())
     if zmin < ground_tol:
         pairs.append(_pair(Ground(), _ground_of_heights(poly, z, rot, ground_tol, planes,
-                                                        zmin)))
+                                                        zmin), cache))
     normals, offsets = planes
     tips = np.asarray(obs.tips, dtype=np.float64)
     numbers = fingers if fingers is not None else tuple(range(1, len(tips) + 1))
@@ -329,7 +346,8 @@ def observed_contacts(
             y = x - normals[int(np.argmax(d))] * top
             dist = top * s
         if dist <= reach:
-            pairs.append(_pair(Finger(numbers[j]), element_at(poly, y, tol / s, planes)))
+            pairs.append(_pair(Finger(numbers[j]), element_at(poly, y, tol / s, planes),
+                               cache))
     return frozenset(pairs)
 
 

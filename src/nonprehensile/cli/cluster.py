@@ -277,7 +277,7 @@ def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str
             if not c.n_recalibrations_:
                 c.recalibrate()
             db.put_meta(STATE, c.save_state())
-        doc = _with_classes(summary(c, store), c, classes, 0)
+            doc = _with_classes(summary(c, store), c, classes, 0)  # as in add, under the lock
     finally:
         _close(db)
     if as_json:
@@ -301,13 +301,16 @@ def cluster_add(store: str, dataset: str | None, arrays: str | None, as_json: bo
     x, classes = _samples(dataset, arrays, as_json)
     db = open_store(store)
     try:
-        # the write lock for the whole read-modify-write: concurrent adds take turns
+        # the write lock for the whole read-modify-write: concurrent adds take turns. The
+        # summary is read under it too: the clusterer's labels and the store's keys are
+        # separate reads, and another add committed between them (likely under load) made
+        # them disagree in length (a crash, exit 1, after the add was stored)
         with db.transaction():
             c = _load(db, store)
             start = c.n_samples_seen_
             _register(c, x, as_json)
             db.put_meta(STATE, c.save_state())
-        doc = _with_classes(summary(c, store), c, classes, start)
+            doc = _with_classes(summary(c, store), c, classes, start)
     finally:
         _close(db)
     if as_json:

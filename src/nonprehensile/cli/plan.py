@@ -190,6 +190,10 @@ def plan_cmd(
         raise InputError("--robot writes the plan's joint trajectories: give --dataset and "
                          "--out DIR too")
     robot = load_robot(robot_kw) if use_robot else None
+    if use_robot:  # a bad --control-rate is refused now, before any planning
+        from nonprehensile.sim.scene import DEFAULT_PARAMS
+
+        control_every(robot_kw, DEFAULT_PARAMS.timestep)
     poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)

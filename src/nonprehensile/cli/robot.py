@@ -21,6 +21,9 @@ F = Callable[..., Any]
 _BASE_XY = number(-10.0, 10.0, unit="m")
 _BASE_YAW = number(-360.0, 360.0, unit="degrees")
 #: --control-rate: how often the IK runs (the library checks that it divides the physics rate).
+#: The default is the library's (``robot_driver.DEFAULT_CONTROL_EVERY`` = 10 steps of 1 ms; a
+#: test holds them equal).
+DEFAULT_CONTROL_RATE = 100.0
 _RATE = number(0.0, 1e5, low_open=True, unit="Hz")
 
 
@@ -37,7 +40,7 @@ def robot_options(fn: F) -> F:
         click.option("--tip-site", "tip_sites", multiple=True, metavar="NAME",
                      help="A fingertip site of --robot-xml, one per finger R1, R2, ... "
                           "(repeatable)."),
-        click.option("--control-rate", "control_rate", type=_RATE, default=1000.0,
+        click.option("--control-rate", "control_rate", type=_RATE, default=DEFAULT_CONTROL_RATE,
                      show_default=True, metavar="HZ",
                      help="Robot: how often the IK runs (a divisor of the 1 kHz physics "
                           "rate); the joint servos get interpolated set points every step."),
@@ -76,14 +79,14 @@ def control_every(kw: dict[str, Any], timestep: float) -> int:
     divides the physics rate)."""
     import math
 
-    rate = kw.get("control_rate", 1000.0)
+    rate = kw.get("control_rate", DEFAULT_CONTROL_RATE)
     physics = 1.0 / timestep
     if not (isinstance(rate, float) and math.isfinite(rate) and 0 < rate <= physics):
         raise InputError(f"--control-rate must be a rate in (0, {physics:g}] Hz, got {rate!r}")
     every = round(physics / rate)
     if abs(every * rate - physics) > 1e-6 * physics or every > 100:
         raise InputError(f"--control-rate must divide the physics rate {physics:g} Hz by a "
-                         f"whole number up to 100 (e.g. 1000, 500, 250, 125), got {rate:g}")
+                         f"whole number up to 100 (e.g. 1000, 250, 125, 100), got {rate:g}")
     return every
 
 

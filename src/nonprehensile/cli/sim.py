@@ -384,6 +384,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                          "yet (drop --robot, or --record)")
     robot = load_robot(robot_kw) if use_robot else None
     params = _params(kw)
+    # a bad --control-rate is refused now, before the dataset is loaded and the plan made
+    every = control_every(robot_kw, params.timestep) if use_robot else 1
     pert = _perturbation(kw, observed=loop == "closed")
     sim = _sim()
     _check_record(record)
@@ -433,7 +435,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
                                      robot)
         simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params,
-                                   control_every=control_every(robot_kw, params.timestep))
+                                   control_every=every)
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")

@@ -142,14 +142,12 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             self.dadr = scene.dadr
             self.n = n
             self.G = np.vstack([np.eye(n), -np.eye(n)])
-            self.h = np.zeros(2 * n)
             self.prev = np.zeros(len(self.dadr))
 
-        def compute_qp_inequalities(self, configuration: Any, dt: float) -> Any:
-            q = configuration.q[self.qadr]
-            h = self.h
-            # rows: dq[dof] <= up, then -dq[dof] <= down (a joint outside its range may only
-            # move back in, as with mink's own limit)
+        def bounds(self, qpos: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
+            """``(upper, lower)`` bounds on the step ``dq``, shape (nv,) each."""
+            q = qpos[self.qadr]
+            # a joint outside its range may only move back in, as with mink's own limit
             up = np.minimum(self.velocity * dt, gain * (self.upper - q))
             down = np.minimum(self.velocity * dt, gain * (q - self.lower))
             if math.isfinite(accel):
@@ -158,9 +156,16 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                 ok = up_a + down_a >= 0.0
                 up = np.where(ok, up_a, up)
                 down = np.where(ok, down_a, down)
-            h[self.dadr] = up
-            h[self.n + self.dadr] = down
-            return mink.limits.Constraint(G=self.G, h=h.copy())
+            upper = np.empty(self.n)
+            lower = np.empty(self.n)
+            upper[self.dadr] = up
+            lower[self.dadr] = -down
+            return upper, lower
+
+        def compute_qp_inequalities(self, configuration: Any, dt: float) -> Any:
+            upper, lower = self.bounds(configuration.q, dt)
+            # rows: dq[dof] <= upper, then -dq[dof] <= -lower
+            return mink.limits.Constraint(G=self.G, h=np.concatenate([upper, -lower]))
 
     return JointBoxLimit()
 
@@ -259,6 +264,24 @@ class FingertipIK:
                 m, geom_pairs=pairs, gain=cfg.collision_gain,
                 minimum_distance_from_collisions=cfg.collision_margin,
                 collision_detection_distance=cfg.collision_detection))
+        # the fast QP assembly (:meth:`_solve`)
+        import daqp
+        from mink.limits.collision_avoidance_limit import compute_contact_normal_jacobian
+
+        self._daqp = daqp
+        self._contact_jacobian = compute_contact_normal_jacobian
+        self._coll: Any = self.limits[1] if cfg.collisions else None
+        self._nv = m.nv
+        if m.nq != m.nv or not np.all(np.isin(m.jnt_type, (mujoco.mjtJoint.mjJNT_HINGE,
+                                                            mujoco.mjtJoint.mjJNT_SLIDE))):
+            raise InputError("the IK handles hinge and slide joints only (a ball or free "
+                             "joint in the robot file): give the robot hinge joints")
+        rows = sum(len(t.cost) for t in self.position_tasks)
+        self._w = np.zeros((rows, m.nv))
+        self._we = np.zeros(rows)
+        self._no_rows = np.zeros((0, m.nv))
+        self._jac1 = np.empty((3, m.nv))
+        self._jac2 = np.empty((3, m.nv))
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
         self._mocap = int(m.body_mocapid[self._obj])
         # the object's vertices in its body frame (the mesh is stored about its own frame)
@@ -270,6 +293,8 @@ class FingertipIK:
         self._verts = np.asarray(verts, dtype=np.float64) @ rot.reshape(3, 3).T + m.geom_pos[g]
         self._vmean = self._verts.mean(axis=0)
         self._rot = np.empty(9)
+        self._pose_key: tuple[float, ...] = ()  # the object's pose at the last pointing
+        self._pose_top = (0.0, 0.0, 0.0)  # its top height and centre (x, y) there
         self._tilt = np.radians(self.config.side_tilt_deg)
         # each fingertip's arm base (the root body below the world), xy
         full = np.zeros(m.nq)
@@ -336,12 +361,17 @@ class FingertipIK:
             return out
         # scalar arithmetic: this runs every solve, for one to a few fingers
         d = self.configuration.data
-        rot = self._rot
-        mujoco.mju_quat2Mat(rot, d.mocap_quat[self._mocap])
         pos = d.mocap_pos[self._mocap]
-        top = float((self._verts @ rot[6:9]).max()) + float(pos[2])
-        cx = float(rot[0:3] @ self._vmean) + float(pos[0])
-        cy = float(rot[3:6] @ self._vmean) + float(pos[1])
+        quat = d.mocap_quat[self._mocap]
+        key = (*pos.tolist(), *quat.tolist())
+        if key != self._pose_key:  # the object moved since the last solve
+            rot = self._rot
+            mujoco.mju_quat2Mat(rot, quat)
+            self._pose_key = key
+            self._pose_top = (float((self._verts @ rot[6:9]).max()) + key[2],
+                              float(rot[0:3] @ self._vmean) + key[0],
+                              float(rot[3:6] @ self._vmean) + key[1])
+        top, cx, cy = self._pose_top
         band = max(self.config.side_tilt_band, 1e-6)
         for k, (x, y, z) in enumerate(targets.tolist()):
             hx, hy = x - cx, y - cy
@@ -374,7 +404,6 @@ class FingertipIK:
         qd : ndarray, shape (n_joints,)
             Joint velocities (feed-forward), rad/s.
         """
-        mink = self.mink
         t0 = time.perf_counter()
         axes = self.pointing(targets)
         cfg = self.config
@@ -398,15 +427,95 @@ class FingertipIK:
                 perp /= max(math.sqrt(float(perp @ perp)), 1e-12)
                 a = math.cos(turn) * ax + math.sin(turn) * perp
             task.axis = a / float(np.linalg.norm(a))
-        try:
-            v = mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
-                              damping=self.config.damping, limits=self.limits)
-        except mink.NoSolutionFound:
+        v = self._solve()
+        if v is None:
             v = np.zeros(self.configuration.nv)  # hold: the limits admit no step
         self.configuration.integrate_inplace(v, self.dt)
         self._box.prev = np.asarray(v[self.scene.dadr], dtype=np.float64)
         self.solve_times.append(time.perf_counter() - t0)
         return self.q, np.asarray(v[self.scene.dadr], dtype=np.float64)
+
+    def _solve(self) -> FloatArray | None:
+        """The QP of one control step, assembled here and handed to daqp directly; the
+        joint velocities, or None when the limits admit no step.
+
+        The same problem as ``mink.solve_ik(configuration, tasks, dt, "daqp", damping,
+        limits)`` (:meth:`solve_mink`; a test holds them equal), built with fewer Python
+        calls, which were most of a solve's time: the tasks' weighted residuals stacked into
+        one preallocated matrix, the posture task's identity Jacobian added as a diagonal,
+        the joint box as daqp's simple bounds instead of ``2 n`` inequality rows, and only the
+        collision pairs within the detection distance as rows (mink's limit writes a row of
+        zeros and an infinite bound for every other pair), no ``qpsolvers.Problem``.
+        """
+        conf, dt, n = self.configuration, self.dt, self._nv
+        w = self._w
+        we = self._we
+        r = 0
+        for task in self.position_tasks:
+            cost = task.cost
+            k = len(cost)
+            w[r:r + k] = cost[:, None] * task.compute_jacobian(conf)
+            we[r:r + k] = cost * (-task.gain * task.compute_error(conf))
+            r += k
+        post = self.posture
+        cp2 = post.cost * post.cost
+        h = w.T @ w
+        c = -(we @ w)
+        # posture: J = I, e = q - q_home (hinge and slide joints only: checked in __init__)
+        h.flat[::n + 1] += cp2 + self.config.damping
+        c += cp2 * post.gain * (conf.q - post.target_q)
+        upper, lower = self._box.bounds(conf.q, dt)
+        rows = self._collision_rows(conf, dt) if self._coll is not None else None
+        if rows is None:
+            a = self._no_rows
+            bu, bl = upper, lower
+        else:
+            a, hb = rows
+            bu = np.concatenate([upper, hb])
+            bl = np.concatenate([lower, np.full(len(hb), -1e30)])
+        x, _, flag, _ = self._daqp.solve(h, c, a, bu, bl, np.zeros(len(bu), dtype=np.intc))
+        if flag <= 0:
+            return None
+        return np.asarray(x, dtype=np.float64) / dt
+
+    def _collision_rows(self, conf: Any, dt: float) -> tuple[FloatArray, FloatArray] | None:
+        """mink's ``CollisionAvoidanceLimit`` rows of the pairs within its detection distance
+        (its broad phase, then ``mj_geomDistance``), shape (k, nv) and (k,); None if none."""
+        lim = self._coll
+        model, data = lim.model, conf.data
+        distmax = lim.collision_detection_distance
+        min_dist = lim.minimum_distance_from_collisions
+        gain, relax = lim.gain, lim.bound_relaxation
+        fromto, normal = np.empty(6), np.empty(3)
+        jac1, jac2 = self._jac1, self._jac2
+        g_rows: list[FloatArray] = []
+        h_rows: list[float] = []
+        pairs = lim.geom_id_pairs
+        # mink's broad phase (bounding spheres and plane half-spaces, a strict pre-filter)
+        survivors = getattr(lim, "_broadphase_survivors", None)
+        for idx in (survivors(data).tolist() if survivors is not None
+                    else range(len(pairs))):
+            g1, g2 = pairs[idx]
+            dist = mujoco.mj_geomDistance(model, data, g1, g2, distmax, fromto)
+            if abs(dist - distmax) < 1e-12:
+                continue
+            row = self._contact_jacobian(model, data, g1, g2, fromto, normal, jac1, jac2)
+            h_rows.append(gain * (dist - min_dist) / dt + relax if dist > min_dist else relax)
+            g_rows.append(-row if dist >= 0 else row)
+        if not g_rows:
+            return None
+        return np.array(g_rows), np.array(h_rows)
+
+    def solve_mink(self) -> FloatArray | None:
+        """The same QP as :meth:`_solve` through ``mink.solve_ik`` (the reference the fast
+        path is tested against); joint velocities, or None."""
+        mink = self.mink
+        try:
+            return np.asarray(mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
+                                            damping=self.config.damping,
+                                            limits=self.limits), dtype=np.float64)
+        except mink.NoSolutionFound:
+            return None
 
     def converge(self, targets: FloatArray, *, iterations: int = 400,
                  tol: float = 1e-4) -> float:

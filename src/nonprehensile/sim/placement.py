@@ -32,6 +32,7 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import Plan
 from nonprehensile.sim.ik import FingertipIK, IKConfig
 from nonprehensile.sim.robot import BasePose, Robot
+from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY
 from nonprehensile.sim.robot_scene import Arm, build_robot_scene
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
@@ -227,7 +228,7 @@ class JointTrajectory:
 def joint_trajectory(
     arms: Sequence[Arm], poly: Polyhedron, scale: float, plan: Plan,
     fingers: Mapping[str, str], *, params: SimParams = DEFAULT_PARAMS,
-    ik_config: IKConfig | None = None, control_every: int = 1,
+    ik_config: IKConfig | None = None, control_every: int = DEFAULT_CONTROL_EVERY,
 ) -> list[JointTrajectory]:
     """The IK's joint trajectory along the plan's reference motion, per step, one row per
     control step (``control_every`` physics steps; kinematic: the object stands at each

@@ -28,6 +28,9 @@ import hashlib
 import json
 import os
 import pickle
+import re
+import shutil
+import signal
 import subprocess
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
@@ -129,18 +132,58 @@ def executor_digest() -> str:
     return h.hexdigest()[:16]
 
 
-def _commit() -> str:
+def _commit(git: str = "git", timeout: float = 5.0, root: Path | None = None) -> str:
     """The git commit of this source tree (``+dirty`` with uncommitted changes to the
-    executor), or ``"unknown"`` outside a checkout."""
-    root = Path(__file__).resolve().parent.parent
+    executor), for a sweep's provenance.
+
+    Never raises and never waits more than about ``timeout`` seconds per git call: without a
+    ``git`` program, outside a checkout, in an installed copy that a checkout around it does
+    not track (a virtual environment inside someone's repository), or when git fails or
+    hangs, it returns ``"unknown (<why>)"``. git's environment is cleared of ``GIT_*``
+    variables (a hook's ``GIT_DIR`` would name another repository), it may not prompt, and
+    ``git status`` takes no index lock (it runs beside the user's own git commands).
+    ``root`` is the package's folder (default: this installation's).
+    """
+    root = Path(__file__).resolve().parent.parent if root is None else root
+    exe = shutil.which(git)
+    if exe is None:
+        return f"unknown (no {git!r} program on PATH)"
+    env = {k: v for k, v in os.environ.items() if not k.startswith("GIT_")}
+    env.update(GIT_TERMINAL_PROMPT="0", GIT_OPTIONAL_LOCKS="0", LC_ALL="C")
+
+    def run(*args: str) -> str:
+        # a session of its own: on a timeout the whole group is killed, so that a child git
+        # started (a hook, an fsmonitor) cannot keep the pipes open and hang the read
+        with subprocess.Popen([exe, "-C", str(root), *args], stdin=subprocess.DEVNULL,
+                              stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                              env=env, start_new_session=True) as proc:
+            try:
+                out, _ = proc.communicate(timeout=timeout)
+            except subprocess.TimeoutExpired:
+                with contextlib.suppress(OSError):
+                    os.killpg(proc.pid, signal.SIGKILL)
+                proc.communicate()
+                raise
+        if proc.returncode:
+            raise subprocess.CalledProcessError(proc.returncode, args)
+        return out.strip()
+
     try:
-        head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], check=True,
-                              capture_output=True, text=True, timeout=10).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--", "."],
-                               check=True, capture_output=True, text=True,
-                               timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
+        # this very file tracked: the checkout is this source tree, not one around a copy
+        run("ls-files", "--error-unmatch", "--", "sim/report_runs.py")
+    except subprocess.TimeoutExpired:
+        return f"unknown (git did not answer in {timeout:g} s)"
+    except (OSError, subprocess.SubprocessError, UnicodeDecodeError):
+        return "unknown (not a git checkout of nonprehensile's source)"
+    try:
+        head = run("rev-parse", "--verify", "HEAD")
+        dirty = run("status", "--porcelain", "--", ".")
+    except subprocess.TimeoutExpired:
+        return f"unknown (git did not answer in {timeout:g} s)"
+    except (OSError, subprocess.SubprocessError, UnicodeDecodeError):
+        return "unknown (git could not read this checkout's commit)"
+    if not re.fullmatch(r"[0-9a-f]{40}|[0-9a-f]{64}", head):
+        return "unknown (git could not read this checkout's commit)"
     return head + ("+dirty" if dirty else "")
 
 

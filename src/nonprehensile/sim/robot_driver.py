@@ -29,9 +29,17 @@ from nonprehensile.sim.ik import FingertipIK, IKConfig
 from nonprehensile.sim.judge import CONTACT_EVERY, Judge
 from nonprehensile.sim.robot_scene import RobotScene
 
-__all__ = ["LIMIT_BANDS", "RobotArms", "RobotLog", "RobotMetrics"]
+__all__ = ["DEFAULT_CONTROL_EVERY", "LIMIT_BANDS", "RobotArms", "RobotLog", "RobotMetrics"]
 
 FloatArray = NDArray[np.float64]
+
+#: Physics steps per IK solve by default: 10, a 100 Hz control rate over the 1 kHz physics
+#: (the servos get set points interpolated every physics step). The main plan at nominal
+#: physics meets the contact bars at it (closed loop: tracking in contact 2.8 mm, 8 ms at a
+#: limit, no link contact; at 1 kHz 2.8 mm and 5 ms) at a tenth of the IK's cost; at 62.5 Hz
+#: the main plan's first push-roll, open loop, tracks 4.3 mm off and loses its contact on the
+#: edge (docs/robot.md).
+DEFAULT_CONTROL_EVERY = 10
 
 #: A joint is "at" a limit within these bands: position within 0.5 degrees of an end of its
 #: range, velocity and torque at or above 98 % of their limits.
@@ -99,36 +107,117 @@ class RobotMetrics:
 
 
 class RobotLog:
-    """Per-control-step records of a robot run (see the module docstring)."""
+    """Per-physics-step records of a robot run (see the module docstring), in preallocated
+    arrays (grown by doubling): a row per physics step costs a few slice copies, not a
+    handful of new arrays (the per-step list appends of each array were a fifth of a robot
+    run's time).
+
+    Attributes ``time`` (n,), ``q``, ``qd``, ``tau``, ``q_ref``, ``qd_ref`` (n, n_joints),
+    ``error`` (n,: the largest fingertip distance to its target), ``touch``, ``other`` (n,
+    bool) and ``ik`` (n,: seconds of the solve made at that step, NaN where the set point
+    was interpolated) are views of the rows recorded so far.
+    """
 
     def __init__(self, scene: RobotScene, dt: float) -> None:
         self.scene = scene
         self.dt = dt
         self.clear()
 
-    def clear(self) -> None:
+    def clear(self, capacity: int = 4096) -> None:
         """Forget everything recorded."""
-        self.time: list[float] = []
-        self.error: list[float] = []
-        self.q: list[FloatArray] = []
-        self.qd: list[FloatArray] = []
-        self.tau: list[FloatArray] = []
-        self.q_ref: list[FloatArray] = []
-        self.qd_ref: list[FloatArray] = []
-        self.touch: list[bool] = []
-        self.other: list[bool] = []
-        self.ik: list[float] = []
+        nj, nf = len(self.scene.joint_names), self.scene.n_fingers
+        self.n = 0
+        self._time = np.zeros(capacity)
+        self._q = np.zeros((capacity, nj))
+        self._qd = np.zeros((capacity, nj))
+        self._tau = np.zeros((capacity, nj))
+        self._q_ref = np.zeros((capacity, nj))
+        self._qd_ref = np.zeros((capacity, nj))
+        self._tips = np.zeros((capacity, nf, 3))
+        self._target = np.zeros((capacity, nf, 3))
+        self._touch = np.zeros(capacity, dtype=bool)
+        self._other = np.zeros(capacity, dtype=bool)
+        self._ik = np.full(capacity, math.nan)
+
+    _ROWS = ("_time", "_q", "_qd", "_tau", "_q_ref", "_qd_ref", "_tips", "_target", "_touch",
+             "_other", "_ik")
+
+    def reserve(self, rows: int) -> None:
+        """Room for ``rows`` more rows (the arrays double when full)."""
+        need = self.n + rows
+        cap = len(self._time)
+        if need <= cap:
+            return
+        while cap < need:
+            cap *= 2
+        for name in self._ROWS:
+            old = getattr(self, name)
+            new = np.full((cap, *old.shape[1:]), math.nan) if name == "_ik" else \
+                np.zeros((cap, *old.shape[1:]), dtype=old.dtype)
+            new[:self.n] = old[:self.n]
+            setattr(self, name, new)
+
+    @property
+    def time(self) -> FloatArray:
+        """Simulated time of each row, s."""
+        return self._time[:self.n]
+
+    @property
+    def error(self) -> FloatArray:
+        """The largest fingertip tracking error of each row (tip centre to target), m."""
+        e = self._tips[:self.n] - self._target[:self.n]
+        return np.asarray(np.sqrt((e * e).sum(axis=2).max(axis=1)), dtype=np.float64)
+
+    @property
+    def q(self) -> FloatArray:
+        """Joint positions, shape (n, n_joints)."""
+        return self._q[:self.n]
+
+    @property
+    def qd(self) -> FloatArray:
+        """Joint velocities, shape (n, n_joints)."""
+        return self._qd[:self.n]
+
+    @property
+    def tau(self) -> FloatArray:
+        """Actuator torques on the joints, shape (n, n_joints)."""
+        return self._tau[:self.n]
+
+    @property
+    def q_ref(self) -> FloatArray:
+        """Joint position set points, shape (n, n_joints)."""
+        return self._q_ref[:self.n]
+
+    @property
+    def qd_ref(self) -> FloatArray:
+        """Joint velocity set points (feed-forward), shape (n, n_joints)."""
+        return self._qd_ref[:self.n]
+
+    @property
+    def touch(self) -> NDArray[np.bool_]:
+        """Whether a fingertip touched the object (read every ``CONTACT_EVERY`` steps)."""
+        return self._touch[:self.n]
+
+    @property
+    def other(self) -> NDArray[np.bool_]:
+        """Whether a link or the rod touched the object or the table (likewise)."""
+        return self._other[:self.n]
+
+    @property
+    def ik(self) -> FloatArray:
+        """Seconds of the IK solve made at each row, NaN where none was."""
+        return self._ik[:self.n]
 
     def metrics(self, start: int = 0, stop: int | None = None) -> RobotMetrics:
         """Sum up what was recorded (control steps ``start:stop``)."""
         sc, dt = self.scene, self.dt
         sl = slice(start, stop)
-        if not self.time[sl]:
+        if not len(self.time[sl]):
             return RobotMetrics(None, None, 0.0, float("nan"), float("nan"), None, {}, 0.0,
                                 0.0, 0.0, 0.0, 0)
-        err = np.array(self.error[sl])
-        touch = np.array(self.touch[sl], dtype=bool)
-        q, qd, tau = np.array(self.q[sl]), np.array(self.qd[sl]), np.array(self.tau[sl])
+        err = self.error[sl]
+        touch = self.touch[sl]
+        q, qd, tau = self.q[sl], self.qd[sl], self.tau[sl]
         margin_pos = np.minimum(q - sc.lower, sc.upper - q)
         vel_frac = np.abs(qd) / sc.velocity
         finite = np.isfinite(sc.torque)
@@ -141,7 +230,7 @@ class RobotLog:
         }
         longest = {k: _longest_run(v) * dt for k, v in at.items()}
         any_at = at["position"] | at["velocity"] | at["torque"]
-        ik = np.array(self.ik[sl]) * 1e3
+        ik = self.ik[sl] * 1e3
         ik = ik[np.isfinite(ik)]
         return RobotMetrics(
             float(err[touch].max()) if touch.any() else None,
@@ -161,15 +250,12 @@ class RobotLog:
     def window(self, t0: float, t1: float) -> tuple[int, int]:
         """The control steps recorded between simulated times ``t0`` and ``t1`` (s), as
         ``(start, stop)`` for :meth:`metrics` (times increase within one execution)."""
-        t = np.asarray(self.time)
+        t = self.time
         return int(np.searchsorted(t, t0 - 1e-9)), int(np.searchsorted(t, t1 + 1e-9))
 
     def joint_rows(self) -> FloatArray:
         """``[t, q_ref..., qd_ref...]`` per control step, shape (n, 1 + 2 n_joints)."""
-        if not self.time:
-            return np.zeros((0, 1 + 2 * len(self.scene.joint_names)))
-        return np.column_stack([np.array(self.time), np.array(self.q_ref),
-                                np.array(self.qd_ref)])
+        return np.column_stack([self.time, self.q_ref, self.qd_ref])
 
 
 def _as_slice(idx: NDArray[np.int64]) -> slice | NDArray[np.int64]:
@@ -188,12 +274,28 @@ def _longest_run(flags: NDArray[np.bool_]) -> int:
     return best
 
 
+class _Segment:
+    """The actuator rows of one control period, computed at its solve: rows ``start`` to
+    ``start + len(rows)`` of a target trajectory."""
+
+    __slots__ = ("q", "qd", "rows", "start", "stop")
+
+    def __init__(self, start: int, rows: FloatArray, q: FloatArray, qd: FloatArray) -> None:
+        self.start: int = start
+        self.stop: int = start + len(rows)
+        self.rows: FloatArray = rows  # (k, model.nu)
+        self.q: FloatArray = q  # (k, n_joints): the position set points (without the noise)
+        self.qd: FloatArray = qd  # (k, n_joints)
+
+
 class _OnlineControls:
     """The rows of one target trajectory, solved as the step loop reads them (in order).
 
     The IK runs every ``driver.every`` rows, for the target that many rows ahead; the rows in
     between interpolate the joint set points linearly (their velocity is the segment's), so
-    the servos get a set point every physics step without lagging the reference."""
+    the servos get a set point every physics step without lagging the reference. A control
+    period's rows are computed at once, at its solve; reading a row records the robot's
+    state before that physics step (:class:`RobotLog`)."""
 
     def __init__(self, driver: RobotArms, targets: FloatArray,
                  noise: FloatArray | None = None) -> None:
@@ -202,14 +304,23 @@ class _OnlineControls:
         self.noise = noise  # the fingertip position error per row (see with_noise)
         self._i = -1
         self._row: FloatArray | None = None
-        # (q at the segment's start, its joint displacement, first row, rows)
-        self.seg: tuple[FloatArray, FloatArray, int, int] | None = None
+        self.seg: _Segment | None = None
         driver.begin()
 
     def __len__(self) -> int:
         return len(self.targets)
 
     def __getitem__(self, i: int) -> FloatArray:
+        if i == self._i + 1 and self._row is not None:  # the step loop's next row
+            seg = self.seg
+            if seg is not None and i < seg.stop:
+                self.driver.record(seg, i)
+                row: FloatArray = seg.rows[i - seg.start]
+            else:
+                row = self.driver.row(self, i)
+            self._i = i
+            self._row = row
+            return row
         if i < 0 or i >= len(self.targets):
             raise IndexError(i)
         if i == self._i and self._row is not None:
@@ -218,13 +329,13 @@ class _OnlineControls:
             self._i = -1
             self.seg = None
             self.driver.begin()
-        row = self._row
+        got = self._row
         for j in range(self._i + 1, i + 1):
-            row = self.driver.row(self, j)
+            got = self.driver.row(self, j)
         self._i = i
-        self._row = row
-        assert row is not None
-        return row
+        self._row = got
+        assert got is not None
+        return got
 
 
 class RobotArms:
@@ -255,13 +366,14 @@ class RobotArms:
     """
 
     def __init__(self, scene: RobotScene, ik_scene: RobotScene, data: Any, judge: Judge,
-                 dt: float, ik_config: IKConfig | None = None, control_every: int = 1,
+                 dt: float, ik_config: IKConfig | None = None,
+                 control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float = math.inf) -> None:
         if isinstance(control_every, bool) or not isinstance(control_every, int) or not \
                 1 <= control_every <= 100:
             raise InputError(f"the IK runs every 1..100 physics steps, got {control_every!r}")
         self.every = control_every
-        self._q_set: FloatArray | None = None
+        self._last: tuple[_Segment, int] | None = None  # the row read last
         self.scene = scene
         self.n_fingers = scene.n_fingers
         self.data = data
@@ -278,14 +390,21 @@ class RobotArms:
                                     for k in range(1, scene.n_fingers + 1)])
         self._link_geoms = np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g)
                                      for g in scene.collision_geoms])
-        self._is_tip = np.zeros(m.ngeom, dtype=bool)
-        self._is_tip[self._tip_geoms] = True
-        self._is_link = np.zeros(m.ngeom, dtype=bool)
-        self._is_link[self._link_geoms] = True
+        self._tip_set = {int(g) for g in self._tip_geoms}
+        self._link_set = {int(g) for g in self._link_geoms}
         # the joints' qpos / qvel as slices where they are contiguous (one arm, or arms one
         # after another): a view copied, not a gather, every step
         self._qsl = _as_slice(scene.qadr)
         self._dsl = _as_slice(scene.dadr)
+        # views into the data's arrays, made once (MjData's arrays never move): the log
+        # copies from them every step
+        # (views only where the indices are slices: an index array would copy)
+        self._views = ((data.qpos[self._qsl], data.qvel[self._dsl],
+                        data.qfrc_actuator[self._dsl])
+                       if isinstance(self._qsl, slice) and isinstance(self._dsl, slice)
+                       else None)
+        tips = _as_slice(self._tip_sites)
+        self._tips_view = data.site_xpos[tips] if isinstance(tips, slice) else None
         self._n = 0
         self._touch = False
         self._other = False
@@ -369,35 +488,80 @@ class RobotArms:
         if self.placed and self._q_set is not None:
             self.ik.set_q(self._q_set)
 
+    @property
+    def _q_set(self) -> FloatArray | None:
+        """The position set point of the row read last (without the fingertip noise)."""
+        if self._last is None:
+            return None
+        seg, i = self._last
+        return np.asarray(seg.q[i - seg.start])
+
     def row(self, ctl: _OnlineControls, j: int) -> FloatArray:
-        """Row ``j`` of ``ctl``'s targets (see :class:`_OnlineControls`)."""
+        """Row ``j`` of ``ctl``'s targets (see :class:`_OnlineControls`): a new control
+        period solved at ``j``, or a row of the current one."""
         targets = ctl.targets
-        last = j == len(targets) - 1
-        noise = None if ctl.noise is None else ctl.noise[j]
-        if not self.placed or self.every == 1:
-            return self.solve(targets[j], last=last, noise=noise)
-        d = self.data
+        if not self.placed:  # a new start: converge from home onto the first targets
+            noise = None if ctl.noise is None else ctl.noise[j]
+            return self.solve(targets[j], last=j == len(targets) - 1, noise=noise)
         seg = ctl.seg
-        if seg is None or j >= seg[2] + seg[3]:
-            k = max(1, min(self.every, len(targets) - 1 - j))
+        if seg is None or not seg.start <= j < seg.stop:
+            seg = ctl.seg = self._segment(ctl, j)
+        self.record(seg, j)
+        row: FloatArray = seg.rows[j - seg.start]
+        return row
+
+    def _segment(self, ctl: _OnlineControls, j: int) -> _Segment:
+        """Solve the control period starting at row ``j``: the IK once, then its rows.
+
+        At 1 kHz (``every`` 1) the IK solves for target ``j`` and the row holds its joints
+        and velocities; slower, it solves for the target ``k`` rows ahead (``k = every``, or
+        what is left of the trajectory) in one step of ``k dt``, and the ``k`` rows
+        interpolate from the set point now to that solution at the segment's velocity. The
+        trajectory's last row holds still (zero velocity feed-forward)."""
+        targets, d = ctl.targets, self.data
+        n = len(targets)
+        t0 = self.log.n
+        self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
+        if self.every == 1:
+            k = 1
+            q1, qd1 = self.ik.step(self._yield(targets[j], 1))
+            q = q1[None, :]
+            qd = qd1[None, :]
+        else:
+            k = max(1, min(self.every, n - 1 - j))
             q0 = self.ik.q
-            self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
             self.ik.dt = k * self.dt
-            q1, _ = self.ik.step(self._yield(targets[min(j + k, len(targets) - 1)], k))
+            q1, _ = self.ik.step(self._yield(targets[min(j + k, n - 1)], k))
             self.ik.dt = self.dt
-            seg = ctl.seg = (q0, q1 - q0, j, k)
-            self._pinv = None
-        q0, dq, j0, k = seg
-        q = q0 + ((j - j0) / k) * dq
-        qd = dq / (k * self.dt)
-        if last:
-            qd = np.zeros_like(qd)
-        self._record(targets[j], q, qd, solved=j == j0)
-        return self._row_of(q, qd, noise)
+            dq = q1 - q0
+            q = q0[None, :] + (np.arange(k)[:, None] / k) * dq[None, :]
+            qd = np.repeat((dq / (k * self.dt))[None, :], k, axis=0)
+        if j + k >= n:  # the set point holds still after the motion
+            qd[-1] = 0.0
+        self._pinv = None
+        sc = self.scene
+        rows = np.repeat(np.asarray(self.data.ctrl, dtype=np.float64)[None, :], k, axis=0)
+        pos = q
+        if ctl.noise is not None:
+            pos = q + self._noise_offset(ctl.noise[j:j + k])
+        rows[:, sc.pos_act] = pos
+        v = sc.velocity
+        rows[:, sc.vel_act] = np.maximum(np.minimum(qd, v), -v)
+        # the log's set points and targets of the period, written once (a period replaced
+        # before its end is overwritten from where it stopped)
+        log = self.log
+        log.reserve(k)
+        log._q_ref[t0:t0 + k] = q
+        log._qd_ref[t0:t0 + k] = qd
+        log._target[t0:t0 + k] = targets[j:j + k]
+        log._ik[t0 + 1:t0 + k] = math.nan
+        log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times else math.nan
+        return _Segment(j, rows, q, qd)
 
     def _noise_offset(self, noise: FloatArray) -> FloatArray:
-        """Joint offset moving the tips by ``noise`` (shape (n_fingers, 3)): damped least
-        squares on the tip sites' position Jacobian, computed once per solve."""
+        """Joint offsets moving the tips by ``noise`` (shape (k, n_fingers, 3)), shape
+        (k, n_joints): damped least squares on the tip sites' position Jacobian, computed
+        once per solve."""
         sc = self.scene
         if self._pinv is None:
             m, d = sc.model, self.data
@@ -407,36 +571,25 @@ class RobotArms:
                 rows.append(self._jac[:, sc.dadr])
             jac = np.concatenate(rows)
             self._pinv = jac.T @ np.linalg.inv(jac @ jac.T + 1e-6 * np.eye(len(jac)))
-        return np.asarray(self._pinv @ np.asarray(noise).reshape(-1))
-
-    def _row_of(self, q: FloatArray, qd: FloatArray,
-                noise: FloatArray | None = None) -> FloatArray:
-        sc = self.scene
-        self._q_set = q
-        row = np.array(self.data.ctrl, dtype=np.float64)
-        row[sc.pos_act] = q if noise is None else q + self._noise_offset(noise)
-        v = sc.velocity
-        row[sc.vel_act] = np.maximum(np.minimum(qd, v), -v)
-        return row
+        noise = np.asarray(noise, dtype=np.float64)
+        return np.asarray(noise.reshape(len(noise), -1) @ self._pinv.T)
 
     def solve(self, targets: FloatArray, *, last: bool = False,
               noise: FloatArray | None = None) -> FloatArray:
-        """The actuator row for the fingertip ``targets`` (shape (n_fingers, 3)) now, its
-        position set points offset by the fingertip error ``noise`` (see
-        :meth:`with_noise`)."""
+        """The actuator row holding the fingertips on ``targets`` (shape (n_fingers, 3)),
+        converged from the home posture (a new start: the arm is placed there), its position
+        set points offset by the fingertip error ``noise`` (see :meth:`with_noise`)."""
         d, sc = self.data, self.scene
         self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
-        if not self.placed:  # a new start: converge from home onto the first targets
-            self.ik.reset(sc.home)
-            self.ik.converge(targets)
-            q, qd = self.ik.q, np.zeros(len(sc.qadr))
-        else:
-            q, qd = self.ik.step(self._yield(targets, 1))
-            self._record(targets, q, qd)
-            self._pinv = None
-        if last:
-            qd = np.zeros_like(qd)  # the set point holds still after the motion
-        return self._row_of(q, qd, noise)
+        self.ik.reset(sc.home)
+        self.ik.converge(targets)
+        q = self.ik.q
+        self._pinv = None
+        row = np.array(self.data.ctrl, dtype=np.float64)
+        row[sc.pos_act] = q if noise is None else q + self._noise_offset(noise[None])[0]
+        row[sc.vel_act] = 0.0
+        self._last = (_Segment(0, row[None], q[None], np.zeros((1, len(q)))), 0)
+        return row
 
     def _yield(self, targets: FloatArray, steps: int) -> FloatArray:
         """The IK's targets: ``targets`` moved by each fingertip's yield, over ``steps``
@@ -494,32 +647,42 @@ class RobotArms:
         if n == 0:
             return False, False
         con = d.contact
-        near = con.dist[:n] <= 1e-4
-        g1, g2 = con.geom1[:n][near], con.geom2[:n][near]
-        obj = self._obj_geom
-        # lookup tables by geom id, not np.isin (a sort per call: 30 % of a robot step)
-        tip, link = self._is_tip, self._is_link
-        touch = bool(np.any(((g1 == obj) & tip[g2]) | ((g2 == obj) & tip[g1])))
-        other = bool(np.any(link[g1] | link[g2]))
+        # the fields read in bulk, then plain Python over a handful of contacts (numpy
+        # masks over them cost more than the loop)
+        obj, tips, links = self._obj_geom, self._tip_set, self._link_set
+        touch = other = False
+        for (a, b), dd in zip(con.geom[:n].tolist(), con.dist[:n].tolist(), strict=True):
+            if dd > 1e-4:
+                continue
+            if a in links or b in links:
+                other = True
+            elif (a == obj and b in tips) or (b == obj and a in tips):
+                touch = True
         return touch, other
 
-    def _record(self, targets: FloatArray, q_ref: FloatArray, qd_ref: FloatArray, *,
-                solved: bool = True) -> None:
+    def record(self, seg: _Segment, j: int) -> None:
+        """Log the robot's state before physics step ``j`` (row ``j`` of ``seg``); the
+        period's set points and targets were logged at its solve."""
         d, log = self.data, self.log
         if self._n % CONTACT_EVERY == 0:  # as often as the judge reads contacts
             self._touch, self._other = self._contacts(d)
-        e = d.site_xpos[self._tip_sites] - targets
-        err = math.sqrt(float((e * e).sum(axis=1).max()))
-        log.time.append(float(d.time))
         self._n += 1
-        log.error.append(float(err))
-        qs, ds = self._qsl, self._dsl
-        log.q.append(np.array(d.qpos[qs]))
-        log.qd.append(np.array(d.qvel[ds]))
-        log.tau.append(np.array(d.qfrc_actuator[ds]))
-        log.q_ref.append(np.array(q_ref))
-        log.qd_ref.append(np.array(qd_ref))
-        log.touch.append(self._touch)
-        log.other.append(self._other)
-        # NaN where the set point was interpolated (no solve this step)
-        log.ik.append(self.ik.solve_times[-1] if solved and self.ik.solve_times else math.nan)
+        self._last = (seg, j)
+        n = log.n
+        if n >= len(log._time):
+            log.reserve(1)
+        views = self._views
+        if views is not None:
+            q, qd, tau = views
+        else:
+            q, qd, tau = (d.qpos[self._qsl], d.qvel[self._dsl],
+                          d.qfrc_actuator[self._dsl])
+        log._time[n] = d.time
+        log._q[n] = q
+        log._qd[n] = qd
+        log._tau[n] = tau
+        tips = self._tips_view
+        log._tips[n] = tips if tips is not None else d.site_xpos[self._tip_sites]
+        log._touch[n] = self._touch
+        log._other[n] = self._other
+        log.n = n + 1

@@ -23,7 +23,7 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose
 from nonprehensile.sim.ik import IKConfig
 from nonprehensile.sim.judge import Judge
-from nonprehensile.sim.robot_driver import RobotArms, RobotLog
+from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY, RobotArms, RobotLog
 from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
@@ -32,10 +32,11 @@ __all__ = ["ROBOT_MAX_ACCEL", "RobotSimulator", "describe_robots"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
 #: fingertip (``ControlConfig.max_accel``; transits use half of it). The free fingertips'
-#: 20 m/s^2 asks the Panda's shoulder for more than its 87 N m for ~20 ms on the first
-#: transit (measured: joint 2 at its torque limit for 24 ms); at 4 m/s^2 no joint reaches a
-#: limit over the main plan.
-ROBOT_MAX_ACCEL = 4.0
+#: 20 m/s^2 asks the Panda's shoulder for more than its 87 N m (measured, with the IK's
+#: 30 rad/s^2 joint bound, at 62.5-250 Hz: 15-26 ms at a torque limit over the main plan); at
+#: 8 m/s^2 (transits 4 m/s^2, well inside Franka's 13 m/s^2 Cartesian datasheet limit) the
+#: longest time at a limit is 8 ms at 100 Hz, and the plan runs 10 % shorter than at 4 m/s^2.
+ROBOT_MAX_ACCEL = 8.0
 
 FloatArray = NDArray[np.float64]
 
@@ -56,8 +57,9 @@ class RobotSimulator(Simulator):
         are not used).
     ik_config : IKConfig, optional
     control_every : int
-        The IK runs every this many physics steps (control rate = physics rate / it); the
-        servos' set points are interpolated in between.
+        The IK runs every this many physics steps (control rate = physics rate / it; default
+        :data:`~nonprehensile.sim.robot_driver.DEFAULT_CONTROL_EVERY`, 100 Hz); the servos'
+        set points are interpolated in between.
     force_limit : float
         Contact force (N) above which a fingertip gives way
         (:class:`~nonprehensile.sim.robot_driver.RobotArms`; off by default).
@@ -65,7 +67,8 @@ class RobotSimulator(Simulator):
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
-                 control_every: int = 1, force_limit: float = math.inf) -> None:
+                 control_every: int = DEFAULT_CONTROL_EVERY,
+                 force_limit: float = math.inf) -> None:
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self.params = params
@@ -127,7 +130,8 @@ class RobotSimulator(Simulator):
 
 
 def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
-                    ik_config: IKConfig, control_every: int = 1) -> dict[str, Any]:
+                    ik_config: IKConfig,
+                    control_every: int = DEFAULT_CONTROL_EVERY) -> dict[str, Any]:
     """The robots, base poses, controller, gains, rates and limits of a robot scene (JSON)."""
     m, sc = scene.model, scene
     joints = []

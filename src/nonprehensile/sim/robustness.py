@@ -409,7 +409,7 @@ class SweepRobot:
     """
 
     arms: tuple[Any, ...]
-    control_every: int = 1
+    control_every: int = 10  # robot_driver.DEFAULT_CONTROL_EVERY (a test holds them equal)
     max_accel: float = None  # type: ignore[assignment]
 
     def __post_init__(self) -> None:
