@@ -1014,8 +1014,9 @@ def _push(sim: Simulator, run: _Runner, cfg: ControlConfig, push: Any, speed: fl
           length: float, react: Callable[[Observation, FloatArray], Decision],
           ) -> tuple[Decision | None, dict[str, Any], Observation]:
     """Drive finger 1 ``length`` (m) along ``push.direction`` from ``push.start`` at ``speed``
-    (m/s) until ``react`` says done (or a timeout), and let go (:func:`_let_go`); returns
-    the decision, the let-go's record and the last observation.
+    (m/s) until ``react`` says done (or a timeout), and let go (:func:`_let_go`, held clear
+    until the object is still); returns the decision, the let-go's record and the last
+    observation.
 
     The slide and turn corrections differ only in their speeds, lengths and stopping rules.
     """
@@ -1027,7 +1028,11 @@ def _push(sim: Simulator, run: _Runner, cfg: ControlConfig, push: Any, speed: fl
                     max_time=length / speed + 0.5)
     moving = np.zeros(sim.n_fingers, dtype=bool)
     moving[0] = True
-    let_go, obs = _let_go(sim, run, cfg, moving)
+    # held clear until the object, which may slide on after the push, is still: what
+    # follows is decided on the object at rest
+    let_go, obs = _let_go(sim, run, cfg, moving, until_still=True,
+                          noise=run.observer.stream.model.position_noise,
+                          max_time=cfg.max_settle + 0.5)
     return dec, let_go, obs
 
 
