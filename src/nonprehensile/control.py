@@ -76,10 +76,12 @@ __all__ = [
     "anchor_transform",
     "angular_step",
     "correction_pushes",
+    "one_finger_push",
     "raised",
     "replanner",
     "snap_state",
     "step_spec",
+    "top_roll",
     "turn_push",
 ]
 
@@ -461,6 +463,13 @@ def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
                     grounds, step.start_pose, step.end_pose, targets, tuple(times))
 
 
+def _touched_face(spec: StepSpec) -> str | None:
+    """The face the step's single finger touches first (None if none)."""
+    return next((el.id for ev in spec.events for q in ev for el in (q.x, q.y)
+                 if isinstance(el, Face) and any(isinstance(o, Finger) for o in (q.x, q.y))),
+                None)
+
+
 def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
     """The step with a single finger's contact moved up its face (another contact point on
     the same face). Pushed higher, a tipping push needs less table friction: with a push at
@@ -482,9 +491,7 @@ def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
     """
     if len(spec.used) != 1 or not spec.arcs:
         return spec
-    touched = next((el.id for ev in spec.events for q in ev for el in (q.x, q.y)
-                    if isinstance(el, Face) and any(isinstance(o, Finger) for o in (q.x, q.y))),
-                   None)
+    touched = _touched_face(spec)
     if touched is None:
         return spec
     z_centre = float(spec.arcs[0].positions[-1, 0, 2])
@@ -507,6 +514,129 @@ def raised(spec: StepSpec, poly: Polyhedron, finger_radius: float) -> StepSpec:
         lift = np.array([0.0, 0.0, dz])
     arcs = tuple(replace(a, positions=a.positions + lift) for a in spec.arcs)
     return replace(spec, arcs=arcs, targets={k: v + lift for k, v in spec.targets.items()})
+
+
+def top_roll(spec: StepSpec, poly: Polyhedron, finger_radius: float, *,
+             inset: float = 0.005, press: float = 0.006, standoff: float = 0.006,
+             approach_speed: float = 0.03, drag: float = 0.03, drag_speed: float = 0.03,
+             roll_deg: float = 40.0, roll_speed: float = 60.0, lift: float = 0.02
+             ) -> StepSpec:
+    """A one-finger roll about a bottom edge done from the top face (a hexagonal prism's
+    push-roll): the pad presses the top face down near the edge above the pivot and drags
+    it toward the pivot side, then turns with it about the pivot edge and lets go.
+
+    Why not the recorded push on the face that leans back: its approach comes in at about
+    0.2 m/s and kicks a light prism away; a round pad pressing a face that leans back 30
+    degrees rides up it and pulls it down by friction; and with the pad's set-point noise
+    (about 1 mm, as stiff as the finger: 0.6-3 N) against the 0.1-0.8 N that tips a
+    0.03-0.26 kg prism, the force's direction is mostly noise; the object slides on any
+    table below about 0.5 (measured). Pressed down near the edge above the pivot (``inset`` from
+    it) with a normal force ``N`` and dragged by the pad's friction ``F <= mu_f N``, a
+    prism of side ``r`` (centre of mass ``r / 2`` from the pivot, top ``sqrt(3) r`` high)
+    tips when ``F sqrt(3) r >= m g r / 2 + N inset`` while the table holds
+    ``F <= mu_t (m g + N)``: the press adds to the table's grip instead of taking from it,
+    so it tips for ``mu_t`` down to about 0.2 with ``mu_f >= 0.5`` (see docs/physics.md),
+    and a press of several millimetres (``press``, several newtons) is far above the
+    noise.
+
+    1. **approach**: straight down onto the top face from ``standoff`` above, at
+       ``approach_speed``, at ``inset`` from the top face's edge on the pivot side;
+    2. **push**: ``press`` down into the face, then ``drag`` horizontally toward the pivot
+       side at ``drag_speed``, until the object is seen pivoting;
+    3. **roll**: the touching point turned about the predicted pivot edge (a rigid roll
+       carries it on a circle) by ``roll_deg`` (past the balance point: 30 degrees for a
+       hexagonal prism) at ``roll_speed`` degrees/s, pressed by ``press`` down and toward
+       the pivot side in the world (along the face's turned normal the press would push
+       the object back, and its pivot slides); the object falls onto its landing face;
+    4. **retreat**: straight up by ``lift``.
+
+    The step's events name the top face instead of the pushed one. Several fingers, faces
+    that do not lean back, objects without a horizontal top face or a pivot edge: returned
+    as they are.
+    """
+    if len(spec.used) != 1 or len(spec.arcs) != 4 or not spec.arcs[1].tips:
+        return spec
+    touched = _touched_face(spec)
+    pivot = spec.grounds[2] if len(spec.grounds) > 2 else None
+    if touched is None or not isinstance(pivot, Edge):
+        return spec
+    pose = spec.start_pose
+    n = pose.rotation @ poly.normals[touched]
+    top = next((f for f in poly.face_ids if (pose.rotation @ poly.normals[f])[2] > 0.99),
+               None)
+    if not 0.05 < n[2] < 0.95 or top is None:
+        return spec
+    rate = spec.rate
+    ends = pose.to_world(poly.vertices[_element_vertices(poly, pivot)])
+    mid = ends.mean(axis=0)
+    axis = ends[1] - ends[0]
+    axis /= float(np.linalg.norm(axis))
+    toward = mid - pose.com  # horizontal, across the pivot edge
+    toward[2] = 0.0
+    toward -= float(toward @ axis) * axis
+    toward /= float(np.linalg.norm(toward))
+    face_w = pose.to_world(poly.vertices[list(poly.faces[top])])
+    centre = face_w.mean(axis=0)
+    reach = float((face_w[:, :2] @ toward[:2]).max() - centre[:2] @ toward[:2])
+    c = centre + (reach - inset) * toward
+    c[2] = float(face_w[:, 2].max()) + finger_radius
+    down = np.array([0.0, 0.0, -1.0])
+
+    def line(p0: FloatArray, p1: FloatArray, speed: float) -> FloatArray:
+        k = max(2, math.ceil(float(np.linalg.norm(p1 - p0)) / speed * rate) + 1)
+        s = np.linspace(0.0, 1.0, k)[:, None]
+        return np.asarray(p0[None] + s * (p1 - p0)[None])[:, None, :]
+
+    pressed = c + press * down
+    approach = with_stop(line(c - standoff * down, c, approach_speed), rate)
+    push = with_stop(np.concatenate([line(c, pressed, approach_speed),
+                                     line(pressed, pressed + drag * toward,
+                                          drag_speed)[1:]]), rate)
+    landing = pose.rotation @ poly.normals[spec.step.transition.end.face]
+    if np.cross(axis, landing)[2] > 0.0:  # turn so that the landing face goes down
+        axis = -axis
+    angle = math.radians(roll_deg)
+    k = max(2, math.ceil(roll_deg / roll_speed * rate) + 1)
+    s = ease(np.linspace(0.0, 1.0, k))
+    # the contact point turned about the pivot, pressed down and toward the pivot side in
+    # the world: pressed along the face's turned normal instead, the pad would push the
+    # object back (the turned press points away from the pivot) and the pivot slides
+    rel = c - mid
+    lead = press * (down + toward) / math.sqrt(2.0)
+    roll = with_stop(np.stack([Rotation.from_rotvec(axis * angle * si).apply(rel) + mid + lead
+                               for si in s])[:, None, :], rate)
+    end = roll[-1, 0]
+    retreat = with_stop(line(end, end - lift * down, 2.0 * approach_speed), rate)
+    arcs = (replace(spec.arcs[0], positions=approach),
+            replace(spec.arcs[1], positions=push),
+            replace(spec.arcs[2], positions=roll),
+            replace(spec.arcs[3], positions=retreat))
+
+    def on_top(event: Pairs) -> Pairs:
+        out = set()
+        for q in event:
+            if Face(touched) in (q.x, q.y) and (isinstance(q.x, Finger)
+                                                or isinstance(q.y, Finger)):
+                finger = q.x if isinstance(q.x, Finger) else q.y
+                out.add(ContactPair(finger, Face(top)))
+            else:
+                out.add(q)
+        return frozenset(out)
+
+    (k1,) = spec.used
+    return replace(spec, arcs=arcs, events=tuple(on_top(e) for e in spec.events),
+                   targets={k1: np.concatenate([a.positions[:, 0] for a in arcs])})
+
+
+def one_finger_push(spec: StepSpec, poly: Polyhedron, finger_radius: float, *,
+                    higher: bool = False) -> StepSpec:
+    """The step as the closed loop runs it: a roll whose pushed face leans back done from
+    the top (:func:`top_roll`; a retry presses 2 mm deeper); otherwise, on a retry, the
+    contact raised on its face (:func:`raised`)."""
+    rolled = top_roll(spec, poly, finger_radius, press=0.008 if higher else 0.006)
+    if rolled is not spec:
+        return rolled
+    return raised(spec, poly, finger_radius) if higher else spec
 
 
 # ----------------------------------------------------------------------- the step monitor
@@ -1038,7 +1168,12 @@ def correction_pushes(poly: Polyhedron, pose: ObjectPose, target: Sequence[float
     Each side face whose outward normal is horizontal can be pushed low (at the fingertip's
     radius plus 2 mm, or a quarter of the object's height if higher), which slides the object
     along minus that normal without tipping it as long as ``friction * height < half width``
-    (a 5 cm cube pushed 10 mm up tips only above friction 2.5). The displacement is split
+    (a 5 cm cube pushed 10 mm up tips only above friction 2.5). A face that leans back
+    (its normal 0.1-0.7 up: a hexagonal prism lying on a side face shows no vertical face
+    but its end caps) is pushed horizontally 2 mm above its lowest edge: the prism's upper
+    side faces start at half its height, so pushed there (``z = sqrt(3) r / 2 + 2 mm``) it
+    slides across before it tips while ``friction < (r / 2) / z`` (about 0.53 for the
+    5 cm prism); the executor stops a push that tilts the object. The displacement is split
     over the one or two faces whose inward normals best span it (non-negative weights).
     """
     d = np.array([float(target[0]), float(target[1])]) - pose.com[:2]
@@ -1050,7 +1185,7 @@ def correction_pushes(poly: Polyhedron, pose: ObjectPose, target: Sequence[float
     side = []
     for f in poly.face_ids:
         n = pose.rotation @ poly.normals[f]
-        if abs(n[2]) < 0.1:
+        if abs(n[2]) < 0.1 or 0.1 <= n[2] <= 0.7:
             side.append((f, n[:2] / float(np.hypot(*n[:2]))))
     best: tuple[float, list[tuple[str, FloatArray, float]]] | None = None
     for i, (fa, na) in enumerate(side):
@@ -1072,10 +1207,19 @@ def correction_pushes(poly: Polyhedron, pose: ObjectPose, target: Sequence[float
     z = max(finger_radius + 0.002, 0.25 * height)
     for f, n, amount in best[1]:
         c = pose.to_world(poly.face_centroids[f][None])[0]
-        face_dist = float(n @ (c[:2] - pose.com[:2]))
-        xy = pose.com[:2] + n * (face_dist + finger_radius + clearance)
-        out.append(Push(f, np.array([xy[0], xy[1], z]), np.array([-n[0], -n[1], 0.0]),
-                        amount))
+        n3 = pose.rotation @ poly.normals[f]
+        if n3[2] >= 0.1:  # leans back: the pad on the face 2 mm above its lowest edge
+            up = np.array([0.0, 0.0, 1.0]) - n3[2] * n3
+            up /= float(np.linalg.norm(up))
+            low = float(pose.to_world(poly.vertices[list(poly.faces[f])])[:, 2].min())
+            q = c + (low + 0.002 - float(c[2])) / float(up[2]) * up
+            centre = q + finger_radius * n3
+            start = np.array([*(centre[:2] + clearance * n), centre[2]])
+        else:
+            face_dist = float(n @ (c[:2] - pose.com[:2]))
+            xy = pose.com[:2] + n * (face_dist + finger_radius + clearance)
+            start = np.array([xy[0], xy[1], z])
+        out.append(Push(f, start, np.array([-n[0], -n[1], 0.0]), amount))
     return out
 
 

@@ -45,7 +45,7 @@ from nonprehensile.control import (
     angular_step,
     correction_pushes,
     observed_state,
-    raised,
+    one_finger_push,
     same_state,
     snap_state,
     step_spec,
@@ -693,8 +693,9 @@ def execute_plan(
     while index < len(steps):
         step = steps[index]
         spec = step_spec(sim.poly, step, fingers)
-        if higher:  # a retry: the contact higher on its face ...
-            spec = raised(spec, sim.poly, p.finger_radius)
+        if loop == "closed":  # a leaning face's roll from the top; a retry: the contact
+            # higher on its face (or pressed deeper) ...
+            spec = one_finger_push(spec, sim.poly, p.finger_radius, higher=higher)
         if slow != 1.0:  # ... and the reference played slower
             spec = replace(spec, rate=spec.rate / slow)
         number = len(ex.steps) + 1
@@ -995,6 +996,11 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
 
         def react(o: Observation, cmd: FloatArray, origin: FloatArray = origin,
                   push: Any = push) -> Decision:
+            if observed_state(sim.poly, o.pose.rotation, tilt_deg=8.0) is None:
+                # tilting (pushed too high for this table): stop before it tips over (8
+                # degrees: well above the tracker's noise, far below a prism's 30-degree
+                # balance point)
+                return Decision(done=True, outcome="aborted", reason="tilted")
             moved = float((o.pose.com[:2] - origin) @ push.direction[:2])
             if moved >= push.distance - 0.0005:
                 return Decision(done=True, outcome="finished")

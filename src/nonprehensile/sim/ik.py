@@ -143,19 +143,28 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             self.n = n
             self.G = np.vstack([np.eye(n), -np.eye(n)])
             self.prev = np.zeros(len(self.dadr))
+            self.identity = bool(len(self.dadr) == n and np.array_equal(self.dadr, np.arange(n))
+                                 and np.array_equal(self.qadr, np.arange(n)))
 
         def bounds(self, qpos: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
             """``(upper, lower)`` bounds on the step ``dq``, shape (nv,) each."""
-            q = qpos[self.qadr]
+            q = qpos if self.identity else qpos[self.qadr]
+            vdt = self.velocity * dt
             # a joint outside its range may only move back in, as with mink's own limit
-            up = np.minimum(self.velocity * dt, gain * (self.upper - q))
-            down = np.minimum(self.velocity * dt, gain * (q - self.lower))
+            up = np.minimum(vdt, gain * (self.upper - q))
+            down = np.minimum(vdt, gain * (q - self.lower))
             if math.isfinite(accel):
-                up_a = np.minimum(up, (self.prev + accel * dt) * dt)
-                down_a = np.minimum(down, (accel * dt - self.prev) * dt)
+                adt = accel * dt
+                up_a = np.minimum(up, (self.prev + adt) * dt)
+                down_a = np.minimum(down, (adt - self.prev) * dt)
                 ok = up_a + down_a >= 0.0
-                up = np.where(ok, up_a, up)
-                down = np.where(ok, down_a, down)
+                if ok.all():
+                    up, down = up_a, down_a
+                else:
+                    up = np.where(ok, up_a, up)
+                    down = np.where(ok, down_a, down)
+            if self.identity:  # the IK scene's joints are its degrees of freedom, in order
+                return up, -down
             upper = np.empty(self.n)
             lower = np.empty(self.n)
             upper[self.dadr] = up
@@ -191,6 +200,7 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
             self.axis = np.array([0.0, 0.0, -1.0])
             self._jp = np.zeros((3, model.nv))
             self._jr = np.zeros((3, model.nv))
+            self._j = np.zeros((6, model.nv))
 
         def compute_error(self, configuration: Any) -> FloatArray:
             d = configuration.data
@@ -199,11 +209,16 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
 
         def compute_jacobian(self, configuration: Any) -> FloatArray:
             d = configuration.data
-            mujoco.mj_jacSite(model, d, self._jp, self._jr, site)
-            z = d.site_xmat[site].reshape(3, 3)[:, 2]
-            # d z / dt = w x z = -[z]x w
-            skew = np.array([[0.0, -z[2], z[1]], [z[2], 0.0, -z[0]], [-z[1], z[0], 0.0]])
-            return np.vstack([self._jp, -skew @ self._jr])
+            jp, jr, j = self._jp, self._jr, self._j
+            mujoco.mj_jacSite(model, d, jp, jr, site)
+            m = d.site_xmat[site]  # row-major 3x3: z is its third column
+            z0, z1, z2 = float(m[2]), float(m[5]), float(m[8])
+            j[:3] = jp
+            # d z / dt = w x z, row by row
+            j[3] = jr[1] * z2 - jr[2] * z1
+            j[4] = jr[2] * z0 - jr[0] * z2
+            j[5] = jr[0] * z1 - jr[1] * z0
+            return j
 
     return FingertipTask()
 
@@ -307,6 +322,8 @@ class FingertipIK:
                 body = int(m.body_parentid[body])
             bases.append(np.array(self.configuration.data.xpos[body][:2]))
         self._bases = [(float(b[0]), float(b[1])) for b in bases]
+        if self._coll is not None:
+            self._init_broad_phase()
         self.solve_times: list[float] = []
         self.reset(scene.home)
 
@@ -491,10 +508,7 @@ class FingertipIK:
         g_rows: list[FloatArray] = []
         h_rows: list[float] = []
         pairs = lim.geom_id_pairs
-        # mink's broad phase (bounding spheres and plane half-spaces, a strict pre-filter)
-        survivors = getattr(lim, "_broadphase_survivors", None)
-        for idx in (survivors(data).tolist() if survivors is not None
-                    else range(len(pairs))):
+        for idx in self._broad_phase(data):
             g1, g2 = pairs[idx]
             dist = mujoco.mj_geomDistance(model, data, g1, g2, distmax, fromto)
             if abs(dist - distmax) < 1e-12:
@@ -505,6 +519,51 @@ class FingertipIK:
         if not g_rows:
             return None
         return np.array(g_rows), np.array(h_rows)
+
+    def _init_broad_phase(self) -> None:
+        """The collision pairs' broad phase, precomputed: mink's (bounding spheres for two
+        bounded geoms, the bounded geom's centre against a plane's half-space), with the
+        planes' normals and offsets taken once (the IK scene's planes are static: the
+        table)."""
+        lim, m = self._coll, self.scene.model
+        pairs = np.array(lim.geom_id_pairs, dtype=np.int64).reshape(-1, 2)
+        g1, g2 = pairs[:, 0], pairs[:, 1]
+        rb = m.geom_rbound
+        plane = m.geom_type == mujoco.mjtGeom.mjGEOM_PLANE
+        margin = lim.collision_detection_distance
+        both = (rb[g1] > 0) & (rb[g2] > 0)
+        p1 = plane[g1] & (rb[g2] > 0) & ~both
+        p2 = plane[g2] & (rb[g1] > 0) & ~both
+        self._bp_ss = np.flatnonzero(both)
+        self._bp_ss1, self._bp_ss2 = g1[both], g2[both]
+        self._bp_ss_bound2 = (rb[g1[both]] + rb[g2[both]] + margin) ** 2
+        pg = p1 | p2
+        self._bp_pg = np.flatnonzero(pg)
+        pl = np.where(p1, g1, g2)[pg]
+        self._bp_pg_other = np.where(p1, g2, g1)[pg]
+        d = self.configuration.data
+        static = bool(np.all(m.body_weldid[m.geom_bodyid[pl]] == 0))
+        self._bp_pg_n = np.array(d.geom_xmat[pl][:, [2, 5, 8]])  # each plane's normal
+        self._bp_pg_c = np.einsum("ij,ij->i", self._bp_pg_n, d.geom_xpos[pl]) \
+            + margin + rb[self._bp_pg_other]
+        self._bp_keep = np.flatnonzero(~both & ~pg)
+        # a moving plane (a user's robot file) or mink's broad phase off: every pair
+        self._bp_all = not static or not getattr(lim, "broadphase", True)
+
+    def _broad_phase(self, data: Any) -> list[int]:
+        """The pairs that may lie within the detection distance (indices into mink's
+        ``geom_id_pairs``): the same strict pre-filter as mink's, in fewer numpy calls."""
+        if self._bp_all:
+            return list(range(len(self._coll.geom_id_pairs)))
+        x = data.geom_xpos
+        d = x[self._bp_ss1] - x[self._bp_ss2]
+        out: list[int] = self._bp_ss[(d * d).sum(axis=1) <= self._bp_ss_bound2].tolist()
+        if len(self._bp_pg):
+            near = (self._bp_pg_n * x[self._bp_pg_other]).sum(axis=1) <= self._bp_pg_c
+            out += self._bp_pg[near].tolist()
+        if len(self._bp_keep):
+            out += self._bp_keep.tolist()
+        return out
 
     def solve_mink(self) -> FloatArray | None:
         """The same QP as :meth:`_solve` through ``mink.solve_ik`` (the reference the fast
