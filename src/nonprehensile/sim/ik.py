@@ -321,6 +321,9 @@ class FingertipIK:
         self._w = np.zeros((rows, m.nv))
         self._we = np.zeros(rows)
         self._no_rows = np.zeros((0, m.nv))
+        self._sense: dict[int, NDArray[np.intc]] = {}  # daqp's constraint kinds (all bounds)
+        self._no_lower = np.full(len(self.limits[1].geom_id_pairs) if cfg.collisions else 0,
+                                 -1e30)  # a collision row's lower bound: none
         self._jac1 = np.empty((3, m.nv))
         self._jac2 = np.empty((3, m.nv))
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
@@ -528,10 +531,11 @@ class FingertipIK:
         cp2 = post.cost * post.cost
         h = w.T @ w
         c = -(we @ w)
+        qpos = conf.data.qpos  # (read only: mink's ``q`` is a copy)
         # posture: J = I, e = q - q_home (hinge and slide joints only: checked in __init__)
         h.flat[::n + 1] += cp2 + self.config.damping
-        c += cp2 * post.gain * (conf.q - post.target_q)
-        upper, lower = self._box.bounds(conf.q, dt)
+        c += cp2 * post.gain * (qpos - post.target_q)
+        upper, lower = self._box.bounds(qpos, dt)
         rows = self._collision_rows(conf, dt) if self._coll is not None else None
         if rows is None:
             a = self._no_rows
@@ -539,8 +543,11 @@ class FingertipIK:
         else:
             a, hb = rows
             bu = np.concatenate([upper, hb])
-            bl = np.concatenate([lower, np.full(len(hb), -1e30)])
-        x, _, flag, _ = self._daqp.solve(h, c, a, bu, bl, np.zeros(len(bu), dtype=np.intc))
+            bl = np.concatenate([lower, self._no_lower[:len(hb)]])
+        sense = self._sense.get(len(bu))
+        if sense is None:
+            sense = self._sense[len(bu)] = np.zeros(len(bu), dtype=np.intc)
+        x, _, flag, _ = self._daqp.solve(h, c, a, bu, bl, sense)
         if flag <= 0:
             return None
         return np.asarray(x, dtype=np.float64) / dt
