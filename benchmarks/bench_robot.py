@@ -230,6 +230,21 @@ def _robot_report(res) -> None:
         if kinds:
             print("     over 10 ms at a limit, by kind: " + ", ".join(
                 f"{k} {n}" for k, n in kinds.most_common()))
+    # the contact bars per source skill, and which limit was held longest
+    by: dict[str, list] = {}
+    for r in res.records:
+        if "robot" in r.extra:
+            by.setdefault(res.spec.units[r.unit].source, []).append(r.extra["robot"])
+    for name, group in sorted(by.items()):
+        kinds = Counter(max(m["longest_at_limit_s"], key=m["longest_at_limit_s"].get)
+                        for m in group if max(m["longest_at_limit_s"].values(),
+                                              default=0.0) > 0.010)
+        trk = sorted(m["tracking_error_contact_max_m"] for m in group
+                     if m["tracking_error_contact_max_m"] is not None)
+        print(f"     {name:16s} tracking <= 3 mm {sum(v <= 0.003 for v in trk)}/{len(group)} "
+              f"(median {1000 * trk[len(trk) // 2] if trk else 0:.1f} mm); over 10 ms at a "
+              f"limit {sum(kinds.values())} {dict(kinds)}; link/rod contact "
+              f"{sum(m['other_contact_s'] > 0 for m in group)}")
     print(f"   {res.steps()} physics steps, {res.wall_seconds:.0f} s wall ({res.how})")
 
 

@@ -407,6 +407,7 @@ class RobotArms:
         self.judge = judge
         self.dt = dt
         self.ik = FingertipIK(ik_scene, dt, ik_config)
+        self.ik.period = control_every * dt
         self.log = RobotLog(scene, dt)
         self.placed = False
         m = scene.model
