@@ -12,7 +12,13 @@ distribution, and the no-teleport figures.
    acceleration (overall and in transits), the largest simulated fingertip speed,
    fingertip-object contact in transits (a transit runs from the moment its fingertips are
    observed to have let go of the object to the observation the next motion starts from),
-   and, beside it, the contact while letting go (the end of the previous motion's contact);
+   and, beside it, the let-gos (the end of the previous motion's contact: a step's, a push's,
+   an aborted step's): the contact read while letting go, each let-go's time from its start
+   to its fingertips' first reading off the object (the judge's MuJoCo contacts, every 5 ms;
+   per execution its largest, and how many let-gos exceed
+   ``closed_loop.LET_GO_SEPARATION``), the re-contacts after that first separation (during
+   the let-go itself, and after it through the hold and the transit), and how far the object's
+   centre of mass moved while a fingertip still touched it;
 4. the executors' Python overhead at nominal physics: wall time per physics step (planning of
    re-plans excluded: there are none) against bare ``mj_step`` on the same model, same run.
 
@@ -40,7 +46,7 @@ from nonprehensile.pipeline import (
 )
 from nonprehensile.planning import plan
 from nonprehensile.sim import Simulator
-from nonprehensile.sim.closed_loop import execute_plan, scene_fingers
+from nonprehensile.sim.closed_loop import LET_GO_SEPARATION, execute_plan, scene_fingers
 from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION
 from nonprehensile.states import states_by_step
 
@@ -121,7 +127,12 @@ def main(argv: list[str] | None = None) -> None:
     lim = {"speed": 0.0, "accel": 0.0, "tip": 0.0, "contact": 0.0, "transit_accel": 0.0,
            "let_go": 0.0}
     let_go: dict[str, int] = Counter()
-    wall: dict[str, float] = Counter()
+    lg_sep: dict[str, list[float]] = defaultdict(list)  # per let-go that touched at its start
+    lg_exec: dict[str, list[float]] = defaultdict(list)  # per execution, its largest
+    lg_moved: dict[str, list[float]] = defaultdict(list)
+    lg_free: dict[str, list[float]] = defaultdict(list)
+    lg_count: dict[str, int] = Counter()
+    wall: dict[str, float] = defaultdict(float)
     replans = corrections = 0
     touched: dict[str, int] = Counter()
     where: Counter[str] = Counter()
@@ -147,10 +158,29 @@ def main(argv: list[str] | None = None) -> None:
             lim["transit_accel"] = max(lim["transit_accel"], ex.transit_accel)
             lim["let_go"] = max(lim["let_go"], ex.let_go_contact_s)
             let_go[loop] += ex.let_go_contact_s > 0
-            touched_in = [r for r in (*ex.steps, *ex.transits)
-                          if r.get("let_go", {}).get("finger_object_contact_s", 0) > 0]
+            touched_in = [r for r in (*ex.steps, *ex.transits, *ex.corrections)
+                          if (r.get("let_go") or {}).get("finger_object_contact_s", 0) > 0]
             let_go[f"{loop} aborted"] += any("step" in r for r in touched_in)
             let_go[f"{loop} transit"] += any("before" in r for r in touched_in)
+            let_go[f"{loop} push"] += any("kind" in r for r in touched_in)
+            gos = [r["let_go"] for r in (*ex.steps, *ex.transits, *ex.corrections)
+                   if r.get("let_go")]
+            lg_count[loop] += len(gos)
+            lg_exec[loop].append(ex.let_go_separation_s)
+            for g in gos:
+                sep = math.inf if g["separated_s"] is None else g["separated_s"]
+                if sep > 0:
+                    lg_sep[loop].append(sep)
+                lg_count[f"{loop} over"] += sep > LET_GO_SEPARATION
+                lg_moved[loop].append(g["object_moved_in_contact_m"])
+                free = math.inf if g["free_s"] is None else g["free_s"]
+                if free > 0:
+                    lg_free[loop].append(free)
+                lg_count[f"{loop} free over"] += free > LET_GO_SEPARATION
+                during = sum(1 for a in g["recontacts_at_s"] if a <= g["seconds"] + 1e-9)
+                lg_count[f"{loop} again during"] += during
+                lg_count[f"{loop} again after"] += (g["recontacts"] or 0) - during
+                lg_count[f"{loop} again execs"] += bool(g["recontacts"])
             if ex.transit_contact_s > 0:
                 touched[loop] += 1
                 where.update(t["before"].split(" ")[0] for t in ex.transits
@@ -181,8 +211,29 @@ def main(argv: list[str] | None = None) -> None:
     print("   letting go (the end of a step's or push's contact, before its transit): "
           "executions with contact while letting go: " + ", ".join(
               f"{lp} {let_go[lp]}/{n} (of an aborted step {let_go[lp + ' aborted']}, before "
-              f"a transit {let_go[lp + ' transit']})" for lp in ("closed", "open"))
+              f"a transit {let_go[lp + ' transit']}, after a correction push "
+              f"{let_go[lp + ' push']})" for lp in ("closed", "open"))
           + f"; {lim['let_go']:.3f} s at most in one execution")
+    for lp in ("closed", "open"):
+        seps = sorted(lg_sep[lp])
+        ex_max = sorted(lg_exec[lp])
+
+        def pct(xs: list[float], q: float) -> str:
+            return f"{1000 * xs[min(len(xs) - 1, int(q * len(xs)))]:.0f}" if xs else "-"
+
+        print(f"   {lp} let-gos: {lg_count[lp]} in all, {len(seps)} touching at their start; "
+              f"time to the first reading off the object (ms) median {pct(seps, 0.5)}, "
+              f"90 % {pct(seps, 0.9)}, 99 % {pct(seps, 0.99)}, max {pct(seps, 1.0)}; "
+              f"per execution's largest: median {pct(ex_max, 0.5)}, 90 % {pct(ex_max, 0.9)}, "
+              f"max {pct(ex_max, 1.0)}; over {1000 * LET_GO_SEPARATION:.0f} ms: "
+              f"{lg_count[lp + ' over']}; re-contacts after the first separation: "
+              f"{lg_count[lp + ' again during']} during the let-go, "
+              f"{lg_count[lp + ' again after']} after it (hold, transit); off for good "
+              f"(the end of the let-go's last contact): max {pct(sorted(lg_free[lp]), 1.0)}"
+              f" ms, over {1000 * LET_GO_SEPARATION:.0f} ms: {lg_count[lp + ' free over']}; "
+              f"object moved "
+              f"while touched: 99 % {pct(sorted(lg_moved[lp]), 0.99)} mm, max "
+              f"{1000 * max(lg_moved[lp], default=0.0):.1f} mm")
     us, us_open, bare = overhead(poly, ds, pl, rp)
     print(f"4. at nominal physics: closed-loop execution {us:.1f} us per physics step "
           f"({us / bare:.2f}x), open loop {us_open:.1f} us ({us_open / bare:.2f}x), bare "

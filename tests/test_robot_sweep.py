@@ -148,8 +148,14 @@ def test_cli_robustness_by_the_panda_equals_the_robot_simulator() -> None:
              motions=motions, scale=ds.scale)
     sample = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale).sample(3, index=0, stream=0)
     assert rec["values"] == pytest.approx(sample.values(), rel=1e-6)
+    # the worker's scene: compiled with the distribution's base and retuned to the sample
+    # (a scene compiled with the sample's parameters equals it to ~1e-6, see the test above,
+    # and a closed-loop execution's thresholds can turn that into another path)
+    dist = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale)
     sim = RobotSimulator(poly, [Arm(Robot.builtin(), BASE)], scale=ds.scale,
-                         params=sample.params, control_every=8)
+                         params=dist.base, control_every=8)
+    SceneTuner(sim.model, sim.data, sim.params).tune(sample.params)
+    sim.params = sim.judge.params = sample.params
     ex = execute_plan(sim, p, fingers=ds.fingers, loop="closed",
                       replan=replanner(poly, exp, p.goal, motions=motions, scale=ds.scale,
                                        angle_tol=5.0),

@@ -74,6 +74,7 @@ __all__ = [
     "StepSpec",
     "after_step",
     "anchor_transform",
+    "angular_step",
     "correction_pushes",
     "one_finger_push",
     "raised",
@@ -140,12 +141,14 @@ class ControlConfig:
         Position error (m) left alone at the end; larger errors are slid away.
     max_corrections : int
         Correction pushes allowed.
-    align_tol : float
+    align_tol : float or None
         A step that ends on its predicted face (or the goal's) within this many degrees of
         the predicted ``theta`` (but past ``angle_tol``) is turned onto it by pushes off
         the centre line (:func:`turn_push`) and the plan goes on, instead of a re-plan:
-        the same face, turned, is a turn away, whatever skill made it. Keep it below half
-        the model's angular step (the nearest state must be the predicted one).
+        the same face, turned, is a turn away, whatever skill made it. It must be below
+        half the model's angular step (the nearest state must be the predicted one):
+        :meth:`for_step` checks it; None (the default) derives it there as a third of the
+        step, at most 30 degrees (30 at the usual 90-degree step).
     follow_deg : float
         A tipping arc whose reference ends with the object still on a pivot of its landing
         face follows through: the fingers turn on about the pivot by at most this (degrees;
@@ -176,13 +179,13 @@ class ControlConfig:
     correct_position: bool = True
     correction_tol: float = 0.003
     max_corrections: int = 4
-    align_tol: float = 30.0
+    align_tol: float | None = None
     follow_deg: float = 30.0
     follow_speed: float = 60.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            if isinstance(value, bool):
+            if isinstance(value, bool) or (name == "align_tol" and value is None):
                 continue
             ok = isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
             if name in ("max_speed", "max_accel", "reach_speed", "still_time",
@@ -202,6 +205,40 @@ class ControlConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
         return asdict(self)
+
+    def for_step(self, step_deg: float | None) -> ControlConfig:
+        """This configuration for a model whose states on one face lie ``step_deg`` degrees
+        apart (:func:`angular_step`; None: at most one state per face): ``align_tol``
+        derived (a third of the step, at most 30 degrees) when None, else checked to lie
+        below half the step (:class:`~nonprehensile.errors.InputError` if not)."""
+        if self.align_tol is None:
+            derived = 30.0 if step_deg is None else min(30.0, step_deg / 3.0)
+            return replace(self, align_tol=derived)
+        if step_deg is not None and self.align_tol >= step_deg / 2.0:
+            raise InputError(
+                f"control setting align_tol must be below half the model's angular step "
+                f"({step_deg:g} degrees between states on a face, so below {step_deg / 2:g}),"
+                f" got {self.align_tol:g}: a turned object would be nearer another state; "
+                f"pass a smaller one, or none to derive it ({min(30.0, step_deg / 3):g})")
+        return self
+
+
+def angular_step(states: Sequence[State]) -> float | None:
+    """The model's angular step (degrees): the smallest turn between two of ``states`` on
+    one face (90 for states every 90 degrees); None when no face has two."""
+    by_face: dict[str, list[float]] = {}
+    for s in states:
+        by_face.setdefault(s.face, []).append(s.theta % 360.0)
+    best: float | None = None
+    for thetas in by_face.values():
+        t = np.unique(np.round(thetas, 6) % 360.0)
+        gaps = np.diff(np.concatenate([t, [t[0] + 360.0]]))
+        gaps = gaps[gaps > 1e-3]  # the same state twice (0 and 359.9999999)
+        if len(gaps) < 2:  # one state on this face
+            continue
+        gap = float(gaps.min())
+        best = gap if best is None else min(best, gap)
+    return best
 
 
 # ------------------------------------------------------------------------ planar anchor
@@ -1070,6 +1107,9 @@ def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal
     * another state: re-plan from it. Retries and re-plans together are at most
       ``config.max_replans``.
     """
+    if config.align_tol is None:
+        raise ValueError("after_step needs a resolved align_tol: pass "
+                         "config.for_step(angular_step(states)) (execute_plan does)")
     if same_state(observed, goal, config.angle_tol):
         return NextAction("done")
     if same_state(observed, spec.end_state, config.angle_tol):

@@ -8,7 +8,9 @@ first point along that normal, slowly. Each leg is a rest-to-rest
 minimum-jerk motion timed so that its peak speed and acceleration stay within the given
 bounds (a minimum-jerk leg of length ``L`` and duration ``T`` peaks at ``1.875 L / T`` and
 ``5.774 L / T^2``). Several fingers move together, each on its own legs, all legs timed
-by the slowest finger.
+by the slowest finger. Before a transit the fingertips **let go** of the object
+(:func:`release`): the quickest motion within the bounds, from the command as it moves, out
+of the plane of the face each pad touches (:func:`escape` with ``faces_of``).
 
 Pure core: numpy only.
 """
@@ -26,7 +28,7 @@ from nonprehensile.planning import ObjectPose
 from nonprehensile.step_paths import ease
 
 __all__ = ["APPROACH_SPEED", "PEAK_ACCEL", "PEAK_SPEED", "escape", "hull_distance",
-           "limit_speed", "limits_of", "straight", "transit"]
+           "limit_speed", "limits_of", "release", "straight", "transit"]
 
 FloatArray = NDArray[np.float64]
 
@@ -56,8 +58,8 @@ def _planes(poly: Polyhedron) -> tuple[FloatArray, FloatArray]:
     return normals, offsets
 
 
-def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float
-           ) -> FloatArray:
+def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float, *,
+           faces_of: FloatArray | None = None) -> FloatArray:
     """Each point moved straight out of the posed object until it is ``reach`` (m) beyond
     the face plane it is farthest beyond (its contact normal when it touches a face), so
     that its :func:`hull_distance` is at least ``reach``; points already that far stay.
@@ -65,12 +67,19 @@ def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float
     A normal that points down (a face of a tilted object that looks at the table) is
     followed horizontally, so that no point is driven into the table; faces looking more
     than 45 degrees down are not left through. ``points`` has shape (n, 3); returns the
-    same shape.
+    same shape. With ``faces_of`` (shape (n, 3)), each point leaves through the face plane
+    its ``faces_of`` point is farthest beyond instead (a compliant pad's command, deep in
+    the object and off to the side, leaves through the face its pad touches: outside one
+    face's plane a point is outside the whole convex object).
     """
     p = np.array(points, dtype=np.float64)
     normals, offsets = _planes(poly)
     x = (p - pose.translation) @ pose.rotation / pose.scale
     dist = (x @ normals.T - offsets) * pose.scale  # (n, faces)
+    by = dist
+    if faces_of is not None:
+        xf = (np.asarray(faces_of, dtype=np.float64) - pose.translation) @ pose.rotation
+        by = (xf / pose.scale @ normals.T - offsets) * pose.scale
     world = normals @ pose.rotation.T
     # a face that looks down at the table (its normal more than 45 degrees below the
     # horizon) is no way out: the point would be driven into the table
@@ -78,7 +87,7 @@ def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float
     for k in range(len(p)):
         if float(dist[k].max()) >= reach:
             continue
-        best = int(np.flatnonzero(usable)[dist[k, usable].argmax()])
+        best = int(np.flatnonzero(usable)[by[k, usable].argmax()])
         n = world[best]
         go = np.array([n[0], n[1], max(n[2], 0.0)])
         go /= float(np.linalg.norm(go))
@@ -202,6 +211,62 @@ def straight(start: FloatArray, end: FloatArray, *, dt: float, max_speed: float,
     t = max(PEAK_SPEED * length / max_speed, math.sqrt(PEAK_ACCEL * length / max_accel))
     n = max(2, math.ceil(t / dt) + 1)
     return np.asarray(_leg(a, b, n).transpose(1, 0, 2))
+
+
+def release(start: FloatArray, velocity: FloatArray, end: FloatArray, *, dt: float,
+            max_speed: float, max_accel: float) -> FloatArray:
+    """The quickest motion from ``start``, moving at ``velocity``, to rest at ``end``, its
+    speed within ``max_speed`` and its acceleration within ``max_accel`` (a let-go: the
+    fingertip off the object as soon as the bounds allow).
+
+    Each fingertip accelerates at the bound toward its end point (turning its initial
+    velocity into that direction), cruises at ``max_speed`` and brakes at the bound onto
+    it: a time-optimal bang-coast-bang profile, steered every ``dt`` (a closed-form
+    minimum-jerk leg, :func:`straight`, spends its first fifth below a tenth of its peak
+    speed, which is where a pad pressed into the object lingers on it). The acceleration is
+    bounded, its rate is not (the speed is continuous).
+
+    Parameters
+    ----------
+    start, velocity, end : array, shape (n_fingers, 3)
+        Fingertip positions (m), commanded velocities (m/s) and end points (m).
+    dt : float
+        Sample period (s).
+    max_speed, max_accel : float
+        Bounds (m/s, m/s^2).
+
+    Returns
+    -------
+    array, shape (n_samples, n_fingers, 3)
+        Targets every ``dt`` from ``start`` (first sample) to ``end`` (last), at least two.
+    """
+    x = np.array(start, dtype=np.float64)
+    v = np.array(velocity, dtype=np.float64)
+    goal = np.asarray(end, dtype=np.float64)
+    # braking a little below the bound leaves the steering room to absorb the sampling
+    brake = 0.8 * max_accel
+    dv_max = max_accel * dt
+    out = [x.copy()]
+    for _ in range(100_000):  # bounded: a 1 m let-go at 0.01 m/s^2 would take longer
+        gap = goal - x
+        dist = np.linalg.norm(gap, axis=1)
+        # snapped onto the end point once that step, and the stop after it, stay within
+        # the acceleration bound
+        done = (dist <= dv_max * dt) & (
+            np.linalg.norm(gap - v * dt, axis=1) <= dv_max * dt)
+        if done.all():
+            break
+        # the speed from which braking at ``brake`` stops at the end point
+        want = np.minimum(max_speed, np.sqrt(2.0 * brake * dist))
+        unit = np.divide(gap, dist[:, None], out=np.zeros_like(gap), where=dist[:, None] > 0)
+        dv = unit * want[:, None] - v
+        size = np.linalg.norm(dv, axis=1)
+        dv *= np.minimum(1.0, dv_max / np.maximum(size, 1e-300))[:, None]
+        v = np.where(done[:, None], 0.0, v + dv)
+        x = np.where(done[:, None], goal, x + v * dt)
+        out.append(x.copy())
+    out.append(goal.copy())
+    return np.asarray(np.stack(out))
 
 
 def limits_of(targets: FloatArray, dt: float) -> tuple[float, float]:

@@ -42,6 +42,7 @@ from nonprehensile.control import (
     StepMonitor,
     after_step,
     anchor_transform,
+    angular_step,
     correction_pushes,
     observed_state,
     one_finger_push,
@@ -68,7 +69,7 @@ from nonprehensile.transit import (
     hull_distance,
     limit_speed,
     limits_of,
-    straight,
+    release,
     transit,
 )
 
@@ -85,6 +86,12 @@ CROSSFADE = 0.06
 LET_GO_CLEAR = 0.004
 #: ... and it lets go along its contact normal aiming this far (m) beyond its radius.
 LET_GO_REACH = 0.007
+#: A let-go's fingertips are off the object (the judge's contact reading) within this (s)
+#: of its start: the bound the benchmark and the tests hold it to. A pad pressed ``D`` into
+#: the object by a compliant finger (its command deeper still) comes free once its command
+#: has left the face's plane, about ``sqrt(2 D / max_accel)`` plus the pad's lag: 25-40 ms
+#: for 5-10 mm at 20 m/s^2.
+LET_GO_SEPARATION = 0.05
 
 
 def scene_fingers(plan: Plan, expansion: Expansion | None = None) -> int:
@@ -126,6 +133,9 @@ class Execution:
     tip_speed: float | None = None
     transit_contact_s: float = 0.0
     let_go_contact_s: float = 0.0
+    let_go_separation_s: float = 0.0
+    let_go_recontacts: int = 0
+    let_go_object_moved: float = 0.0
     transit_accel: float = 0.0
     finger_table: bool = False
     sim_time: float = 0.0
@@ -160,6 +170,11 @@ class Execution:
                                                else round(self.tip_speed, 4)),
                        "transit_finger_object_contact_s": round(self.transit_contact_s, 4),
                        "let_go_finger_object_contact_s": round(self.let_go_contact_s, 4),
+                       "let_go_max_separation_s": (None if math.isinf(self.let_go_separation_s)
+                                                   else round(self.let_go_separation_s, 4)),
+                       "let_go_recontacts": self.let_go_recontacts,
+                       "let_go_max_object_moved_in_contact_m": round(
+                           self.let_go_object_moved, 5),
                        "transit_commanded_max_accel": round(self.transit_accel, 3),
                        "finger_table_contact": self.finger_table},
             "sim_seconds": round(self.sim_time, 4),
@@ -192,8 +207,17 @@ class _Runner:
         self.signals = signals
         self.max_speed = max_speed  # every commanded motion is retimed to stay within it
         self.trace: list[FloatArray] = []
-        self.contact_reads = 0  # fingertip-object contacts read during transits
+        self.contact_reads = 0  # fingertip-object contacts read during watched drives
+        # the judge's fingertip-object contact in watched drives (let-gos, holds, transits):
+        # (time, touching, object's centre of mass) at every change, for the let-go records
+        self.touching = False
+        self.touch_log: list[tuple[float, bool, FloatArray]] = []
+        self.last_obs: Observation | None = None  # the one the last decision was made on
+        # let-go records waiting for the end of the transit after them (re-contacts)
+        self.pending: list[tuple[dict[str, Any], int, float, float | None]] = []
         self._tail: FloatArray | None = None
+        self._tail_velocity: FloatArray | None = None
+        self._cursor: tuple[FloatArray, int] = (self.command[None], 0)
 
     # ------------------------------------------------------------------------- noise
     def _noisy(self, seg: FloatArray) -> FloatArray:
@@ -255,8 +279,13 @@ class _Runner:
             self.t += dt
             if self.n % CONTACT_EVERY == 0:
                 pairs = log.observe(d, self.t)
-                if transit_leg and judge.touches_finger(pairs):
-                    self.contact_reads += 1
+                if transit_leg:
+                    touch = judge.touches_finger(pairs)
+                    if touch:
+                        self.contact_reads += 1
+                    if touch != self.touching:
+                        self.touching = touch
+                        self.touch_log.append((self.t, touch, sim.pose().com))
                 if finger_dofs is not None:
                     v = d.qvel[finger_dofs].reshape(-1, 3)
                     sp = float(np.sqrt((v * v).sum(axis=1)).max())
@@ -269,7 +298,9 @@ class _Runner:
                 obs = observer.sample(self.t)
                 next_obs = observer.next_time()
                 if obs is not None:
+                    self.last_obs = obs
                     cur = seg[min(i, len(seg) - 1)]
+                    self._cursor = (seg, i)
                     dec = react(obs, cur)
                     if dec.segment is not None:
                         new = limit_speed(self._crossfade(seg, i, dec.segment, dec.fade),
@@ -296,6 +327,45 @@ class _Runner:
         j = min(i, len(seg) - 1)
         self.command = seg[j]
         self._tail = seg[j:] if len(seg) - j > 1 else None
+        self._tail_velocity = (seg[j] - seg[j - 1]) / self.dt if 1 <= j == i else None
+
+    def velocity(self) -> FloatArray:
+        """The commanded velocity (m/s, shape (n_fingers, 3)) at the current command: inside
+        a ``react``, of the running targets; after a drive, of the one it stopped (zero at
+        rest)."""
+        seg, i = self._cursor
+        if len(seg) > 1 and 1 <= i < len(seg):
+            return np.asarray((seg[i] - seg[i - 1]) / self.dt)
+        return np.zeros_like(self.command)
+
+    def take_motion(self) -> tuple[FloatArray, FloatArray]:
+        """The current command and its velocity, the stopped drive's rest dropped (what
+        follows starts from there, moving)."""
+        v = (self._tail_velocity if self._tail is not None and self._tail_velocity is not None
+             else np.zeros_like(self.command))
+        self._tail = self._tail_velocity = None
+        return np.array(self.command), np.array(v)
+
+    def count_recontacts(self) -> None:
+        """Fill in the pending let-go records' ``recontacts``: how often a fingertip touched
+        the object again after the let-go first separated, up to now (the end of the
+        transit after it; the judge's contact, read every
+        :data:`~nonprehensile.sim.judge.CONTACT_EVERY` steps in watched drives)."""
+        for record, k, t0, sep in self.pending:
+            if sep is not None:
+                at = [round(t - t0, 4) for t, touch, _ in self.touch_log[k:]
+                      if touch and t > sep]
+                record["recontacts"] = len(at)
+                record["recontacts_at_s"] = at
+        self.pending.clear()
+
+    def read_touch(self) -> bool:
+        """Read the judge's fingertip-object contact now and log it (a let-go's start)."""
+        touch = self.sim.judge.finger_object_contact(self.d)
+        if touch != self.touching or not self.touch_log:
+            self.touching = touch
+            self.touch_log.append((self.t, touch, self.sim.pose().com))
+        return touch
 
     def _crossfade(self, old: FloatArray, i: int, new: FloatArray,
                    fade: float | None = None) -> FloatArray:
@@ -349,23 +419,33 @@ def _retreat_target(sim: Simulator, pose: ObjectPose, command: FloatArray,
 def _let_go(sim: Simulator, run: _Runner, cfg: ControlConfig, moving: NDArray[np.bool_], *,
             reach: float = LET_GO_REACH, until_still: bool = False, noise: float = 0.0,
             max_time: float = 1.0) -> tuple[dict[str, Any], Observation]:
-    """Let go of the object before a transit (closed loop): every moving fingertip observed
-    within its radius plus :data:`LET_GO_CLEAR` of the observed object goes out along its
-    contact normal (:func:`~nonprehensile.transit.escape`) to its radius plus ``reach``,
-    aimed again whenever the object (still moving after an aborted step) comes nearer. It
-    ends once every moving fingertip is observed clear (and, with ``until_still``, the
-    object has kept still for ``cfg.still_time``, ``noise`` being the observations'
-    position noise), or after ``max_time`` s.
+    """Let go of the object (closed loop), at once: every moving fingertip observed within
+    its radius plus :data:`LET_GO_CLEAR` of the observed object goes out along its contact
+    normal (:func:`~nonprehensile.transit.escape`) to its radius plus ``reach``, aimed again
+    whenever the object (still moving after an aborted step) comes nearer. It starts on the
+    observation the last decision was made on, from the command as it moves (the stopped
+    motion's rest is dropped), and leaves as fast as the bounds allow
+    (:func:`~nonprehensile.transit.release`: ``cfg.max_speed`` and ``cfg.max_accel``). It
+    ends once every moving fingertip is observed clear and at rest (and, with
+    ``until_still``, the object has kept still for ``cfg.still_time``, ``noise`` being the
+    observations' position noise), or after ``max_time`` s.
 
-    This is where the previous motion's contact ends (the executor's "no finger on the
-    object" reading); the transit begins after it. Returns the record (seconds, the
-    fingertip-object contact read while letting go, how it ended) and the last observation.
+    This is where the previous motion's contact ends; the transit begins after it. Returns
+    the record (see :func:`_let_go_record`) and the last observation.
     """
     poly, r = sim.poly, sim.params.finger_radius
     idx = np.flatnonzero(moving)
-    aim = np.array(run.command, dtype=np.float64)
     window: list[tuple[float, FloatArray]] = []
-    last: list[Observation] = []
+    t0 = run.t
+    mark = _let_go_mark(sim, run)
+    start, v0 = run.take_motion()
+    aim = start.copy()
+    # a motion stopped while moving comes to rest where braking at the bound takes it
+    speed = np.linalg.norm(v0, axis=1, keepdims=True)
+    aim += v0 * speed / (2.0 * 0.8 * cfg.max_accel)
+    obs = run.last_obs if run.last_obs is not None else run.wait_observation(
+        transit_leg=True)
+    last = [obs]
 
     def clear(o: Observation) -> bool:
         gap = hull_distance(poly, o.pose, o.tips[idx])
@@ -381,6 +461,18 @@ def _let_go(sim: Simulator, run: _Runner, cfg: ControlConfig, moving: NDArray[np
         spread = float(np.linalg.norm(coms - coms.mean(axis=0), axis=1).max())
         return spread <= cfg.still_tol + 3.0 * noise
 
+    def reaim(o: Observation) -> bool:
+        """Aim the fingertips that are near the observed object out along its normals."""
+        gap = hull_distance(poly, o.pose, o.tips[idx])
+        aimed = hull_distance(poly, o.pose, aim[idx])
+        again = idx[(gap < r + LET_GO_CLEAR) & (aimed < r + reach - 0.001)]
+        if len(again):
+            # out of the plane of the face each pad touches, from its command (which a
+            # compliant pad leaves deep in the object, and to the side where friction held
+            # it): the shortest way for the command out of that plane, which frees the pad
+            aim[again] = escape(poly, o.pose, aim[again], r + reach, faces_of=o.tips[again])
+        return bool(len(again))
+
     def react(o: Observation, cur: FloatArray) -> Decision:
         last[:] = [o]
         is_still = still(o) if until_still else True
@@ -388,43 +480,67 @@ def _let_go(sim: Simulator, run: _Runner, cfg: ControlConfig, moving: NDArray[np
         # faded in from a moving command would leave its acceleration bound)
         if clear(o) and is_still and float(np.abs(cur - aim).max()) < 1e-9:
             return Decision(done=True, outcome="finished")
-        gap = hull_distance(poly, o.pose, o.tips[idx])
-        aimed = hull_distance(poly, o.pose, aim[idx])
-        again = idx[(gap < r + LET_GO_CLEAR) & (aimed < r + reach - 0.001)]
-        if not len(again):
+        if not reaim(o):
             return Decision()
-        aim[again] = escape(poly, o.pose, o.tips[again], r + reach)
-        return Decision(segment=straight(cur, aim, dt=run.dt, max_speed=cfg.max_speed,
-                                         max_accel=cfg.max_accel / 2))
+        # from the running command at its velocity: nothing to fade
+        return Decision(segment=release(cur, run.velocity(), aim, dt=run.dt,
+                                        max_speed=cfg.max_speed, max_accel=cfg.max_accel),
+                        fade=0.0)
 
-    t0, before = run.t, run.contact_reads
-    first = np.array([run.command])
-    if run._tail is not None and not until_still:
-        # the last motion stopped mid-way (a step ends on its observed event while its
-        # release still rises): it runs on 0.1 s more and comes to rest over 0.15 s
-        tail, run._tail = run._tail, None
-        first = run._crossfade(tail, 0, tail[min(len(tail) - 1, round(0.1 / run.dt))][None],
-                               fade=0.15)
-    aim[:] = first[-1]
-    if len(first) == 1:
-        obs = run.wait_observation(transit_leg=True)
-        last.append(obs)
-        if clear(obs) and not until_still:
-            return {"seconds": round(run.t - t0, 4),
-                    "finger_object_contact_s": round((run.contact_reads - before)
-                                                     * CONTACT_EVERY * run.dt, 4),
-                    "outcome": "clear"}, obs
+    if until_still:
+        still(obs)
+    reaim(obs)
+    if float(np.abs(aim - start).max()) < 1e-12 and clear(obs) and not until_still:
+        return _let_go_record(sim, run, t0, mark, "clear"), obs
+    first = release(start, v0, aim, dt=run.dt, max_speed=cfg.max_speed,
+                    max_accel=cfg.max_accel)
     dec = run.drive(first, react=react, transit_leg=True, max_time=max_time)
     if run._tail is not None and float(np.abs(run._tail - run.command).max()) < 1e-6:
         # at rest: nothing to fade out of (a fade from rest would delay the transit's start
         # and steepen its acceleration)
         run._tail = None
-    return {"seconds": round(run.t - t0, 4),
-            "finger_object_contact_s": round((run.contact_reads - before) * CONTACT_EVERY
-                                             * run.dt, 4),
-            "outcome": "finished" if dec is not None and dec.outcome == "finished"
-            else "timeout"}, \
-        (last[-1] if last else run.wait_observation())
+    outcome = "finished" if dec is not None and dec.outcome == "finished" else "timeout"
+    return _let_go_record(sim, run, t0, mark, outcome), last[-1]
+
+
+def _let_go_mark(sim: Simulator, run: _Runner) -> tuple[int, int, FloatArray]:
+    """Where a let-go's records start: the contact log's length after reading the judge's
+    contact now, the contact reads so far, and the object's centre of mass (the judge's
+    truth, for the record only)."""
+    run.read_touch()
+    return len(run.touch_log) - 1, run.contact_reads, sim.pose().com
+
+
+def _let_go_record(sim: Simulator, run: _Runner, t0: float,
+                   mark: tuple[int, int, FloatArray], outcome: str) -> dict[str, Any]:
+    """A let-go's record (the judge's readings): its seconds; the fingertip-object contact
+    read while letting go (s); ``separated_s``, from its start to the first reading of no
+    fingertip on the object (0 when none touched; None when it never let go), ``free_s``
+    to the end of its last contact (None: still touching at its end); how far the
+    object's centre of mass moved until then (``object_moved_in_contact_m``) and over the
+    whole let-go (``object_moved_m``); how it ended. ``recontacts`` (and
+    ``recontacts_at_s``, each one's start from the let-go's) is filled in when the transit
+    after it ends (:meth:`_Runner.count_recontacts`)."""
+    k, reads, com0 = mark
+    log = run.touch_log[k:]
+    sep = (t0, com0) if not log[0][1] else next(
+        ((t, c) for t, touch, c in log if not touch), None)
+    # off for good: the end of the let-go's last contact (a pad that bounced off an object
+    # sliding ahead of it touches again while its command is still inside)
+    free = None if log[-1][1] else max((t for t, touch, _ in log if not touch), default=t0)
+    record: dict[str, Any] = {
+        "seconds": round(run.t - t0, 4),
+        "finger_object_contact_s": round((run.contact_reads - reads) * CONTACT_EVERY
+                                         * run.dt, 4),
+        "separated_s": None if sep is None else round(sep[0] - t0, 4),
+        "free_s": None if free is None else round(free - t0, 4),
+        "object_moved_in_contact_m": round(float(np.linalg.norm(
+            (sep[1] if sep is not None else sim.pose().com) - com0)), 5),
+        "object_moved_m": round(float(np.linalg.norm(sim.pose().com - com0)), 5),
+        "recontacts": None, "recontacts_at_s": [],
+        "outcome": outcome}
+    run.pending.append((record, k, t0, None if sep is None else sep[0]))
+    return record
 
 
 def execute_plan(
@@ -475,6 +591,13 @@ def execute_plan(
     """
     wall0 = time.perf_counter()
     cfg = config or ControlConfig(angle_tol=angle_tol, position_tol=position_tol)
+    # the model's angular step (from the re-planner's frame, every state of the model; else
+    # the plan's own states): a turned object is turned back (``align_tol``) or snapped onto
+    # a frame state only when that is the nearest state, within half the step
+    step_deg = angular_step(list(getattr(replan, "frame", ())) or [
+        x for s in plan.steps for x in (s.start_world, s.end_world)])
+    cfg = cfg.for_step(step_deg)
+    snap_tol = 180.0 if step_deg is None else step_deg / 2.0
     obs_model = observation or ObservationModel()
     if perturbation.tracking_noise > 0:
         obs_model = replace(obs_model, position_noise=perturbation.tracking_noise,
@@ -529,17 +652,14 @@ def execute_plan(
             # open loop nothing is observed: the fingertips let go along the predicted
             # object's normals from where they are commanded, by the same reach
             idx = np.flatnonzero(moving)
-            aim = np.array(run.command)
+            start, v0 = run.take_motion()
+            aim = np.array(start)
             aim[idx] = escape(sim.poly, pose, aim[idx], p.finger_radius + LET_GO_REACH)
-            if float(np.abs(aim - run.command).max()) > 1e-9:
-                t0, before = run.t, run.contact_reads
-                run.drive(straight(run.command, aim, dt=run.dt, max_speed=cfg.max_speed,
-                                   max_accel=cfg.max_accel / 2), transit_leg=True)
-                entry["let_go"] = {
-                    "seconds": round(run.t - t0, 4),
-                    "finger_object_contact_s": round((run.contact_reads - before)
-                                                     * CONTACT_EVERY * run.dt, 4),
-                    "outcome": "finished"}
+            if float(np.abs(aim - start).max()) > 1e-9 or float(np.abs(v0).max()) > 0:
+                t0, mark = run.t, _let_go_mark(sim, run)
+                run.drive(release(start, v0, aim, dt=run.dt, max_speed=cfg.max_speed,
+                                  max_accel=cfg.max_accel), transit_leg=True)
+                entry["let_go"] = _let_go_record(sim, run, t0, mark, "finished")
         path = transit(sim.poly, pose, run.command, goal, dt=run.dt,
                        clearance=cfg.clearance, finger_radius=p.finger_radius,
                        max_speed=cfg.max_speed, max_accel=cfg.max_accel / 2,
@@ -548,6 +668,7 @@ def execute_plan(
         run.drive(path, transit_leg=True)
         # closed loop, held at its end until the observation that what follows starts from
         seen = run.wait_observation(transit_leg=True) if loop == "closed" else None
+        run.count_recontacts()
         # on the execution's clock: the transit runs from ``start_s`` (the fingertips let
         # go) to ``end_s``, the first sample of what follows (a step's first arc, a push)
         segs = [c for c in run.commanded[k0:] if len(c)]
@@ -626,36 +747,24 @@ def execute_plan(
             end = run.drive(run._crossfade(np.array([run.command]), 0, dec.segment),
                             react=mon.update, max_time=budget)
             reason = end.reason if end is not None else ""
-            if end is not None and end.outcome == "aborted":
+            aborted = end is not None and end.outcome == "aborted"
+            if aborted:
                 # let go (out along the contact normals from where the pads are observed,
-                # fleeing the object while it still moves) and watch it come to rest, the
-                # fingertips held clear of it; then move away as a transit
-                moving = np.zeros(sim.n_fingers, dtype=bool)
-                moving[[k - 1 for k in spec.used]] = True
-                let_go, _ = _let_go(sim, run, cfg, moving, reach=cfg.clearance,
-                                    until_still=True,
-                                    noise=obs_model.position_noise,
-                                    max_time=cfg.max_settle + 0.5)
-                record["let_go"] = let_go
-                mon.watch_rest(run.t)
-                run.drive(np.array([run.command]), react=mon.update,
-                          max_time=cfg.max_settle + 0.5)
-                pose_now = run.wait_observation().pose
-                up = _retreat_target(sim, pose_now, run.command, spec.used, cfg.clearance)
-                do_transit(pose_now, up, spec.used, f"recovery after step {number}")
+                # fleeing the object while it still moves), watch it come to rest, the
+                # fingertips held clear of it, then move away as a transit
+                record["let_go"] = _release(sim, run, cfg, mon, spec.used, do_transit,
+                                            f"recovery after step {number}", aborted=True,
+                                            noise=obs_model.position_noise)
             record.update(outcome=end.outcome if end is not None else "", reason=reason,
                           observed=mon.log)
             observed_end = mon.final_state
-            if observed_end is None and not (end is not None and end.outcome == "aborted"):
+            if observed_end is None and not aborted:
                 # at rest on no face with the fingers still on it (leaning on a pad, held
                 # on an edge): let go, move clear and look again; only an object that rests
                 # on no face once free fails the step
-                pose_now = run.wait_observation().pose
-                up = _retreat_target(sim, pose_now, run.command, spec.used, cfg.clearance)
-                do_transit(pose_now, up, spec.used, f"let go after step {number}")
-                mon.watch_rest(run.t)
-                run.drive(np.array([run.command]), react=mon.update,
-                          max_time=cfg.max_settle + 0.5)
+                _release(sim, run, cfg, mon, spec.used, do_transit,
+                         f"let go after step {number}", aborted=False,
+                         noise=obs_model.position_noise)
                 observed_end = mon.final_state
                 record["looked_again"] = observed_end.to_dict() if observed_end else None
         truth = sim.state()
@@ -738,16 +847,14 @@ def execute_plan(
             # the plan never visits, turned, is still put back in the frame)
             frame = [x for s in steps for x in (s.start_world, s.end_world)]
             frame += getattr(replan, "frame", ())
-            near = snap_state(observed_end, frame, 45.0)
+            near = snap_state(observed_end, frame, snap_tol)
+            turned_onto = None
             if near is not observed_end and abs(angle_diff(
                     observed_end.theta, near.theta)) > cfg.angle_tol / 2:
-                # NOTE: the turn is given the simulator's true object position as its
-                # "toward" (it picks which face to push); that is degenerate (toward minus
-                # the object's own position is about zero) and a leak of the truth into a
-                # decision: to be replaced by the goal's position and re-measured (the
-                # observed position alone changed test_robot_sweep's end by 0.09 deg)
-                _align(sim, run, ex, cfg, rest, do_transit, near.theta,
-                       sim.pose().position)
+                turned_onto = near.to_dict()
+                # the turn's pushes also move the object toward the goal's position (they
+                # pick the side face whose push does most for it)
+                _align(sim, run, ex, cfg, rest, do_transit, near.theta, ex.goal_position)
                 look = run.wait_observation()
                 observed_end = observed_state(sim.poly, look.pose.rotation) or observed_end
                 mon.final_pose = look.pose
@@ -758,6 +865,8 @@ def execute_plan(
                                      "from": observed_end.to_dict(),
                                      "position": [round(v, 6) for v in here],
                                      "avoid": sorted(avoid)}
+            if turned_onto is not None:  # turned back into the goal's frame first
+                entry["turned_onto"] = turned_onto
             try:
                 new_plan = replan(observed_end, here, avoid)
             except Exception as exc:  # no plan: reported, never continued
@@ -811,13 +920,55 @@ def execute_plan(
     ex.tip_speed = run.tip_speed if getattr(sim.driver, "dadr", None) is not None else None
     ex.transit_contact_s = sum(t["finger_object_contact_s"] for t in ex.transits)
     ex.transit_accel = max((t["commanded_max_accel"] for t in ex.transits), default=0.0)
-    ex.let_go_contact_s = sum(t["let_go"]["finger_object_contact_s"]
-                              for t in [*ex.transits, *ex.steps] if "let_go" in t)
+    run.count_recontacts()
+    let_gos = [t["let_go"] for t in [*ex.transits, *ex.steps, *ex.corrections]
+               if t.get("let_go") is not None]
+    ex.let_go_contact_s = sum(g["finger_object_contact_s"] for g in let_gos)
+    ex.let_go_separation_s = max(
+        (math.inf if g["separated_s"] is None else g["separated_s"] for g in let_gos),
+        default=0.0)
+    ex.let_go_recontacts = sum(g["recontacts"] or 0 for g in let_gos)
+    ex.let_go_object_moved = max((g["object_moved_in_contact_m"] for g in let_gos),
+                                 default=0.0)
     ex.finger_table = run.log.finger_table
     ex.sim_time, ex.n_steps = run.t, run.n
     ex.wall_time = time.perf_counter() - wall0
     ex.trace = np.array(run.trace) if run.trace else None
     return ex
+
+
+def _release(sim: Simulator, run: _Runner, cfg: ControlConfig, mon: StepMonitor,
+             used: tuple[int, ...], do_transit: Callable[..., Observation | None], label: str,
+             *, aborted: bool, noise: float) -> dict[str, Any] | None:
+    """Free the object after a step and read its state at rest (``mon.final_state``).
+
+    After an aborted step (the object may still move: sliding, falling back) the fingertips
+    let go at once (:func:`_let_go`, out to the clearance), are held clear while the object
+    comes to rest and its state is read, and then rise away as a transit (``label``).
+    Otherwise (a step that ended at rest on no face, a pad still holding it) they rise away
+    first, the transit letting go, and the state is read after. The holds count as the
+    let-go's (their contact is a re-contact). Returns the aborted step's let-go record.
+    """
+    let_go = None
+    if aborted:
+        moving = np.zeros(sim.n_fingers, dtype=bool)
+        moving[[k - 1 for k in used]] = True
+        let_go, _ = _let_go(sim, run, cfg, moving, reach=cfg.clearance, until_still=True,
+                            noise=noise, max_time=cfg.max_settle + 0.5)
+        _watch_rest(run, cfg, mon)
+    pose_now = run.wait_observation(transit_leg=True).pose
+    up = _retreat_target(sim, pose_now, run.command, used, cfg.clearance)
+    do_transit(pose_now, up, used, label)
+    if not aborted:
+        _watch_rest(run, cfg, mon)
+    return let_go
+
+
+def _watch_rest(run: _Runner, cfg: ControlConfig, mon: StepMonitor) -> None:
+    """Hold the fingertips until ``mon`` reads the object's state at rest (or a timeout)."""
+    mon.watch_rest(run.t)
+    run.drive(np.array([run.command]), react=mon.update, transit_leg=True,
+              max_time=cfg.max_settle + 0.5)
 
 
 def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
@@ -855,19 +1006,23 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                 return Decision(done=True, outcome="finished")
             return Decision()
 
-        dec, obs = _push(run, push, 0.03, push.distance + p.finger_radius + cfg.clearance
-                         + 0.015, react, p.finger_radius + cfg.clearance, cfg.max_accel)
+        dec, let_go, obs = _push(sim, run, cfg, push, 0.03,
+                                 push.distance + p.finger_radius + cfg.clearance + 0.015,
+                                 react)
+        entry["let_go"] = let_go
         entry["moved_m"] = round(float((obs.pose.com[:2] - origin) @ push.direction[:2]), 5)
         entry["outcome"] = dec.outcome if dec is not None else ""
         entry["error_after_m"] = round(math.dist(obs.pose.com[:2], ex.goal_position), 5)
         ex.corrections.append(entry)
 
 
-def _push(run: _Runner, push: Any, speed: float, length: float,
-          react: Callable[[Observation, FloatArray], Decision], back_off: float,
-          max_accel: float) -> tuple[Decision | None, Observation]:
+def _push(sim: Simulator, run: _Runner, cfg: ControlConfig, push: Any, speed: float,
+          length: float, react: Callable[[Observation, FloatArray], Decision],
+          ) -> tuple[Decision | None, dict[str, Any], Observation]:
     """Drive finger 1 ``length`` (m) along ``push.direction`` from ``push.start`` at ``speed``
-    (m/s) until ``react`` says done (or a timeout), back it off ``back_off`` (m), and observe.
+    (m/s) until ``react`` says done (or a timeout), and let go (:func:`_let_go`, held clear
+    until the object is still); returns the decision, the let-go's record and the last
+    observation.
 
     The slide and turn corrections differ only in their speeds, lengths and stopping rules.
     """
@@ -877,10 +1032,14 @@ def _push(run: _Runner, push: Any, speed: float, length: float,
     path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
     dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
                     max_time=length / speed + 0.5)
-    back = np.array(run.command)
-    back[0, :2] -= push.direction[:2] * back_off
-    run.drive(straight(run.command, back, dt=run.dt, max_speed=0.1, max_accel=max_accel / 2))
-    return dec, run.wait_observation()
+    moving = np.zeros(sim.n_fingers, dtype=bool)
+    moving[0] = True
+    # held clear until the object, which may slide on after the push, is still: what
+    # follows is decided on the object at rest
+    let_go, obs = _let_go(sim, run, cfg, moving, until_still=True,
+                          noise=run.observer.stream.model.position_noise,
+                          max_time=cfg.max_settle + 0.5)
+    return dec, let_go, obs
 
 
 def _yaw_error(poly: Any, pose: ObjectPose, theta: float) -> float | None:
@@ -916,14 +1075,15 @@ def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                 return Decision(done=True, outcome="finished")
             return Decision()
 
-        dec, obs = _push(run, push, 0.02, p.finger_radius + cfg.clearance + 0.03, react,
-                         p.finger_radius + cfg.clearance, cfg.max_accel)
+        dec, let_go, obs = _push(sim, run, cfg, push, 0.02,
+                                 p.finger_radius + cfg.clearance + 0.03, react)
         after = _yaw_error(sim.poly, obs.pose, theta)
         ex.corrections.append({"kind": "turn", **push.to_dict(),
                                "theta_error_before_deg": round(err0, 3),
                                "theta_error_after_deg": None if after is None
                                else round(after, 3),
-                               "outcome": dec.outcome if dec is not None else ""})
+                               "outcome": dec.outcome if dec is not None else "",
+                               "let_go": let_go})
 
 
 def transition_record(ex: Execution, step: PlanStep) -> dict[str, Any]:
