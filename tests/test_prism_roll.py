@@ -37,6 +37,7 @@ from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION  # noqa: E402
 from nonprehensile.sim.record import record_dataset, write_recorded  # noqa: E402
 
 HEX_SKILLS = Path(__file__).resolve().parents[1] / "examples" / "hexprism_skills.json"
+CUBE_SKILLS = Path(__file__).resolve().parents[1] / "examples" / "cube_skills.json"
 SIDE = 0.025  # the hexagon's side (the model is in cm)
 TOP = math.sqrt(3.0) * SIDE  # lying on a side face, the opposite one is this high
 
@@ -104,8 +105,27 @@ def test_top_roll_presses_the_top_face_above_the_pivot_and_turns_about_it(prism)
     fingered = {el.id for ev in rolled.events for q in ev for el in (q.x, q.y)
                 if isinstance(el, Face) and any(isinstance(o, Finger) for o in (q.x, q.y))}
     assert fingered == {top}
-    # a cube's vertical faces are left to the recorded push (and its raised retry)
+    # a retry of the prism's roll is not the raised push either: it is the top roll again
     assert raised(spec, poly, radius) is not spec
+
+
+def test_a_cube_push_roll_keeps_its_recorded_push() -> None:
+    """A cube's pushed faces are vertical: :func:`top_roll` leaves its step as recorded, and
+    the closed loop's first attempt (:func:`one_finger_push`) is the recorded push itself."""
+    from nonprehensile.control import one_finger_push
+
+    poly, skills = read_skills(CUBE_SKILLS)
+    exp = expand(poly, skills, states_by_step(poly, 90))
+    ds, motions = motions_from_dataset("cube", skills=skills, poly=poly)
+    pushes = [t for t in exp.transitions if t.source.name == "push-roll"]
+    assert pushes
+    t = pushes[0]
+    p = plan(poly, exp, t.skill.initial, t.skill.final, motions=motions, scale=ds.scale)
+    assert p.steps[0].transition.source.name == "push-roll"
+    spec = step_spec(poly, p.steps[0], ds.fingers)
+    assert top_roll(spec, poly, 0.008) is spec
+    assert one_finger_push(spec, poly, 0.008) is spec
+    assert one_finger_push(spec, poly, 0.008, higher=True) is not spec  # the raised retry
 
 
 def test_correction_pushes_slide_a_prism_across_on_a_leaning_face() -> None:
