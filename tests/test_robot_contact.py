@@ -111,32 +111,3 @@ def test_tracking_error_is_measured_against_the_command_with_its_noise() -> None
     err, ref = np.array(drv.log.error[-100:]), np.array(drv.log.error_ref[-100:])
     assert err.max() < 0.0005  # at rest on its command
     np.testing.assert_allclose(ref, 0.002, atol=0.0005)
-
-
-def test_contact_correction_moves_only_the_fingertips_that_touch() -> None:
-    """With two arms, a fingertip off the object is not steered by its own tracking error
-    while the other one touches (truth: the correction of a touching fingertip is
-    ``-gain dt e`` of its error ``e`` against its command; a free one's stays zero and a
-    correction fades once its fingertip leaves, at ``exp(-release_rate dt)``)."""
-    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(-0.20, -0.37, 45.0)),
-                                Arm(Robot.builtin(), BasePose(0.78, 0.56, -135.0))],
-                         scale=SCALE)
-    drv = sim.robot_driver
-    mujoco.mj_forward(sim.model, drv.data)
-    drv.data.qfrc_actuator[:] = 0.0  # no joint near its torque limit (the guard holds)
-    tips = np.array(drv.data.site_xpos[drv._tip_sites])
-    cmd = tips + np.array([[0.002, 0.0, 0.0], [0.0, -0.002, 0.0]])  # both 2 mm off
-    drv._touch = True
-    drv._touching[:] = (True, False)
-    steps = 2
-    k = min(drv.tracking_gain * steps * drv.dt, 1.0)
-    out = drv._correct(cmd.copy(), cmd, steps, None)
-    np.testing.assert_allclose(drv._corr[0], -k * (tips[0] - cmd[0]), atol=1e-12)
-    np.testing.assert_array_equal(drv._corr[1], 0.0)
-    np.testing.assert_allclose(out, cmd + drv._corr, atol=1e-15)
-    first = drv._corr[0].copy()
-    drv._touching[:] = (False, True)  # the first leaves, the second touches
-    drv._correct(cmd.copy(), cmd, steps, None)
-    np.testing.assert_allclose(drv._corr[0], first * np.exp(-drv.release_rate * steps
-                                                            * drv.dt), atol=1e-12)
-    np.testing.assert_allclose(drv._corr[1], -k * (tips[1] - cmd[1]), atol=1e-12)

@@ -435,9 +435,6 @@ class RobotArms:
         self._tips_view = data.site_xpos[tips] if isinstance(tips, slice) else None
         self._n = 0
         self._touch = False
-        # which fingertips touch the object (the contact correction is per fingertip: a
-        # free pad beside a touching one must not be steered by its own error)
-        self._touching = np.zeros(scene.n_fingers, dtype=bool)
         self._other = False
         self._noise_next: FloatArray | None = None
         self._jac = np.zeros((3, m.nv))
@@ -691,7 +688,6 @@ class RobotArms:
         if gain <= 0.0:
             return targets
         dt = steps * self.dt
-        on = self._touching
         if self._touch:
             e = self.data.site_xpos[self._tip_sites] - now
             if noise is not None:
@@ -702,20 +698,17 @@ class RobotArms:
             guard = bool(finite.any()) and float(
                 (tau[finite] / sc.torque[finite]).max()) > self.torque_guard
             if not guard:
-                c[on] -= min(gain * dt, 1.0) * e[on]
+                c -= min(gain * dt, 1.0) * e
             # else held: near a torque limit a fingertip presses no harder (an object that
             # does not give is not pushed into up to the limits)
             n = np.sqrt((c * c).sum(axis=1))
             over = n > self.tracking_bound
             if over.any():
                 c[over] *= (self.tracking_bound / n[over])[:, None]
-        free = ~on
-        if free.any() and c[free].any():
-            # the fingertips off the object let their correction fade (a let-go, a transit
-            # or a pad still approaching beside a touching one must not carry it)
-            c[free] *= math.exp(-self.release_rate * dt)
-            small = free & (np.abs(c).max(axis=1) < 1e-7)
-            c[small] = 0.0
+        elif c.any():
+            c *= math.exp(-self.release_rate * dt)
+            if float(np.abs(c).max()) < 1e-7:
+                c[:] = 0.0
         return targets + c
 
     def _tip_forces(self) -> FloatArray:
@@ -741,30 +734,22 @@ class RobotArms:
 
     def _contacts(self, d: Any) -> tuple[bool, bool]:
         """Whether a fingertip touches the object, and whether a link or the rod touches the
-        object or the table (the judge's rule: contacts within 0.1 mm), in one pass; which
-        fingertips touch is left in ``_touching``, shape (n_fingers,)."""
+        object or the table (the judge's rule: contacts within 0.1 mm), in one pass."""
         n = d.ncon
         if n == 0:
-            self._touching[:] = False
             return False, False
         con = d.contact
         # the fields read in bulk, then plain Python over a handful of contacts (numpy
         # masks over them cost more than the loop)
         obj, tips, links = self._obj_geom, self._tip_set, self._link_set
-        touching = self._touching
-        touching[:] = False
         touch = other = False
         for (a, b), dd in zip(con.geom[:n].tolist(), con.dist[:n].tolist(), strict=True):
             if dd > 1e-4:
                 continue
             if a in links or b in links:
                 other = True
-            elif a == obj and b in tips:
+            elif (a == obj and b in tips) or (b == obj and a in tips):
                 touch = True
-                touching[self._tip_index[b]] = True
-            elif b == obj and a in tips:
-                touch = True
-                touching[self._tip_index[a]] = True
         return touch, other
 
     def record(self, seg: _Segment, j: int) -> None:
