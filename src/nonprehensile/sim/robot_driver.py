@@ -672,7 +672,9 @@ class RobotArms:
         servos give: a 3.2-3.4 mm steady error in the pushes of a roll-arc and a roll-pull
         at nominal physics (the joints' set points 2-3 mrad ahead of the joints). The
         correction integrates the fingertip's error against its command (the target
-        ``now``, plus ``noise``) while it touches the object, at ``tracking_gain`` (1/s),
+        ``now``, plus ``noise``) while it touches the object, at ``tracking_gain`` (1/s;
+        with several fingertips, every fingertip's while any one touches: measured better
+        in the two-arm tumbles than a per-fingertip switch, ``docs/robot.md``),
         so the set points lead by what the contact takes. It is bounded by
         ``tracking_bound`` (m), is held (not grown) while any joint's torque is above
         ``torque_guard`` of its limit (a fingertip against an object that does not give
