@@ -105,7 +105,7 @@ def test_top_roll_presses_the_top_face_above_the_pivot_and_turns_about_it(prism)
     fingered = {el.id for ev in rolled.events for q in ev for el in (q.x, q.y)
                 if isinstance(el, Face) and any(isinstance(o, Finger) for o in (q.x, q.y))}
     assert fingered == {top}
-    # a retry of the prism's roll is not the raised push either: it is the top roll again
+    # raised() is not a no-op on a face that leans back: it moves the push up the face
     assert raised(spec, poly, radius) is not spec
 
 
