@@ -1108,7 +1108,7 @@ def after_step(spec: StepSpec, monitor_reason: str, observed: State | None, goal
       ``config.max_replans``.
     """
     if config.align_tol is None:
-        raise ValueError("after_step needs a resolved align_tol: pass "
+        raise InputError("after_step needs a resolved align_tol, got None: pass "
                          "config.for_step(angular_step(states)) (execute_plan does)")
     if same_state(observed, goal, config.angle_tol):
         return NextAction("done")
