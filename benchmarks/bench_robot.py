@@ -217,6 +217,10 @@ def _robot_report(res) -> None:
         ref = [v for v in ref if v is not None]
         lim = [max(m["longest_at_limit_s"].values(), default=0.0) for m in group]
         oth = [m["other_contact_s"] for m in group]
+        lim_c = [m.get("longest_at_limit_contact_s", 0.0) for m in group]
+        frc = [m.get("contact_force_max_n") for m in group]
+        frc = sorted(v for v in frc if v is not None)
+        give = sorted(m.get("give_contact_max_m") or 0.0 for m in group)
         print(f"   robot, {label} {len(group)} executions: tracking in contact max "
               f"{1000 * max(trk, default=0):.1f} mm (median of the maxima "
               f"{1000 * sorted(trk)[len(trk) // 2] if trk else 0:.1f} mm; against the "
@@ -225,6 +229,11 @@ def _robot_report(res) -> None:
               f"limit {1000 * max(lim):.0f} ms ({sum(v > 0.010 for v in lim)} over 10 ms); "
               f"link/rod contact max {1000 * max(oth):.0f} ms ({sum(v > 0 for v in oth)} "
               f"with any); IK median {max(m['ik_median_ms'] for m in group):.3f} ms (worst)")
+        print(f"     while touching: longest at a limit {1000 * max(lim_c):.0f} ms "
+              f"({sum(v > 0.010 for v in lim_c)} over 10 ms); contact force (the fingertip's "
+              f"force sensor) max {max(frc, default=0):.1f} N, median of the maxima "
+              f"{frc[len(frc) // 2] if frc else 0:.1f} N; the compliance's give max "
+              f"{1000 * give[-1]:.1f} mm")
         kinds = Counter(k for m in group for k, v in m["longest_at_limit_s"].items()
                         if v > 0.010)
         if kinds:
