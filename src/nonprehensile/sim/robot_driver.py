@@ -377,6 +377,8 @@ class _OnlineControls:
             if seg is not None and i < seg.stop:
                 self.driver.record(seg, i)
                 row: FloatArray = seg.rows[i - seg.start]
+                if self.driver.compliance:
+                    row = self.driver._comply(seg, i, row)
             else:
                 row = self.driver.row(self, i)
             self._i = i
@@ -419,7 +421,8 @@ class RobotArms:
         The IK runs every this many physics steps (the control rate is the physics rate over
         it); the joint set points are interpolated in between.
     compliance : bool
-        The force-limited finger command (:meth:`_comply`, on by default): each fingertip's
+        The force-limited finger command (:meth:`_comply`; off by default, see
+        docs/robot.md for why): each fingertip's
         command is the target pulled back along the contact force its force sensor measures,
         so that the force obeys the free fingertip's spring (``finger_stiffness``) and force
         limit (``force_limit``). Off: the stiff position-controlled arm of the targets.
@@ -440,7 +443,7 @@ class RobotArms:
                  dt: float, ik_config: IKConfig | None = None,
                  control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float = 8.0, tracking_gain: float = 20.0, *,
-                 compliance: bool = True, finger_stiffness: float = 600.0,
+                 compliance: bool = False, finger_stiffness: float = 600.0,
                  compliance_damping: float = COMPLIANCE_DAMPING) -> None:
         if isinstance(control_every, bool) or not isinstance(control_every, int) or not \
                 1 <= control_every <= 100:
@@ -507,6 +510,7 @@ class RobotArms:
         self._fbuf = np.zeros(6)
         self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
         self._force_now = np.full(scene.n_fingers, math.nan)
+        self._pinv_c: FloatArray | None = None
 
     # --------------------------------------------------------------------- protocol
     def controls(self, targets: FloatArray) -> Any:
@@ -599,6 +603,8 @@ class RobotArms:
             seg = ctl.seg = self._segment(ctl, j)
         self.record(seg, j)
         row: FloatArray = seg.rows[j - seg.start]
+        if self.compliance:
+            row = self._comply(seg, j, row)
         return row
 
     def _segment(self, ctl: _OnlineControls, j: int) -> _Segment:
@@ -614,7 +620,6 @@ class RobotArms:
         t0 = self.log.n
         self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
         noise_j = None if ctl.noise is None else ctl.noise[j]
-        give0 = self._offset.copy()
         if self.every == 1:
             k = 1
             q1, qd1 = self.ik.step(self._yield(targets[j], 1, noise_j, now=targets[j]))
@@ -656,15 +661,11 @@ class RobotArms:
         log._qd_ref[t0:t0 + k] = qd
         log._target[t0:t0 + k] = targets[j:j + k]
         log._noise[t0:t0 + k] = 0.0 if noise is None else noise
-        # the give as the set points carry it: from the period's start to its solve's
-        give1 = self._offset
-        if self.every == 1:
-            log._give[t0] = give1
-        else:
-            log._give[t0:t0 + k] = give0[None] + (np.arange(k)[:, None, None] / k) * (
-                give1 - give0)[None]
+        # the give and the force are logged per physics step by _comply; the stiff arm's
+        # force is read at the solves
+        log._give[t0:t0 + k] = 0.0
         log._force[t0:t0 + k] = math.nan
-        if self.compliance:
+        if not self.compliance:
             log._force[t0] = self._force_now
         log._ik[t0 + 1:t0 + k] = math.nan
         log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times else math.nan
@@ -674,17 +675,22 @@ class RobotArms:
         """Joint offsets moving the tips by ``noise`` (shape (k, n_fingers, 3)), shape
         (k, n_joints): damped least squares on the tip sites' position Jacobian, computed
         once per solve."""
-        sc = self.scene
         if self._pinv is None:
-            m, d = sc.model, self.data
-            rows = []
-            for s in self._tip_sites:
-                mujoco.mj_jacSite(m, d, self._jac, None, int(s))
-                rows.append(self._jac[:, sc.dadr])
-            jac = np.concatenate(rows)
-            self._pinv = jac.T @ np.linalg.inv(jac @ jac.T + 1e-6 * np.eye(len(jac)))
+            self._pinv = self._tip_pinv()
         noise = np.asarray(noise, dtype=np.float64)
         return np.asarray(noise.reshape(len(noise), -1) @ self._pinv.T)
+
+    def _tip_pinv(self) -> FloatArray:
+        """Damped least-squares inverse of the tip sites' position Jacobian now, shape
+        (n_joints, 3 n_fingers)."""
+        sc = self.scene
+        m, d = sc.model, self.data
+        rows = []
+        for s in self._tip_sites:
+            mujoco.mj_jacSite(m, d, self._jac, None, int(s))
+            rows.append(self._jac[:, sc.dadr])
+        jac = np.concatenate(rows)
+        return np.asarray(jac.T @ np.linalg.inv(jac @ jac.T + 1e-6 * np.eye(len(jac))))
 
     def solve(self, targets: FloatArray, *, last: bool = False,
               noise: FloatArray | None = None) -> FloatArray:
@@ -724,15 +730,21 @@ class RobotArms:
         of the command."""
         arr = np.asarray(targets, dtype=np.float64)
         now_ = arr if now is None else np.asarray(now, dtype=np.float64)
-        # the correction first, against the command of the period now ending
+        # the correction against the command now (the give included: it is on the set points)
         out = self._correct(arr, now_ + self._offset, steps, noise)
         if self.compliance:
-            self._comply(steps)
-        return np.asarray(out + self._offset, dtype=np.float64)
+            self._pinv_c = None  # the give's Jacobian, at this solve's joints (_comply)
+        elif self._touch:  # the stiff arm's force, for the records only
+            f = self._tip_forces()
+            self._force_now = np.sqrt((f * f).sum(axis=1))
+        else:
+            self._force_now[:] = 0.0
+        return out
 
-    def _comply(self, steps: int) -> None:
-        """Update each fingertip's give (``self._offset``, the command minus the target) over
-        ``steps`` physics steps: a damper admittance with the free fingertip's spring.
+    def _comply(self, seg: _Segment, j: int, row: FloatArray) -> FloatArray:
+        """Row ``j`` of ``seg`` (``row``) with each fingertip's give (``self._offset``, the
+        command minus the target), updated over this physics step: a damper admittance with
+        the free fingertip's spring, at the physics rate.
 
         The free fingertip is a 20 g sphere on a spring of stiffness ``k`` (N/m per axis)
         whose force saturates at ``f`` (N per axis): pressed into an object that does not
@@ -745,19 +757,22 @@ class RobotArms:
         sensor or tactile fingertip; the physics distribution has no force noise, so the
         reading is exact). In steady contact ``F = k g`` below the limit and ``|F_i| <= f``
         per axis above it: the force of the free fingertip at the same target. Off the
-        object (no force) the give fades with the time constant ``1 / release_rate``, as a
-        free fingertip springs back (the damper's own ``k / B`` is far slower). The give is
-        bounded by ``give_bound`` (m).
+        object (no force) the give returns by the same law (``B dg/dt = -k g``). The give
+        is bounded by ``give_bound`` (m).
 
-        The damper, not a virtual mass: the loop from command to force runs through the
-        arm's servos and a stiff contact, once per control period (10 ms at 100 Hz), and a
-        20 g mass on that loop would ring; the damper's step ``h (K + k) / B`` (``K``: the
-        contact's stiffness through the arm) stays below 1.
+        The give goes on the position servos' set points as a joint offset ``J^+ g`` (``J``:
+        the tip sites' position Jacobian at the last solve), every physics step, not through
+        the IK: at the 100 Hz control rate a force read once per period samples an impact
+        at random, and the arm hopped on the table in a 40 ms limit cycle (70 N impacts)
+        where the same law at 1 kHz holds the spring's force. A damper, not a virtual mass:
+        the loop from command to force runs through the servos and a stiff contact, and a
+        20 g mass on it would ring; ``B`` keeps its crossover ``(K + k) / B`` (``K``: the
+        contact's stiffness through the arm) under the servos' bandwidth. The give moves at
+        most ``give_speed`` (m/s).
         """
-        h = steps * self.dt
+        h = self.dt
         off = self._offset
         f = self._tip_forces()
-        self._force_now = np.sqrt((f * f).sum(axis=1))
         k, lim, b = self.finger_stiffness, self.force_limit, self.compliance_damping
         step = (h / b) * (f - np.clip(k * off, -lim, lim))
         n = np.sqrt((step * step).sum(axis=1))
@@ -765,11 +780,21 @@ class RobotArms:
         if fast.any():
             step[fast] *= (self.give_speed * h / n[fast])[:, None]
         off += step
-        off[np.abs(off) < 1e-9] = 0.0
         n = np.sqrt((off * off).sum(axis=1))
         over = n > self.give_bound
         if over.any():
             off[over] *= (self.give_bound / n[over])[:, None]
+        log = self.log
+        i = log.n - 1  # the row just recorded (record)
+        log._give[i] = off
+        log._force[i] = np.sqrt((f * f).sum(axis=1))
+        if not off.any():
+            return row
+        if self._pinv_c is None:
+            self._pinv_c = self._tip_pinv()
+        out = np.array(row)
+        out[self.scene.pos_act] += self._pinv_c @ off.ravel()
+        return out
 
     def _correct(self, targets: FloatArray, now: FloatArray, steps: int,
                  noise: FloatArray | None) -> FloatArray:
@@ -780,10 +805,10 @@ class RobotArms:
         servos give: a 3.2-3.4 mm steady error in the pushes of a roll-arc and a roll-pull
         at nominal physics (the joints' set points 2-3 mrad ahead of the joints). The
         correction integrates the fingertip's error against its command (``now``: the
-        target plus the give, plus ``noise``) while it touches the object, at ``tracking_gain`` (1/s;
-        with several fingertips, every fingertip's while any one touches: measured better
-        in the two-arm tumbles than a per-fingertip switch, ``docs/robot.md``),
-        so the set points lead by what the contact takes. It is bounded by
+        target plus the give, plus ``noise``) while it touches the object, at
+        ``tracking_gain`` (1/s; with several fingertips, every fingertip's while any one
+        touches: measured better in the two-arm tumbles than a per-fingertip switch,
+        ``docs/robot.md``), so the set points lead by what the contact takes. It is bounded by
         ``tracking_bound`` (m), is held (not grown) while any joint's torque is above
         ``torque_guard`` of its limit (a fingertip against an object that does not give
         must not press harder, up to the limits), and fades with the time constant

@@ -10,7 +10,6 @@ robot's own records (tracking error, limits, other contacts, IK time) are in
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -65,7 +64,7 @@ class RobotSimulator(Simulator):
         The virtual finger's force limit, N per axis (default ``params.max_force``; ``inf``:
         a spring without a limit).
     compliance : bool
-        The force-limited finger command (on by default;
+        The force-limited finger command (off by default;
         :meth:`~nonprehensile.sim.robot_driver.RobotArms._comply`): the fingertip's command
         gives way along the measured contact force as the free fingertip's spring would.
         Off: the stiff position-controlled arm.
@@ -78,7 +77,7 @@ class RobotSimulator(Simulator):
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
                  control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float | None = None, tracking_gain: float = 20.0,
-                 compliance: bool = True) -> None:
+                 compliance: bool = False) -> None:
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self._force_limit = force_limit
