@@ -31,9 +31,9 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
 ``NP_PARTS`` picks parts (default ``plan,wheel``; ``sweep`` and ``transitions`` are long:
 ``NP_PARTS=sweep NP_ROBOT_SAMPLES=100 NP_WORKERS=2 nice python -m benchmarks robot``);
 ``NP_ROBOT_UNITS=K`` runs every K-th transition only (development); ``NP_ROBOT_ARMS=1`` or
-``2`` runs one group of ``transitions`` only; ``NP_ROBOT_COMPLIANCE=1`` gives the arms the
-force-limited finger command (each sample's stiffness and force limit, docs/robot.md) in
-``sweep``, ``transitions`` and ``plan``.
+``2`` runs one group of ``transitions`` only; ``NP_ROBOT_COMPLIANCE=1`` (``0``) turns the
+arms' force-limited finger command on (off) in ``sweep``, ``transitions`` and ``plan`` (each
+sample's stiffness and force limit, docs/robot.md; unset: the default, on for two arms).
 """
 
 from __future__ import annotations
@@ -52,8 +52,15 @@ WORKERS = int(os.environ.get("NP_WORKERS", "2"))
 SEED = int(os.environ.get("NP_SEED", "0"))
 EVERY_UNIT = int(os.environ.get("NP_ROBOT_UNITS", "1"))
 ARMS = [int(a) for a in os.environ.get("NP_ROBOT_ARMS", "1,2").split(",")]
-COMPLIANCE = os.environ.get("NP_ROBOT_COMPLIANCE", "0") == "1"
+# the force-limited finger command: 1 on, 0 off, unset: the default (on for two arms)
+_C = os.environ.get("NP_ROBOT_COMPLIANCE")
+COMPLIANCE = None if _C is None else _C == "1"
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
+
+
+def _compliance(n_fingers: int) -> str:
+    on = n_fingers >= 2 if COMPLIANCE is None else COMPLIANCE
+    return ("on" if on else "off") + (" (the default)" if COMPLIANCE is None else "")
 
 
 def _skills() -> str:
@@ -291,7 +298,7 @@ def sweep() -> None:
     spec = SweepSpec(poly, ds.scale, units, dist, SEED, SAMPLES, ("closed",),
                      dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
                      robot=SweepRobot(tuple(arms), compliance=COMPLIANCE))
-    print(f"   force-limited finger command: {'on' if COMPLIANCE else 'off'}")
+    print(f"   force-limited finger command: {_compliance(1)}")
     _robot_report(run_sweep(spec, workers=WORKERS))
 
 
@@ -339,7 +346,7 @@ def transitions() -> None:
         spec = SweepSpec(poly, ds.scale, tuple(units), nominal, SEED, 1, ("closed",),
                          dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
                          robot=SweepRobot(tuple(arms), compliance=COMPLIANCE))
-        print(f"   force-limited finger command: {'on' if COMPLIANCE else 'off'}")
+        print(f"   force-limited finger command: {_compliance(n_arms)}")
         _robot_report(run_sweep(spec, workers=WORKERS, chunk_size=1))
 
 

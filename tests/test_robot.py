@@ -510,3 +510,15 @@ def test_compliance_refuses_a_finger_that_is_not_one() -> None:
         RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))], scale=SCALE,
                        params=replace(DEFAULT_PARAMS, stiffness=float("nan")),
                        compliance=True)
+
+
+def test_compliance_is_on_by_default_for_two_fingertips_only() -> None:
+    """A pinch by two arms gets the force-limited finger command; one arm stays stiff (the
+    measured choice, docs/robot.md); an explicit choice wins; a sweep's robot says which."""
+    one = [Arm(Robot.builtin(), BasePose(0.5, 0.0, 180.0))]
+    two = [*one, Arm(Robot.builtin(), BasePose(-0.5, 0.0, 0.0))]
+    assert not RobotSimulator(CUBE, one, scale=SCALE).robot_driver.compliance
+    assert RobotSimulator(CUBE, two, scale=SCALE).robot_driver.compliance
+    assert not RobotSimulator(CUBE, two, scale=SCALE, compliance=False).robot_driver.compliance
+    assert SweepRobot(tuple(two)).to_dict()["compliance"] is True
+    assert SweepRobot(tuple(one)).to_dict()["compliance"] is False
