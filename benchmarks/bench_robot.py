@@ -33,7 +33,7 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
 ``NP_ROBOT_UNITS=K`` runs every K-th transition only (development); ``NP_ROBOT_ARMS=1`` or
 ``2`` runs one group of ``transitions`` only; ``NP_ROBOT_COMPLIANCE=1`` (``0``) turns the
 arms' force-limited finger command on (off) in ``sweep``, ``transitions`` and ``plan`` (each
-sample's stiffness and force limit, docs/robot.md; unset: the default, on for two arms).
+sample's stiffness and force limit, docs/robot.md; unset: the default, off).
 """
 
 from __future__ import annotations
@@ -52,14 +52,14 @@ WORKERS = int(os.environ.get("NP_WORKERS", "2"))
 SEED = int(os.environ.get("NP_SEED", "0"))
 EVERY_UNIT = int(os.environ.get("NP_ROBOT_UNITS", "1"))
 ARMS = [int(a) for a in os.environ.get("NP_ROBOT_ARMS", "1,2").split(",")]
-# the force-limited finger command: 1 on, 0 off, unset: the default (on for two arms)
+# the force-limited finger command: 1 on, 0 or unset off (the default)
 _C = os.environ.get("NP_ROBOT_COMPLIANCE")
 COMPLIANCE = None if _C is None else _C == "1"
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 
 def _compliance(n_fingers: int) -> str:
-    on = n_fingers >= 2 if COMPLIANCE is None else COMPLIANCE
+    on = bool(COMPLIANCE)
     return ("on" if on else "off") + (" (the default)" if COMPLIANCE is None else "")
 
 

@@ -14,10 +14,9 @@ execution (transits included) the largest fingertip tracking error while a finge
 the object (the distance from the fingertip's centre to the target it was given: the figure
 of the single-arm rows in docs/benchmarks.md), the longest time a joint was at a position,
 velocity or torque limit (which and when), the time a link or the rod touched the object or
-the table, and the IK's median time. The arms have the force-limited finger command (the
-default for two arms: ``RobotSimulator``'s nominal fingertip, 600 N/m and 8 N;
-``TWO_ARMS_FORCE_LIMIT=N`` sets the force limit); ``TWO_ARMS_COMPLIANCE=0`` runs the stiff
-arms.
+the table, and the IK's median time. ``TWO_ARMS_COMPLIANCE=1`` gives the arms the
+force-limited finger command (``RobotSimulator(compliance=True)``: the nominal fingertip's
+600 N/m and 8 N; ``TWO_ARMS_FORCE_LIMIT=N`` sets the force limit); off by default.
 """
 
 from __future__ import annotations
@@ -56,7 +55,7 @@ def main() -> None:
 
     limit = os.environ.get("TWO_ARMS_FORCE_LIMIT")
     force_limit = None if limit is None else float(limit)
-    compliance = os.environ.get("TWO_ARMS_COMPLIANCE", "1") == "1"
+    compliance = os.environ.get("TWO_ARMS_COMPLIANCE", "0") == "1"
     poly, all_skills = read_skills(_skills())
     all_skills = [s for s in all_skills if max(fingers_of(s), default=1) <= 2]
     robot = Robot.builtin("panda")

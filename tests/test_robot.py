@@ -512,13 +512,18 @@ def test_compliance_refuses_a_finger_that_is_not_one() -> None:
                        compliance=True)
 
 
-def test_compliance_is_on_by_default_for_two_fingertips_only() -> None:
-    """A pinch by two arms gets the force-limited finger command; one arm stays stiff (the
-    measured choice, docs/robot.md); an explicit choice wins; a sweep's robot says which."""
+def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
+    """The stiff arm is the default (the measured choice, docs/robot.md); an explicit choice
+    wins; a sweep's robot says which."""
     one = [Arm(Robot.builtin(), BasePose(0.5, 0.0, 180.0))]
     two = [*one, Arm(Robot.builtin(), BasePose(-0.5, 0.0, 0.0))]
-    assert not RobotSimulator(CUBE, one, scale=SCALE).robot_driver.compliance
-    assert RobotSimulator(CUBE, two, scale=SCALE).robot_driver.compliance
-    assert not RobotSimulator(CUBE, two, scale=SCALE, compliance=False).robot_driver.compliance
-    assert SweepRobot(tuple(two)).to_dict()["compliance"] is True
+    assert not RobotSimulator(CUBE, two, scale=SCALE).robot_driver.compliance
+    assert RobotSimulator(CUBE, two, scale=SCALE, compliance=True).robot_driver.compliance
+    assert SweepRobot(tuple(two), compliance=True).to_dict()["compliance"] is True
     assert SweepRobot(tuple(one)).to_dict()["compliance"] is False
+    sim = SweepRobot(tuple(one), compliance=True).simulator(CUBE, SCALE, DEFAULT_PARAMS)
+    assert sim.robot_driver.compliance  # type: ignore[attr-defined]
+    # a sample's physics sets the virtual finger
+    sim.params = replace(DEFAULT_PARAMS, stiffness=2000.0, max_force=12.0)
+    assert sim.robot_driver.finger_stiffness == 2000.0  # type: ignore[attr-defined]
+    assert sim.robot_driver.force_limit == 12.0  # type: ignore[attr-defined]

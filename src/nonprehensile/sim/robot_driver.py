@@ -421,10 +421,9 @@ class RobotArms:
         The IK runs every this many physics steps (the control rate is the physics rate over
         it); the joint set points are interpolated in between.
     compliance : bool
-        The force-limited finger command (:meth:`_comply`; off by default here;
-        ``RobotSimulator`` turns it on for two fingertips or more, docs/robot.md says why):
-        each fingertip's command is the target pulled back along the contact force its force
-        sensor measures, so that the force obeys the free fingertip's spring
+        The force-limited finger command (:meth:`_comply`; off by default, docs/robot.md
+        says why): each fingertip's command is the target pulled back along the contact
+        force its force sensor measures, so that the force obeys the free fingertip's spring
         (``finger_stiffness``) and force limit (``force_limit``). Off: the stiff
         position-controlled arm of the targets.
     finger_stiffness : float

@@ -67,8 +67,8 @@ class RobotSimulator(Simulator):
         The force-limited finger command
         (:meth:`~nonprehensile.sim.robot_driver.RobotArms._comply`): the fingertip's command
         gives way along the measured contact force as the free fingertip's spring would.
-        Off: the stiff position-controlled arm. Default (None): on with two fingertips or
-        more (a pinch is then a bounded squeeze), off with one (docs/robot.md says why).
+        Off (the default): the stiff position-controlled arm (docs/robot.md gives the
+        measured figures of both, for one arm and for two).
     tracking_gain : float
         Gain (1/s) of the fingertips' contact tracking correction
         (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off).
@@ -78,7 +78,7 @@ class RobotSimulator(Simulator):
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
                  control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float | None = None, tracking_gain: float = 20.0,
-                 compliance: bool | None = None) -> None:
+                 compliance: bool = False) -> None:
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self._force_limit = force_limit
@@ -88,8 +88,6 @@ class RobotSimulator(Simulator):
         self.ik_scene = build_robot_scene(poly, scale=self.scale, arms=self.arms,
                                           params=params, mocap_object=True)
         self.n_fingers = self.scene.n_fingers
-        if compliance is None:
-            compliance = self.n_fingers >= 2
         if self.n_fingers > 10:
             raise InputError(f"at most 10 fingers, the robots have {self.n_fingers}")
         self.xml = ""  # built with MjSpec: see self.scene

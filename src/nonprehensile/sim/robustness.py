@@ -408,14 +408,14 @@ class SweepRobot:
         --robot``.
     compliance : bool, optional
         The arms' force-limited finger command with each sample's ``stiffness`` and
-        ``max_force`` (:class:`~nonprehensile.sim.robot_run.RobotSimulator`; default
-        None: on with two fingertips or more, off with one).
+        ``max_force`` (:class:`~nonprehensile.sim.robot_run.RobotSimulator`; off by
+        default).
     """
 
     arms: tuple[Any, ...]
     control_every: int = 10  # robot_driver.DEFAULT_CONTROL_EVERY (a test holds them equal)
     max_accel: float = None  # type: ignore[assignment]
-    compliance: bool | None = None
+    compliance: bool = False
 
     def __post_init__(self) -> None:
         if self.max_accel is None:
@@ -451,8 +451,7 @@ class SweepRobot:
         return {"robots": [{"robot": a.robot.name, "tip_sites": list(a.robot.tip_sites),
                             "base": a.base.to_dict()} for a in self.arms],
                 "control_every": self.control_every, "max_accel": self.max_accel,
-                "compliance": (self.n_fingers >= 2 if self.compliance is None
-                               else bool(self.compliance))}
+                "compliance": bool(self.compliance)}
 
 
 def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, scale: float,
