@@ -71,10 +71,9 @@ def _cli(args: list[str]) -> tuple[int, dict]:
 
 
 def main_plan() -> None:
-    from dataclasses import replace
 
     from nonprehensile.cli.options import state_set
-    from nonprehensile.control import ControlConfig, replanner
+    from nonprehensile.control import replanner
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
     from nonprehensile.pipeline import motions_from_dataset
@@ -84,7 +83,7 @@ def main_plan() -> None:
     from nonprehensile.sim.placement import place_base, plan_targets
     from nonprehensile.sim.robot import Robot
     from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY
-    from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL, RobotSimulator
+    from nonprehensile.sim.robot_run import RobotSimulator, robot_control
     from nonprehensile.sim.robot_scene import Arm
     from nonprehensile.states import State
 
@@ -113,7 +112,7 @@ def main_plan() -> None:
         for (label, base), every in ((b, e) for b in bases
                                  for e in (DEFAULT_CONTROL_EVERY, 1)):
             sim = RobotSimulator(poly, [Arm(robot, base)], scale=ds.scale, control_every=every)
-            cfg = replace(ControlConfig(), max_accel=ROBOT_MAX_ACCEL)
+            cfg = robot_control(n_fingers=sim.n_fingers)
             t0 = time.process_time()
             ex = execute_plan(sim, p, fingers=ds.fingers, loop=loop, replan=replan, config=cfg)
             t_robot = time.process_time() - t0

@@ -452,6 +452,11 @@ class RobotArms:
         self._torque_finite = np.isfinite(scene.torque)
         self._fbuf = np.zeros(6)
         self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
+        # the control period's precomputed pieces (see _segment)
+        self._frac: dict[int, FloatArray] = {}
+        self._pos_act = _as_slice(scene.pos_act)
+        self._vel_act = _as_slice(scene.vel_act)
+        self._neg_velocity = -scene.velocity
 
     # --------------------------------------------------------------------- protocol
     def controls(self, targets: FloatArray) -> Any:
@@ -572,19 +577,30 @@ class RobotArms:
                                              now=targets[j]))
             self.ik.dt = self.dt
             dq = q1 - q0
-            q = q0[None, :] + (np.arange(k)[:, None] / k) * dq[None, :]
-            qd = np.repeat((dq / (k * self.dt))[None, :], k, axis=0)
+            frac = self._frac.get(k)
+            if frac is None:  # the interpolation's fractions 0, 1/k, ..., (k-1)/k
+                frac = self._frac[k] = np.arange(k)[:, None] / k
+            q = q0[None, :] + frac * dq[None, :]
+            qd = np.empty((k, len(dq)))
+            qd[:] = dq / (k * self.dt)
         if j + k >= n:  # the set point holds still after the motion
             qd[-1] = 0.0
         self._pinv = None
         sc = self.scene
-        rows = np.repeat(np.asarray(self.data.ctrl, dtype=np.float64)[None, :], k, axis=0)
+        rows = np.empty((k, len(self.data.ctrl)))
+        rows[:] = self.data.ctrl
         pos = q
         if ctl.noise is not None:
             pos = q + self._noise_offset(ctl.noise[j:j + k])
-        rows[:, sc.pos_act] = pos
+        rows[:, self._pos_act] = pos
         v = sc.velocity
-        rows[:, sc.vel_act] = np.maximum(np.minimum(qd, v), -v)
+        # the feed-forward within the velocity limits (into the rows' columns directly when
+        # they are a slice)
+        vel = self._vel_act
+        if isinstance(vel, slice):
+            np.maximum(np.minimum(qd, v), self._neg_velocity, out=rows[:, vel])
+        else:
+            rows[:, vel] = np.maximum(np.minimum(qd, v), self._neg_velocity)
         # the log's set points and targets of the period, written once (a period replaced
         # before its end is overwritten from where it stopped)
         log = self.log
