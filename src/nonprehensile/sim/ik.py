@@ -325,6 +325,7 @@ class FingertipIK:
         self._no_lower = np.full(len(self.limits[1].geom_id_pairs) if cfg.collisions else 0,
                                  -1e30)  # a collision row's lower bound: none
         self._jac1 = np.empty((3, m.nv))
+        self._fromto, self._normal = np.empty(6), np.empty(3)
         self._jac2 = np.empty((3, m.nv))
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
         self._mocap = int(m.body_mocapid[self._obj])
@@ -590,7 +591,7 @@ class FingertipIK:
         distmax = lim.collision_detection_distance
         min_dist = lim.minimum_distance_from_collisions
         gain, relax = lim.gain, lim.bound_relaxation
-        fromto, normal = np.empty(6), np.empty(3)
+        fromto, normal = self._fromto, self._normal
         jac1, jac2 = self._jac1, self._jac2
         g_rows: list[FloatArray] = []
         h_rows: list[float] = []
@@ -636,6 +637,22 @@ class FingertipIK:
         self._bp_keep = np.flatnonzero(~both & ~pg)
         # a moving plane (a user's robot file) or mink's broad phase off: every pair
         self._bp_all = not static or not getattr(lim, "broadphase", True)
+        # the usual case in fewer numpy calls (the same numbers): the sphere pairs' second
+        # geoms all one (the object), the planes all the table with its normal +z (the
+        # distance along it is then the height itself, exactly), and both sides' positions
+        # gathered at once
+        ns = len(self._bp_ss)
+        self._bp_one = -1
+        others = self._bp_ss1
+        for one, rest in ((self._bp_ss2, self._bp_ss1), (self._bp_ss1, self._bp_ss2)):
+            if ns and bool(np.all(one == one[0])):
+                # ``|a - b|^2`` is the same number either way round
+                self._bp_one, others = int(one[0]), rest
+                break
+        self._bp_up = bool(len(pl)) and bool(np.all(self._bp_pg_n == (0.0, 0.0, 1.0)))
+        self._bp_gather = np.concatenate([others, self._bp_pg_other])
+        self._bp_ns = ns
+        self._bp_nothing: list[int] = self._bp_keep.tolist()
 
     def _broad_phase(self, data: Any) -> list[int]:
         """The pairs that may lie within the detection distance (indices into mink's
@@ -643,6 +660,14 @@ class FingertipIK:
         if self._bp_all:
             return list(range(len(self._coll.geom_id_pairs)))
         x = data.geom_xpos
+        if self._bp_one >= 0 and (self._bp_up or not len(self._bp_pg)):
+            ns = self._bp_ns
+            xs = x[self._bp_gather]
+            d = xs[:ns] - x[self._bp_one]
+            got: list[int] = self._bp_ss[(d * d).sum(axis=1) <= self._bp_ss_bound2].tolist()
+            if len(self._bp_pg):
+                got += self._bp_pg[xs[ns:, 2] <= self._bp_pg_c].tolist()
+            return got + self._bp_nothing if self._bp_nothing else got
         d = x[self._bp_ss1] - x[self._bp_ss2]
         out: list[int] = self._bp_ss[(d * d).sum(axis=1) <= self._bp_ss_bound2].tolist()
         if len(self._bp_pg):
