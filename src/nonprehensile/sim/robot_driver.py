@@ -409,6 +409,8 @@ class RobotArms:
         self.ik = FingertipIK(ik_scene, dt, ik_config)
         self.ik.period = control_every * dt
         self.log = RobotLog(scene, dt)
+        # the set points' interpolation fractions per control period length (_segment)
+        self._frac: dict[int, FloatArray] = {}
         self.placed = False
         m = scene.model
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
@@ -452,11 +454,6 @@ class RobotArms:
         self._torque_finite = np.isfinite(scene.torque)
         self._fbuf = np.zeros(6)
         self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
-        # the control period's precomputed pieces (see _segment)
-        self._frac: dict[int, FloatArray] = {}
-        self._pos_act = _as_slice(scene.pos_act)
-        self._vel_act = _as_slice(scene.vel_act)
-        self._neg_velocity = -scene.velocity
 
     # --------------------------------------------------------------------- protocol
     def controls(self, targets: FloatArray) -> Any:
@@ -587,20 +584,13 @@ class RobotArms:
             qd[-1] = 0.0
         self._pinv = None
         sc = self.scene
-        rows = np.empty((k, len(self.data.ctrl)))
-        rows[:] = self.data.ctrl
+        rows = np.repeat(np.asarray(self.data.ctrl, dtype=np.float64)[None, :], k, axis=0)
         pos = q
         if ctl.noise is not None:
             pos = q + self._noise_offset(ctl.noise[j:j + k])
-        rows[:, self._pos_act] = pos
+        rows[:, sc.pos_act] = pos
         v = sc.velocity
-        # the feed-forward within the velocity limits (into the rows' columns directly when
-        # they are a slice)
-        vel = self._vel_act
-        if isinstance(vel, slice):
-            np.maximum(np.minimum(qd, v), self._neg_velocity, out=rows[:, vel])
-        else:
-            rows[:, vel] = np.maximum(np.minimum(qd, v), self._neg_velocity)
+        rows[:, sc.vel_act] = np.maximum(np.minimum(qd, v), -v)
         # the log's set points and targets of the period, written once (a period replaced
         # before its end is overwritten from where it stopped)
         log = self.log
