@@ -41,6 +41,14 @@ FloatArray = NDArray[np.float64]
 #: The fastest fingertip target motion (m/s) fed forward; faster is a jump.
 _FEED_SPEED = 1.0
 
+#: The cross product ``w x z`` of the pointing task's Jacobian as gathers: the rows of the
+#: angular Jacobian and the entries of the site's row-major rotation (z: entries 2, 5, 8)
+#: of its two products.
+_CROSS_A = np.array([1, 2, 0])
+_CROSS_ZA = np.array([8, 2, 5])
+_CROSS_B = np.array([2, 0, 1])
+_CROSS_ZB = np.array([5, 8, 2])
+
 
 def import_mink() -> Any:
     """mink, or an :class:`InputError` saying how to install it."""
@@ -220,6 +228,8 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
             self._jp = np.zeros((3, model.nv))
             self._jr = np.zeros((3, model.nv))
             self._j = np.zeros((6, model.nv))
+            self._ca = np.zeros((3, model.nv))
+            self._cb = np.zeros((3, model.nv))
 
         def compute_error(self, configuration: Any) -> FloatArray:
             d = configuration.data
@@ -231,15 +241,15 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
 
         def compute_jacobian(self, configuration: Any) -> FloatArray:
             d = configuration.data
-            jp, jr, j = self._jp, self._jr, self._j
-            mujoco.mj_jacSite(model, d, jp, jr, site)
+            jr, j = self._jr, self._j
+            mujoco.mj_jacSite(model, d, self._jp, jr, site)
             m = d.site_xmat[site]  # row-major 3x3: z is its third column
-            z0, z1, z2 = float(m[2]), float(m[5]), float(m[8])
-            j[:3] = jp
-            # d z / dt = w x z, row by row
-            j[3] = jr[1] * z2 - jr[2] * z1
-            j[4] = jr[2] * z0 - jr[0] * z2
-            j[5] = jr[0] * z1 - jr[1] * z0
+            j[:3] = self._jp
+            # d z / dt = w x z: rows jr[1] z2 - jr[2] z1, jr[2] z0 - jr[0] z2,
+            # jr[0] z1 - jr[1] z0, as two products of gathered rows (the same numbers)
+            np.multiply(jr[_CROSS_A], m[_CROSS_ZA][:, None], out=self._ca)
+            np.multiply(jr[_CROSS_B], m[_CROSS_ZB][:, None], out=self._cb)
+            np.subtract(self._ca, self._cb, out=j[3:])
             return j
 
     return FingertipTask()
@@ -496,7 +506,7 @@ class FingertipIK:
                 perp = a - c * ax
                 perp /= max(math.sqrt(float(perp @ perp)), 1e-12)
                 a = math.cos(turn) * ax + math.sin(turn) * perp
-            task.axis = a / float(np.linalg.norm(a))
+            task.axis = a / math.sqrt(float(a.dot(a)))  # (np.linalg.norm's own sum)
             if axis_prev is not None:
                 task.feed[3:] = task.axis - axis_prev
         self._fed = True
@@ -504,9 +514,10 @@ class FingertipIK:
         if v is None:
             v = self._brake()
         self.configuration.integrate_inplace(v, self.dt)
-        self._box.prev = np.asarray(v[self.scene.dadr], dtype=np.float64)
+        qd = v[self.scene.dadr]  # (a new array: v is float64)
+        self._box.prev = qd
         self.solve_times.append(time.perf_counter() - t0)
-        return self.q, np.asarray(v[self.scene.dadr], dtype=np.float64)
+        return self.q, qd.copy()
 
     def _brake(self) -> FloatArray:
         """The joint velocities of a step whose QP has no solution: the last velocities
