@@ -326,6 +326,20 @@ def _ground_of_heights(poly: Polyhedron, z: FloatArray, rotation: FloatArray, to
 PairCache = dict[tuple[Any, ...], Any]
 
 
+#: The ground (a value: one serves every contact pair).
+_GROUND = Ground()
+
+
+def _finger(k: int, cache: PairCache | None) -> Finger:
+    """``Finger(k)``, built once per cache (building one checks its number)."""
+    if cache is None:
+        return Finger(k)
+    got: Finger | None = cache.get(("finger", k))
+    if got is None:
+        got = cache[("finger", k)] = Finger(k)
+    return got
+
+
 def _pair(a: Ground | Finger, b: ObjectElement, cache: PairCache | None) -> ContactPair:
     """One :class:`ContactPair` per pair of elements: the same few pairs are observed at
     every sample, and building one checks and orders its elements. ``cache`` is the caller's
@@ -372,7 +386,7 @@ def observed_contacts(
     z = s * (poly.vertices @ rot[2]) + trans[2]
     zmin = float(z.min())
     if zmin < ground_tol:
-        pairs.append(_pair(Ground(), _ground_of_heights(poly, z, rot, ground_tol, planes,
+        pairs.append(_pair(_GROUND, _ground_of_heights(poly, z, rot, ground_tol, planes,
                                                         zmin, cache), cache))
     normals, offsets = planes
     tips = np.asarray(obs.tips, dtype=np.float64)
@@ -394,7 +408,7 @@ def observed_contacts(
             y = x - normals[int(np.argmax(d))] * top
             dist = top * s
         if dist <= reach:
-            pairs.append(_pair(Finger(numbers[j]),
+            pairs.append(_pair(_finger(numbers[j], cache),
                                _element_of(poly, normals @ y - offsets, tol / s, cache),
                                cache))
     return frozenset(pairs)

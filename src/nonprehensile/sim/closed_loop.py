@@ -283,7 +283,7 @@ class _Runner:
         obs_at = next_obs - 1e-9
         while True:
             if i < n_ctrl:
-                ctrl_view[:] = ctrl[i]
+                ctrl_view[...] = ctrl[i]
             step(m, d)
             i += 1
             n += 1
