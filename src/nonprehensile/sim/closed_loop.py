@@ -268,6 +268,8 @@ class _Runner:
         ctrl_view = d.ctrl
         # the free fingertips' joint velocities are their speeds (a robot's driver has none)
         finger_dofs = getattr(sim.driver, "dadr", None)
+        # a robot's IK avoids the object where it is observed (never the true pose)
+        see = getattr(sim.driver, "see", None)
         trace_every = self.keep_trace
         next_obs = observer.next_time()
         while True:
@@ -299,6 +301,8 @@ class _Runner:
                 next_obs = observer.next_time()
                 if obs is not None:
                     self.last_obs = obs
+                    if see is not None:
+                        see(obs.pose)
                     cur = seg[min(i, len(seg) - 1)]
                     self._cursor = (seg, i)
                     dec = react(obs, cur)
@@ -614,6 +618,9 @@ def execute_plan(
     m, d = sim.model, sim.data
     mujoco.mj_resetData(m, d)
     sim.set_pose(perturbation.start_pose(first.start_pose))
+    see = getattr(sim.driver, "see", None)  # a robot's IK: the object's believed pose
+    if see is not None:
+        see(first.start_pose)  # planned: nothing is observed yet
     # the fingertips start out of the way, above the object's start
     home = np.array(sim.park())
     c0 = first.start_pose.com
@@ -708,6 +715,8 @@ def execute_plan(
             "from": step.start_world.to_dict(), "to": step.end_world.to_dict(),
             "predicted_position": [round(v, 6) for v in spec.end_pose.position]}
         if loop == "open":
+            if see is not None:  # open loop the IK believes the plan
+                see(spec.start_pose)
             first_pts = np.array(rest)
             for j, k in enumerate(spec.used):
                 first_pts[k - 1] = spec.arcs[0].positions[0, j]
