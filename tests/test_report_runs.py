@@ -275,3 +275,32 @@ def test_the_robot_section_without_mink_says_how_to_install_it(
     assert not section.figures
     assert "pip install 'nonprehensile[robot]'" in section.paragraphs[0]
     assert ctx.summary["robot"]["error"].startswith("robot arms need mink")
+
+
+def test_the_executor_digest_covers_what_runs_the_free_fingertips(tmp_path: Path) -> None:
+    """The digest that marks a kept sweep stale changes with the closed loop's code and not with
+    a robot arm's; and the modules it leaves out are really not loaded by a free-fingertip
+    execution (a fresh interpreter imports the sweep's modules and lists what came with them)."""
+    import subprocess
+    import sys
+
+    src = Path(report_runs.__file__).resolve().parent.parent
+    root = tmp_path / "nonprehensile"
+    shutil.copytree(src, root, ignore=shutil.ignore_patterns("__pycache__", "data"))
+    before = report_runs.executor_digest(root)
+    assert before == report_runs.executor_digest(src)
+    (root / "sim" / "robot_driver.py").write_text("# a robot's gains changed\n")
+    (root / "sim" / "render.py").write_text("# the filmstrip changed\n")
+    assert report_runs.executor_digest(root) == before
+    with (root / "sim" / "closed_loop.py").open("a") as f:
+        f.write("\n# the controller changed\n")
+    assert report_runs.executor_digest(root) != before
+
+    code = ("import sys\n"
+            "import nonprehensile.sim.closed_loop, nonprehensile.sim.robustness\n"
+            "import nonprehensile.sim.report_runs, nonprehensile.pipeline\n"
+            "print(' '.join(sorted(m for m in sys.modules if m.startswith('nonprehensile.sim.'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    loaded = {m.rsplit(".", 1)[1] + ".py" for m in out.stdout.split()}
+    assert "closed_loop.py" in loaded and "judge.py" in loaded
+    assert not loaded & (report_runs._NOT_EXECUTOR - {"report_runs.py"})

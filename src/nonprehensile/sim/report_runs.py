@@ -77,6 +77,11 @@ _ROBOT_FORMAT = "robot/2"
 # what it plans with (references, step paths, inference, states), and the simulator
 _EXECUTOR_FILES = ("control.py", "transit.py", "observation.py", "planning.py", "references.py",
                    "step_paths.py", "inference.py", "states.py", "equivalence.py", "sim")
+# the robot arms' modules and the renderer run none of the free-fingertip executions these runs
+# keep (no module above imports them at load; the sweep's robot path imports them inside its own
+# branch), so a change to a robot's IK or gains does not make the shipped sweep stale
+_NOT_EXECUTOR = frozenset({"report_runs.py", "render.py", "ik.py", "panda.py", "placement.py",
+                           "robot.py", "robot_driver.py", "robot_run.py", "robot_scene.py"})
 
 
 def _digest(parts: Any) -> str:
@@ -117,15 +122,21 @@ def sweep_key(poly: Polyhedron, scale: float, plan: Plan, skills: Sequence[Any],
         "position_tol": float(position_tol)})[:32]
 
 
-def executor_digest() -> str:
-    """A digest of the executor's source files in this installation (16 hex digits)."""
-    root = Path(__file__).resolve().parent.parent
+def executor_digest(root: Path | None = None) -> str:
+    """A digest of the executor's source files in this installation (16 hex digits).
+
+    Parameters
+    ----------
+    root : Path, optional
+        The package folder to digest (default: this installation's ``nonprehensile``).
+    """
+    root = Path(__file__).resolve().parent.parent if root is None else root
     h = hashlib.sha256()
     for name in _EXECUTOR_FILES:
         p = root / name
         files = sorted(p.glob("*.py")) if p.is_dir() else [p]
         # this module keeps the runs; it is not what runs them
-        for f in (f for f in files if f.name != "report_runs.py"):
+        for f in (f for f in files if f.name not in _NOT_EXECUTOR):
             with contextlib.suppress(OSError):
                 h.update(f.relative_to(root).as_posix().encode())
                 h.update(f.read_bytes())
