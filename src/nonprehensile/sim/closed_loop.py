@@ -619,8 +619,8 @@ def execute_plan(
     mujoco.mj_resetData(m, d)
     sim.set_pose(perturbation.start_pose(first.start_pose))
     see = getattr(sim.driver, "see", None)  # a robot's IK: the object's believed pose
-    if see is not None:
-        see(first.start_pose)  # planned: nothing is observed yet
+    if see is not None:  # closed loop: planned until observed; open loop: nothing observed
+        see(first.start_pose if loop == "closed" else None)
     # the fingertips start out of the way, above the object's start
     home = np.array(sim.park())
     c0 = first.start_pose.com
@@ -715,8 +715,6 @@ def execute_plan(
             "from": step.start_world.to_dict(), "to": step.end_world.to_dict(),
             "predicted_position": [round(v, 6) for v in spec.end_pose.position]}
         if loop == "open":
-            if see is not None:  # open loop the IK believes the plan
-                see(spec.start_pose)
             first_pts = np.array(rest)
             for j, k in enumerate(spec.used):
                 first_pts[k - 1] = spec.arcs[0].positions[0, j]

@@ -5,7 +5,8 @@ rules and records are those of the free fingertips. Its :meth:`~RobotArms.contro
 computed **online**: row ``i`` is solved when the step loop asks for it, right before physics
 step ``i``, with the object's collision geometry where the executor believes it is then
 (:meth:`RobotArms.see`: closed loop the latest observation, never the simulation's true pose;
-a precomputed joint path would avoid the object where it was, not where it is). Each row holds,
+open loop, which observes nothing, the simulation's; a precomputed joint path would avoid the
+object where it was, not where it is). Each row holds,
 for every joint, the position servo's set point (the IK's joint positions) and the velocity
 servo's (the IK's joint velocities: feed-forward, so the arm does not lag its set points);
 gravity is compensated through the actuators (:mod:`nonprehensile.sim.robot_scene`).
@@ -635,15 +636,20 @@ class RobotArms:
         self._last = (_Segment(0, row[None], q[None], np.zeros((1, len(q)))), 0)
         return row
 
-    def see(self, pose: ObjectPose) -> None:
+    def see(self, pose: ObjectPose | None) -> None:
         """Where the object is believed to be: the pose the IK's collision avoidance and
-        finger pointing use from the next solve on (an executor's observation as it
-        arrives, closed loop; the planned pose of what comes next, open loop).
+        finger pointing use from the next solve on. The closed loop gives each observation
+        as it arrives (and the planned start before the first): a real arm's IK knows the
+        object only through the tracker, like everything else that decides.
 
-        Never the simulation's true pose: a real arm's IK knows the object only through the
-        tracker, like everything else that decides. Until the first call (a driver used
-        outside the executors, which always call it) the IK reads the simulation's pose.
+        ``None`` (the default, and what the open loop gives): the simulation's pose. Open
+        loop nothing is observed, and a pose held from before the motion is wrong: a pushing
+        fingertip follows the face it pushes into where the object stood, and the collision
+        limit stops it there (the main plan's first push-roll then did not roll).
         """
+        if pose is None:
+            self._seen = None
+            return
         quat = np.empty(4)
         mujoco.mju_mat2Quat(quat, np.ascontiguousarray(pose.rotation, dtype=np.float64)
                             .ravel())
