@@ -84,12 +84,14 @@ class IKConfig:
     side_tilt_deg : float
         How far from vertical the finger leans towards the object's vertical axis where its
         target lies at or below the object's top (a side face).
-    side_tilt_outward : float
+    side_tilt_outward : float or None
         The lean's direction, between the arm's base (0) and straight out of the object's
-        vertical axis at the target (1), normalised: leaning towards the base alone, a pinch
-        of two diagonally placed arms put the rod 5 degrees off a face 15 mm above the tip,
-        against the face's top edge (rod contact in all 24 twists of the two-arm sweep);
-        straight out, the wrist follows the face round in a twist to its joint limits.
+        vertical axis at the target (1), normalised; None: 0.5 with several fingertips, 0
+        with one. Leaning towards the base alone, a pinch of two diagonally placed arms put
+        the rod 5 degrees off a face 15 mm above the tip, against the face's top edge (rod
+        contact in all 24 twists of the two-arm sweep); straight out, the wrist follows the
+        face round in a twist to its joint limits. One arm keeps 0: at 0.5, 15 of the 24
+        single-arm roll-pulls held a torque limit for 11-12 ms (none did at 0).
     side_tilt_band : float
         The lean grows from none ``side_tilt_band`` m above the top to full at the top (and
         from none on the object's vertical axis to full this far from it).
@@ -134,7 +136,7 @@ class IKConfig:
     collision_gain: float = 0.5
     collisions: bool = True
     side_tilt_deg: float = 30.0
-    side_tilt_outward: float = 0.5
+    side_tilt_outward: float | None = None
     side_tilt_band: float = 0.02
     tilt_rate: float = 1.0
     tilt_accel: float = 4.0
@@ -362,7 +364,9 @@ class FingertipIK:
         self._pose_key: tuple[float, ...] = ()  # the object's pose at the last pointing
         self._pose_top = (0.0, 0.0, 0.0)  # its top height and centre (x, y) there
         self._tilt = float(np.radians(self.config.side_tilt_deg))
-        self._lean_out = float(self.config.side_tilt_outward)
+        w_out = self.config.side_tilt_outward
+        self._lean_out = float(w_out if w_out is not None
+                               else (0.5 if len(scene.tip_sites) > 1 else 0.0))
         # each fingertip's arm base (the root body below the world), xy
         full = np.zeros(m.nq)
         full[scene.qadr] = scene.home
