@@ -31,7 +31,9 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
 ``NP_PARTS`` picks parts (default ``plan,wheel``; ``sweep`` and ``transitions`` are long:
 ``NP_PARTS=sweep NP_ROBOT_SAMPLES=100 NP_WORKERS=2 nice python -m benchmarks robot``);
 ``NP_ROBOT_UNITS=K`` runs every K-th transition only (development); ``NP_ROBOT_ARMS=1`` or
-``2`` runs one group of ``transitions`` only.
+``2`` runs one group of ``transitions`` only; ``NP_ROBOT_COMPLIANCE=1`` gives the arms the
+force-limited finger command (each sample's stiffness and force limit, docs/robot.md) in
+``sweep``, ``transitions`` and ``plan``.
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ WORKERS = int(os.environ.get("NP_WORKERS", "2"))
 SEED = int(os.environ.get("NP_SEED", "0"))
 EVERY_UNIT = int(os.environ.get("NP_ROBOT_UNITS", "1"))
 ARMS = [int(a) for a in os.environ.get("NP_ROBOT_ARMS", "1,2").split(",")]
+COMPLIANCE = os.environ.get("NP_ROBOT_COMPLIANCE", "0") == "1"
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 
@@ -112,7 +115,8 @@ def main_plan() -> None:
               f"{t_free:.3f} s CPU for {exf.sim_time:.2f} s simulated ({nf} physics steps)")
         for (label, base), every in ((b, e) for b in bases
                                  for e in (DEFAULT_CONTROL_EVERY, 1)):
-            sim = RobotSimulator(poly, [Arm(robot, base)], scale=ds.scale, control_every=every)
+            sim = RobotSimulator(poly, [Arm(robot, base)], scale=ds.scale, control_every=every,
+                                 compliance=COMPLIANCE)
             cfg = replace(ControlConfig(), max_accel=ROBOT_MAX_ACCEL)
             t0 = time.process_time()
             ex = execute_plan(sim, p, fingers=ds.fingers, loop=loop, replan=replan, config=cfg)
@@ -217,6 +221,10 @@ def _robot_report(res) -> None:
         ref = [v for v in ref if v is not None]
         lim = [max(m["longest_at_limit_s"].values(), default=0.0) for m in group]
         oth = [m["other_contact_s"] for m in group]
+        lim_c = [m.get("longest_at_limit_contact_s", 0.0) for m in group]
+        frc = [m.get("contact_force_max_n") for m in group]
+        frc = sorted(v for v in frc if v is not None)
+        give = sorted(m.get("give_contact_max_m") or 0.0 for m in group)
         print(f"   robot, {label} {len(group)} executions: tracking in contact max "
               f"{1000 * max(trk, default=0):.1f} mm (median of the maxima "
               f"{1000 * sorted(trk)[len(trk) // 2] if trk else 0:.1f} mm; against the "
@@ -225,6 +233,11 @@ def _robot_report(res) -> None:
               f"limit {1000 * max(lim):.0f} ms ({sum(v > 0.010 for v in lim)} over 10 ms); "
               f"link/rod contact max {1000 * max(oth):.0f} ms ({sum(v > 0 for v in oth)} "
               f"with any); IK median {max(m['ik_median_ms'] for m in group):.3f} ms (worst)")
+        print(f"     while touching: longest at a limit {1000 * max(lim_c):.0f} ms "
+              f"({sum(v > 0.010 for v in lim_c)} over 10 ms); contact force (the fingertip's "
+              f"force sensor) max {max(frc, default=0):.1f} N, median of the maxima "
+              f"{frc[len(frc) // 2] if frc else 0:.1f} N; the compliance's give max "
+              f"{1000 * give[-1]:.1f} mm")
         kinds = Counter(k for m in group for k, v in m["longest_at_limit_s"].items()
                         if v > 0.010)
         if kinds:
@@ -277,7 +290,8 @@ def sweep() -> None:
           f"{SAMPLES} samples, seed {SEED}, {WORKERS} workers")
     spec = SweepSpec(poly, ds.scale, units, dist, SEED, SAMPLES, ("closed",),
                      dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
-                     robot=SweepRobot(tuple(arms)))
+                     robot=SweepRobot(tuple(arms), compliance=COMPLIANCE))
+    print(f"   force-limited finger command: {'on' if COMPLIANCE else 'off'}")
     _robot_report(run_sweep(spec, workers=WORKERS))
 
 
@@ -324,7 +338,8 @@ def transitions() -> None:
               f"({time.perf_counter() - t0:.0f} s search)")
         spec = SweepSpec(poly, ds.scale, tuple(units), nominal, SEED, 1, ("closed",),
                          dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
-                         robot=SweepRobot(tuple(arms)))
+                         robot=SweepRobot(tuple(arms), compliance=COMPLIANCE))
+        print(f"   force-limited finger command: {'on' if COMPLIANCE else 'off'}")
         _robot_report(run_sweep(spec, workers=WORKERS, chunk_size=1))
 
 

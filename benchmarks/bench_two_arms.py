@@ -14,8 +14,9 @@ execution (transits included) the largest fingertip tracking error while a finge
 the object (the distance from the fingertip's centre to the target it was given: the figure
 of the single-arm rows in docs/benchmarks.md), the longest time a joint was at a position,
 velocity or torque limit (which and when), the time a link or the rod touched the object or
-the table, and the IK's median time. ``TWO_ARMS_FORCE_LIMIT=N`` gives the fingertips a force
-limit (``RobotSimulator(force_limit=N)``; off by default).
+the table, and the IK's median time. ``TWO_ARMS_COMPLIANCE=1`` gives the arms the
+force-limited finger command (``RobotSimulator(compliance=True)``: the nominal fingertip's
+600 N/m and 8 N; ``TWO_ARMS_FORCE_LIMIT=N`` sets the force limit; off by default).
 """
 
 from __future__ import annotations
@@ -52,7 +53,9 @@ def main() -> None:
     from nonprehensile.sim.robot_scene import Arm
     from nonprehensile.states import State
 
-    force_limit = float(os.environ.get("TWO_ARMS_FORCE_LIMIT", "inf"))
+    limit = os.environ.get("TWO_ARMS_FORCE_LIMIT")
+    force_limit = None if limit is None else float(limit)
+    compliance = os.environ.get("TWO_ARMS_COMPLIANCE", "0") == "1"
     poly, all_skills = read_skills(_skills())
     all_skills = [s for s in all_skills if max(fingers_of(s), default=1) <= 2]
     robot = Robot.builtin("panda")
@@ -74,7 +77,7 @@ def main() -> None:
                                      avoid=[q.base for q in placed]))
         t_place = time.process_time() - t0
         sim = RobotSimulator(poly, [Arm(robot, q.base) for q in placed], scale=ds.scale,
-                             force_limit=force_limit)
+                             force_limit=force_limit, compliance=compliance)
         t0 = time.process_time()
         ex = execute_plan(sim, p, fingers=ds.fingers, loop="closed",
                           replan=replanner(poly, exp, goal, motions=motions, scale=ds.scale),
@@ -110,7 +113,9 @@ def main() -> None:
               f"max {'-' if c is None else f'{1000 * c:.1f}'} mm; longest at a limit "
               f"{1000 * max(m.longest_at_limit_s.values(), default=0.0):.0f} ms "
               f"{ {k: round(1000 * v) for k, v in m.longest_at_limit_s.items()} }{where}; "
-              f"link/rod contact {1000 * m.other_contact_s:.0f} ms; IK median "
+              f"link/rod contact {1000 * m.other_contact_s:.0f} ms; contact force max "
+              f"{'-' if m.contact_force_max_n is None else f'{m.contact_force_max_n:.1f}'} N "
+              f"(compliance {'on' if compliance else 'off'}); IK median "
               f"{m.ik_median_ms:.3f} ms; {t_run:.1f} s CPU for {ex.sim_time:.2f} s simulated",
               flush=True)
 

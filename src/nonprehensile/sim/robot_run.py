@@ -10,7 +10,6 @@ robot's own records (tracking error, limits, other contacts, IK time) are in
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -52,17 +51,23 @@ class RobotSimulator(Simulator):
     scale : float, optional
         Metres per model unit (default from the model's units).
     params : SimParams
-        The scene's physics; ``finger_radius`` is the fingertip sphere put at each tip site
-        (``stiffness``, ``max_force`` and ``finger_mass`` belong to the free fingertips and
-        are not used).
+        The scene's physics; ``finger_radius`` is the fingertip sphere put at each tip site;
+        ``stiffness`` and ``max_force`` (the free fingertip's spring and force limit) are the
+        arms' virtual finger (``compliance``); ``finger_mass`` is not used. Setting
+        :attr:`params` (a sweep's sample) sets the virtual finger too.
     ik_config : IKConfig, optional
     control_every : int
         The IK runs every this many physics steps (control rate = physics rate / it; default
         :data:`~nonprehensile.sim.robot_driver.DEFAULT_CONTROL_EVERY`, 100 Hz); the servos'
         set points are interpolated in between.
-    force_limit : float
-        Contact force (N) above which a fingertip gives way
-        (:class:`~nonprehensile.sim.robot_driver.RobotArms`; off by default).
+    force_limit : float, optional
+        The virtual finger's force limit, N per axis (default ``params.max_force``; ``inf``:
+        a spring without a limit).
+    compliance : bool
+        The force-limited finger command (off by default;
+        :meth:`~nonprehensile.sim.robot_driver.RobotArms._comply`): the fingertip's command
+        gives way along the measured contact force as the free fingertip's spring would.
+        Off: the stiff position-controlled arm.
     tracking_gain : float
         Gain (1/s) of the fingertips' contact tracking correction
         (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off).
@@ -71,10 +76,12 @@ class RobotSimulator(Simulator):
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
                  control_every: int = DEFAULT_CONTROL_EVERY,
-                 force_limit: float = math.inf, tracking_gain: float = 20.0) -> None:
+                 force_limit: float | None = None, tracking_gain: float = 20.0,
+                 compliance: bool = False) -> None:
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
-        self.params = params
+        self._force_limit = force_limit
+        self._params = params
         self.arms = tuple(arms)
         self.scene = build_robot_scene(poly, scale=self.scale, arms=self.arms, params=params)
         self.ik_scene = build_robot_scene(poly, scale=self.scale, arms=self.arms,
@@ -88,13 +95,31 @@ class RobotSimulator(Simulator):
         self.judge = Judge(poly, self.scale, params, self.model, self.n_fingers)
         self.robot_driver = RobotArms(self.scene, self.ik_scene, self.data, self.judge,
                                       params.timestep, ik_config, control_every,
-                                      force_limit, tracking_gain)
+                                      params.max_force if force_limit is None
+                                      else force_limit, tracking_gain, compliance=compliance,
+                                      finger_stiffness=params.stiffness)
         self.driver = self.robot_driver
         self._body = self.judge.body
         self._qadr = self.judge.qadr
         self._dadr = self.judge.dadr
         self._finger_qadr = self.driver.qpos_indices()
         self._home_tips = self._tips_at_home()
+
+    @property
+    def params(self) -> SimParams:
+        """The scene's physics (setting it sets the arms' virtual finger: ``stiffness``, and
+        ``max_force`` unless a ``force_limit`` was given)."""
+        return self._params
+
+    @params.setter
+    def params(self, value: SimParams) -> None:
+        self._params = value
+        drv = getattr(self, "robot_driver", None)
+        if drv is not None:
+            drv.finger_stiffness = value.stiffness
+            if self._force_limit is None:
+                drv.force_limit = value.max_force
+            drv.check_compliance()
 
     @property
     def robot_log(self) -> RobotLog:

@@ -406,11 +406,16 @@ class SweepRobot:
         Fingertip acceleration bound of the executor's motions (m/s^2; transits half of it);
         default :data:`~nonprehensile.sim.robot_run.ROBOT_MAX_ACCEL`, as ``simulate plan
         --robot``.
+    compliance : bool
+        The arms' force-limited finger command with each sample's ``stiffness`` and
+        ``max_force`` (:class:`~nonprehensile.sim.robot_run.RobotSimulator`; off by
+        default).
     """
 
     arms: tuple[Any, ...]
     control_every: int = 10  # robot_driver.DEFAULT_CONTROL_EVERY (a test holds them equal)
     max_accel: float = None  # type: ignore[assignment]
+    compliance: bool = False
 
     def __post_init__(self) -> None:
         if self.max_accel is None:
@@ -438,13 +443,15 @@ class SweepRobot:
         from nonprehensile.sim.robot_run import RobotSimulator
 
         return RobotSimulator(poly, self.arms, scale=scale, params=params,
-                              control_every=self.control_every)
+                              control_every=self.control_every,
+                              compliance=bool(self.compliance))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form: robots, bases, rates."""
         return {"robots": [{"robot": a.robot.name, "tip_sites": list(a.robot.tip_sites),
                             "base": a.base.to_dict()} for a in self.arms],
-                "control_every": self.control_every, "max_accel": self.max_accel}
+                "control_every": self.control_every, "max_accel": self.max_accel,
+                "compliance": bool(self.compliance)}
 
 
 def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, scale: float,
