@@ -334,6 +334,48 @@ def test_release_is_quick_and_within_its_bounds(start, vel, move, scale) -> None
         assert len(out) <= len(rest_leg) + 2
 
 
+def _release_by_arrays(start, velocity, end, *, dt, max_speed, max_accel):  # type: ignore[no-untyped-def]
+    """The let-go's bang-coast-bang stepping written with numpy arrays (the form
+    ``transit.release`` had before it stepped in floats): the truth it must equal."""
+    x = np.array(start, dtype=np.float64)
+    v = np.array(velocity, dtype=np.float64)
+    goal = np.asarray(end, dtype=np.float64)
+    brake, dv_max = 0.8 * max_accel, max_accel * dt
+    out = [x.copy()]
+    for _ in range(100_000):
+        gap = goal - x
+        dist = np.linalg.norm(gap, axis=1)
+        done = (dist <= dv_max * dt) & (np.linalg.norm(gap - v * dt, axis=1) <= dv_max * dt)
+        if done.all():
+            break
+        want = np.minimum(max_speed, np.sqrt(2.0 * brake * dist))
+        unit = np.divide(gap, dist[:, None], out=np.zeros_like(gap), where=dist[:, None] > 0)
+        dv = unit * want[:, None] - v
+        size = np.linalg.norm(dv, axis=1)
+        dv *= np.minimum(1.0, dv_max / np.maximum(size, 1e-300))[:, None]
+        v = np.where(done[:, None], 0.0, v + dv)
+        x = np.where(done[:, None], goal, x + v * dt)
+        out.append(x.copy())
+    out.append(goal.copy())
+    return np.stack(out)
+
+
+@settings(max_examples=60, deadline=None)
+@given(start=st.lists(vec3, min_size=2, max_size=2), vel=st.lists(vec3, min_size=2, max_size=2),
+       move=st.lists(vec3, min_size=2, max_size=2), scale=st.sampled_from([0.0, 1e-5, 0.003, 0.03]),
+       amax=st.sampled_from([8.0, 20.0]))
+def test_release_equals_its_array_form_bit_for_bit(start, vel, move, scale, amax) -> None:  # type: ignore[no-untyped-def]
+    """``release`` steps each fingertip in floats for speed; its samples are those of the
+    same stepping in numpy arrays, to the last bit (a sweep's records stay identical)."""
+    a = 0.01 * np.array(start)
+    v = 0.3 * np.array(vel)
+    b = a + scale * np.array(move)
+    kw = {"dt": 0.001, "max_speed": 0.45, "max_accel": amax}
+    got, want = release(a, v, b, **kw), _release_by_arrays(a, v, b, **kw)
+    assert got.shape == want.shape
+    assert np.array_equal(got, want)
+
+
 def test_correction_pushes_span_the_displacement() -> None:
     pose = _pose(State("a", 0.0), (0.3, 0.1))
     pushes = correction_pushes(CUBE, pose, (0.31, 0.095), finger_radius=0.006,

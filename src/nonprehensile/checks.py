@@ -86,37 +86,40 @@ class Range:
     def problem(self, value: object) -> tuple[float | int | None, str | None]:
         """``(value as a number, None)`` if ``value`` is in the range, else ``(None, why)``:
         ``expected a number ..., got 'nan'`` (a string is parsed as the command line does)."""
-        got = f"got {_shown(value)}"
+        # (the message is written only for a value out of range: this runs on every
+        # checked call, many at the observation rate)
         v: float | int
-        if isinstance(value, bool):
-            return None, f"expected {self.describe()}, {got} (a truth value)"
-        if isinstance(value, str):
+        if type(value) is float and not self.integer:  # the common case, checked below
+            v = value
+        elif isinstance(value, bool):
+            return None, f"expected {self.describe()}, got {_shown(value)} (a truth value)"
+        elif isinstance(value, str):
             text = value.strip()
             try:
                 v = int(text) if self.integer else float(text)
             except ValueError:  # also a 5,000-digit integer, beyond int()'s limit
-                return None, f"expected {self.describe()}, {got}"
+                return None, f"expected {self.describe()}, got {_shown(value)}"
         elif isinstance(value, numbers.Integral):
             v = int(value)
         elif isinstance(value, numbers.Real):
             v = float(value)
             if self.integer:
                 if not (math.isfinite(v) and v.is_integer()):
-                    return None, f"expected {self.describe()}, {got}"
+                    return None, f"expected {self.describe()}, got {_shown(value)}"
                 v = int(v)
         else:
             kind = "" if value is None else f" (a {type(value).__name__})"
-            return None, f"expected {self.describe()}, {got}{kind}"
+            return None, f"expected {self.describe()}, got {_shown(value)}{kind}"
         if not self.integer:
             try:
                 v = float(v)
             except OverflowError:  # an integer beyond any float
-                return None, f"expected {self.describe()}, {got}"
+                return None, f"expected {self.describe()}, got {_shown(value)}"
             if not math.isfinite(v):
-                return None, f"expected {self.describe()}, {got}"
+                return None, f"expected {self.describe()}, got {_shown(value)}"
         if (v < self.low or v > self.high or (self.low_open and v == self.low)
                 or (self.high_open and v == self.high)):
-            return None, f"expected {self.describe()}, {got}"
+            return None, f"expected {self.describe()}, got {_shown(value)}"
         return (v if self.integer else v + 0.0), None  # -0.0 -> 0.0
 
     def check(self, value: object, name: str,

@@ -157,14 +157,24 @@ class ObservationStream:
         """Record the true pose and tips at ``now`` (degraded by the model)."""
         m = self.model
         self._next = max(self._next + self.period, now + 0.5 * self.period)
-        if m.position_noise > 0 or (m.angle_noise_deg or 0.0) > 0:
-            dr = rotvec_matrix(self.rng.normal(0.0, math.radians(m.angle_noise_deg or 0.0), 3))
-            com = pose.com + self.rng.normal(0.0, m.position_noise, 3)
+        noisy_pose = m.position_noise > 0 or (m.angle_noise_deg or 0.0) > 0
+        tips = np.asarray(tips, dtype=np.float64)
+        n_pose = 6 if noisy_pose else 0
+        n_tips = tips.size if m.finger_noise > 0 else 0
+        # one draw for the whole sample: the same numbers, in the same order, as a draw per
+        # quantity (``normal(0, s)`` is ``0 + s * z`` of the generator's next ``z``)
+        z = self.rng.standard_normal(n_pose + n_tips) if n_pose + n_tips else None
+        if z is not None and noisy_pose:
+            a = math.radians(m.angle_noise_deg or 0.0)
+            p = m.position_noise
+            z0, z1, z2, z3, z4, z5 = z[:6].tolist()
+            dr = _rotvec_matrix(0.0 + a * z0, 0.0 + a * z1, 0.0 + a * z2)
+            com = pose.com + np.array([0.0 + p * z3, 0.0 + p * z4, 0.0 + p * z5])
             # the noisy rotation turns the body about its (noisy) centre of mass
             trans = com - dr @ (pose.com - pose.translation)
             pose = ObjectPose(dr @ pose.rotation, trans, com, pose.scale)
-        if m.finger_noise > 0:
-            tips = tips + self.rng.normal(0.0, m.finger_noise, np.shape(tips))
+        if z is not None and n_tips:
+            tips = tips + (0.0 + m.finger_noise * z[n_pose:]).reshape(tips.shape)
         else:
             tips = np.array(tips, dtype=np.float64)
         self._queue.append(Observation(now, pose, tips))
@@ -193,7 +203,11 @@ def rotvec_matrix(v: FloatArray) -> FloatArray:
     times the time, and the observation noise draws one rotation per sample (120 Hz and
     more, every execution of a sweep).
     """
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
+    return _rotvec_matrix(float(v[0]), float(v[1]), float(v[2]))
+
+
+def _rotvec_matrix(x: float, y: float, z: float) -> FloatArray:
+    """:func:`rotvec_matrix` of the rotation vector ``(x, y, z)``."""
     th2 = x * x + y * y + z * z
     if th2 < 1e-12:  # the series to second order: exact in double precision here
         a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
@@ -232,17 +246,36 @@ def element_at(poly: Polyhedron, x: FloatArray, tol: float,
     """
     normals, offsets = planes if planes is not None else _planes(poly)
     d = normals @ x - offsets
-    near = [poly.face_ids[i] for i in np.flatnonzero(d > -tol)]
-    if not near:
-        near = [poly.face_ids[int(np.argmax(d))]]
+    return _element_of(poly, d, tol)
+
+
+def _element_of(poly: Polyhedron, d: FloatArray, tol: float,
+                memo: dict[Any, ObjectElement] | None = None) -> ObjectElement:
+    """:func:`element_at` from the point's signed distances ``d`` to the face planes (model
+    units). With ``memo``, an element that the set of near planes decides alone is kept by
+    that set (what it names is the one computed afresh)."""
+    mask = d > -tol
+    key = ("element", tol, mask.tobytes())
+    if memo is not None:
+        got = memo.get(key)
+        if got is not None:
+            return got
+    near = [poly.face_ids[i] for i in np.flatnonzero(mask)]
+    el: ObjectElement
+    if not near:  # the nearest plane decides: not kept
+        return Face(poly.face_ids[int(np.argmax(d))])
     if len(near) == 1:
-        return Face(near[0])
-    if len(near) == 2 and frozenset(near) in poly.edges:
-        return Edge(frozenset(near))
-    shared = poly.shared_vertices(near) if len(near) >= 3 else []
-    if shared:
-        return Vertex(poly.vertex_faces[shared[0]])
-    return Face(poly.face_ids[int(np.argmax(d))])
+        el = Face(near[0])
+    elif len(near) == 2 and frozenset(near) in poly.edges:
+        el = Edge(frozenset(near))
+    else:
+        shared = poly.shared_vertices(near) if len(near) >= 3 else []
+        if not shared:  # the nearest plane decides: not kept
+            return Face(poly.face_ids[int(np.argmax(d))])
+        el = Vertex(poly.vertex_faces[shared[0]])
+    if memo is not None:
+        memo[key] = el
+    return el
 
 
 def ground_element(poly: Polyhedron, rotation: FloatArray, translation: FloatArray,
@@ -259,24 +292,52 @@ def ground_element(poly: Polyhedron, rotation: FloatArray, translation: FloatArr
 
 def _ground_of_heights(poly: Polyhedron, z: FloatArray, rotation: FloatArray, tol: float,
                        planes: tuple[FloatArray, FloatArray] | None,
-                       zmin: float | None = None) -> ObjectElement:
+                       zmin: float | None = None,
+                       memo: dict[Any, Any] | None = None) -> ObjectElement:
     """:func:`ground_element` from the vertices' heights ``z`` (shape (n_vertices,), m;
-    ``zmin`` their least, when known)."""
-    low = np.flatnonzero(z < (z.min() if zmin is None else zmin) + tol)
+    ``zmin`` their least, when known). With ``memo``, an element that the set of low
+    vertices decides alone is kept by that set."""
+    mask = z < (z.min() if zmin is None else zmin) + tol
+    key = ("ground", tol, mask.tobytes())
+    if memo is not None:
+        got: ObjectElement | None = memo.get(key)
+        if got is not None:
+            return got
+    low = np.flatnonzero(mask)
     vf = poly.vertex_faces
     common = frozenset.intersection(*(vf[i] for i in low))
+    el: ObjectElement
     if len(low) >= 3 and len(common) == 1:
-        return Face(next(iter(common)))
-    if len(low) >= 3:  # several vertices low, no single face: the lowest face's plane
+        el = Face(next(iter(common)))
+    elif len(low) >= 3:  # several vertices low, no single face: the lowest face's plane
         normals = planes[0] if planes is not None else _planes(poly)[0]
         return Face(poly.face_ids[int(np.argmin(normals @ rotation[2]))])
-    if len(low) == 2 and len(common) == 2:
-        return Edge(common)
-    return Vertex(vf[int(np.argmin(z))])
+    elif len(low) == 2 and len(common) == 2:
+        el = Edge(common)
+    else:
+        return Vertex(vf[int(np.argmin(z))])
+    if memo is not None:
+        memo[key] = el
+    return el
 
 
-#: Contact pairs already built, by their elements (see :func:`observed_contacts`).
-PairCache = dict[tuple[Ground | Finger, ObjectElement], ContactPair]
+#: Contact pairs already built, by their elements, and the elements that a set of near face
+#: planes or of low vertices names (see :func:`observed_contacts`).
+PairCache = dict[tuple[Any, ...], Any]
+
+
+#: The ground (a value: one serves every contact pair).
+_GROUND = Ground()
+
+
+def _finger(k: int, cache: PairCache | None) -> Finger:
+    """``Finger(k)``, built once per cache (building one checks its number)."""
+    if cache is None:
+        return Finger(k)
+    got: Finger | None = cache.get(("finger", k))
+    if got is None:
+        got = cache[("finger", k)] = Finger(k)
+    return got
 
 
 def _pair(a: Ground | Finger, b: ObjectElement, cache: PairCache | None) -> ContactPair:
@@ -325,8 +386,8 @@ def observed_contacts(
     z = s * (poly.vertices @ rot[2]) + trans[2]
     zmin = float(z.min())
     if zmin < ground_tol:
-        pairs.append(_pair(Ground(), _ground_of_heights(poly, z, rot, ground_tol, planes,
-                                                        zmin), cache))
+        pairs.append(_pair(_GROUND, _ground_of_heights(poly, z, rot, ground_tol, planes,
+                                                        zmin, cache), cache))
     normals, offsets = planes
     tips = np.asarray(obs.tips, dtype=np.float64)
     numbers = fingers if fingers is not None else tuple(range(1, len(tips) + 1))
@@ -335,20 +396,29 @@ def observed_contacts(
     xs = (tips - trans) @ rot / s  # the tips in the model frame, shape (n_fingers, 3)
     ds = xs @ normals.T - offsets  # signed distances to the face planes, model units
     reach = finger_radius + tol
-    for j in np.flatnonzero(ds.max(axis=1) * s <= reach).tolist():
-        # (a larger top distance is a lower bound of the distance: surely apart)
+    for j, top in enumerate(ds.max(axis=1).tolist()):
+        if not top * s <= reach:
+            # (a larger top distance is a lower bound of the distance: surely apart)
+            continue
         x, d = xs[j], ds[j]
-        top = float(d.max())
         if top > 0:
             y = _nearest_on_hull(x, d, planes)
-            dist = float(np.linalg.norm(x - y)) * s
+            dist = _norm3(x - y) * s
         else:  # pressed inside (a compliant pad): nearest the plane it is least inside
             y = x - normals[int(np.argmax(d))] * top
             dist = top * s
         if dist <= reach:
-            pairs.append(_pair(Finger(numbers[j]), element_at(poly, y, tol / s, planes),
+            pairs.append(_pair(_finger(numbers[j], cache),
+                               _element_of(poly, normals @ y - offsets, tol / s, cache),
                                cache))
     return frozenset(pairs)
+
+
+def _norm3(v: FloatArray) -> float:
+    """``np.linalg.norm`` of a 3-vector, the same number (its square is summed in order, as
+    ``v @ v`` is) without numpy's call overhead."""
+    a, b, c = v.tolist()
+    return math.sqrt(a * a + b * b + c * c)
 
 
 def _nearest_on_hull(x: FloatArray, d: FloatArray,
@@ -362,11 +432,14 @@ def _nearest_on_hull(x: FloatArray, d: FloatArray,
     runs at the observation rate.
     """
     normals, offsets = planes
-    idx = np.flatnonzero(d > 0)
-    y = np.array(x, dtype=np.float64)
+    idx = [i for i, v in enumerate(d.tolist()) if v > 0]
+    # in floats: the same sums, in the same order, as numpy's ``normals[i] @ y`` (a dot of
+    # three) and ``y - normals[i] * over``, without its call overhead
+    y0, y1, y2 = np.asarray(x, dtype=np.float64).tolist()
+    rows = [(*normals[i].tolist(), float(offsets[i])) for i in idx]
     for _ in range(3 if len(idx) > 1 else 1):
-        for i in idx:
-            over = float(normals[i] @ y - offsets[i])
+        for n0, n1, n2, off in rows:
+            over = n0 * y0 + n1 * y1 + n2 * y2 - off
             if over > 0:
-                y = y - normals[i] * over
-    return y
+                y0, y1, y2 = y0 - n0 * over, y1 - n1 * over, y2 - n2 * over
+    return np.array([y0, y1, y2])

@@ -267,10 +267,11 @@ def state_of_pose(
     """
     tol = float(check_number(tol, "angle tolerance", ANGLE_TOL_RANGE, StateError))
     rot = np.asarray(rotation, dtype=float)
-    world_normals = np.array([rot @ n for n in poly.normals.values()])
-    i = int(np.argmin(world_normals[:, 2]))
+    # the face pointing lowest (its normal's world z, the normals times the rotation's last
+    # row), then that normal in the world
+    i = int(np.argmin(poly.normal_matrix @ rot[2]))
     best = poly.face_ids[i]
-    n = world_normals[i]
+    n = rot @ poly.normals[best]
     # atan2 of sine and cosine keeps full precision near 0, where acos(cos) loses half the
     # digits (1e-6 degree from one rounding error)
     off = math.degrees(math.atan2(float(np.hypot(n[0], n[1])), float(-n[2])))
@@ -279,7 +280,7 @@ def state_of_pose(
             f"no face of {poly.name!r} points down (closest: face {best!r}, {off:.6g} degrees "
             f"off; tolerance {tol:g}); the pose does not rest on a face"
         )
-    e1 = rot @ poly.edge_direction(best, 1)
+    e1 = rot @ poly.first_edge_directions[best]
     return State(best, math.degrees(math.atan2(e1[1], e1[0])))
 
 

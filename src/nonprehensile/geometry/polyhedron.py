@@ -215,6 +215,20 @@ class Polyhedron:
         return dict(zip(self.faces, self._normal_array, strict=True))
 
     @cached_property
+    def normal_matrix(self) -> FloatArray:
+        """The outward unit normals as rows in the faces' order, shape (n_faces, 3) (the
+        values of :attr:`normals`; read only)."""
+        out = np.array(list(self.normals.values()), dtype=np.float64)
+        out.setflags(write=False)
+        return out
+
+    @cached_property
+    def first_edge_directions(self) -> dict[str, FloatArray]:
+        """:meth:`edge_direction` of each face's edge 1 (a state's ``theta`` is measured on
+        it), shape (3,) each."""
+        return {f: self.edge_direction(f, 1) for f in self.faces}
+
+    @cached_property
     def face_centroids(self) -> dict[str, FloatArray]:
         """Area centroid of each face, shape (3,) each."""
         lp = self._loops

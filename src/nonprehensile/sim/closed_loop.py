@@ -266,39 +266,58 @@ class _Runner:
         t_end = self.t + max_time
         step = mujoco.mj_step
         ctrl_view = d.ctrl
-        # the free fingertips' joint velocities are their speeds (a robot's driver has none)
+        # the free fingertips' joint velocities are their speeds (a robot's driver has none);
+        # a view of them, read as floats (the speed's square is compared: the square root
+        # of the largest is the largest square root, bit for bit)
         finger_dofs = getattr(sim.driver, "dadr", None)
         # a robot's IK avoids the object where it is observed (never the true pose)
         see = getattr(sim.driver, "see", None)
+        vel = None if finger_dofs is None else _velocity_view(d, finger_dofs)
+        qvel = d.qvel
+        speed2 = self.tip_speed * self.tip_speed
         trace_every = self.keep_trace
         next_obs = observer.next_time()
+        # the loop keeps its counters in locals (written back before anything that reads
+        # them); the contact reading's phase is that of the execution's step count
+        t, n = self.t, self.n
+        until_read = CONTACT_EVERY - n % CONTACT_EVERY
+        n_ctrl = len(ctrl)
+        obs_at = next_obs - 1e-9
         while True:
-            if i < len(ctrl):
-                ctrl_view[:] = ctrl[i]
+            if i < n_ctrl:
+                ctrl_view[...] = ctrl[i]
             step(m, d)
             i += 1
-            self.n += 1
-            self.t += dt
-            if self.n % CONTACT_EVERY == 0:
-                pairs = log.observe(d, self.t)
+            n += 1
+            t += dt
+            until_read -= 1
+            if until_read == 0:
+                until_read = CONTACT_EVERY
+                pairs = log.observe(d, t)
                 if transit_leg:
                     touch = judge.touches_finger(pairs)
                     if touch:
                         self.contact_reads += 1
                     if touch != self.touching:
                         self.touching = touch
-                        self.touch_log.append((self.t, touch, sim.pose().com))
+                        self.touch_log.append((t, touch, sim.pose().com))
                 if finger_dofs is not None:
-                    v = d.qvel[finger_dofs].reshape(-1, 3)
-                    sp = float(np.sqrt((v * v).sum(axis=1)).max())
-                    if sp > self.tip_speed:
-                        self.tip_speed = sp
-            if trace_every and self.n % trace_every == 0:
+                    v = (vel if vel is not None else qvel[finger_dofs]).tolist()
+                    for k in range(0, len(v), 3):
+                        x, y, z = v[k], v[k + 1], v[k + 2]
+                        s2 = x * x + y * y + z * z
+                        if s2 > speed2:
+                            speed2 = s2
+                            self.tip_speed = math.sqrt(s2)
+            if trace_every and n % trace_every == 0:
+                self.t, self.n = t, n
                 self.trace.append(sim.trace_row(
-                    self.t, seg[min(i - 1, len(seg) - 1)] if self.signals else None))
-            if react is not None and self.t >= next_obs - 1e-9:
-                obs = observer.sample(self.t)
+                    t, seg[min(i - 1, len(seg) - 1)] if self.signals else None))
+            if react is not None and t >= obs_at:
+                self.t, self.n = t, n
+                obs = observer.sample(t)
                 next_obs = observer.next_time()
+                obs_at = next_obs - 1e-9
                 if obs is not None:
                     self.last_obs = obs
                     if see is not None:
@@ -313,15 +332,18 @@ class _Runner:
                         self.commanded.append(new)
                         seg, i = new, 0
                         ctrl = sim.driver.controls(self._noisy(seg))
+                        n_ctrl = len(ctrl)
                     if dec.done:
                         self._stop(seg, i)
                         return dec
             if react is not None:
-                if self.t >= t_end:
+                if t >= t_end:
+                    self.t, self.n = t, n
                     self._stop(seg, i)
                     return Decision(done=True, outcome="aborted",
                                     reason=f"no decision within {max_time:g} s")
-            elif i >= len(ctrl) + n_extra:
+            elif i >= n_ctrl + n_extra:
+                self.t, self.n = t, n
                 self.command = seg[-1]
                 return None
 
@@ -408,6 +430,16 @@ class _Runner:
                 f"no observation arrived within 5 s at t={self.t:.3f} s; expected one every "
                 f"1/{model.rate:g} s after {model.latency:g} s of latency")
         return got[-1]
+
+
+def _velocity_view(d: Any, dofs: NDArray[np.int64]) -> FloatArray | None:
+    """A view of ``d.qvel[dofs]`` (it reads the current velocities whenever it is read) when
+    the dofs are consecutive, as the free fingertips' slide joints are; else None (the
+    caller indexes ``d.qvel`` at each read)."""
+    a = int(dofs[0]) if len(dofs) else 0
+    if len(dofs) and np.array_equal(dofs, np.arange(a, a + len(dofs))):
+        return np.asarray(d.qvel[a:a + len(dofs)])
+    return None
 
 
 def _retreat_target(sim: Simulator, pose: ObjectPose, command: FloatArray,

@@ -119,6 +119,9 @@ class Judge:
             mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f"finger{k}"): k
             for k in range(1, n_fingers + 1)
         }
+        # each fingertip geom's finger, built once (contacts are named at every read)
+        self._tip_fingers = {g: Finger(k) for g, k in self.finger_geoms.items()}
+        self._com = np.asarray(poly.com, dtype=np.float64)
         jnt = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "object")
         self.qadr = int(m.jnt_qposadr[jnt])
         self.dadr = int(m.jnt_dofadr[jnt])
@@ -137,13 +140,28 @@ class Judge:
         self._ground_memo: dict[tuple[float, bytes], ObjectElement] = {}
         self._pair_memo: dict[tuple[Any, ObjectElement], ContactPair] = {}
         self._set_memo: dict[frozenset[int], frozenset[ContactPair]] = {}
+        # the object's rotation and position as views of the last data read (MuJoCo's
+        # arrays stay where they are for the data's life): read through, never copied
+        self._bound: Any = None
+        self._bound_vel: Any = None
+        self._vel: FloatArray = np.zeros(6)
+        self._r: FloatArray = np.eye(3)
+        self._t: FloatArray = np.zeros(3)
+
+    def _views(self, data: Any) -> tuple[FloatArray, FloatArray]:
+        """The object's rotation matrix and position in ``data`` (views)."""
+        if data is not self._bound:
+            self._r = data.xmat[self.body].reshape(3, 3)
+            self._t = data.xpos[self.body]
+            self._bound = data
+        return self._r, self._t
 
     # ------------------------------------------------------------------------ the object
     def pose(self, data: Any) -> ObjectPose:
         """The object's current pose."""
-        r = data.xmat[self.body].reshape(3, 3).copy()
-        t = data.xpos[self.body].copy()
-        return ObjectPose(r, t, self.scale * (r @ self.poly.com) + t, self.scale)
+        rv, tv = self._views(data)
+        r, t = rv.copy(), tv.copy()
+        return ObjectPose(r, t, self.scale * (r @ self._com) + t, self.scale)
 
     def state(self, data: Any, tol_deg: float = REST_TILT_DEG) -> State | None:
         """The state the object rests in now, or None."""
@@ -154,7 +172,11 @@ class Judge:
 
     def speed(self, data: Any) -> float:
         """Largest component of the object's free-joint velocity (m/s and rad/s)."""
-        return float(np.abs(data.qvel[self.dadr:self.dadr + 6]).max())
+        if data is not self._bound_vel:  # a view of the free joint's velocity, kept
+            self._vel = data.qvel[self.dadr:self.dadr + 6]
+            self._bound_vel = data
+        # (in floats: the same largest magnitude as numpy's, without its call overhead)
+        return float(max(map(abs, self._vel.tolist())))
 
     def is_still(self, data: Any) -> bool:
         """Whether the object's velocity is below :data:`STILL_VELOCITY` now."""
@@ -237,26 +259,26 @@ class Judge:
         if n == 0:
             return _NO_CONTACT, False, False
         con = data.contact
-        # the arrays read in bulk, once: each field read builds a numpy view
-        geoms, dist = con.geom[:n].tolist(), con.dist[:n].tolist()
-        r = data.xmat[self.body].reshape(3, 3)
-        t = data.xpos[self.body]
+        # the arrays read in bulk, once: each field read builds a numpy view (MuJoCo's
+        # contact arrays are ``ncon`` long)
+        geoms, dist = con.geom.tolist(), con.dist.tolist()
+        r, t = self._views(data)
         found: list[ContactPair] = []
         finger_table = other_contact = ground = False
-        obj, table, tips = self.obj_geom, self.table, self.finger_geoms
+        obj, table, tips = self.obj_geom, self.table, self._tip_fingers
         pos = None
         for i, ((a, b), dd) in enumerate(zip(geoms, dist, strict=True)):
             if dd > 1e-4:
                 continue
-            if obj in (a, b):
+            if a == obj or b == obj:
                 other = b if a == obj else a
                 if other == table:
                     ground = True
                 elif other in tips:
                     if pos is None:
-                        pos = con.pos[:n]
+                        pos = con.pos
                     x = r.T @ (pos[i] - t) / self.scale
-                    found.append(self._pair(Finger(tips[other]), self.element(x)))
+                    found.append(self._pair(tips[other], self.element(x)))
                 else:
                     other_contact = True
             elif a in tips or b in tips:
