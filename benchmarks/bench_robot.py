@@ -33,13 +33,17 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
 ``NP_ROBOT_UNITS=K`` runs every K-th transition only (development); ``NP_ROBOT_ARMS=1`` or
 ``2`` runs one group of ``transitions`` only; ``NP_ROBOT_COMPLIANCE=1`` gives the arms the
 force-limited finger command (each sample's stiffness and force limit, docs/robot.md) in
-``sweep``, ``transitions`` and ``plan``.
+``sweep``, ``transitions`` and ``plan``. ``NP_ROBOT_REPEAT=R`` (default 1) executes the main
+plan ``R`` times by each driver in ``plan`` and prints the median CPU of each (the same plan
+from the same start: the records are those of the last execution; on a shared machine one
+execution's CPU time moves by a third).
 """
 
 from __future__ import annotations
 
 import json
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -52,6 +56,7 @@ WORKERS = int(os.environ.get("NP_WORKERS", "2"))
 SEED = int(os.environ.get("NP_SEED", "0"))
 EVERY_UNIT = int(os.environ.get("NP_ROBOT_UNITS", "1"))
 ARMS = [int(a) for a in os.environ.get("NP_ROBOT_ARMS", "1,2").split(",")]
+REPEAT = max(1, int(os.environ.get("NP_ROBOT_REPEAT", "1")))
 COMPLIANCE = os.environ.get("NP_ROBOT_COMPLIANCE", "0") == "1"
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
@@ -74,10 +79,9 @@ def _cli(args: list[str]) -> tuple[int, dict]:
 
 
 def main_plan() -> None:
-    from dataclasses import replace
 
     from nonprehensile.cli.options import state_set
-    from nonprehensile.control import ControlConfig, replanner
+    from nonprehensile.control import replanner
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
     from nonprehensile.pipeline import motions_from_dataset
@@ -87,7 +91,7 @@ def main_plan() -> None:
     from nonprehensile.sim.placement import place_base, plan_targets
     from nonprehensile.sim.robot import Robot
     from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY
-    from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL, RobotSimulator
+    from nonprehensile.sim.robot_run import RobotSimulator, robot_control
     from nonprehensile.sim.robot_scene import Arm
     from nonprehensile.states import State
 
@@ -106,9 +110,12 @@ def main_plan() -> None:
     bases = [("searched", pl.base)]
     for loop in ("closed", "open"):
         free = Simulator(poly, scale=ds.scale, n_fingers=1)
-        t0 = time.process_time()
-        exf = execute_plan(free, p, fingers=ds.fingers, loop=loop, replan=replan)
-        t_free = time.process_time() - t0
+        times = []
+        for _ in range(REPEAT):
+            t0 = time.process_time()
+            exf = execute_plan(free, p, fingers=ds.fingers, loop=loop, replan=replan)
+            times.append(time.process_time() - t0)
+        t_free = statistics.median(times)
         nf = max(1, exf.n_steps)
         print(f"{loop} loop, free fingertips: success {exf.success}, final "
               f"{exf.to_dict()['final_state']}, {1000 * (exf.position_error or 0):.1f} mm; "
@@ -117,10 +124,14 @@ def main_plan() -> None:
                                  for e in (DEFAULT_CONTROL_EVERY, 1)):
             sim = RobotSimulator(poly, [Arm(robot, base)], scale=ds.scale, control_every=every,
                                  compliance=COMPLIANCE)
-            cfg = replace(ControlConfig(), max_accel=ROBOT_MAX_ACCEL)
-            t0 = time.process_time()
-            ex = execute_plan(sim, p, fingers=ds.fingers, loop=loop, replan=replan, config=cfg)
-            t_robot = time.process_time() - t0
+            cfg = robot_control(n_fingers=sim.n_fingers)
+            times = []
+            for _ in range(REPEAT):
+                t0 = time.process_time()
+                ex = execute_plan(sim, p, fingers=ds.fingers, loop=loop, replan=replan,
+                                  config=cfg)
+                times.append(time.process_time() - t0)
+            t_robot = statistics.median(times)
             log = sim.robot_log
             print(f"{loop} loop, Panda (IK at {1000 / every:g} Hz) at the {label} base "
                   f"{base.to_dict()}: success "

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import replace
 from pathlib import Path
 
 RUNS = (("twist", "a:90", None), ("tumble-lift", "b:0", None),
@@ -40,7 +39,7 @@ def main() -> None:
     import numpy as np
 
     from nonprehensile.cli.options import state_set
-    from nonprehensile.control import ControlConfig, replanner
+    from nonprehensile.control import replanner
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
     from nonprehensile.pipeline import motions_from_dataset
@@ -49,7 +48,7 @@ def main() -> None:
     from nonprehensile.sim.execute import fingers_of
     from nonprehensile.sim.placement import place_base, plan_targets
     from nonprehensile.sim.robot import Robot
-    from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL, RobotSimulator
+    from nonprehensile.sim.robot_run import RobotSimulator, robot_control
     from nonprehensile.sim.robot_scene import Arm
     from nonprehensile.states import State
 
@@ -59,7 +58,7 @@ def main() -> None:
     poly, all_skills = read_skills(_skills())
     all_skills = [s for s in all_skills if max(fingers_of(s), default=1) <= 2]
     robot = Robot.builtin("panda")
-    cfg = replace(ControlConfig(), max_accel=ROBOT_MAX_ACCEL)
+    cfg = robot_control(n_fingers=2)
     for label, goal_s, only in RUNS:
         skills = [s for s in all_skills if only is None or s.name == only]
         exp = expand(poly, skills, state_set(poly, 90.0, None, 1e-6))

@@ -15,7 +15,12 @@ pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
 from nonprehensile.geometry.build import cube  # noqa: E402
 from nonprehensile.sim.ik import FingertipIK  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
-from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL, RobotSimulator  # noqa: E402
+from nonprehensile.sim.robot_run import (  # noqa: E402
+    ROBOT_MAX_ACCEL,
+    ROBOT_TRANSIT_ACCEL,
+    RobotSimulator,
+    robot_control,
+)
 from nonprehensile.sim.robot_scene import Arm  # noqa: E402
 
 CUBE = cube()
@@ -70,14 +75,16 @@ def test_roll_arc_by_one_arm_meets_the_contact_bars() -> None:
     3 mm while it touches, no joint holds a limit for more than 10 ms, nothing but the
     fingertip touches. Before the contact correction and the IK's braking fallback: 3.4 mm
     and 18 ms at the shoulder's torque limit (the let-go, when the QP had no solution)."""
-    from nonprehensile.control import ControlConfig
     from nonprehensile.sim.closed_loop import execute_plan
 
     poly, ds, unit = _roll_arc_unit()
     sim = RobotSimulator(poly, [Arm(Robot.builtin(), SWEEP_BASE)], scale=ds.scale)
     ex = execute_plan(sim, unit.plan, fingers=ds.fingers, loop="closed",
-                      config=ControlConfig(max_accel=ROBOT_MAX_ACCEL))
+                      config=robot_control(n_fingers=sim.n_fingers))
     assert ex.success, ex.reason
+    # one arm's transits run at its motions' bound, not half of it (the commanded samples'
+    # own second differences)
+    assert ROBOT_MAX_ACCEL / 2 + 0.5 < ex.transit_accel <= ROBOT_TRANSIT_ACCEL + 1e-6
     met = sim.robot_log.metrics()
     assert met.tracking_error_contact_max_m is not None
     assert met.tracking_error_contact_max_m <= 0.003
@@ -156,3 +163,21 @@ def test_the_arms_ik_avoids_the_object_where_it_is_observed_not_where_it_is() ->
         assert np.abs(known - pos).max(axis=1).min() < 1e-12  # an observation's, exactly
     off = np.array([np.linalg.norm(pos - true) for pos, true in given])
     assert np.median(off) > 0.001  # the tracker's noise: not the truth
+
+
+def test_robot_control_bounds_and_bad_values() -> None:
+    """One fingertip's transits at :data:`ROBOT_TRANSIT_ACCEL` (never above the motions'
+    bound), several fingertips' at half the motions' bound, the free fingertips' rule; a
+    transit bound that is not a positive finite number is refused naming it."""
+    from nonprehensile.control import ControlConfig
+    from nonprehensile.errors import InputError
+
+    one = robot_control(n_fingers=1)
+    assert one.max_accel == ROBOT_MAX_ACCEL and one.transit_bound == ROBOT_TRANSIT_ACCEL
+    assert robot_control(n_fingers=1, max_accel=5.0).transit_bound == 5.0
+    two = robot_control(ControlConfig(angle_tol=4.0), n_fingers=2)
+    assert two.angle_tol == 4.0 and two.transit_bound == ROBOT_MAX_ACCEL / 2
+    assert ControlConfig().transit_bound == ControlConfig().max_accel / 2
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(InputError, match="transit_accel"):
+            ControlConfig(transit_accel=bad)

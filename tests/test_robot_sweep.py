@@ -20,7 +20,11 @@ from nonprehensile.cli import main  # noqa: E402
 from nonprehensile.errors import InputError  # noqa: E402
 from nonprehensile.geometry.build import cube  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
-from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL, RobotSimulator  # noqa: E402
+from nonprehensile.sim.robot_run import (  # noqa: E402
+    ROBOT_MAX_ACCEL,
+    RobotSimulator,
+    robot_control,
+)
 from nonprehensile.sim.robot_scene import Arm  # noqa: E402
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SceneTuner  # noqa: E402
 
@@ -118,7 +122,7 @@ def test_cli_robustness_by_the_panda_equals_the_robot_simulator() -> None:
     robot scene is the one a robot scene built with the sample's parameters gives (the
     same executor, the sample's perturbation: start error, tracker and fingertip noise)."""
     from nonprehensile.cli.options import state_set
-    from nonprehensile.control import ControlConfig, replanner
+    from nonprehensile.control import replanner
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
     from nonprehensile.pipeline import motions_from_dataset
@@ -159,7 +163,7 @@ def test_cli_robustness_by_the_panda_equals_the_robot_simulator() -> None:
     ex = execute_plan(sim, p, fingers=ds.fingers, loop="closed",
                       replan=replanner(poly, exp, p.goal, motions=motions, scale=ds.scale,
                                        angle_tol=5.0),
-                      config=ControlConfig(max_accel=ROBOT_MAX_ACCEL),
+                      config=robot_control(n_fingers=sim.n_fingers),
                       perturbation=sample.perturbation)
     assert rec["success"] == ex.success and ex.final_state is not None
     # the document rounds the compiled scene's parameters to 6 digits: the same end within a

@@ -131,7 +131,10 @@ class ControlConfig:
         Fingertip speed bound (m/s) of every commanded motion.
     max_accel : float
         Fingertip acceleration bound (m/s^2): the demonstrations' own references reach
-        about 16 m/s^2 after filtering, at the physics step; transits use half.
+        about 16 m/s^2 after filtering, at the physics step; transits use half, unless ...
+    transit_accel : float or None
+        ... this (m/s^2) is given: the bound of the transits' legs (one arm's transits run at
+        its motions' bound, :func:`~nonprehensile.sim.robot_run.robot_control`).
     angle_tol, position_tol : float
         A state within ``angle_tol`` degrees (and, at the goal, ``position_tol`` m) is
         reached.
@@ -174,6 +177,7 @@ class ControlConfig:
     clearance: float = 0.015
     max_speed: float = 0.45
     max_accel: float = 20.0
+    transit_accel: float | None = None
     angle_tol: float = 5.0
     position_tol: float = 0.010
     correct_position: bool = True
@@ -185,10 +189,11 @@ class ControlConfig:
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            if isinstance(value, bool) or (name == "align_tol" and value is None):
+            if isinstance(value, bool) or (name in ("align_tol", "transit_accel")
+                                           and value is None):
                 continue
             ok = isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
-            if name in ("max_speed", "max_accel", "reach_speed", "still_time",
+            if name in ("max_speed", "max_accel", "transit_accel", "reach_speed", "still_time",
                         "slow_retry", "follow_speed") and ok:
                 ok = value > 0
             if name == "max_speed" and ok:
@@ -205,6 +210,12 @@ class ControlConfig:
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
         return asdict(self)
+
+    @property
+    def transit_bound(self) -> float:
+        """The transits' acceleration bound, m/s^2 (``transit_accel``, else half of
+        ``max_accel``)."""
+        return self.max_accel / 2.0 if self.transit_accel is None else self.transit_accel
 
     def for_step(self, step_deg: float | None) -> ControlConfig:
         """This configuration for a model whose states on one face lie ``step_deg`` degrees

@@ -9,7 +9,6 @@ from __future__ import annotations
 import sys
 from collections import defaultdict
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from typing import Any
 
 import click
@@ -408,10 +407,6 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     except InputError as exc:
         named = next((o for k, o in options.items() if k in str(exc)), None)
         raise InputError(f"{named}: {exc}" if named else str(exc)) from None
-    if use_robot:  # an arm's fingertip accelerates less than a free 20 g sphere
-        from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL
-
-        cfg = replace(cfg, max_accel=ROBOT_MAX_ACCEL)
     poly, skills = read_skills(skills_file, angle_tol=angle_tol)
     if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
         from nonprehensile.sim.execute import fingers_of
@@ -430,7 +425,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         raise InputError(f"the object already rests in {goal}: nothing to execute")
     extra: dict[str, Any] = {}
     if use_robot:
-        from nonprehensile.sim.robot_run import RobotSimulator
+        from nonprehensile.sim.robot_run import RobotSimulator, robot_control
 
         arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
                                      robot)
@@ -441,6 +436,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                              f"has {simulator.n_fingers} fingertip site(s)")
         extra["robot"] = simulator.describe()
         extra["placement"] = placement_doc(placement)
+        # an arm's fingertip accelerates less than a free 20 g sphere
+        cfg = robot_control(cfg, n_fingers=simulator.n_fingers)
     else:
         simulator = sim.Simulator(poly, scale=ds.scale, n_fingers=scene_fingers(result, exp),
                                   params=params)

@@ -701,7 +701,7 @@ def execute_plan(
                 entry["let_go"] = _let_go_record(sim, run, t0, mark, "finished")
         path = transit(sim.poly, pose, run.command, goal, dt=run.dt,
                        clearance=cfg.clearance, finger_radius=p.finger_radius,
-                       max_speed=cfg.max_speed, max_accel=cfg.max_accel / 2,
+                       max_speed=cfg.max_speed, max_accel=cfg.transit_bound,
                        moving=moving)
         before, t0, k0 = run.contact_reads, run.t, len(run.commanded)
         run.drive(path, transit_leg=True)

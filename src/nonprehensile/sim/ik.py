@@ -41,6 +41,14 @@ FloatArray = NDArray[np.float64]
 #: The fastest fingertip target motion (m/s) fed forward; faster is a jump.
 _FEED_SPEED = 1.0
 
+#: The cross product ``w x z`` of the pointing task's Jacobian as gathers: the rows of the
+#: angular Jacobian and the entries of the site's row-major rotation (z: entries 2, 5, 8)
+#: of its two products.
+_CROSS_A = np.array([1, 2, 0])
+_CROSS_ZA = np.array([8, 2, 5])
+_CROSS_B = np.array([2, 0, 1])
+_CROSS_ZB = np.array([5, 8, 2])
+
 
 def import_mink() -> Any:
     """mink, or an :class:`InputError` saying how to install it."""
@@ -243,6 +251,8 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
             self._jp = np.zeros((3, model.nv))
             self._jr = np.zeros((3, model.nv))
             self._j = np.zeros((6, model.nv))
+            self._ca = np.zeros((3, model.nv))
+            self._cb = np.zeros((3, model.nv))
 
         def compute_error(self, configuration: Any) -> FloatArray:
             d = configuration.data
@@ -254,15 +264,15 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
 
         def compute_jacobian(self, configuration: Any) -> FloatArray:
             d = configuration.data
-            jp, jr, j = self._jp, self._jr, self._j
-            mujoco.mj_jacSite(model, d, jp, jr, site)
+            jr, j = self._jr, self._j
+            mujoco.mj_jacSite(model, d, self._jp, jr, site)
             m = d.site_xmat[site]  # row-major 3x3: z is its third column
-            z0, z1, z2 = float(m[2]), float(m[5]), float(m[8])
-            j[:3] = jp
-            # d z / dt = w x z, row by row
-            j[3] = jr[1] * z2 - jr[2] * z1
-            j[4] = jr[2] * z0 - jr[0] * z2
-            j[5] = jr[0] * z1 - jr[1] * z0
+            j[:3] = self._jp
+            # d z / dt = w x z: rows jr[1] z2 - jr[2] z1, jr[2] z0 - jr[0] z2,
+            # jr[0] z1 - jr[1] z0, as two products of gathered rows (the same numbers)
+            np.multiply(jr[_CROSS_A], m[_CROSS_ZA][:, None], out=self._ca)
+            np.multiply(jr[_CROSS_B], m[_CROSS_ZB][:, None], out=self._cb)
+            np.subtract(self._ca, self._cb, out=j[3:])
             return j
 
     return FingertipTask()
@@ -349,6 +359,7 @@ class FingertipIK:
         self._no_lower = np.full(len(self.limits[1].geom_id_pairs) if cfg.collisions else 0,
                                  -1e30)  # a collision row's lower bound: none
         self._jac1 = np.empty((3, m.nv))
+        self._fromto, self._normal = np.empty(6), np.empty(3)
         self._jac2 = np.empty((3, m.nv))
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
         self._mocap = int(m.body_mocapid[self._obj])
@@ -529,7 +540,7 @@ class FingertipIK:
                 perp = a - c * ax
                 perp /= max(math.sqrt(float(perp @ perp)), 1e-12)
                 a = math.cos(turn) * ax + math.sin(turn) * perp
-            task.axis = a / float(np.linalg.norm(a))
+            task.axis = a / math.sqrt(float(a.dot(a)))  # (np.linalg.norm's own sum)
             if axis_prev is not None:
                 task.feed[3:] = task.axis - axis_prev
         self._fed = True
@@ -537,9 +548,10 @@ class FingertipIK:
         if v is None:
             v = self._brake()
         self.configuration.integrate_inplace(v, self.dt)
-        self._box.prev = np.asarray(v[self.scene.dadr], dtype=np.float64)
+        qd = v[self.scene.dadr]  # (a new array: v is float64)
+        self._box.prev = qd
         self.solve_times.append(time.perf_counter() - t0)
-        return self.q, np.asarray(v[self.scene.dadr], dtype=np.float64)
+        return self.q, qd.copy()
 
     def _brake(self) -> FloatArray:
         """The joint velocities of a step whose QP has no solution: the last velocities
@@ -624,7 +636,7 @@ class FingertipIK:
         distmax = lim.collision_detection_distance
         min_dist = lim.minimum_distance_from_collisions
         gain, relax = lim.gain, lim.bound_relaxation
-        fromto, normal = np.empty(6), np.empty(3)
+        fromto, normal = self._fromto, self._normal
         jac1, jac2 = self._jac1, self._jac2
         g_rows: list[FloatArray] = []
         h_rows: list[float] = []
@@ -670,6 +682,22 @@ class FingertipIK:
         self._bp_keep = np.flatnonzero(~both & ~pg)
         # a moving plane (a user's robot file) or mink's broad phase off: every pair
         self._bp_all = not static or not getattr(lim, "broadphase", True)
+        # the usual case in fewer numpy calls (the same numbers): the sphere pairs' second
+        # geoms all one (the object), the planes all the table with its normal +z (the
+        # distance along it is then the height itself, exactly), and both sides' positions
+        # gathered at once
+        ns = len(self._bp_ss)
+        self._bp_one = -1
+        others = self._bp_ss1
+        for one, rest in ((self._bp_ss2, self._bp_ss1), (self._bp_ss1, self._bp_ss2)):
+            if ns and bool(np.all(one == one[0])):
+                # ``|a - b|^2`` is the same number either way round
+                self._bp_one, others = int(one[0]), rest
+                break
+        self._bp_up = bool(len(pl)) and bool(np.all(self._bp_pg_n == (0.0, 0.0, 1.0)))
+        self._bp_gather = np.concatenate([others, self._bp_pg_other])
+        self._bp_ns = ns
+        self._bp_nothing: list[int] = self._bp_keep.tolist()
 
     def _broad_phase(self, data: Any) -> list[int]:
         """The pairs that may lie within the detection distance (indices into mink's
@@ -677,6 +705,14 @@ class FingertipIK:
         if self._bp_all:
             return list(range(len(self._coll.geom_id_pairs)))
         x = data.geom_xpos
+        if self._bp_one >= 0 and (self._bp_up or not len(self._bp_pg)):
+            ns = self._bp_ns
+            xs = x[self._bp_gather]
+            d = xs[:ns] - x[self._bp_one]
+            got: list[int] = self._bp_ss[(d * d).sum(axis=1) <= self._bp_ss_bound2].tolist()
+            if len(self._bp_pg):
+                got += self._bp_pg[xs[ns:, 2] <= self._bp_pg_c].tolist()
+            return got + self._bp_nothing if self._bp_nothing else got
         d = x[self._bp_ss1] - x[self._bp_ss2]
         out: list[int] = self._bp_ss[(d * d).sum(axis=1) <= self._bp_ss_bound2].tolist()
         if len(self._bp_pg):

@@ -476,12 +476,12 @@ def robot_execution(
     from nonprehensile.sim.ik import import_mink
 
     import_mink()  # InputError with the install line when the extra is absent
-    from nonprehensile.control import ControlConfig, replanner
+    from nonprehensile.control import replanner
     from nonprehensile.inference import expand
     from nonprehensile.sim.closed_loop import execute_plan, scene_fingers
     from nonprehensile.sim.placement import place_base, plan_targets
     from nonprehensile.sim.robot import Robot
-    from nonprehensile.sim.robot_run import ROBOT_MAX_ACCEL, RobotSimulator
+    from nonprehensile.sim.robot_run import RobotSimulator, robot_control
     from nonprehensile.sim.robot_scene import Arm
     from nonprehensile.sim.scene import DEFAULT_PARAMS
     from nonprehensile.step_paths import fingers_of
@@ -497,12 +497,11 @@ def robot_execution(
     if sim.n_fingers < scene_fingers(plan):
         raise InputError(f"the plan needs {scene_fingers(plan)} fingers; the Panda has "
                          f"{sim.n_fingers}")
-    from dataclasses import replace
 
     # re-plans only with skills the arm has fingers for, as `simulate plan --robot` does
     exp = expand(poly, [s for s in skills if max(fingers_of(s), default=1) <= n_tips],
                  list(states))
-    cfg = replace(ControlConfig(), max_accel=ROBOT_MAX_ACCEL)
+    cfg = robot_control(n_fingers=sim.n_fingers)
     ex = execute_plan(sim, plan, fingers=fingers, loop="closed",
                       replan=replanner(poly, exp, plan.goal, motions=motions, scale=scale),
                       config=cfg, keep_trace=10)

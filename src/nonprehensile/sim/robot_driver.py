@@ -466,6 +466,8 @@ class RobotArms:
         self.ik = FingertipIK(ik_scene, dt, ik_config)
         self.ik.period = control_every * dt
         self.log = RobotLog(scene, dt)
+        # the set points' interpolation fractions per control period length (_segment)
+        self._frac: dict[int, FloatArray] = {}
         self.placed = False
         m = scene.model
         self._obj = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "object")
@@ -639,8 +641,12 @@ class RobotArms:
                                              now=targets[j]))
             self.ik.dt = self.dt
             dq = q1 - q0
-            q = q0[None, :] + (np.arange(k)[:, None] / k) * dq[None, :]
-            qd = np.repeat((dq / (k * self.dt))[None, :], k, axis=0)
+            frac = self._frac.get(k)
+            if frac is None:  # the interpolation's fractions 0, 1/k, ..., (k-1)/k
+                frac = self._frac[k] = np.arange(k)[:, None] / k
+            q = q0[None, :] + frac * dq[None, :]
+            qd = np.empty((k, len(dq)))
+            qd[:] = dq / (k * self.dt)
         if j + k >= n:  # the set point holds still after the motion
             qd[-1] = 0.0
         self._pinv = None

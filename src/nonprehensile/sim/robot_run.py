@@ -11,12 +11,14 @@ robot's own records (tracking error, limits, other contacts, IK time) are in
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from nonprehensile.control import ControlConfig
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose
@@ -27,17 +29,39 @@ from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
-__all__ = ["ROBOT_MAX_ACCEL", "RobotSimulator", "describe_robots"]
+__all__ = ["ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL", "RobotSimulator", "describe_robots",
+           "robot_control"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
-#: fingertip (``ControlConfig.max_accel``; transits use half of it). The free fingertips'
-#: 20 m/s^2 asks the Panda's shoulder for more than its 87 N m (measured, with the IK's
-#: 30 rad/s^2 joint bound, at 62.5-250 Hz: 15-26 ms at a torque limit over the main plan); at
-#: 8 m/s^2 (transits 4 m/s^2, well inside Franka's 13 m/s^2 Cartesian datasheet limit) the
-#: longest time at a limit is 8 ms at 100 Hz, and the plan runs 10 % shorter than at 4 m/s^2.
+#: fingertip (``ControlConfig.max_accel``). The free fingertips' 20 m/s^2 asks the Panda's
+#: shoulder for more than its 87 N m (measured, with the IK's 30 rad/s^2 joint bound, at
+#: 62.5-250 Hz: 15-26 ms at a torque limit over the main plan); at 8 m/s^2 (well inside
+#: Franka's 13 m/s^2 Cartesian datasheet limit) the longest time at a limit is 8 ms at
+#: 100 Hz, and the plan runs 10 % shorter than at 4 m/s^2.
 ROBOT_MAX_ACCEL = 8.0
 
+#: One fingertip's (one arm's) transits' bound (m/s^2, ``ControlConfig.transit_accel``):
+#: the same as its motions', where the free fingertips' transits use half of theirs
+#: (10 m/s^2). At half (4 m/s^2) the transits were 40 % of the main plan's simulated time on
+#: the Panda; at 8 m/s^2 the 72 single-finger transitions at nominal physics keep every
+#: contact bar (no limit held over 10 ms). Two or more fingertips (arms) keep half of
+#: ``max_accel``: at 8 m/s^2 the 96 two-finger transitions fell from 96/96 to 92/96
+#: (docs/benchmarks.md, "ik22").
+ROBOT_TRANSIT_ACCEL = 8.0
+
 FloatArray = NDArray[np.float64]
+
+
+def robot_control(config: ControlConfig | None = None, *, n_fingers: int,
+                  max_accel: float = ROBOT_MAX_ACCEL) -> ControlConfig:
+    """``config`` (default :class:`~nonprehensile.control.ControlConfig`) with the
+    fingertip acceleration bounds of robots with ``n_fingers`` fingertips in all:
+    ``max_accel`` for the motions; for the transits :data:`ROBOT_TRANSIT_ACCEL` (at most
+    ``max_accel``) with one fingertip (one arm), half of ``max_accel`` (the free fingertips'
+    rule) with more."""
+    cfg = config or ControlConfig()
+    ta = min(ROBOT_TRANSIT_ACCEL, float(max_accel)) if n_fingers == 1 else None
+    return replace(cfg, max_accel=max_accel, transit_accel=ta)
 
 
 class RobotSimulator(Simulator):

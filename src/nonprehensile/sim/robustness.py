@@ -305,7 +305,10 @@ def _execution(worker: _Worker, unit: SweepUnit, sample: PhysicsSample,
     replan = worker.replanner(unit)
     cfg = ControlConfig(angle_tol=spec.angle_tol, position_tol=spec.position_tol)
     if spec.robot is not None:  # an arm's fingertip accelerates less than a free sphere
-        cfg = replace(cfg, max_accel=spec.robot.max_accel)
+        from nonprehensile.sim.robot_run import robot_control
+
+        cfg = robot_control(cfg, n_fingers=spec.robot.n_fingers,
+                            max_accel=spec.robot.max_accel)
         # every sample's records (tracking, limits, IK times) its own, not left to the
         # driver's re-placement test (the arm itself is placed anew by that test, as a fresh
         # simulator would place it)
@@ -403,9 +406,10 @@ class SweepRobot:
     control_every : int
         Physics steps per IK solve (the control rate is the physics rate / it).
     max_accel : float, optional
-        Fingertip acceleration bound of the executor's motions (m/s^2; transits half of it);
-        default :data:`~nonprehensile.sim.robot_run.ROBOT_MAX_ACCEL`, as ``simulate plan
-        --robot``.
+        Fingertip acceleration bound of the executor's motions and transits (m/s^2, the
+        transits' at most :data:`~nonprehensile.sim.robot_run.ROBOT_TRANSIT_ACCEL`:
+        :func:`~nonprehensile.sim.robot_run.robot_control`); default
+        :data:`~nonprehensile.sim.robot_run.ROBOT_MAX_ACCEL`, as ``simulate plan --robot``.
     compliance : bool
         The arms' force-limited finger command with each sample's ``stiffness`` and
         ``max_force`` (:class:`~nonprehensile.sim.robot_run.RobotSimulator`; off by
