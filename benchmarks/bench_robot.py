@@ -61,6 +61,12 @@ COMPLIANCE = os.environ.get("NP_ROBOT_COMPLIANCE", "0") == "1"
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 
+def _compliance(n_fingers: int) -> str:
+    """The force-limited finger command's state, as printed (the same for any arms)."""
+    del n_fingers
+    return "on" if COMPLIANCE else "off (the default)"
+
+
 def _skills() -> str:
     import nonprehensile
 
@@ -302,7 +308,7 @@ def sweep() -> None:
     spec = SweepSpec(poly, ds.scale, units, dist, SEED, SAMPLES, ("closed",),
                      dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
                      robot=SweepRobot(tuple(arms), compliance=COMPLIANCE))
-    print(f"   force-limited finger command: {'on' if COMPLIANCE else 'off'}")
+    print(f"   force-limited finger command: {_compliance(1)}")
     _robot_report(run_sweep(spec, workers=WORKERS))
 
 
@@ -350,7 +356,7 @@ def transitions() -> None:
         spec = SweepSpec(poly, ds.scale, tuple(units), nominal, SEED, 1, ("closed",),
                          dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
                          robot=SweepRobot(tuple(arms), compliance=COMPLIANCE))
-        print(f"   force-limited finger command: {'on' if COMPLIANCE else 'off'}")
+        print(f"   force-limited finger command: {_compliance(n_arms)}")
         _robot_report(run_sweep(spec, workers=WORKERS, chunk_size=1))
 
 

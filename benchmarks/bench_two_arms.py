@@ -16,7 +16,7 @@ of the single-arm rows in docs/benchmarks.md), the longest time a joint was at a
 velocity or torque limit (which and when), the time a link or the rod touched the object or
 the table, and the IK's median time. ``TWO_ARMS_COMPLIANCE=1`` gives the arms the
 force-limited finger command (``RobotSimulator(compliance=True)``: the nominal fingertip's
-600 N/m and 8 N; ``TWO_ARMS_FORCE_LIMIT=N`` sets the force limit; off by default).
+600 N/m and 8 N; ``TWO_ARMS_FORCE_LIMIT=N`` sets the force limit); off by default.
 """
 
 from __future__ import annotations

@@ -566,3 +566,20 @@ def test_ik_keeps_the_joints_a_margin_inside_their_ranges() -> None:
     q = np.array(sc.home, dtype=float)
     q[j] = sc.upper[j] - math.radians(0.3)
     assert ik0._box.bounds(q, dt)[0][j] == pytest.approx(0.95 * math.radians(0.3), abs=1e-9)
+
+
+def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
+    """The stiff arm is the default (the measured choice, docs/robot.md); an explicit choice
+    wins; a sweep's robot says which."""
+    one = [Arm(Robot.builtin(), BasePose(0.5, 0.0, 180.0))]
+    two = [*one, Arm(Robot.builtin(), BasePose(-0.5, 0.0, 0.0))]
+    assert not RobotSimulator(CUBE, two, scale=SCALE).robot_driver.compliance
+    assert RobotSimulator(CUBE, two, scale=SCALE, compliance=True).robot_driver.compliance
+    assert SweepRobot(tuple(two), compliance=True).to_dict()["compliance"] is True
+    assert SweepRobot(tuple(one)).to_dict()["compliance"] is False
+    sim = SweepRobot(tuple(one), compliance=True).simulator(CUBE, SCALE, DEFAULT_PARAMS)
+    assert sim.robot_driver.compliance  # type: ignore[attr-defined]
+    # a sample's physics sets the virtual finger
+    sim.params = replace(DEFAULT_PARAMS, stiffness=2000.0, max_force=12.0)
+    assert sim.robot_driver.finger_stiffness == 2000.0  # type: ignore[attr-defined]
+    assert sim.robot_driver.force_limit == 12.0  # type: ignore[attr-defined]

@@ -425,11 +425,11 @@ class RobotArms:
         The IK runs every this many physics steps (the control rate is the physics rate over
         it); the joint set points are interpolated in between.
     compliance : bool
-        The force-limited finger command (:meth:`_comply`; off by default, see
-        docs/robot.md for why): each fingertip's
-        command is the target pulled back along the contact force its force sensor measures,
-        so that the force obeys the free fingertip's spring (``finger_stiffness``) and force
-        limit (``force_limit``). Off: the stiff position-controlled arm of the targets.
+        The force-limited finger command (:meth:`_comply`; off by default, docs/robot.md
+        says why): each fingertip's command is the target pulled back along the contact
+        force its force sensor measures, so that the force obeys the free fingertip's spring
+        (``finger_stiffness``) and force limit (``force_limit``). Off: the stiff
+        position-controlled arm of the targets.
     finger_stiffness : float
         The virtual finger's spring, N/m per axis (the free fingertips' ``stiffness``).
     force_limit : float
@@ -653,15 +653,8 @@ class RobotArms:
         sc = self.scene
         rows = np.repeat(np.asarray(self.data.ctrl, dtype=np.float64)[None, :], k, axis=0)
         pos = q
-        noise = None
         if ctl.noise is not None:
-            # the fingertip error as the arm's command carries it: sampled at the control
-            # rate and interpolated between solves like the IK's set points (the process's
-            # 1 kHz steps on a stiff servo hold its joints at their torque limits)
-            a, b = ctl.noise[j], ctl.noise[min(j + k, n - 1)]
-            noise = a[None] + (np.arange(k)[:, None, None] / k) * (b - a)[None] \
-                if k > 1 else ctl.noise[j:j + 1]
-            pos = q + self._noise_offset(noise)
+            pos = q + self._noise_offset(ctl.noise[j:j + k])
         rows[:, sc.pos_act] = pos
         v = sc.velocity
         rows[:, sc.vel_act] = np.maximum(np.minimum(qd, v), -v)
@@ -672,7 +665,7 @@ class RobotArms:
         log._q_ref[t0:t0 + k] = q
         log._qd_ref[t0:t0 + k] = qd
         log._target[t0:t0 + k] = targets[j:j + k]
-        log._noise[t0:t0 + k] = 0.0 if noise is None else noise
+        log._noise[t0:t0 + k] = 0.0 if ctl.noise is None else ctl.noise[j:j + k]
         # the give and the force are logged per physics step by _comply; the stiff arm's
         # force is read at the solves
         log._give[t0:t0 + k] = 0.0

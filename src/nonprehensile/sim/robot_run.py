@@ -87,11 +87,12 @@ class RobotSimulator(Simulator):
     force_limit : float, optional
         The virtual finger's force limit, N per axis (default ``params.max_force``; ``inf``:
         a spring without a limit).
-    compliance : bool
-        The force-limited finger command (off by default;
-        :meth:`~nonprehensile.sim.robot_driver.RobotArms._comply`): the fingertip's command
+    compliance : bool, optional
+        The force-limited finger command
+        (:meth:`~nonprehensile.sim.robot_driver.RobotArms._comply`): the fingertip's command
         gives way along the measured contact force as the free fingertip's spring would.
-        Off: the stiff position-controlled arm.
+        Off (the default): the stiff position-controlled arm (docs/robot.md gives the
+        measured figures of both, for one arm and for two).
     tracking_gain : float
         Gain (1/s) of the fingertips' contact tracking correction
         (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off).

@@ -448,7 +448,7 @@ class SweepRobot:
 
         return RobotSimulator(poly, self.arms, scale=scale, params=params,
                               control_every=self.control_every,
-                              compliance=bool(self.compliance))
+                              compliance=self.compliance)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form: robots, bases, rates."""
