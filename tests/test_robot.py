@@ -512,6 +512,62 @@ def test_compliance_refuses_a_finger_that_is_not_one() -> None:
                        compliance=True)
 
 
+def test_finger_leans_out_of_the_face_when_its_base_stands_to_the_side() -> None:
+    """A base 45 degrees off the face's normal: half the lean's direction is the face's
+    outward one (``side_tilt_outward`` 0.5), so the flange stands further out of the face
+    than when leaning towards the base alone, and by the blend's own angle (truth: MuJoCo's
+    site frame at the converged joints; the blend of +x and the base's direction)."""
+    base = BasePose(0.3 + 0.6, 0.1 + 0.6, -135.0)  # diagonal to the +x face
+    v = np.asarray(CUBE.vertices, dtype=float) * SCALE
+    c = v.mean(axis=0)
+    beside = np.array([[0.3 + 0.025 + 0.006, 0.1, 0.03]])  # on the +x face
+    out = {}
+    for w in (0.0, 0.5):
+        sc = build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.builtin(), base)],
+                               mocap_object=True)
+        ik = FingertipIK(sc, 0.001, IKConfig(collisions=False, side_tilt_outward=w))
+        ik.set_object(np.array([0.3 - c[0], 0.1 - c[1], -v[:, 2].min()]),
+                      np.array([1.0, 0.0, 0.0, 0.0]))
+        assert ik.converge(beside, iterations=1000) < 1e-3
+        d = mujoco.MjData(sc.model)
+        d.qpos[sc.qadr] = ik.q
+        mujoco.mj_kinematics(sc.model, d)
+        out[w] = d.site_xmat[sc.tip_sites[0]].reshape(3, 3)[:, 2].copy()
+    # the flange side of the finger (-z) along the face's outward normal (+x)
+    assert -out[0.5][0] > -out[0.0][0] + 0.05
+    b = np.array([base.x - beside[0, 0], base.y - beside[0, 1]])
+    lean = 0.5 * np.array([1.0, 0.0]) + 0.5 * b / np.linalg.norm(b)
+    lean /= np.linalg.norm(lean)
+    got = -out[0.5][:2] / np.linalg.norm(out[0.5][:2])
+    assert float(got @ lean) > math.cos(math.radians(8.0))
+
+
+def test_ik_keeps_the_joints_a_margin_inside_their_ranges() -> None:
+    """The IK's joint box keeps each joint ``position_margin_deg`` (1 degree) inside its
+    range, outside the 0.5-degree band that counts as at a limit: a joint 1.5 degrees from
+    its end may step 0.95 of the 0.5 degrees left; one 0.3 degrees from it (inside the
+    margin) must step back out, at 0.2 rad/s at most (truth: the scene's joint ranges)."""
+    sc = build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.builtin(),
+                                                        BasePose(0.0, 0.0, 0.0))],
+                           mocap_object=True)
+    # (no acceleration bound: it would cap the step from rest)
+    ik = FingertipIK(sc, 0.01, IKConfig(collisions=False, joint_accel=math.inf))
+    dt, j = 0.01, 3  # the elbow: its upper end is the stretched arm
+    for inside, want in ((1.5, 0.95 * math.radians(0.5)), (0.3, -0.2 * dt)):
+        q = np.array(sc.home, dtype=float)
+        q[j] = sc.upper[j] - math.radians(inside)
+        ik._box.prev = np.zeros(len(q))
+        upper, lower = ik._box.bounds(q, dt)
+        assert upper[j] == pytest.approx(want, abs=1e-9)
+        assert lower[j] < upper[j]
+    # no margin: the joint may go to its end
+    ik0 = FingertipIK(sc, 0.01, IKConfig(collisions=False, position_margin_deg=0.0,
+                                         joint_accel=math.inf))
+    q = np.array(sc.home, dtype=float)
+    q[j] = sc.upper[j] - math.radians(0.3)
+    assert ik0._box.bounds(q, dt)[0][j] == pytest.approx(0.95 * math.radians(0.3), abs=1e-9)
+
+
 def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
     """The stiff arm is the default (the measured choice, docs/robot.md); an explicit choice
     wins; a sweep's robot says which."""

@@ -120,6 +120,51 @@ def test_tracking_error_is_measured_against_the_command_with_its_noise() -> None
     np.testing.assert_allclose(ref, 0.002, atol=0.0005)
 
 
+def test_the_arms_ik_avoids_the_object_where_it_is_observed_not_where_it_is() -> None:
+    """Closed loop, the IK's object (its collision avoidance and finger pointing) is the
+    controller's: each pose handed to the IK is the planned start or an observation's (the
+    tracker's samples, 2 mm of noise here), never the simulation's true pose (truth: the
+    observer's own samples, collected beside the run)."""
+    from nonprehensile.control import ControlConfig
+    from nonprehensile.observation import ObservationModel
+    from nonprehensile.sim import closed_loop
+    from nonprehensile.sim.closed_loop import execute_plan
+
+    poly, ds, unit = _roll_arc_unit()
+    sim = RobotSimulator(poly, [Arm(Robot.builtin(), SWEEP_BASE)], scale=ds.scale)
+    ik = sim.robot_driver.ik
+    given: list[tuple[np.ndarray, np.ndarray]] = []  # (IK's object, true object) per solve
+    set_object = ik.set_object
+
+    def spy(position, quat):  # type: ignore[no-untyped-def]
+        given.append((np.array(position), np.array(sim.data.xpos[sim.judge.body])))
+        set_object(position, quat)
+
+    ik.set_object = spy  # type: ignore[method-assign]
+    seen: list[np.ndarray] = [np.asarray(unit.plan.steps[0].start_pose.translation)]
+    sample = closed_loop.SimObserver.sample
+
+    def observed(self, now):  # type: ignore[no-untyped-def]
+        got = sample(self, now)
+        if got is not None:
+            seen.append(np.asarray(got.pose.translation))
+        return got
+
+    closed_loop.SimObserver.sample = observed  # type: ignore[method-assign]
+    try:
+        execute_plan(sim, unit.plan, fingers=ds.fingers, loop="closed",
+                     observation=ObservationModel(position_noise=0.002),
+                     config=ControlConfig(max_accel=ROBOT_MAX_ACCEL))
+    finally:
+        closed_loop.SimObserver.sample = sample  # type: ignore[method-assign]
+    assert len(given) > 100
+    known = np.array(seen)
+    for pos, _ in given:
+        assert np.abs(known - pos).max(axis=1).min() < 1e-12  # an observation's, exactly
+    off = np.array([np.linalg.norm(pos - true) for pos, true in given])
+    assert np.median(off) > 0.001  # the tracker's noise: not the truth
+
+
 def test_robot_control_bounds_and_bad_values() -> None:
     """One fingertip's transits at :data:`ROBOT_TRANSIT_ACCEL` (never above the motions'
     bound), several fingertips' at half the motions' bound, the free fingertips' rule; a

@@ -270,6 +270,8 @@ class _Runner:
         # a view of them, read as floats (the speed's square is compared: the square root
         # of the largest is the largest square root, bit for bit)
         finger_dofs = getattr(sim.driver, "dadr", None)
+        # a robot's IK avoids the object where it is observed (never the true pose)
+        see = getattr(sim.driver, "see", None)
         vel = None if finger_dofs is None else _velocity_view(d, finger_dofs)
         qvel = d.qvel
         speed2 = self.tip_speed * self.tip_speed
@@ -318,6 +320,8 @@ class _Runner:
                 obs_at = next_obs - 1e-9
                 if obs is not None:
                     self.last_obs = obs
+                    if see is not None:
+                        see(obs.pose)
                     cur = seg[min(i, len(seg) - 1)]
                     self._cursor = (seg, i)
                     dec = react(obs, cur)
@@ -646,6 +650,9 @@ def execute_plan(
     m, d = sim.model, sim.data
     mujoco.mj_resetData(m, d)
     sim.set_pose(perturbation.start_pose(first.start_pose))
+    see = getattr(sim.driver, "see", None)  # a robot's IK: the object's believed pose
+    if see is not None:  # closed loop: planned until observed; open loop: nothing observed
+        see(first.start_pose if loop == "closed" else None)
     # the fingertips start out of the way, above the object's start
     home = np.array(sim.park())
     c0 = first.start_pose.com

@@ -92,6 +92,14 @@ class IKConfig:
     side_tilt_deg : float
         How far from vertical the finger leans towards the object's vertical axis where its
         target lies at or below the object's top (a side face).
+    side_tilt_outward : float or None
+        The lean's direction, between the arm's base (0) and straight out of the object's
+        vertical axis at the target (1), normalised; None: 0.5 with several fingertips, 0
+        with one. Leaning towards the base alone, a pinch of two diagonally placed arms put
+        the rod 5 degrees off a face 15 mm above the tip, against the face's top edge (rod
+        contact in all 24 twists of the two-arm sweep); straight out, the wrist follows the
+        face round in a twist to its joint limits. One arm keeps 0: at 0.5, 15 of the 24
+        single-arm roll-pulls held a torque limit for 11-12 ms (none did at 0).
     side_tilt_band : float
         The lean grows from none ``side_tilt_band`` m above the top to full at the top (and
         from none on the object's vertical axis to full this far from it).
@@ -105,6 +113,12 @@ class IKConfig:
         The IK moves each joint at most this fraction of its velocity limit (a margin for
         the servo's overshoot: a joint asked for its full limit runs at it, and a fast
         transit of an extended arm would hold the elbow there for ~0.1 s).
+    position_margin_deg : float
+        The IK keeps each joint this far (degrees) inside its range, a joint inside the
+        margin coming back out at 0.2 rad/s (a joint within 0.5 degrees of an end counts as
+        at its limit, :data:`~nonprehensile.sim.robot_driver.LIMIT_BANDS`): an arm waiting
+        at its rest had drifted, along its null space, to its elbow's stretched end and held
+        it there for 11.5 s.
     tilt_rate, tilt_accel : float
         The pointing direction's fastest turn, rad/s, and its angular acceleration, rad/s^2.
     task_time_constant : float
@@ -130,10 +144,12 @@ class IKConfig:
     collision_gain: float = 0.5
     collisions: bool = True
     side_tilt_deg: float = 30.0
+    side_tilt_outward: float | None = None
     side_tilt_band: float = 0.02
     tilt_rate: float = 1.0
     tilt_accel: float = 4.0
     velocity_fraction: float = 0.9
+    position_margin_deg: float = 1.0
     joint_accel: float = 30.0
     task_time_constant: float = 0.008
 
@@ -143,11 +159,14 @@ class IKConfig:
 
 
 def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
-                     velocity_fraction: float = 1.0, accel: float = math.inf) -> Any:
+                     velocity_fraction: float = 1.0, accel: float = math.inf,
+                     margin: float = 0.0, back_speed: float = 0.2) -> Any:
     """Joint position, velocity and acceleration limits as one box on the step ``dq``:
     ``max(-v dt, gain (lo - q), (v_prev - a dt) dt) <= dq <= min(v dt, gain (hi - q),
     (v_prev + a dt) dt)`` (``v_prev``: the last solve's joint velocities, attribute ``prev``;
-    the acceleration rows give way where they conflict with the others).
+    the acceleration rows give way where they conflict with the others). ``lo`` and ``hi``
+    are the joint's range narrowed by ``margin`` (rad) at each end; a joint inside that
+    margin is brought back out at ``back_speed`` (rad/s) at most, not in one step.
 
     The same bounds as mink's ``ConfigurationLimit`` (its default gain) and
     ``VelocityLimit`` together, in one constraint of ``2 n`` rows instead of two: a quarter of
@@ -158,8 +177,11 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
     class JointBoxLimit(mink.Limit):  # type: ignore[misc]
         def __init__(self) -> None:
             n = scene.model.nv
-            self.lower = scene.lower
-            self.upper = scene.upper
+            # the range narrowed by the margin (never past its middle)
+            half = np.maximum((scene.upper - scene.lower) / 2.0 - 1e-6, 0.0)
+            self.lower = scene.lower + np.minimum(margin, half)
+            self.upper = scene.upper - np.minimum(margin, half)
+            self.back = back_speed
             self.velocity = scene.velocity * velocity_fraction
             self.qadr = scene.qadr
             self.dadr = scene.dadr
@@ -174,8 +196,9 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             q = qpos if self.identity else qpos[self.qadr]
             vdt = self.velocity * dt
             # a joint outside its range may only move back in, as with mink's own limit
-            up = np.minimum(vdt, gain * (self.upper - q))
-            down = np.minimum(vdt, gain * (q - self.lower))
+            # inside the margin (negative room), back out at ``back_speed`` at most
+            up = np.minimum(vdt, np.maximum(gain * (self.upper - q), -self.back * dt))
+            down = np.minimum(vdt, np.maximum(gain * (q - self.lower), -self.back * dt))
             if math.isfinite(accel):
                 adt = accel * dt
                 up_a = np.minimum(up, (self.prev + adt) * dt)
@@ -304,7 +327,8 @@ class FingertipIK:
         self.posture.set_target(q_home)
         self.tasks = [*self.position_tasks, self.posture]
         self._box = _joint_box_limit(mink, scene, velocity_fraction=cfg.velocity_fraction,
-                                     accel=cfg.joint_accel)
+                                     accel=cfg.joint_accel,
+                                     margin=math.radians(cfg.position_margin_deg))
         self.limits: list[Any] = [self._box]
         if cfg.collisions:
             links_obj = list(scene.collision_geoms)
@@ -350,7 +374,10 @@ class FingertipIK:
         self._rot = np.empty(9)
         self._pose_key: tuple[float, ...] = ()  # the object's pose at the last pointing
         self._pose_top = (0.0, 0.0, 0.0)  # its top height and centre (x, y) there
-        self._tilt = np.radians(self.config.side_tilt_deg)
+        self._tilt = float(np.radians(self.config.side_tilt_deg))
+        w_out = self.config.side_tilt_outward
+        self._lean_out = float(w_out if w_out is not None
+                               else (0.5 if len(scene.tip_sites) > 1 else 0.0))
         # each fingertip's arm base (the root body below the world), xy
         full = np.zeros(m.nq)
         full[scene.qadr] = scene.home
@@ -444,13 +471,20 @@ class FingertipIK:
             bx, by = bx / nb, by / nb
             # full lean at the top and below, none ``band`` above it (an approach from
             # above turns the finger gradually), none over the object's vertical axis
-            frac = min(max((top + band - z) / band, 0.0), 1.0) * min(n / band, 1.0) \
-                * max((bx * hx + by * hy) / n, 0.0)
-            if frac <= 0.0:
+            frac = min(max((top + band - z) / band, 0.0), 1.0) * min(n / band, 1.0)
+            w = self._lean_out
+            if w > 0.0:  # the lean's direction: between the outward one and the base's
+                lx, ly = w * hx / n + (1.0 - w) * bx, w * hy / n + (1.0 - w) * by
+                nl = math.hypot(lx, ly)
+                if nl < 1e-9:
+                    continue
+                bx, by = lx / nl, ly / nl
+            cos_b = (bx * hx + by * hy) / n  # the lean's direction against the outward one
+            if frac <= 0.0 or cos_b <= 0.0:
                 continue
-            ang = self._tilt * frac
+            ang = self._tilt * frac * cos_b
             sa = math.sin(ang)
-            # +z runs from the flange to the tip: the flange sits towards the base
+            # +z runs from the flange to the tip: the flange sits on the lean's side
             out[k] = (-bx * sa, -by * sa, -math.cos(ang))
         return out
 

@@ -3,8 +3,10 @@
 :class:`RobotArms` implements :class:`~nonprehensile.sim.driver.FingerDriver`, so the judge's
 rules and records are those of the free fingertips. Its :meth:`~RobotArms.controls` are
 computed **online**: row ``i`` is solved when the step loop asks for it, right before physics
-step ``i``, with the object's collision geometry where the simulation has it then (a
-precomputed joint path would avoid the object where it was, not where it is). Each row holds,
+step ``i``, with the object's collision geometry where the executor believes it is then
+(:meth:`RobotArms.see`: closed loop the latest observation, never the simulation's true pose;
+open loop, which observes nothing, the simulation's; a precomputed joint path would avoid the
+object where it was, not where it is). Each row holds,
 for every joint, the position servo's set point (the IK's joint positions) and the velocity
 servo's (the IK's joint velocities: feed-forward, so the arm does not lag its set points);
 gravity is compensated through the actuators (:mod:`nonprehensile.sim.robot_scene`).
@@ -25,6 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from nonprehensile.errors import InputError
+from nonprehensile.planning import ObjectPose
 from nonprehensile.sim.ik import FingertipIK, IKConfig
 from nonprehensile.sim.judge import CONTACT_EVERY, Judge
 from nonprehensile.sim.robot_scene import RobotScene
@@ -411,7 +414,8 @@ class RobotArms:
     ik_scene : RobotScene
         Its kinematic copy (``mocap_object=True``).
     data : mujoco.MjData
-        The simulation's data (read before each solve: the object's pose, the joints).
+        The simulation's data (read before each solve: the joints, the fingertips and their
+        contacts, the robot's own sensing; the object's pose comes from :meth:`see`).
     judge : Judge
         Reads the contacts for the log.
     dt : float
@@ -511,6 +515,8 @@ class RobotArms:
         self._torque_finite = np.isfinite(scene.torque)
         self._fbuf = np.zeros(6)
         self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
+        # the object's believed pose (body origin, (w, x, y, z)): see()
+        self._seen: tuple[FloatArray, FloatArray] | None = None
         self._force_now = np.full(scene.n_fingers, math.nan)
         self._pinv_c: FloatArray | None = None
 
@@ -617,10 +623,10 @@ class RobotArms:
         what is left of the trajectory) in one step of ``k dt``, and the ``k`` rows
         interpolate from the set point now to that solution at the segment's velocity. The
         trajectory's last row holds still (zero velocity feed-forward)."""
-        targets, d = ctl.targets, self.data
+        targets = ctl.targets
         n = len(targets)
         t0 = self.log.n
-        self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
+        self._set_object()
         noise_j = None if ctl.noise is None else ctl.noise[j]
         if self.every == 1:
             k = 1
@@ -696,8 +702,8 @@ class RobotArms:
         """The actuator row holding the fingertips on ``targets`` (shape (n_fingers, 3)),
         converged from the home posture (a new start: the arm is placed there), its position
         set points offset by the fingertip error ``noise`` (see :meth:`with_noise`)."""
-        d, sc = self.data, self.scene
-        self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
+        sc = self.scene
+        self._set_object()
         self.ik.reset(sc.home)
         self.ik.converge(targets)
         q = self.ik.q
@@ -707,6 +713,33 @@ class RobotArms:
         row[sc.vel_act] = 0.0
         self._last = (_Segment(0, row[None], q[None], np.zeros((1, len(q)))), 0)
         return row
+
+    def see(self, pose: ObjectPose | None) -> None:
+        """Where the object is believed to be: the pose the IK's collision avoidance and
+        finger pointing use from the next solve on. The closed loop gives each observation
+        as it arrives (and the planned start before the first): a real arm's IK knows the
+        object only through the tracker, like everything else that decides.
+
+        ``None`` (the default, and what the open loop gives): the simulation's pose. Open
+        loop nothing is observed, and a pose held from before the motion is wrong: a pushing
+        fingertip follows the face it pushes into where the object stood, and the collision
+        limit stops it there (the main plan's first push-roll then did not roll).
+        """
+        if pose is None:
+            self._seen = None
+            return
+        quat = np.empty(4)
+        mujoco.mju_mat2Quat(quat, np.ascontiguousarray(pose.rotation, dtype=np.float64)
+                            .ravel())
+        self._seen = (np.array(pose.translation, dtype=np.float64), quat)
+
+    def _set_object(self) -> None:
+        """The IK's object at the believed pose (:meth:`see`)."""
+        if self._seen is not None:
+            self.ik.set_object(*self._seen)
+        else:
+            d = self.data
+            self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
 
     def check_compliance(self) -> None:
         """Refuse a virtual finger that is not one (one line saying what came)."""

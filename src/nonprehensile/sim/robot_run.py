@@ -173,6 +173,7 @@ class RobotSimulator(Simulator):
         :attr:`robot_log`), ``start=None`` carries on from where the arms are."""
         if start is not None:
             self.robot_driver.reset()
+            self.robot_driver.see(None)  # a run observes nothing (see RobotArms.see)
         return super().run(start, targets, rate, settle=settle, keep_trace=keep_trace,
                            signals=signals)
 
