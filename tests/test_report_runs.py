@@ -288,13 +288,21 @@ def test_the_executor_digest_covers_what_runs_the_free_fingertips(tmp_path: Path
     root = tmp_path / "nonprehensile"
     shutil.copytree(src, root, ignore=shutil.ignore_patterns("__pycache__", "data"))
     before = report_runs.executor_digest(root)
-    assert before == report_runs.executor_digest(src)
+    robot_before = report_runs.executor_digest(root, robot=True)
+    assert before == report_runs.executor_digest(src) and robot_before != before
     (root / "sim" / "robot_driver.py").write_text("# a robot's gains changed\n")
     (root / "sim" / "render.py").write_text("# the filmstrip changed\n")
     assert report_runs.executor_digest(root) == before
-    with (root / "sim" / "closed_loop.py").open("a") as f:
-        f.write("\n# the controller changed\n")
-    assert report_runs.executor_digest(root) != before
+    # the robot run's cache key (robot_key) does see the arm's code
+    robot_after = report_runs.executor_digest(root, robot=True)
+    assert robot_after != robot_before
+    (root / "sim" / "render.py").write_text("# the filmstrip changed again\n")
+    assert report_runs.executor_digest(root, robot=True) == robot_after
+    for changed in ("sim/closed_loop.py", "geometry/polyhedron.py", "checks.py"):
+        digest = report_runs.executor_digest(root)
+        with (root / changed).open("a") as f:
+            f.write("\n# what decides an execution changed\n")
+        assert report_runs.executor_digest(root) != digest, changed
 
     code = ("import sys\n"
             "import nonprehensile.sim.closed_loop, nonprehensile.sim.robustness\n"

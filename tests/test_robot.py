@@ -501,7 +501,7 @@ def test_compliant_fingertip_presses_like_the_free_fingertip() -> None:
         np.linalg.norm(tips - log._target[log.n - 1, 0]), abs=1e-9)
     assert log.error[-1] < log.error_ref[-1] - 0.01  # the give is most of the distance
     # the stiff arm (no compliance) at the same target
-    f_stiff, _ = _press_table(False, 3000.0, 10.0)
+    f_stiff, _ = _press_table(False, 3000.0, None)
     assert f_stiff[1000:].mean() > 3.0 * steady.mean()
 
 
@@ -574,6 +574,14 @@ def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
     one = [Arm(Robot.builtin(), BasePose(0.5, 0.0, 180.0))]
     two = [*one, Arm(Robot.builtin(), BasePose(-0.5, 0.0, 0.0))]
     assert not RobotSimulator(CUBE, two, scale=SCALE).robot_driver.compliance
+    # the records say which command ran, with its virtual finger
+    doc = RobotSimulator(CUBE, two, scale=SCALE, compliance=True, force_limit=math.inf).describe()
+    assert doc["finger_command"]["compliance"] is True
+    assert doc["finger_command"]["force_limit_n"] is None  # inf: JSON has none
+    assert doc["finger_command"]["stiffness_n_per_m"] == DEFAULT_PARAMS.stiffness
+    assert json.loads(json.dumps(doc, allow_nan=False))["ik_object_pose"].startswith("closed")
+    stiff = RobotSimulator(CUBE, two, scale=SCALE).describe()["finger_command"]
+    assert stiff["compliance"] is False and stiff["force_limit_n"] == DEFAULT_PARAMS.max_force
     assert RobotSimulator(CUBE, two, scale=SCALE, compliance=True).robot_driver.compliance
     assert SweepRobot(tuple(two), compliance=True).to_dict()["compliance"] is True
     assert SweepRobot(tuple(one)).to_dict()["compliance"] is False
@@ -583,3 +591,43 @@ def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
     sim.params = replace(DEFAULT_PARAMS, stiffness=2000.0, max_force=12.0)
     assert sim.robot_driver.finger_stiffness == 2000.0  # type: ignore[attr-defined]
     assert sim.robot_driver.force_limit == 12.0  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize(("name", "bad"), [
+    ("position_margin_deg", float("nan")), ("position_margin_deg", -1.0),
+    ("position_margin_deg", 45.0), ("side_tilt_outward", 1.5), ("side_tilt_outward", -0.1),
+    ("collision_gain", 0.0), ("velocity_fraction", 2.0), ("damping", float("inf")),
+    ("joint_accel", float("nan")), ("collisions", 1), ("posture_cost", True)])
+def test_ik_config_refuses_a_bad_setting_naming_it(name: str, bad: object) -> None:
+    """A bad IK setting (NaN, negative, out of its range, the wrong type) is refused in one
+    line naming it, before it reaches the QP; the defaults and the edge values pass."""
+    with pytest.raises(InputError, match=name):
+        IKConfig(**{name: bad})  # type: ignore[arg-type]
+    IKConfig(side_tilt_outward=0.0, position_margin_deg=0.0, joint_accel=math.inf,
+             collision_gain=1.0, velocity_fraction=1.0)
+
+
+def test_force_limit_without_the_compliance_is_refused() -> None:
+    """``force_limit`` is the force-limited command's limit: alone (as it was once used to make
+    the tip yield) it is refused, never ignored."""
+    with pytest.raises(InputError, match="compliance=True"):
+        RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.9, 0.1, 180.0))], scale=SCALE,
+                       force_limit=12.0)
+
+
+def test_cli_simulate_plan_with_the_force_limited_command() -> None:
+    """``simulate plan --robot panda --compliance``: the first step runs with the
+    force-limited finger command, and the JSON says so with its virtual finger (the
+    distribution's nominal spring); without a robot the flag is refused in one line."""
+    args = ["simulate", "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to",
+            "a:290", "--step", "90", "--dataset", "cube", "--json"]
+    res = CliRunner().invoke(main, [*args, "--robot", "panda", "--base", "0.53", "-0.51",
+                                    "112.5", "--compliance"])
+    assert res.exit_code == 0, res.stderr
+    doc = json.loads(res.stdout)
+    cmd = doc["robot"]["finger_command"]
+    assert cmd["compliance"] is True and cmd["stiffness_n_per_m"] == DEFAULT_PARAMS.stiffness
+    assert doc["robot"]["ik_object_pose"].startswith("closed loop: each observation")
+    bad = CliRunner().invoke(main, [*args, "--compliance"])
+    assert bad.exit_code == 2 and "--compliance is a robot's" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1

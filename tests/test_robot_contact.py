@@ -177,6 +177,13 @@ def test_robot_control_bounds_and_bad_values() -> None:
     assert robot_control(n_fingers=1, max_accel=5.0).transit_bound == 5.0
     two = robot_control(ControlConfig(angle_tol=4.0), n_fingers=2)
     assert two.angle_tol == 4.0 and two.transit_bound == ROBOT_MAX_ACCEL / 2
+    # a caller's own transit bound is kept (at most the motions' bound), never dropped
+    assert robot_control(ControlConfig(transit_accel=3.0), n_fingers=2).transit_bound == 3.0
+    assert robot_control(ControlConfig(transit_accel=30.0), n_fingers=1).transit_bound == \
+        ROBOT_MAX_ACCEL
+    for bad_n in (0, -1, True, 1.5):
+        with pytest.raises(InputError, match="n_fingers"):
+            robot_control(n_fingers=bad_n)  # type: ignore[arg-type]
     assert ControlConfig().transit_bound == ControlConfig().max_accel / 2
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(InputError, match="transit_accel"):

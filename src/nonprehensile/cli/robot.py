@@ -12,8 +12,8 @@ from rich.table import Table
 from nonprehensile.cli.options import count, number
 from nonprehensile.errors import InputError
 
-__all__ = ["control_every", "load_robot", "placement_doc", "robot_arms", "robot_options",
-           "robot_table", "wants_robot"]
+__all__ = ["compliance_option", "control_every", "load_robot", "placement_doc", "robot_arms",
+           "robot_options", "robot_table", "wants_robot"]
 
 F = Callable[..., Any]
 
@@ -58,6 +58,16 @@ def robot_options(fn: F) -> F:
     return fn
 
 
+def compliance_option(fn: F) -> F:
+    """Add ``--compliance/--stiff`` (keyword argument ``compliance``) to a command that
+    simulates a robot."""
+    return click.option(
+        "--compliance/--stiff", "compliance", default=False, show_default=True,
+        help="Robot: the force-limited finger command (each fingertip gives way along the "
+             "measured contact force as the free fingertip's spring and force limit would; "
+             "docs/robot.md); default --stiff, the position-controlled arm.")(fn)
+
+
 def wants_robot(kw: dict[str, Any]) -> bool:
     """Whether a robot option was given (and they agree)."""
     robot, xml, sites, base = (kw.get("robot"), kw.get("robot_xml"), kw.get("tip_sites"),
@@ -71,6 +81,9 @@ def wants_robot(kw: dict[str, Any]) -> bool:
                          "finger)")
     if base and robot is None and xml is None:
         raise InputError("--base places a robot: give --robot NAME or --robot-xml FILE")
+    if kw.get("compliance") and robot is None and xml is None:
+        raise InputError("--compliance is a robot's finger command: give --robot NAME or "
+                         "--robot-xml FILE")
     return robot is not None or xml is not None
 
 

@@ -27,6 +27,7 @@ from nonprehensile.cli.options import (
     step_option,
 )
 from nonprehensile.cli.robot import (
+    compliance_option,
     control_every,
     load_robot,
     placement_doc,
@@ -108,6 +109,7 @@ def _pct(d: dict[str, Any]) -> str:
 @record_options("every execution's steps")
 @angle_tol_option
 @robot_options
+@compliance_option
 @json_option
 @handle_errors
 def robustness_cmd(skills_file: str, dataset: str, step: float | None,
@@ -269,7 +271,7 @@ def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds
         arms, found = rob.place_sweep_arms(robot, units, poly, ds.scale, ds.fingers,
                                            n_arms=n_arms, params=dist.base)
         placement = found[0] if n_arms == 1 else found
-    return rob.SweepRobot(tuple(arms), every), placement
+    return rob.SweepRobot(tuple(arms), every, compliance=bool(kw.get("compliance"))), placement
 
 
 def _robot_summary(result: Any) -> dict[str, Any]:

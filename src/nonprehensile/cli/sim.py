@@ -40,6 +40,7 @@ from nonprehensile.cli.options import (
     step_option,
 )
 from nonprehensile.cli.robot import (
+    compliance_option,
     control_every,
     load_robot,
     placement_doc,
@@ -363,6 +364,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @_physics_options
 @_perturbation_options
 @robot_options
+@compliance_option
 @json_option
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
@@ -376,7 +378,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
     it (docs/robot.md)."""
     robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
-                                       "control_rate", "n_arms")}
+                                       "control_rate", "n_arms", "compliance")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
@@ -430,7 +432,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         arms, placement = robot_arms(robot_kw, poly, ds.scale, result, ds.fingers, params,
                                      robot)
         simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params,
-                                   control_every=every)
+                                   control_every=every,
+                                   compliance=bool(robot_kw.get("compliance")))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")

@@ -153,6 +153,32 @@ class IKConfig:
     joint_accel: float = 30.0
     task_time_constant: float = 0.008
 
+    def __post_init__(self) -> None:
+        # a NaN or a sign error here becomes NaN bounds or a flipped lean inside the QP, far
+        # from the setting that caused it: refuse it here, naming the setting
+        ranges = {"collision_gain": (0.0, 1.0, False), "side_tilt_outward": (0.0, 1.0, True),
+                  "velocity_fraction": (0.0, 1.0, False),
+                  "position_margin_deg": (0.0, 10.0, True), "side_tilt_deg": (0.0, 90.0, True)}
+        for name, value in asdict(self).items():
+            if name == "collisions":
+                if not isinstance(value, bool):
+                    raise InputError(f"IK setting collisions must be True or False, got "
+                                     f"{value!r}")
+                continue
+            if name == "side_tilt_outward" and value is None:
+                continue
+            ok = (not isinstance(value, bool) and isinstance(value, (int, float))
+                  and not math.isnan(value) and value >= 0
+                  and (math.isfinite(value) or name == "joint_accel"))
+            lo, hi, closed = ranges.get(name, (0.0, math.inf, True))
+            if ok and name in ranges:
+                ok = value <= hi and (closed or value > lo)
+            if not ok:
+                where = (f" in {'[' if closed else '('}{lo:g}, {hi:g}]" if name in ranges
+                         else " (inf allowed)" if name == "joint_accel" else "")
+                raise InputError(f"IK setting {name} must be a finite number >= 0{where}, "
+                                 f"got {value!r}")
+
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
         return asdict(self)

@@ -69,19 +69,22 @@ SHIPPED_SWEEP = "demo_sweep.json"
 #: Bumped when what the keys cover or the kept documents hold changes (the sweep's, the
 #: robot execution's).
 _FORMAT = "report-runs/1"
-_ROBOT_FORMAT = "robot/2"
+_ROBOT_FORMAT = "robot/3"
 
 #: The executor's source files (package-relative): the closed loop's decisions and the
 #: simulation (what a sweep's numbers depend on besides its inputs).
 # what decides an execution: the controller, its transits and observations, the planner and
 # what it plans with (references, step paths, inference, states), and the simulator
 _EXECUTOR_FILES = ("control.py", "transit.py", "observation.py", "planning.py", "references.py",
-                   "step_paths.py", "inference.py", "states.py", "equivalence.py", "sim")
+                   "step_paths.py", "inference.py", "states.py", "equivalence.py", "checks.py",
+                   "geometry", "sim")
 # the robot arms' modules and the renderer run none of the free-fingertip executions these runs
 # keep (no module above imports them at load; the sweep's robot path imports them inside its own
-# branch), so a change to a robot's IK or gains does not make the shipped sweep stale
-_NOT_EXECUTOR = frozenset({"report_runs.py", "render.py", "ik.py", "panda.py", "placement.py",
-                           "robot.py", "robot_driver.py", "robot_run.py", "robot_scene.py"})
+# branch), so a change to a robot's IK or gains does not make the shipped sweep stale; the robot
+# run's own key (robot_key) digests them
+_ROBOT_FILES = frozenset({"ik.py", "panda.py", "placement.py", "robot.py", "robot_driver.py",
+                          "robot_run.py", "robot_scene.py"})
+_NOT_EXECUTOR = frozenset({"report_runs.py", "render.py"}) | _ROBOT_FILES
 
 
 def _digest(parts: Any) -> str:
@@ -122,21 +125,25 @@ def sweep_key(poly: Polyhedron, scale: float, plan: Plan, skills: Sequence[Any],
         "position_tol": float(position_tol)})[:32]
 
 
-def executor_digest(root: Path | None = None) -> str:
+def executor_digest(root: Path | None = None, *, robot: bool = False) -> str:
     """A digest of the executor's source files in this installation (16 hex digits).
 
     Parameters
     ----------
     root : Path, optional
         The package folder to digest (default: this installation's ``nonprehensile``).
+    robot : bool
+        Also the robot arms' modules (IK, driver, scene, placement, the bundled Panda): what a
+        robot execution runs beside the free fingertips' executor.
     """
     root = Path(__file__).resolve().parent.parent if root is None else root
+    left_out = _NOT_EXECUTOR - _ROBOT_FILES if robot else _NOT_EXECUTOR
     h = hashlib.sha256()
     for name in _EXECUTOR_FILES:
         p = root / name
         files = sorted(p.glob("*.py")) if p.is_dir() else [p]
         # this module keeps the runs; it is not what runs them
-        for f in (f for f in files if f.name not in _NOT_EXECUTOR):
+        for f in (f for f in files if f.name not in left_out):
             with contextlib.suppress(OSError):
                 h.update(f.relative_to(root).as_posix().encode())
                 h.update(f.read_bytes())
@@ -432,7 +439,8 @@ def robot_key(poly: Polyhedron, scale: float, plan: Plan, skills: Sequence[Any],
     labels = np.asarray(getattr(motions, "labels", ()), dtype=np.int64)
     return _digest({
         "format": _ROBOT_FORMAT, "robot": "panda", "version": __version__,
-        "executor": executor_digest(), "object": [poly.name, _array_digest(poly.vertices)],
+        "executor": executor_digest(robot=True),
+        "object": [poly.name, _array_digest(poly.vertices)],
         "scale": round(float(scale), 9), "plan": _plan_identity(plan),
         "skills": [repr(s) for s in skills],
         "clusters": hashlib.sha256(labels.tobytes()).hexdigest()})[:32]

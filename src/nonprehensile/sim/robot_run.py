@@ -56,11 +56,23 @@ def robot_control(config: ControlConfig | None = None, *, n_fingers: int,
                   max_accel: float = ROBOT_MAX_ACCEL) -> ControlConfig:
     """``config`` (default :class:`~nonprehensile.control.ControlConfig`) with the
     fingertip acceleration bounds of robots with ``n_fingers`` fingertips in all:
-    ``max_accel`` for the motions; for the transits :data:`ROBOT_TRANSIT_ACCEL` (at most
-    ``max_accel``) with one fingertip (one arm), half of ``max_accel`` (the free fingertips'
-    rule) with more."""
+    ``max_accel`` for the motions; for the transits the caller's own
+    ``config.transit_accel`` if it set one (at most ``max_accel``), else
+    :data:`ROBOT_TRANSIT_ACCEL` (at most ``max_accel``) with one fingertip (one arm), half
+    of ``max_accel`` (the free fingertips' rule) with more.
+
+    Raises
+    ------
+    InputError
+        ``n_fingers`` below 1.
+    """
+    if isinstance(n_fingers, bool) or not isinstance(n_fingers, int) or n_fingers < 1:
+        raise InputError(f"a robot has at least one fingertip, got n_fingers={n_fingers!r}")
     cfg = config or ControlConfig()
-    ta = min(ROBOT_TRANSIT_ACCEL, float(max_accel)) if n_fingers == 1 else None
+    if cfg.transit_accel is not None:  # the caller's bound, never silently dropped
+        ta: float | None = min(cfg.transit_accel, float(max_accel))
+    else:
+        ta = min(ROBOT_TRANSIT_ACCEL, float(max_accel)) if n_fingers == 1 else None
     return replace(cfg, max_accel=max_accel, transit_accel=ta)
 
 
@@ -103,6 +115,11 @@ class RobotSimulator(Simulator):
                  control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float | None = None, tracking_gain: float = 20.0,
                  compliance: bool = False) -> None:
+        if force_limit is not None and not compliance:
+            # before the force-limited command, force_limit alone made the tip yield: a call
+            # written then must not now run the stiff arm without a word
+            raise InputError(f"force_limit={force_limit!r} is the force-limited finger "
+                             "command's limit: pass compliance=True with it, or drop it")
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self._force_limit = force_limit
@@ -178,9 +195,24 @@ class RobotSimulator(Simulator):
                            signals=signals)
 
     def describe(self) -> dict[str, Any]:
-        """The robots, base poses, controller, gains, rates and limits (JSON)."""
-        return describe_robots(self.arms, self.scene, self.params, self.ik_config,
-                               self.robot_driver.every)
+        """The robots, base poses, controller, gains, rates and limits (JSON), with the
+        fingertips' command (``finger_command``: the force-limited command's switch, virtual
+        finger and tracking correction) and where the IK's object pose comes from."""
+        doc = describe_robots(self.arms, self.scene, self.params, self.ik_config,
+                              self.robot_driver.every)
+        drv = self.robot_driver
+        doc["finger_command"] = {
+            "compliance": drv.compliance,
+            "stiffness_n_per_m": float(drv.finger_stiffness),
+            # None: a spring without a limit (JSON has no infinity)
+            "force_limit_n": (float(drv.force_limit) if np.isfinite(drv.force_limit)
+                              else None),
+            "damping_n_s_per_m": float(drv.compliance_damping),
+            "tracking_gain_per_s": drv.tracking_gain,
+        }
+        doc["ik_object_pose"] = ("closed loop: each observation (RobotArms.see); open loop, "
+                                 "where nothing is observed: the simulation's pose")
+        return doc
 
 
 def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
