@@ -45,7 +45,8 @@ ROBOT_MAX_ACCEL = 8.0
 #: (10 m/s^2). At half (4 m/s^2) the transits were 40 % of the main plan's simulated time on
 #: the Panda; at 8 m/s^2 the 72 single-finger transitions at nominal physics keep every
 #: contact bar (no limit held over 10 ms). Two or more fingertips (arms) keep half of
-#: ``max_accel``: at 8 m/s^2 the 96 two-finger transitions fell from 96/96 to 92/96
+#: ``max_accel``: at 8 m/s^2 the 96 two-finger transitions fell from 96/96 to 92/96 (measured
+#: before the IK's observed object and the rod's outward lean)
 #: (docs/benchmarks.md, "ik22").
 ROBOT_TRANSIT_ACCEL = 8.0
 
