@@ -636,3 +636,18 @@ def test_the_replans_turn_follows_the_observation_not_the_simulators_truth(first
     assert decisions(lied) == decisions(honest)
     # and the judge's verdict (the true pose: read through the judge, not the lying method)
     assert lied.sim_time == honest.sim_time
+
+
+@pytest.mark.parametrize("where", [0, 1, 5])
+def test_a_blown_up_object_never_reads_as_still(where: int) -> None:
+    """The judge's speed is the largest magnitude of the object's free-joint velocity, read
+    in floats; a NaN anywhere in it (a blown-up simulation) gives NaN, never the largest
+    of the others, so the object is not "still" (numpy's ``abs(v).max()`` is the truth)."""
+    from nonprehensile.sim import Simulator
+
+    sim = Simulator(cube(), n_fingers=1)
+    d, j = sim.data, sim.judge
+    d.qvel[j.dadr:j.dadr + 6] = [0.0, 0.3, -0.7, 0.1, 0.0, 0.2]
+    assert j.speed(d) == float(np.abs(d.qvel[j.dadr:j.dadr + 6]).max()) == 0.7
+    d.qvel[j.dadr + where] = math.nan
+    assert math.isnan(j.speed(d)) and not j.is_still(d)

@@ -631,3 +631,17 @@ def test_cli_simulate_plan_with_the_force_limited_command() -> None:
     bad = CliRunner().invoke(main, [*args, "--compliance"])
     assert bad.exit_code == 2 and "--compliance is a robot's" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize(("kw", "what"), [
+    ({"compliance": "false"}, "compliance is True or False"),
+    ({"compliance": 1}, "compliance is True or False")])
+def test_compliance_refuses_what_is_not_its_type(kw: dict[str, object], what: str) -> None:
+    """A string or a number for the switch: refused naming it (``bool("false")`` is
+    True), where it once ran the force-limited command; True and False pass."""
+    arm = [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))]
+    with pytest.raises(InputError, match=what):
+        RobotSimulator(CUBE, arm, scale=SCALE, **kw)  # type: ignore[arg-type]
+    for ok in (True, False):
+        assert RobotSimulator(CUBE, arm, scale=SCALE, compliance=ok).robot_driver.compliance \
+            is ok

@@ -175,8 +175,11 @@ class Judge:
         if data is not self._bound_vel:  # a view of the free joint's velocity, kept
             self._vel = data.qvel[self.dadr:self.dadr + 6]
             self._bound_vel = data
-        # (in floats: the same largest magnitude as numpy's, without its call overhead)
-        return float(max(map(abs, self._vel.tolist())))
+        # (in floats: the same largest magnitude as numpy's, without its call overhead; but
+        # max() skips a NaN that is not first, and a blown-up object must not read as still)
+        v = self._vel.tolist()
+        top = float(max(map(abs, v)))
+        return top if sum(v) == sum(v) else math.nan
 
     def is_still(self, data: Any) -> bool:
         """Whether the object's velocity is below :data:`STILL_VELOCITY` now."""

@@ -19,6 +19,7 @@ rod touches the object or the table, and the IK's time; :meth:`RobotLog.metrics`
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from typing import Any
 
@@ -498,7 +499,7 @@ class RobotArms:
         self._noise_next: FloatArray | None = None
         self._jac = np.zeros((3, m.nv))
         self._pinv: FloatArray | None = None  # tip position -> joints, at the last solve
-        self.compliance = bool(compliance)
+        self.compliance = compliance  # checked (a bool) by check_compliance
         self.finger_stiffness = finger_stiffness
         self.force_limit = force_limit
         self.compliance_damping = compliance_damping
@@ -744,12 +745,18 @@ class RobotArms:
     def check_compliance(self) -> None:
         """Refuse a virtual finger that is not one (one line saying what came)."""
         k, f, b = self.finger_stiffness, self.force_limit, self.compliance_damping
-        if not (isinstance(k, (int, float)) and math.isfinite(k) and k > 0.0):
+
+        def real(x: object) -> bool:  # numpy's numbers too; a bool is not a number here
+            return isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_))
+
+        if not isinstance(self.compliance, bool):
+            raise InputError(f"compliance is True or False, got {self.compliance!r}")
+        if not (real(k) and math.isfinite(k) and k > 0.0):
             raise InputError(f"the finger's stiffness is a finite positive N/m, got {k!r}")
-        if not (isinstance(f, (int, float)) and f > 0.0 and not math.isnan(f)):
+        if not (real(f) and f > 0.0 and not math.isnan(f)):
             raise InputError(f"the finger's force limit is a positive N (inf: none), got "
                              f"{f!r}")
-        if not (isinstance(b, (int, float)) and math.isfinite(b) and b > 0.0):
+        if not (real(b) and math.isfinite(b) and b > 0.0):
             raise InputError(f"the compliance's damping is a finite positive N s/m, got "
                              f"{b!r}")
 
