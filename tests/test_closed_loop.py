@@ -386,6 +386,64 @@ def test_correction_pushes_span_the_displacement() -> None:
                              clearance=0.015, tol=0.003) == []
 
 
+
+def _circular_gap(a: float, b: float) -> float:
+    d = abs(a - b) % 360.0
+    return min(d, 360.0 - d)
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from("abcdef"),
+                          # on a 0.01 degree grid: two states are the same or 0.01 apart
+                          # (the function takes turns under 0.001 degrees for one state)
+                          st.integers(0, 35999).map(lambda k: k / 100.0)),
+                min_size=1, max_size=12),
+       st.floats(0.0, 360.0, allow_nan=False))
+def test_angular_step_is_the_smallest_turn_between_two_states_on_a_face(
+        states: list[tuple[str, float]], turn: float) -> None:
+    """The model's angular step is the smallest turn between two distinct states on one face
+    (brute force over every pair, the circular distance: the truth), for any states, even
+    or uneven steps; None when no face has two; the same for the states turned together."""
+    from nonprehensile.control import angular_step
+
+    pairs = [_circular_gap(a, b) for i, (fa, a) in enumerate(states)
+             for fb, b in states[i + 1:] if fa == fb]
+    pairs = [g for g in pairs if g > 1e-3]  # the same state twice is one state
+    got = angular_step([State(f, t) for f, t in states])
+    if not pairs:
+        assert got is None
+    else:
+        assert got == pytest.approx(min(pairs), abs=2e-6)
+    turned = angular_step([State(f, (t + turn) % 360.0) for f, t in states])
+    assert (turned is None) == (got is None)
+    if got is not None:
+        assert turned == pytest.approx(got, abs=1e-5)
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.sampled_from([10.0, 15.0, 20.0, 24.0, 30.0, 36.0, 45.0, 60.0, 72.0, 90.0, 120.0,
+                        180.0]),
+       st.floats(0.0, 360.0, allow_nan=False), st.floats(0.01, 0.99))
+def test_for_step_derives_and_checks_align_tol_at_every_even_step(
+        step: float, offset: float, frac: float) -> None:
+    """States every ``step`` degrees on each face (any offset): the derived ``align_tol`` is a
+    third of the step, at most 30 degrees; an explicit one below half the step is kept, one at
+    or above it refused naming the setting and the bound."""
+    from nonprehensile.control import angular_step
+
+    n = round(360.0 / step)
+    states = [State(f, (offset + k * step) % 360.0) for f in "ab" for k in range(n)]
+    got = angular_step(states)
+    assert got == pytest.approx(step, abs=1e-5)
+    assert ControlConfig().for_step(got).align_tol == pytest.approx(min(30.0, step / 3.0))
+    below = frac * step / 2.0
+    assert ControlConfig(align_tol=below).for_step(got).align_tol == below
+    with pytest.raises(InputError, match="align_tol must be below half"):
+        ControlConfig(align_tol=step / 2.0 + frac).for_step(got)
+    # one state per face: no step, the 30 degree default
+    assert ControlConfig().for_step(angular_step(states[::n])).align_tol == 30.0
+
+
 # ---------------------------------------------------------------------------- physics
 # headless offscreen rendering, set before mujoco is first imported (as nonprehensile.sim
 # sets it): later tests render
