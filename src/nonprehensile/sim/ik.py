@@ -174,10 +174,10 @@ class IKConfig:
             if ok and name in ranges:
                 ok = value <= hi and (closed or value > lo)
             if not ok:
-                where = (f" in {'[' if closed else '('}{lo:g}, {hi:g}]" if name in ranges
-                         else " (inf allowed)" if name == "joint_accel" else "")
-                raise InputError(f"IK setting {name} must be a finite number >= 0{where}, "
-                                 f"got {value!r}")
+                kind = ("a number >= 0 (inf: no bound)" if name == "joint_accel"
+                        else "a finite number >= 0")
+                where = f" in {'[' if closed else '('}{lo:g}, {hi:g}]" if name in ranges else ""
+                raise InputError(f"IK setting {name} must be {kind}{where}, got {value!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""

@@ -178,8 +178,8 @@ class Judge:
         # (in floats: the same largest magnitude as numpy's, without its call overhead; but
         # max() skips a NaN that is not first, and a blown-up object must not read as still)
         v = self._vel.tolist()
-        top = float(max(map(abs, v)))
-        return top if sum(v) == sum(v) else math.nan
+        total = sum(v)  # NaN if any component is
+        return float(max(map(abs, v))) if total == total else math.nan
 
     def is_still(self, data: Any) -> bool:
         """Whether the object's velocity is below :data:`STILL_VELOCITY` now."""
