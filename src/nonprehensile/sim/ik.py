@@ -43,11 +43,9 @@ _FEED_SPEED = 1.0
 
 #: The cross product ``w x z`` of the pointing task's Jacobian as gathers: the rows of the
 #: angular Jacobian and the entries of the site's row-major rotation (z: entries 2, 5, 8)
-#: of its two products.
-_CROSS_A = np.array([1, 2, 0])
-_CROSS_ZA = np.array([8, 2, 5])
-_CROSS_B = np.array([2, 0, 1])
-_CROSS_ZB = np.array([5, 8, 2])
+#: of its two products, the first product's three rows then the second's (one gather each).
+_CROSS_ROWS = np.array([1, 2, 0, 2, 0, 1])
+_CROSS_Z = np.array([8, 2, 5, 5, 8, 2])
 
 
 def import_mink() -> Any:
@@ -287,32 +285,55 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
             self.target = np.zeros(3)
             self.axis = np.array([0.0, 0.0, -1.0])
             self.feed = np.zeros(6)
-            self._jp = np.zeros((3, model.nv))
             self._jr = np.zeros((3, model.nv))
             self._j = np.zeros((6, model.nv))
-            self._ca = np.zeros((3, model.nv))
-            self._cb = np.zeros((3, model.nv))
+            # views made once (every solve runs these two methods): the Jacobian's position
+            # rows, written by mj_jacSite in place; the gathered rows of the cross product,
+            # its two halves, its gathered rotation entries as a column
+            self._jp = self._j[:3]
+            self._jz = self._j[3:]
+            self._cross = np.zeros((6, model.nv))
+            self._ca, self._cb = self._cross[:3], self._cross[3:]
+            self._z = np.zeros(6)
+            self._zcol = self._z[:, None]
+            self._data: Any = None  # the data whose site views are below
+            self._xpos: FloatArray = np.zeros(3)
+            self._xmat: FloatArray = np.zeros(9)
+            self._zaxis: FloatArray = np.zeros(3)
+
+        def _views(self, d: Any) -> None:
+            """The site's position and rotation in ``d`` as views (MjData's arrays never
+            move: made once per data, not every solve)."""
+            self._data = d
+            self._xpos = d.site_xpos[site]
+            self._xmat = d.site_xmat[site]
+            self._zaxis = self._xmat[2::3]  # z, the rotation's third column
 
         def compute_error(self, configuration: Any) -> FloatArray:
             d = configuration.data
-            z = d.site_xmat[site].reshape(3, 3)[:, 2]
-            e = np.concatenate([d.site_xpos[site] - self.target, z - self.axis])
+            if d is not self._data:
+                self._views(d)
+            e = np.empty(6)
+            np.subtract(self._xpos, self.target, out=e[:3])
+            np.subtract(self._zaxis, self.axis, out=e[3:])
             if self.gain < 1.0:
                 e -= self.feed / self.gain
             return e
 
         def compute_jacobian(self, configuration: Any) -> FloatArray:
             d = configuration.data
-            jr, j = self._jr, self._j
+            if d is not self._data:
+                self._views(d)
+            jr = self._jr
             mujoco.mj_jacSite(model, d, self._jp, jr, site)
-            m = d.site_xmat[site]  # row-major 3x3: z is its third column
-            j[:3] = self._jp
             # d z / dt = w x z: rows jr[1] z2 - jr[2] z1, jr[2] z0 - jr[0] z2,
-            # jr[0] z1 - jr[1] z0, as two products of gathered rows (the same numbers)
-            np.multiply(jr[_CROSS_A], m[_CROSS_ZA][:, None], out=self._ca)
-            np.multiply(jr[_CROSS_B], m[_CROSS_ZB][:, None], out=self._cb)
-            np.subtract(self._ca, self._cb, out=j[3:])
-            return j
+            # jr[0] z1 - jr[1] z0, as one product of gathered rows and their difference
+            # (the same numbers)
+            np.take(jr, _CROSS_ROWS, axis=0, out=self._cross)
+            np.take(self._xmat, _CROSS_Z, out=self._z)
+            self._cross *= self._zcol
+            np.subtract(self._ca, self._cb, out=self._jz)
+            return self._j
 
     return FingertipTask()
 
@@ -393,6 +414,15 @@ class FingertipIK:
         rows = sum(len(t.cost) for t in self.position_tasks)
         self._w = np.zeros((rows, m.nv))
         self._we = np.zeros(rows)
+        # each fingertip task's rows of ``_w`` and ``_we`` (views) with its weights, as a
+        # vector and a column (_solve)
+        self._task_rows: list[tuple[Any, FloatArray, FloatArray, FloatArray, FloatArray]] = []
+        r = 0
+        for t in self.position_tasks:
+            k = len(t.cost)
+            self._task_rows.append((t, self._w[r:r + k], self._we[r:r + k], t.cost,
+                                    t.cost[:, None]))
+            r += k
         self._no_rows = np.zeros((0, m.nv))
         self._sense: dict[int, NDArray[np.intc]] = {}  # daqp's constraint kinds (all bounds)
         self._no_lower = np.full(len(self.limits[1].geom_id_pairs) if cfg.collisions else 0,
@@ -635,20 +665,19 @@ class FingertipIK:
         conf, dt, n = self.configuration, self.dt, self._nv
         w = self._w
         we = self._we
-        r = 0
-        for task in self.position_tasks:
-            cost = task.cost
-            k = len(cost)
-            w[r:r + k] = cost[:, None] * task.compute_jacobian(conf)
-            we[r:r + k] = cost * (-task.gain * task.compute_error(conf))
-            r += k
+        for task, w_k, we_k, cost, cost_col in self._task_rows:
+            np.multiply(cost_col, task.compute_jacobian(conf), out=w_k)
+            np.multiply(cost, -task.gain * task.compute_error(conf), out=we_k)
         post = self.posture
         cp2 = post.cost * post.cost
         h = w.T @ w
         c = -(we @ w)
         qpos = conf.data.qpos  # (read only: mink's ``q`` is a copy)
-        # posture: J = I, e = q - q_home (hinge and slide joints only: checked in __init__)
-        h.flat[::n + 1] += cp2 + self.config.damping
+        # posture: J = I, e = q - q_home (hinge and slide joints only: checked in __init__);
+        # the diagonal as a strided view of the fresh, contiguous ``h`` (``h.flat`` costs
+        # more)
+        diag = h.reshape(-1)[::n + 1]
+        diag += cp2 + self.config.damping
         c += cp2 * post.gain * (qpos - post.target_q)
         upper, lower = self._box.bounds(qpos, dt)
         rows = self._collision_rows(conf, dt) if self._coll is not None else None
