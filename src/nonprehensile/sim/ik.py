@@ -378,6 +378,7 @@ class FingertipIK:
         self.configuration = mink.Configuration(m)
         cfg = self.config
         self.tip_names = [m.site(int(s)).name for s in scene.tip_sites]
+        self._tip_index = np.array([int(s) for s in scene.tip_sites], dtype=np.int64)
         self.position_tasks = [_fingertip_task(mink, m, int(sid), cfg.position_cost,
                                                cfg.pointing_cost)
                                for sid in scene.tip_sites]
@@ -469,7 +470,8 @@ class FingertipIK:
     @property
     def q(self) -> FloatArray:
         """The IK's joint positions, scene joint order."""
-        return np.asarray(self.configuration.q[self.scene.qadr], dtype=np.float64)
+        # (one gather of the data's qpos: mink's ``q`` is a copy of it first)
+        return np.asarray(self.configuration.data.qpos[self.scene.qadr], dtype=np.float64)
 
     def reset(self, q: FloatArray) -> None:
         """Start from joint positions ``q`` (scene joint order)."""
@@ -498,8 +500,10 @@ class FingertipIK:
 
     def tips(self) -> FloatArray:
         """The IK's fingertip positions, shape (n_fingers, 3)."""
-        d = self.configuration.data
-        return np.array([d.site_xpos[int(s)] for s in self.scene.tip_sites])
+        # one gather (a copy), not an array of per-site views: a placement calls this at
+        # every iteration
+        return np.asarray(self.configuration.data.site_xpos[self._tip_index],
+                          dtype=np.float64)
 
     def pointing(self, targets: FloatArray) -> FloatArray:
         """The fingers' pointing directions (unit, world) for ``targets`` (shape
