@@ -46,15 +46,35 @@ def hull_distance(poly: Polyhedron, pose: ObjectPose, points: FloatArray) -> Flo
     distance to its face planes: exact off a face, smaller off an edge or vertex; negative
     inside). ``points`` has shape (..., 3)."""
     p = np.asarray(points, dtype=np.float64)
-    x = (p - pose.translation) @ pose.rotation / pose.scale  # model frame
+    # (``a.dot(b)``: the BLAS call ``a @ b`` makes, the same numbers, without the matmul
+    # ufunc's dispatch: a let-go measures its fingertips at every observation)
     normals, offsets = _planes(poly)
-    return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
+    if p.ndim > 2:  # (``dot`` of a stack is not matmul's product of each matrix)
+        x = (p - pose.translation) @ pose.rotation / pose.scale
+        return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
+    x = (p - pose.translation).dot(pose.rotation) / pose.scale  # model frame
+    return np.asarray((x.dot(normals.T) - offsets).max(axis=-1) * pose.scale)
+
+
+#: Face planes by object (the object kept with them, so that its id stays its own): the
+#: let-go measures its fingertips against them at every observation.
+_PLANES: dict[int, tuple[Polyhedron, tuple[FloatArray, FloatArray]]] = {}
 
 
 def _planes(poly: Polyhedron) -> tuple[FloatArray, FloatArray]:
+    """The face planes' unit normals (shape (n_faces, 3)) and offsets (model frame),
+    computed once per object (read-only arrays)."""
+    got = _PLANES.get(id(poly))
+    if got is not None and got[0] is poly:
+        return got[1]
     normals = np.array([poly.normals[f] for f in poly.face_ids])
     offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
                         for f in poly.face_ids])
+    normals.setflags(write=False)
+    offsets.setflags(write=False)
+    if len(_PLANES) >= 64:  # a long-lived process that sees many objects
+        _PLANES.clear()
+    _PLANES[id(poly)] = (poly, (normals, offsets))
     return normals, offsets
 
 
