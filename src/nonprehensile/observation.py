@@ -163,25 +163,20 @@ class ObservationStream:
         n_tips = tips.size if m.finger_noise > 0 else 0
         # one draw for the whole sample: the same numbers, in the same order, as a draw per
         # quantity (``normal(0, s)`` is ``0 + s * z`` of the generator's next ``z``)
-        z = self.rng.standard_normal(n_pose + n_tips).tolist() if n_pose + n_tips else None
-        # (the element-wise sums and products in floats: numpy's are the same correctly
-        # rounded operations; the matrix products stay numpy's, by ``a.dot(b)``: the BLAS
-        # call ``a @ b`` makes, without the matmul ufunc's dispatch)
+        z = self.rng.standard_normal(n_pose + n_tips) if n_pose + n_tips else None
         if z is not None and noisy_pose:
             a = math.radians(m.angle_noise_deg or 0.0)
             p = m.position_noise
-            z0, z1, z2, z3, z4, z5 = z[:6]
+            z0, z1, z2, z3, z4, z5 = z[:6].tolist()
             dr = _rotvec_matrix(0.0 + a * z0, 0.0 + a * z1, 0.0 + a * z2)
-            c0, c1, c2 = pose.com.tolist()
-            t0, t1, t2 = pose.translation.tolist()
-            com = np.array([c0 + (0.0 + p * z3), c1 + (0.0 + p * z4), c2 + (0.0 + p * z5)])
+            com = pose.com + np.array([0.0 + p * z3, 0.0 + p * z4, 0.0 + p * z5])
             # the noisy rotation turns the body about its (noisy) centre of mass
-            trans = com - dr.dot(np.array([c0 - t0, c1 - t1, c2 - t2]))
+            # (``a.dot(b)``: the BLAS call ``a @ b`` makes, the same numbers, without the
+            # matmul ufunc's dispatch)
+            trans = com - dr.dot(pose.com - pose.translation)
             pose = ObjectPose(dr.dot(pose.rotation), trans, com, pose.scale)
         if z is not None and n_tips:
-            f = m.finger_noise
-            tips = np.array([v + (0.0 + f * w) for v, w in zip(
-                tips.ravel().tolist(), z[n_pose:], strict=True)]).reshape(tips.shape)
+            tips = tips + (0.0 + m.finger_noise * z[n_pose:]).reshape(tips.shape)
         else:
             tips = np.array(tips, dtype=np.float64)
         self._queue.append(Observation(now, pose, tips))
@@ -322,6 +317,8 @@ def _ground_of_heights(poly: Polyhedron, z: FloatArray, rotation: FloatArray, to
         return Face(poly.face_ids[int(np.argmin(normals @ rotation[2]))])
     elif len(low) == 2 and len(common) == 2:
         el = Edge(common)
+    elif len(low) == 1:  # (the lowest vertex: the set decides it, as the judge keeps it)
+        el = Vertex(vf[int(low[0])])
     else:
         return Vertex(vf[int(np.argmin(z))])
     if memo is not None:

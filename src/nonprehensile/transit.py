@@ -56,26 +56,11 @@ def hull_distance(poly: Polyhedron, pose: ObjectPose, points: FloatArray) -> Flo
     return np.asarray((x.dot(normals.T) - offsets).max(axis=-1) * pose.scale)
 
 
-#: Face planes by object (the object kept with them, so that its id stays its own): the
-#: let-go measures its fingertips against them at every observation.
-_PLANES: dict[int, tuple[Polyhedron, tuple[FloatArray, FloatArray]]] = {}
-
-
 def _planes(poly: Polyhedron) -> tuple[FloatArray, FloatArray]:
-    """The face planes' unit normals (shape (n_faces, 3)) and offsets (model frame),
-    computed once per object (read-only arrays)."""
-    got = _PLANES.get(id(poly))
-    if got is not None and got[0] is poly:
-        return got[1]
-    normals = np.array([poly.normals[f] for f in poly.face_ids])
-    offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
-                        for f in poly.face_ids])
-    normals.setflags(write=False)
-    offsets.setflags(write=False)
-    if len(_PLANES) >= 64:  # a long-lived process that sees many objects
-        _PLANES.clear()
-    _PLANES[id(poly)] = (poly, (normals, offsets))
-    return normals, offsets
+    """The face planes' unit normals (shape (n_faces, 3)) and offsets (model frame), kept
+    by the object (read only): the let-go measures its fingertips against them at every
+    observation."""
+    return poly.normal_matrix, poly.plane_offsets
 
 
 def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float, *,

@@ -1040,7 +1040,9 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                 # degrees: well above the tracker's noise, far below a prism's 30-degree
                 # balance point)
                 return Decision(done=True, outcome="aborted", reason="tilted")
-            moved = float((o.pose.com[:2] - origin) @ push.direction[:2])
+            # (``a.dot(b)``: the same BLAS dot as ``a @ b``, without the matmul ufunc's
+            # dispatch: asked at every observation)
+            moved = float((o.pose.com[:2] - origin).dot(push.direction[:2]))
             if moved >= push.distance - 0.0005:
                 return Decision(done=True, outcome="finished")
             return Decision()
