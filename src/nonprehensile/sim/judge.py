@@ -159,6 +159,10 @@ class Judge:
         self._ground_memo: dict[tuple[float, bytes], ObjectElement] = {}
         self._pair_memo: dict[tuple[Any, ObjectElement], ContactPair] = {}
         self._set_memo: dict[frozenset[int], frozenset[ContactPair]] = {}
+        # the object on the table and nothing else, the commonest read: its geom pair either
+        # way round, and the last ground pair with its contact set
+        self._on_table = ([self.obj_geom, self.table], [self.table, self.obj_geom])
+        self._ground_set: tuple[ContactPair, frozenset[ContactPair]] | None = None
         # the object's rotation and position as views of the last data read (MuJoCo's
         # arrays stay where they are for the data's life): read through, never copied
         self._bound: Any = None
@@ -180,9 +184,13 @@ class Judge:
         """The object's current pose."""
         rv, tv = self._views(data)
         r, t = rv.copy(), tv.copy()
-        # (``a.dot(b)``: the BLAS call ``a @ b`` makes, the same numbers, without the
-        # matmul ufunc's dispatch, which costs more than the product of 3-vectors)
-        return ObjectPose(r, t, self.scale * r.dot(self._com) + t, self.scale)
+        # ``scale * (r @ com) + t``: ``a.dot(b)`` is the BLAS call ``a @ b`` makes, the
+        # same numbers, without the matmul ufunc's dispatch; the product and sum element
+        # by element in floats, the same correctly rounded operations as numpy's
+        c0, c1, c2 = r.dot(self._com).tolist()
+        t0, t1, t2 = t.tolist()
+        s = self.scale
+        return ObjectPose(r, t, np.array([s * c0 + t0, s * c1 + t1, s * c2 + t2]), s)
 
     def state(self, data: Any, tol_deg: float = REST_TILT_DEG) -> State | None:
         """The state the object rests in now, or None."""
@@ -348,6 +356,15 @@ class Judge:
         # contact arrays are ``ncon`` long)
         geoms, dist = con.geom.tolist(), con.dist.tolist()
         r, t = self._views(data)
+        on, no = self._on_table
+        if geoms.count(on) + geoms.count(no) == n and max(dist) <= 1e-4:
+            # every contact the object's on the table (what the loop below finds then: the
+            # ground alone), counted at C speed
+            pair = self._ground_pair_at(r, t)
+            last = self._ground_set
+            if last is None or last[0] is not pair:
+                last = self._ground_set = (pair, self._contact_set([pair]))
+            return last[1], False, False
         found: list[ContactPair] = []
         finger_table = other_contact = ground = False
         obj, table, tips = self.obj_geom, self.table, self._tip_fingers
@@ -376,13 +393,16 @@ class Judge:
                 other_contact = True
         if ground:
             found.append(self._ground_pair_at(r, t))
-        # the same contact set comes back read after read: one frozenset per set, so that
-        # comparing two reads is mostly comparing an object with itself
+        return self._contact_set(found), finger_table, other_contact
+
+    def _contact_set(self, found: list[ContactPair]) -> frozenset[ContactPair]:
+        """``frozenset(found)``, one object per set: the same contact set comes back read
+        after read, so that comparing two reads is mostly comparing an object with itself."""
         key = frozenset(map(id, found))
         got = self._set_memo.get(key)
         if got is None:
             got = self._set_memo[key] = frozenset(found)
-        return got, finger_table, other_contact
+        return got
 
     def _ground_pair_at(self, r: FloatArray, t: FloatArray) -> ContactPair:
         """The ground's contact pair at the pose ``(r, t)``, read again only when the
