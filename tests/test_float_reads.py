@@ -169,6 +169,13 @@ def test_judge_elements_in_floats_equal_numpy(judges: dict[str, object], name: s
             if got is not None:
                 assert got == truth
                 by_floats += 1
+            # a fingertip's contact point wandering from there (a slide, a roll): the last
+            # element kept while the point stays within its margin is the one named afresh
+            for _ in range(8):
+                p = p + rng.normal(size=3) * rng.choice([1e-5, 1e-4, 1e-3, 5e-3])
+                truth = judge.element(r.T @ (p - t) / SCALE)
+                got = judge._element_in_floats(p.tolist(), r.tolist(), t.tolist(), key=7)
+                assert got is None or got == truth
         el, margin = judge._ground_and_margin(r, t)
         fast = judge._ground_in_floats(*r[2].tolist(), float(t[2]))
         if fast is not None:

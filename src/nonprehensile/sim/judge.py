@@ -156,6 +156,10 @@ class Judge:
         # over: an element that the set of near planes (or of low vertices) decides alone is
         # kept by that set, and a pair by its ends (the results are those computed afresh)
         self._element_memo: dict[tuple[float, bytes], ObjectElement] = {}
+        # each fingertip's last element read in floats: (tol, the point in the model frame,
+        # the square of the distance it may move and stay near the same planes, element)
+        self._last_elements: dict[int, tuple[float, float, float, float, float,
+                                             ObjectElement]] = {}
         self._ground_memo: dict[tuple[float, bytes], ObjectElement] = {}
         self._pair_memo: dict[tuple[Any, ObjectElement], ContactPair] = {}
         self._set_memo: dict[frozenset[int], frozenset[ContactPair]] = {}
@@ -240,8 +244,8 @@ class Judge:
         self._element_memo[key] = el
         return el
 
-    def _element_in_floats(self, p: list[float], r: list[list[float]], t: list[float]
-                           ) -> ObjectElement | None:
+    def _element_in_floats(self, p: list[float], r: list[list[float]], t: list[float],
+                           key: int = -1) -> ObjectElement | None:
         """:meth:`element` of the world contact point ``p`` at the pose ``(r, t)`` (as
         lists), computed in floats, or None where that may differ from :meth:`element`.
 
@@ -250,6 +254,10 @@ class Judge:
         place; a plane whose margin to the tolerance exceeds :data:`_GUARD` times the
         magnitudes involved is near (or not) either way. A smaller margin, a NaN, or a set
         of near planes not named before (the memo) gives None: :meth:`element` decides.
+
+        With ``key`` (the fingertip's geom), a point that has moved less than the last
+        one's margin since (each plane's distance moves no more than the point: unit
+        normals) is near the same planes: the last element, without the planes.
         """
         rows = self._float_rows
         if rows is None:
@@ -263,13 +271,27 @@ class Judge:
         x1 = (r01 * d0 + r11 * d1 + r21 * d2) / sc
         x2 = (r02 * d0 + r12 * d1 + r22 * d2) / sc
         eps = _GUARD * (1.0 + abs(x0) + abs(x1) + abs(x2) + self._big)
+        last = self._last_elements.get(key)
+        if last is not None and last[0] == tol:
+            e0, e1, e2 = x0 - last[1], x1 - last[2], x2 - last[3]
+            if e0 * e0 + e1 * e1 + e2 * e2 < last[4]:  # (a NaN compares False)
+                return last[5]
         mask = []
+        margin = math.inf
         for n0, n1, n2, off in rows:
             v = n0 * x0 + n1 * x1 + n2 * x2 - off
-            if not abs(v + tol) > eps:
+            a = abs(v + tol)
+            if not a > eps:
                 return None
+            if a < margin:
+                margin = a
             mask.append(v > -tol)
-        return self._element_memo.get((tol, bytes(mask)))
+        el = self._element_memo.get((tol, bytes(mask)))
+        if el is not None and key >= 0:
+            # (less the guard twice: this point's rounding and the next one's)
+            m = margin - 2.0 * eps
+            self._last_elements[key] = (tol, x0, x1, x2, m * m if m > 0 else 0.0, el)
+        return el
 
     def ground_element(self, pose_r: FloatArray, pose_t: FloatArray) -> ObjectElement:
         """The face, edge or vertex of the object lowest on the table (within
@@ -381,7 +403,7 @@ class Judge:
                 elif other in tips:
                     if pos is None:  # read once, as floats (the pose too)
                         pos, rl, tl = con.pos.tolist(), r.tolist(), t.tolist()
-                    el = self._element_in_floats(pos[i], rl, tl)
+                    el = self._element_in_floats(pos[i], rl, tl, other)
                     if el is None:  # not decided in floats: numpy's products decide
                         el = self.element(r.T.dot(con.pos[i] - t) / self.scale)
                     found.append(self._pair(tips[other], el))
