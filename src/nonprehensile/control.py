@@ -64,6 +64,7 @@ from nonprehensile.states import State, angle_diff, state_of_pose
 from nonprehensile.step_paths import ease, fingers_of, resample, step_targets, with_stop
 
 __all__ = [
+    "GO_ON",
     "ArcSpec",
     "ControlConfig",
     "Decision",
@@ -676,6 +677,11 @@ class Decision:
     fade: float | None = None
 
 
+#: "Go on" (no new targets, not done): one frozen value serves every observation that
+#: changes nothing, instead of building an equal one each time (``Decision()``).
+GO_ON = Decision()
+
+
 class StepMonitor:
     """The event-driven execution of one plan step.
 
@@ -858,7 +864,7 @@ class StepMonitor:
             seen = " ∧ ".join(_pair_names(self.current)) or "nothing"
             return self._abort(obs, f"event {arc.target!r} not observed within "
                                     f"{limit:.2f} s of {arc.source!r} (observed {seen})")
-        return Decision()
+        return GO_ON
 
     def _follow_through(self, obs: Observation, command: FloatArray) -> Decision | None:
         """A tipping arc whose reference is over while the object still pivots on an edge
@@ -1027,7 +1033,7 @@ class StepMonitor:
             coms = np.array([w[1] for w in self._window])
             return self._finish(obs, coms.mean(axis=0), [w[2] for w in self._window],
                                 settled=False)
-        return Decision()
+        return GO_ON
 
     def _finish(self, obs: Observation, com: FloatArray, rots: Sequence[FloatArray],
                 settled: bool) -> Decision:
