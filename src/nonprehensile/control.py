@@ -64,6 +64,7 @@ from nonprehensile.states import State, angle_diff, state_of_pose
 from nonprehensile.step_paths import ease, fingers_of, resample, step_targets, with_stop
 
 __all__ = [
+    "GO_ON",
     "ArcSpec",
     "ControlConfig",
     "Decision",
@@ -676,6 +677,11 @@ class Decision:
     fade: float | None = None
 
 
+#: "Go on" (no new targets, not done): one frozen value serves every observation that
+#: changes nothing, instead of building an equal one each time (``Decision()``).
+GO_ON = Decision()
+
+
 class StepMonitor:
     """The event-driven execution of one plan step.
 
@@ -822,12 +828,12 @@ class StepMonitor:
         ground = _ground_of(self.current) if self.current is not None else None
         arc = self.spec.arcs[self.arc]
         if arc.tips and ground is not None and ground == self.spec.grounds[self.arc] \
-                and isinstance(ground, Face) and not self._pivoted:
+                and isinstance(ground, Face) and not self._pivoted \
+                and _slid_beyond(obs.pose.com, self._arc_com, self.cfg.slide_tol):
             slid = float(np.hypot(*(obs.pose.com[:2] - self._arc_com)))
-            if slid > self.cfg.slide_tol:
-                return self._abort(obs, f"slides instead of tipping: moved "
-                                        f"{1000 * slid:.1f} mm on face {ground} during "
-                                        f"{arc.source}->{arc.target}")
+            return self._abort(obs, f"slides instead of tipping: moved "
+                                    f"{1000 * slid:.1f} mm on face {ground} during "
+                                    f"{arc.source}->{arc.target}")
         elapsed = obs.time - self._arc_t0
         length = (len(arc.positions) - 1) / self.spec.rate
         if self.phase == "run" and elapsed > length and arc.tips:
@@ -858,7 +864,7 @@ class StepMonitor:
             seen = " ∧ ".join(_pair_names(self.current)) or "nothing"
             return self._abort(obs, f"event {arc.target!r} not observed within "
                                     f"{limit:.2f} s of {arc.source!r} (observed {seen})")
-        return Decision()
+        return GO_ON
 
     def _follow_through(self, obs: Observation, command: FloatArray) -> Decision | None:
         """A tipping arc whose reference is over while the object still pivots on an edge
@@ -1027,7 +1033,7 @@ class StepMonitor:
             coms = np.array([w[1] for w in self._window])
             return self._finish(obs, coms.mean(axis=0), [w[2] for w in self._window],
                                 settled=False)
-        return Decision()
+        return GO_ON
 
     def _finish(self, obs: Observation, com: FloatArray, rots: Sequence[FloatArray],
                 settled: bool) -> Decision:
@@ -1044,6 +1050,20 @@ class StepMonitor:
                          "settled": settled})
         return Decision(done=True, outcome="finished",
                         reason="" if settled else "the object did not come to rest")
+
+
+def _slid_beyond(com: FloatArray, origin: FloatArray, tol: float) -> bool:
+    """Whether ``np.hypot(*(com[:2] - origin))`` exceeds ``tol`` (m): in floats (the
+    monitor asks at every observation, and numpy's call on two scalars costs more than the
+    sum), by numpy when the distance is within 1e-9 of ``tol`` (``math.hypot`` and the C
+    library's ``hypot`` may round the last place differently; the differences are exact
+    in both)."""
+    x0, x1 = com[:2].tolist()
+    o0, o1 = origin[:2].tolist()
+    d = math.hypot(x0 - o0, x1 - o1)
+    if abs(d - tol) > 1e-9:  # (a NaN falls through to numpy)
+        return d > tol
+    return bool(float(np.hypot(*(com[:2] - origin))) > tol)
 
 
 def observed_state(poly: Polyhedron, rotation: FloatArray, tilt_deg: float = 3.0

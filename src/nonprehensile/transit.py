@@ -46,16 +46,21 @@ def hull_distance(poly: Polyhedron, pose: ObjectPose, points: FloatArray) -> Flo
     distance to its face planes: exact off a face, smaller off an edge or vertex; negative
     inside). ``points`` has shape (..., 3)."""
     p = np.asarray(points, dtype=np.float64)
-    x = (p - pose.translation) @ pose.rotation / pose.scale  # model frame
+    # (``a.dot(b)``: the BLAS call ``a @ b`` makes, the same numbers, without the matmul
+    # ufunc's dispatch: a let-go measures its fingertips at every observation)
     normals, offsets = _planes(poly)
-    return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
+    if p.ndim > 2:  # (``dot`` of a stack is not matmul's product of each matrix)
+        x = (p - pose.translation) @ pose.rotation / pose.scale
+        return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
+    x = (p - pose.translation).dot(pose.rotation) / pose.scale  # model frame
+    return np.asarray((x.dot(normals.T) - offsets).max(axis=-1) * pose.scale)
 
 
 def _planes(poly: Polyhedron) -> tuple[FloatArray, FloatArray]:
-    normals = np.array([poly.normals[f] for f in poly.face_ids])
-    offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
-                        for f in poly.face_ids])
-    return normals, offsets
+    """The face planes' unit normals (shape (n_faces, 3)) and offsets (model frame), kept
+    by the object (read only): the let-go measures its fingertips against them at every
+    observation."""
+    return poly.normal_matrix, poly.plane_offsets
 
 
 def escape(poly: Polyhedron, pose: ObjectPose, points: FloatArray, reach: float, *,

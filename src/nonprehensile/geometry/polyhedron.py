@@ -223,6 +223,15 @@ class Polyhedron:
         return out
 
     @cached_property
+    def plane_offsets(self) -> FloatArray:
+        """Each face plane's offset: its outward unit normal dotted with its first vertex,
+        in the faces' order, shape (n_faces,) (a point ``x`` is outside face ``i`` when
+        ``normal_matrix[i] @ x > plane_offsets[i]``; read only)."""
+        out = np.array([self.normals[f] @ self.vertices[self.faces[f][0]] for f in self.faces])
+        out.setflags(write=False)
+        return out
+
+    @cached_property
     def first_edge_directions(self) -> dict[str, FloatArray]:
         """:meth:`edge_direction` of each face's edge 1 (a state's ``theta`` is measured on
         it), shape (3,) each."""

@@ -36,6 +36,7 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 
 from nonprehensile.control import (
+    GO_ON,
     ControlConfig,
     Decision,
     NextAction,
@@ -517,7 +518,7 @@ def _let_go(sim: Simulator, run: _Runner, cfg: ControlConfig, moving: NDArray[np
         if clear(o) and is_still and float(np.abs(cur - aim).max()) < 1e-9:
             return Decision(done=True, outcome="finished")
         if not reaim(o):
-            return Decision()
+            return GO_ON
         # from the running command at its velocity: nothing to fade
         return Decision(segment=release(cur, run.velocity(), aim, dt=run.dt,
                                         max_speed=cfg.max_speed, max_accel=cfg.max_accel),
@@ -1040,10 +1041,12 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                 # degrees: well above the tracker's noise, far below a prism's 30-degree
                 # balance point)
                 return Decision(done=True, outcome="aborted", reason="tilted")
-            moved = float((o.pose.com[:2] - origin) @ push.direction[:2])
+            # (``a.dot(b)``: the same BLAS dot as ``a @ b``, without the matmul ufunc's
+            # dispatch: asked at every observation)
+            moved = float((o.pose.com[:2] - origin).dot(push.direction[:2]))
             if moved >= push.distance - 0.0005:
                 return Decision(done=True, outcome="finished")
-            return Decision()
+            return GO_ON
 
         dec, let_go, obs = _push(sim, run, cfg, push, 0.03,
                                  push.distance + p.finger_radius + cfg.clearance + 0.015,
@@ -1112,7 +1115,7 @@ def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                 return Decision(done=True, outcome="aborted", reason="tilted")
             if abs(e) <= 0.3 or e * err0 < 0:
                 return Decision(done=True, outcome="finished")
-            return Decision()
+            return GO_ON
 
         dec, let_go, obs = _push(sim, run, cfg, push, 0.02,
                                  p.finger_radius + cfg.clearance + 0.03, react)

@@ -82,6 +82,10 @@ class FreeFingertips:
         self._qslice = (slice(a, a + len(self.qadr))
                         if np.array_equal(self.qadr, np.arange(a, a + len(self.qadr)))
                         else None)
+        # that slice as a view of the last data read, shaped (n_fingers, 3) (MuJoCo's arrays
+        # stay where they are for the data's life): the observer reads it at its rate
+        self._bound: Any = None
+        self._tips_view: FloatArray | None = None
 
     def controls(self, targets: FloatArray) -> FloatArray:
         """The targets flattened: the position actuators' set points."""
@@ -97,7 +101,13 @@ class FreeFingertips:
 
     def tips(self, data: Any) -> FloatArray:
         """The spheres' centres (joint positions: the slide joints start at the origin)."""
-        q = data.qpos[self._qslice] if self._qslice is not None else data.qpos[self.qadr]
+        if self._qslice is not None:
+            if data is not self._bound:
+                self._tips_view = data.qpos[self._qslice].reshape(self.n_fingers, 3)
+                self._bound = data
+            assert self._tips_view is not None
+            return np.array(self._tips_view, dtype=np.float64)
+        q = data.qpos[self.qadr]
         return np.array(q, dtype=np.float64).reshape(self.n_fingers, 3)
 
     def qpos_indices(self) -> NDArray[np.int64]:

@@ -63,6 +63,13 @@ STILL_VELOCITY = 1e-3
 STILL_TIME = 0.05
 #: The contact set of no contact (one object: reads compare it with itself).
 _NO_CONTACT: frozenset[ContactPair] = frozenset()
+#: Reads in floats (guarded, the same results as numpy's) for objects up to this many
+#: vertices; beyond, numpy's products are faster.
+_FLOAT_VERTICES = 32
+#: A comparison computed in floats stands when its margin exceeds this times the magnitudes
+#: involved: a sum of three products rounded otherwise (numpy's products may fuse or
+#: reorder them) moves by a few units in the last place, about 1e-15 of them.
+_GUARD = 1e-9
 
 
 @dataclass(frozen=True)
@@ -133,13 +140,33 @@ class Judge:
         self._normals = np.array([poly.normals[f] for f in poly.face_ids])
         self._offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
                                   for f in poly.face_ids])
+        # the same planes and the vertices as floats, for a small object (reads in floats,
+        # guarded: see _element_in_floats); None for a large one, read by numpy alone
+        self._float_rows: list[tuple[float, float, float, float]] | None = None
+        self._float_verts: list[tuple[float, float, float]] | None = None
+        self._big = 0.0
+        if len(poly.vertices) <= _FLOAT_VERTICES:
+            self._float_rows = [(a, b, c, o) for (a, b, c), o in zip(
+                self._normals.tolist(), self._offsets.tolist(), strict=True)]
+            self._float_verts = [(a, b, c) for a, b, c in
+                                 np.asarray(poly.vertices, dtype=np.float64).tolist()]
+            self._big = max(max(abs(v) for p in self._float_verts for v in p),
+                            max(abs(r[3]) for r in self._float_rows))
         # contacts are read every few steps and name the same few elements and pairs over and
         # over: an element that the set of near planes (or of low vertices) decides alone is
         # kept by that set, and a pair by its ends (the results are those computed afresh)
         self._element_memo: dict[tuple[float, bytes], ObjectElement] = {}
+        # each fingertip's last element read in floats: (tol, the point in the model frame,
+        # the square of the distance it may move and stay near the same planes, element)
+        self._last_elements: dict[int, tuple[float, float, float, float, float,
+                                             ObjectElement]] = {}
         self._ground_memo: dict[tuple[float, bytes], ObjectElement] = {}
         self._pair_memo: dict[tuple[Any, ObjectElement], ContactPair] = {}
         self._set_memo: dict[frozenset[int], frozenset[ContactPair]] = {}
+        # the object on the table and nothing else, the commonest read: its geom pair either
+        # way round, and the last ground pair with its contact set
+        self._on_table = ([self.obj_geom, self.table], [self.table, self.obj_geom])
+        self._ground_set: tuple[ContactPair, frozenset[ContactPair]] | None = None
         # the object's rotation and position as views of the last data read (MuJoCo's
         # arrays stay where they are for the data's life): read through, never copied
         self._bound: Any = None
@@ -161,7 +188,13 @@ class Judge:
         """The object's current pose."""
         rv, tv = self._views(data)
         r, t = rv.copy(), tv.copy()
-        return ObjectPose(r, t, self.scale * (r @ self._com) + t, self.scale)
+        # ``scale * (r @ com) + t``: ``a.dot(b)`` is the BLAS call ``a @ b`` makes, the
+        # same numbers, without the matmul ufunc's dispatch; the product and sum element
+        # by element in floats, the same correctly rounded operations as numpy's
+        c0, c1, c2 = r.dot(self._com).tolist()
+        t0, t1, t2 = t.tolist()
+        s = self.scale
+        return ObjectPose(r, t, np.array([s * c0 + t0, s * c1 + t1, s * c2 + t2]), s)
 
     def state(self, data: Any, tol_deg: float = REST_TILT_DEG) -> State | None:
         """The state the object rests in now, or None."""
@@ -189,7 +222,7 @@ class Judge:
     def element(self, x: FloatArray) -> ObjectElement:
         """The face, edge or vertex of the model nearest a surface point (model frame)."""
         tol = self.params.contact_tol / self.scale
-        d = self._normals @ x - self._offsets
+        d = self._normals.dot(x) - self._offsets
         mask = d > -tol
         key = (tol, mask.tobytes())
         got = self._element_memo.get(key)
@@ -211,6 +244,55 @@ class Judge:
         self._element_memo[key] = el
         return el
 
+    def _element_in_floats(self, p: list[float], r: list[list[float]], t: list[float],
+                           key: int = -1) -> ObjectElement | None:
+        """:meth:`element` of the world contact point ``p`` at the pose ``(r, t)`` (as
+        lists), computed in floats, or None where that may differ from :meth:`element`.
+
+        The element depends on the point only through which face planes it is within
+        ``contact_tol`` of. Floats differ from numpy's products by a few units in the last
+        place; a plane whose margin to the tolerance exceeds :data:`_GUARD` times the
+        magnitudes involved is near (or not) either way. A smaller margin, a NaN, or a set
+        of near planes not named before (the memo) gives None: :meth:`element` decides.
+
+        With ``key`` (the fingertip's geom), a point that has moved less than the last
+        one's margin since (each plane's distance moves no more than the point: unit
+        normals) is near the same planes: the last element, without the planes.
+        """
+        rows = self._float_rows
+        if rows is None:
+            return None
+        tol = self.params.contact_tol / self.scale
+        d0, d1, d2 = p[0] - t[0], p[1] - t[1], p[2] - t[2]
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = r
+        sc = self.scale
+        # ``r.T @ (p - t) / scale``: the point in the model frame (model units)
+        x0 = (r00 * d0 + r10 * d1 + r20 * d2) / sc
+        x1 = (r01 * d0 + r11 * d1 + r21 * d2) / sc
+        x2 = (r02 * d0 + r12 * d1 + r22 * d2) / sc
+        eps = _GUARD * (1.0 + abs(x0) + abs(x1) + abs(x2) + self._big)
+        last = self._last_elements.get(key)
+        if last is not None and last[0] == tol:
+            e0, e1, e2 = x0 - last[1], x1 - last[2], x2 - last[3]
+            if e0 * e0 + e1 * e1 + e2 * e2 < last[4]:  # (a NaN compares False)
+                return last[5]
+        mask = []
+        margin = math.inf
+        for n0, n1, n2, off in rows:
+            v = n0 * x0 + n1 * x1 + n2 * x2 - off
+            a = abs(v + tol)
+            if not a > eps:
+                return None
+            if a < margin:
+                margin = a
+            mask.append(v > -tol)
+        el = self._element_memo.get((tol, bytes(mask)))
+        if el is not None and key >= 0:
+            # (less the guard twice: this point's rounding and the next one's)
+            m = margin - 2.0 * eps
+            self._last_elements[key] = (tol, x0, x1, x2, m * m if m > 0 else 0.0, el)
+        return el
+
     def ground_element(self, pose_r: FloatArray, pose_t: FloatArray) -> ObjectElement:
         """The face, edge or vertex of the object lowest on the table (within
         ``contact_tol``) at the pose ``(R, t)``."""
@@ -222,7 +304,7 @@ class Judge:
         the lowest one clear ``contact_tol`` when the set of low vertices alone decides the
         element (else 0: the pose itself decides)."""
         tol = self.params.contact_tol
-        z = self.scale * (self.poly.vertices @ pose_r[2]) + pose_t[2]
+        z = self.scale * self.poly.vertices.dot(pose_r[2]) + pose_t[2]
         above = z - z.min() - tol
         mask = above < 0
         key = (tol, mask.tobytes())
@@ -247,6 +329,36 @@ class Judge:
         self._ground_memo[key] = el
         return el, float(np.abs(above).min())
 
+    def _ground_in_floats(self, rx: float, ry: float, rz: float, tz: float
+                          ) -> tuple[ObjectElement, float] | None:
+        """:meth:`_ground_and_margin` at the pose whose rotation's last row is
+        ``(rx, ry, rz)`` and height ``tz``, in floats: the element when the set of low
+        vertices is clear of the tolerance by :data:`_GUARD` times the heights' magnitudes
+        and was named before (the memo), with a margin less that guard (a smaller one is
+        safe: the pair is then read again sooner); else None."""
+        verts = self._float_verts
+        if verts is None:
+            return None
+        tol = self.params.contact_tol
+        sc = self.scale
+        z = [sc * (vx * rx + vy * ry + vz * rz) + tz for vx, vy, vz in verts]
+        zmin = min(z)
+        eps = _GUARD * (1.0 + abs(sc) * self._big + abs(tz))
+        mask = []
+        margin = math.inf
+        for h in z:
+            above = h - zmin - tol
+            a = abs(above)
+            if not a > eps:
+                return None
+            if a < margin:
+                margin = a
+            mask.append(above < 0)
+        el = self._ground_memo.get((tol, bytes(mask)))
+        if el is None:
+            return None
+        return el, margin - eps
+
     def _pair(self, a: Any, b: ObjectElement) -> ContactPair:
         key = (a, b)
         got = self._pair_memo.get(key)
@@ -266,10 +378,21 @@ class Judge:
         # contact arrays are ``ncon`` long)
         geoms, dist = con.geom.tolist(), con.dist.tolist()
         r, t = self._views(data)
+        on, no = self._on_table
+        if geoms.count(on) + geoms.count(no) == n and max(dist) <= 1e-4:
+            # every contact the object's on the table (what the loop below finds then: the
+            # ground alone), counted at C speed
+            pair = self._ground_pair_at(r, t)
+            last = self._ground_set
+            if last is None or last[0] is not pair:
+                last = self._ground_set = (pair, self._contact_set([pair]))
+            return last[1], False, False
         found: list[ContactPair] = []
         finger_table = other_contact = ground = False
         obj, table, tips = self.obj_geom, self.table, self._tip_fingers
-        pos = None
+        pos: list[list[float]] | None = None
+        rl: list[list[float]] = []
+        tl: list[float] = []
         for i, ((a, b), dd) in enumerate(zip(geoms, dist, strict=True)):
             if dd > 1e-4:
                 continue
@@ -278,10 +401,12 @@ class Judge:
                 if other == table:
                     ground = True
                 elif other in tips:
-                    if pos is None:
-                        pos = con.pos
-                    x = r.T @ (pos[i] - t) / self.scale
-                    found.append(self._pair(tips[other], self.element(x)))
+                    if pos is None:  # read once, as floats (the pose too)
+                        pos, rl, tl = con.pos.tolist(), r.tolist(), t.tolist()
+                    el = self._element_in_floats(pos[i], rl, tl, other)
+                    if el is None:  # not decided in floats: numpy's products decide
+                        el = self.element(r.T.dot(con.pos[i] - t) / self.scale)
+                    found.append(self._pair(tips[other], el))
                 else:
                     other_contact = True
             elif a in tips or b in tips:
@@ -290,13 +415,16 @@ class Judge:
                 other_contact = True
         if ground:
             found.append(self._ground_pair_at(r, t))
-        # the same contact set comes back read after read: one frozenset per set, so that
-        # comparing two reads is mostly comparing an object with itself
+        return self._contact_set(found), finger_table, other_contact
+
+    def _contact_set(self, found: list[ContactPair]) -> frozenset[ContactPair]:
+        """``frozenset(found)``, one object per set: the same contact set comes back read
+        after read, so that comparing two reads is mostly comparing an object with itself."""
         key = frozenset(map(id, found))
         got = self._set_memo.get(key)
         if got is None:
             got = self._set_memo[key] = frozenset(found)
-        return got, finger_table, other_contact
+        return got
 
     def _ground_pair_at(self, r: FloatArray, t: FloatArray) -> ContactPair:
         """The ground's contact pair at the pose ``(r, t)``, read again only when the
@@ -312,7 +440,8 @@ class Judge:
             move = self._reach * math.sqrt(dx * dx + dy * dy + dz * dz) + abs(tz - last[3])
             if 2.0 * move + 1e-12 < last[4]:  # (1e-12 m: the heights' rounding)
                 return last[5]
-        el, margin = self._ground_and_margin(r, t)
+        got = self._ground_in_floats(rx, ry, rz, tz)
+        el, margin = got if got is not None else self._ground_and_margin(r, t)
         pair = self._pair(Ground(), el)
         self._ground_last = (rx, ry, rz, tz, margin, pair)
         return pair
