@@ -724,8 +724,10 @@ class RobotArms:
         12 N m). The spline runs half a period behind its knots, so the IK solves for the
         target ``1.5 k`` rows ahead (a period and a half): the set point at row ``j`` is then
         the knots' mean around target ``j``. The spline is C1 and stays within its knots'
-        hull (a cubic through the same points overshot inside a period). A trajectory's last
-        row is held by the step loop: its velocity set point is zero (at rest there)."""
+        hull (a cubic through the same points overshot inside a period). Rows past the
+        trajectory's end (``j >= len``, :meth:`_OnlineControls.hold`) hold its last target:
+        the spline comes to rest on it, and once it has, nothing more is solved. At 1 kHz the
+        last row's velocity is zero and a hold keeps that row."""
         targets = ctl.targets
         n = len(targets)
         last = n - 1
