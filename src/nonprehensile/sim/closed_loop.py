@@ -284,9 +284,14 @@ class _Runner:
         until_read = CONTACT_EVERY - n % CONTACT_EVERY
         n_ctrl = len(ctrl)
         obs_at = next_obs - 1e-9
+        # past the segment's end the fingertips hold its last target: a robot's driver gives
+        # the rows that do (its arm comes to rest there); the free fingertips' last row does
+        hold_row = getattr(sim.driver, "hold_row", None)
         while True:
             if i < n_ctrl:
                 ctrl_view[...] = ctrl[i]
+            elif hold_row is not None:
+                ctrl_view[...] = hold_row()
             step(m, d)
             i += 1
             n += 1

@@ -493,11 +493,15 @@ class FingertipIK:
         self._fed = False  # no previous target to feed forward from
         self._deadbeat = False
 
-    def set_q(self, q: FloatArray) -> None:
-        """Carry on from joint positions ``q`` (scene joint order), keeping the timings."""
+    def set_q(self, q: FloatArray, velocity: FloatArray | None = None) -> None:
+        """Carry on from joint positions ``q`` (scene joint order), keeping the timings;
+        ``velocity``: the joints' velocity there (the acceleration bound's reference),
+        instead of the last step's."""
         full = np.array(self.configuration.q)
         full[self.scene.qadr] = np.clip(q, self.scene.lower, self.scene.upper)
         self.configuration.update(full)
+        if velocity is not None:
+            self._box.prev = np.array(velocity, dtype=np.float64)
 
     def set_object(self, position: FloatArray, quat: FloatArray) -> None:
         """Where the object is now (the body's origin and ``(w, x, y, z)`` orientation)."""

@@ -109,13 +109,17 @@ class RobotSimulator(Simulator):
     tracking_gain : float
         Gain (1/s) of the fingertips' contact tracking correction
         (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off).
+    radius_offset : bool
+        Move each target near the object out along its normal by the arm's fingertip
+        radius minus the references' (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
+        _tool`; off by default: docs/robot.md gives the measured figures).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
                  control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float | None = None, tracking_gain: float = 20.0,
-                 compliance: bool = False) -> None:
+                 compliance: bool = False, radius_offset: bool = False) -> None:
         if force_limit is not None and not compliance:
             # before the force-limited command, force_limit alone made the tip yield: a call
             # written then must not now run the stiff arm without a word
@@ -142,6 +146,15 @@ class RobotSimulator(Simulator):
                                       else force_limit, tracking_gain, compliance=compliance,
                                       finger_stiffness=params.stiffness)
         self.driver = self.robot_driver
+        # the fingertip radius offset of the arm's commands (RobotArms._tool)
+        normals = np.array([poly.normals[f] for f in poly.face_ids])
+        offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
+                            for f in poly.face_ids])
+        self.robot_driver.set_shape(normals, offsets, self.scale)
+        if not isinstance(radius_offset, bool):
+            raise InputError(f"radius_offset is True or False, got {radius_offset!r}")
+        self.robot_driver.radius_offset = radius_offset
+        self.robot_driver.finger_radius = params.finger_radius
         self._body = self.judge.body
         self._qadr = self.judge.qadr
         self._dadr = self.judge.dadr
@@ -160,6 +173,7 @@ class RobotSimulator(Simulator):
         drv = getattr(self, "robot_driver", None)
         if drv is not None:
             drv.finger_stiffness = value.stiffness
+            drv.finger_radius = value.finger_radius
             if self._force_limit is None:
                 drv.force_limit = value.max_force
             drv.check_compliance()

@@ -355,7 +355,13 @@ class Simulator:
         still = 0
         j = 0
         step = mujoco.mj_step
+        # a robot's driver gives the rows that hold the last targets (the free fingertips'
+        # held controls do)
+        hold_row = getattr(self.driver, "hold_row", None)
+        ctrl_view = d.ctrl
         for j in range(1, n_settle + 1):
+            if hold_row is not None:
+                ctrl_view[...] = hold_row()
             step(m, d)
             now = t0 + j * p.timestep
             if j % CONTACT_EVERY == 0:

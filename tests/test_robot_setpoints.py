@@ -1,0 +1,223 @@
+"""The arm's set points between IK solves (issue 22's contact bars across the physics
+distribution): a quadratic spline through the IK's knots whose velocity feed-forward is the
+derivative of its positions, continuous across control periods and new trajectories; holds
+that bring a moving arm to rest through the spline; the accelerations kept within the
+joints' torque limits by the arm's dynamics; the fingertip radius offset of the commands."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+mujoco = pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not installed")
+pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
+                                   "pip install 'nonprehensile[robot]'")
+
+from nonprehensile.geometry.build import cube  # noqa: E402
+from nonprehensile.planning import ObjectPose  # noqa: E402
+from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
+from nonprehensile.sim.robot_driver import REFERENCE_RADIUS, RobotArms  # noqa: E402
+from nonprehensile.sim.robot_run import RobotSimulator  # noqa: E402
+from nonprehensile.sim.robot_scene import Arm  # noqa: E402
+from nonprehensile.sim.scene import SimParams  # noqa: E402
+
+CUBE = cube()
+SCALE = 0.05
+BASE = BasePose(0.53, -0.51, 112.5)
+
+
+def _sim(radius_offset: bool = False, **params: float) -> RobotSimulator:
+    return RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                          params=SimParams(**params), radius_offset=radius_offset)
+
+
+def _drive(sim: RobotSimulator, targets: np.ndarray, hold: int = 0) -> None:
+    """Targets every physics step (the step loop's order: place, then row i before step i),
+    then ``hold`` steps of the driver's hold rows, as the closed loop holds a trajectory's
+    end."""
+    m, d, drv = sim.model, sim.data, sim.robot_driver
+    ctl = drv.controls(targets)
+    drv.place(d, ctl[0])
+    mujoco.mj_forward(m, d)
+    for i in range(1, len(targets)):
+        d.ctrl[:] = ctl[i]
+        mujoco.mj_step(m, d)
+    for _ in range(hold):
+        d.ctrl[:] = drv.hold_row()
+        mujoco.mj_step(m, d)
+
+
+def _line(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """``n`` targets from ``a`` to ``b`` at constant speed (one finger), shape (n, 1, 3)."""
+    s = np.linspace(0.0, 1.0, n)[:, None]
+    return np.asarray((a + s * (b - a))[:, None, :])
+
+
+def test_velocity_feed_forward_is_the_derivative_of_the_position_set_points() -> None:
+    """Over motions, a trajectory replaced mid-period, and a hold, the velocity set points
+    are the exact derivative of the position set points: between any two rows the position
+    moves by the mean of their velocities times the step (the spline's velocity is linear
+    over each period; truth: the trapezoid rule, exact for a quadratic). The old linear
+    set points broke this at every period boundary (a step of the feed-forward)."""
+    sim = _sim()
+    a = np.array([0.30, 0.05, 0.12])
+    b = np.array([0.36, 0.14, 0.10])
+    _drive(sim, _line(a, b, 403))
+    # a new trajectory mid-period, moving elsewhere, then held
+    _drive(sim, _line(b, np.array([0.27, 0.12, 0.15]), 257), hold=300)
+    log = sim.robot_log
+    q, qd, dt = log.q_ref, log.qd_ref, sim.params.timestep
+    assert len(q) == 403 + 257 - 1 + 300  # every step recorded, the hold's included
+    lhs = np.diff(q, axis=0) / dt
+    rhs = 0.5 * (qd[1:] + qd[:-1])
+    np.testing.assert_allclose(lhs, rhs, atol=1e-9)
+    assert np.abs(qd).max() > 0.2  # it did move
+
+
+def test_no_velocity_step_at_period_boundaries_or_new_trajectories() -> None:
+    """The velocity set point changes by at most the IK's joint acceleration bound per
+    physics step (truth: ``a dt``), at control-period boundaries and where a trajectory is
+    replaced mid-period as well; linear set points stepped it by the whole period's change
+    at once (``a dt`` times ``every``) and the velocity servos' ``kv`` turned that into
+    torque steps."""
+    sim = _sim()
+    a = np.array([0.30, 0.05, 0.12])
+    b = np.array([0.36, 0.14, 0.10])
+    _drive(sim, _line(a, b, 203))
+    _drive(sim, _line(b, a, 207), hold=100)
+    qd = sim.robot_log.qd_ref
+    bound = sim.robot_driver.ik.config.joint_accel * sim.params.timestep
+    assert np.abs(np.diff(qd, axis=0)).max() <= bound * (1.0 + 1e-6)
+
+
+def test_a_hold_after_motion_brings_the_arm_to_rest_within_the_bound() -> None:
+    """A trajectory that ends moving (its targets stop at 0.28 m/s, as a drive that the
+    closed loop ends mid-motion) is held: the set points decelerate within the
+    acceleration bound (no step to zero, which asked ``kv v``, up to 120 N m, of every
+    servo), come to rest exactly (zero velocity set point, constant positions, no more IK
+    solves), with the fingertip on the held target (truth: MuJoCo's tip site within 1 mm
+    of it)."""
+    sim = _sim()
+    a = np.array([0.30, 0.05, 0.12])
+    b = np.array([0.36, 0.14, 0.10])
+    n = 401
+    _drive(sim, _line(a, b, n), hold=600)
+    log, drv = sim.robot_log, sim.robot_driver
+    qd = log.qd_ref
+    moving = float(np.abs(qd[n - 2]).max())
+    assert moving > 0.4  # the arm was moving when its targets stopped
+    bound = drv.ik.config.joint_accel * sim.params.timestep
+    assert np.abs(np.diff(qd[n - 2:], axis=0)).max() <= bound * (1.0 + 1e-6)
+    assert np.all(qd[-50:] == 0.0)
+    assert np.all(log.q_ref[-50:] == log.q_ref[-1])
+    assert np.all(np.isnan(log.ik[-50:]))  # at rest, the hold solves nothing
+    assert float(np.linalg.norm(sim.data.site_xpos[sim.scene.tip_sites[0]] - b)) < 1e-3
+    # from the stop on no joint reached a torque limit (the targets' start at full speed
+    # from rest, before, does: that is no hold's)
+    assert log.metrics(start=n - 2).longest_at_limit_s["torque"] == 0.0
+
+
+def test_set_point_accelerations_stay_within_the_torque_limits() -> None:
+    """The set points' acceleration is scaled down, every joint alike, until the torque it
+    takes with the arm's dynamics is within the share of each joint's limit, but never below
+    a quarter of it. Truth: the joint-space mass matrix from ``mj_fullM`` and MuJoCo's bias
+    forces, computed here."""
+    sim = _sim()
+    drv: RobotArms = sim.robot_driver
+    m, d = sim.model, sim.data
+    drv.place(d, np.array([[0.30, 0.05, 0.12]]))
+    mujoco.mj_forward(m, d)
+    h = drv.every * drv.dt
+    v0 = np.zeros(7)
+    v1 = np.array([0.0, 0.6, 0.0, -0.6, 0.0, 0.6, 0.0])  # 60 rad/s^2: past the limits
+    out = drv._within_torque(v0, v1, h)
+    full = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, full)
+    dof = sim.scene.dadr
+    acc = (out - v0) / h
+    need = full[np.ix_(dof, dof)] @ acc + d.qfrc_bias[dof] + m.dof_damping[dof] * d.qvel[dof]
+    share = drv.torque_share * sim.scene.torque
+    assert np.all(np.abs(need) <= share * (1.0 + 1e-9))
+    assert np.abs(need / share).max() > 0.999  # scaled to the limit, not below it
+    moved = [1, 3, 5]
+    s = (out - v0)[moved] / (v1 - v0)[moved]
+    assert np.allclose(s, s[0]) and 0.0 < s[0] < 1.0  # every joint alike
+    assert np.all(out[[0, 2, 4, 6]] == 0.0)
+    # far past them, the set points keep a quarter of the IK's acceleration (never none)
+    huge = 10.0 * v1
+    np.testing.assert_allclose(drv._within_torque(v0, huge, h), drv.min_accel_share * huge)
+    small = np.full(7, 0.01)  # a small acceleration passes unchanged
+    assert np.array_equal(drv._within_torque(v0, small, h), small)
+
+
+def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> None:
+    """A 12 mm fingertip following references recorded with a 6 mm one: a target on or in
+    the cube's face is moved out by the 6 mm difference along the face's normal; beyond
+    the recorded radius plus the band nothing moves; over an edge, the offset points along
+    the edge's bisector; at the references' own radius there is no offset at all.
+    Truth: the cube's faces posed by hand (a yaw of 30 degrees about its centre)."""
+    sim = _sim(radius_offset=True, finger_radius=0.012)
+    drv = sim.robot_driver
+    assert drv.finger_radius == 0.012 and drv.reference_radius == REFERENCE_RADIUS
+    yaw = math.radians(30.0)
+    rot = np.array([[math.cos(yaw), -math.sin(yaw), 0.0],
+                    [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    centre = np.array([0.3, 0.1, 0.025])
+    lo = CUBE.vertices.min(axis=0)
+    hi = CUBE.vertices.max(axis=0)
+    mid = 0.5 * (lo + hi)
+    # the body origin such that the cube's centre is at ``centre``
+    t = centre - SCALE * rot @ mid
+    drv.see(ObjectPose(rot, t, centre, SCALE))
+    half = 0.5 * SCALE * (hi - lo)[0]
+    nx = rot @ np.array([1.0, 0.0, 0.0])  # the face at +x (model frame)
+    on_face = centre + (half + 0.004) * nx  # the recorded 6 mm pad pressing 2 mm
+    far = centre + (half + REFERENCE_RADIUS + drv.tool_band + 0.001) * nx
+    edge = centre + (half + 0.003) * nx + (half + 0.003) * np.array([0.0, 0.0, 1.0])
+    rows = np.array([[on_face], [far]])
+    got = drv._tool(rows, edge[None])
+    assert got is not None
+    np.testing.assert_allclose(got[0, 0], 0.006 * nx, atol=1e-9)
+    np.testing.assert_allclose(got[1, 0], 0.0, atol=1e-12)
+    bisector = (nx + np.array([0.0, 0.0, 1.0])) / math.sqrt(2.0)
+    np.testing.assert_allclose(got[2, 0], 0.006 * bisector, atol=1e-9)
+    drv.finger_radius = REFERENCE_RADIUS
+    assert drv._tool(rows, edge[None]) is None
+    drv.finger_radius = 0.012
+    drv.radius_offset = False  # the default
+    assert drv._tool(rows, edge[None]) is None
+    assert _sim().robot_driver.radius_offset is False
+
+
+def test_the_offset_is_part_of_the_command_and_the_reference_error_keeps_the_target() -> None:
+    """With a 12 mm fingertip the log's tracking error is measured against the command (the
+    target plus the offset), the reference error against the target itself (the planner's
+    reference): they differ by the offset the log records."""
+    sim = _sim(radius_offset=True, finger_radius=0.012)
+    drv = sim.robot_driver
+    centre = np.array([0.3, 0.1, 0.025])
+    drv.see(ObjectPose(np.eye(3), centre - SCALE * 0.5 * (CUBE.vertices.min(axis=0)
+                                                           + CUBE.vertices.max(axis=0)),
+                       centre, SCALE))
+    top = centre + np.array([0.0, 0.0, 0.5 * SCALE + 0.006])  # the recorded pad on the top
+    _drive(sim, _line(top + np.array([0.0, 0.0, 0.03]), top, 301), hold=200)
+    log = sim.robot_log
+    np.testing.assert_allclose(log.tool[-1, 0], [0.0, 0.0, 0.006], atol=1e-9)
+    e = log._tips[:log.n] - log._target[:log.n] - log.tool
+    np.testing.assert_allclose(log.error, np.sqrt((e * e).sum(axis=2)).max(axis=1),
+                               atol=1e-12)
+    # the arm holds the command: its tip centre 12 mm above the face, the target 6 mm
+    assert log.error[-1] < 1e-3
+    assert abs(log.error_ref[-1] - 0.006) < 1e-3
+
+
+def test_hold_row_before_any_trajectory_keeps_the_controls() -> None:
+    """A step loop that asks for a hold row before the driver has a trajectory gets the
+    controls as they are (never a None written into ``data.ctrl``, which MuJoCo reads as
+    NaN)."""
+    sim = _sim()
+    row = sim.robot_driver.hold_row()
+    assert row.shape == sim.data.ctrl.shape and np.all(np.isfinite(row))
+    np.testing.assert_array_equal(row, sim.data.ctrl)
