@@ -118,7 +118,7 @@ class RobotSimulator(Simulator):
         2-8 mm inside the cube) into a harder squeeze (contact forces up to 70 N), the
         cube stayed tilted between the fingers and the tumble-twist's first attempt failed
         in every one of the 24 two-finger tumble-twists at nominal physics; the retries
-        ("slower, higher") then put a rod on the tilted cube. Off, 15 of 24 succeed at the
+        ("slower, higher") then put a rod on the tilted cube. Off, 12 of 24 succeed at the
         first attempt, and rod contact over the 96 two-finger transitions fell from 26
         runs to 9 (docs/benchmarks.md, two22c's section).
     """
