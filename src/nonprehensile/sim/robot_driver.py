@@ -570,7 +570,8 @@ class RobotArms:
 
     def tips(self, data: Any) -> FloatArray:
         """The fingertip sites' positions now, shape (n_fingers, 3)."""
-        return np.array(data.site_xpos[self._tip_sites])
+        # (an index array's gather is already a copy)
+        return np.asarray(data.site_xpos[self._tip_sites], dtype=np.float64)
 
     def qpos_indices(self) -> NDArray[np.int64]:
         """The arms' joint positions in ``qpos``."""
@@ -894,15 +895,21 @@ class RobotArms:
         if n == 0:
             return out
         con = d.contact
-        g1, g2 = con.geom1[:n], con.geom2[:n]
-        tips = self._tip_geoms
+        index = self._tip_index
         buf = self._fbuf
-        for i in np.nonzero(np.isin(g1, tips) | np.isin(g2, tips))[0]:
-            on2 = int(g2[i]) in self._tip_index
-            k = self._tip_index[int(g2[i]) if on2 else int(g1[i])]
-            mujoco.mj_contactForce(m, d, int(i), buf)
+        frames = None
+        # plain Python over the handful of contacts, in their order (two np.isin over them
+        # cost more than the whole loop); the same sums in the same order
+        for i, (a, b) in enumerate(con.geom[:n].tolist()):
+            on2 = b in index
+            if not on2 and a not in index:
+                continue
+            k = index[b if on2 else a]
+            mujoco.mj_contactForce(m, d, i, buf)
+            if frames is None:
+                frames = con.frame
             # the force geom1 exerts on geom2, in the contact frame (normal: 1 -> 2)
-            fw = d.contact[int(i)].frame.reshape(3, 3).T @ buf[:3]
+            fw = frames[i].reshape(3, 3).T @ buf[:3]
             out[k] += fw if on2 else -fw
         return out
 
