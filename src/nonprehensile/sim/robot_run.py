@@ -120,7 +120,8 @@ class RobotSimulator(Simulator):
         in every one of the 24 two-finger tumble-twists at nominal physics; the retries
         ("slower, higher") then put a rod on the tilted cube. Off, 12 of 24 succeed at the
         first attempt, and rod contact over the 96 two-finger transitions fell from 26
-        runs to 9 (docs/benchmarks.md, two22c's section).
+        runs to 9 (36 to 12 after the IK's object pose fix; docs/benchmarks.md, two22c's
+        section).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
