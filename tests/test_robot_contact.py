@@ -16,6 +16,7 @@ from nonprehensile.geometry.build import cube  # noqa: E402
 from nonprehensile.sim.ik import FingertipIK  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
 from nonprehensile.sim.robot_run import (  # noqa: E402
+    DEFAULT_TRACKING_GAIN,
     ROBOT_MAX_ACCEL,
     ROBOT_TRANSIT_ACCEL,
     RobotSimulator,
@@ -188,3 +189,59 @@ def test_robot_control_bounds_and_bad_values() -> None:
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(InputError, match="transit_accel"):
             ControlConfig(transit_accel=bad)
+
+
+def _pinch(gain: float | None) -> tuple[float, float, RobotSimulator]:
+    """Two arms pinch the resting cube (its corner at the origin, 50 mm) on its -y and +y
+    faces, each fingertip's target held 4 mm into the face for 0.8 s; the mean normal
+    force of the fingertips' contacts with the cube over the last 0.1 s (MuJoCo's
+    ``mj_contactForce``) and the fingertips' mean distance outside the faces' planes."""
+    arms = [Arm(Robot.builtin(), BasePose(0.025, -0.5, 90.0)),
+            Arm(Robot.builtin(), BasePose(0.025, 0.55, -90.0))]
+    kw = {} if gain is None else {"tracking_gain": gain}
+    sim = RobotSimulator(CUBE, arms, scale=SCALE, **kw)  # type: ignore[arg-type]
+    drv, d, m = sim.robot_driver, sim.data, sim.model
+    mujoco.mj_resetData(m, d)
+    # 6 mm fingertips, centres 2 mm outside the faces y = 0 and y = 0.05: 4 mm into them
+    x = np.array([[0.025, -0.002, 0.025], [0.025, 0.052, 0.025]])
+    targets = np.repeat(x[None], 800, axis=0)
+    drv.reset()
+    drv.place(d, targets[0])
+    ctl = drv.controls(targets)
+    tips = {m.geom(f"finger{k}").id for k in (1, 2)}
+    obj = m.geom("object").id
+    buf = np.zeros(6)
+    forces = []
+    for i in range(len(targets)):
+        d.ctrl[:] = ctl[i]
+        mujoco.mj_step(m, d)
+        total = 0.0
+        for j in range(d.ncon):
+            pair = {int(d.contact[j].geom[0]), int(d.contact[j].geom[1])}
+            if obj in pair and pair & tips:
+                mujoco.mj_contactForce(m, d, j, buf)
+                total += abs(buf[0])
+        forces.append(total)
+    y = d.site_xpos[drv._tip_sites][:, 1]
+    outside = float(np.mean([-y[0], y[1] - 0.05]))
+    return float(np.mean(forces[-100:])), outside, sim
+
+
+def test_two_arms_pinch_without_the_contact_tracking_correction() -> None:
+    """Several fingertips run without the contact tracking correction by default (one arm
+    keeps it): two arms pinching a cube with targets inside it press with the servos'
+    equilibrium force, where the correction integrates the tips further in and squeezes
+    harder (truth: MuJoCo's contact forces and the fingertips' positions)."""
+    one = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
+                         scale=SCALE)
+    assert one.robot_driver.tracking_gain == DEFAULT_TRACKING_GAIN > 0.0
+    f_off, out_off, sim = _pinch(None)
+    assert sim.robot_driver.tracking_gain == 0.0
+    assert sim.describe()["finger_command"]["tracking_gain_per_s"] == 0.0
+    f_on, out_on, sim_on = _pinch(DEFAULT_TRACKING_GAIN)
+    assert sim_on.robot_driver.tracking_gain == DEFAULT_TRACKING_GAIN
+    assert f_off > 5.0  # a pinch: both tips press the cube
+    assert f_off < 0.8 * f_on  # measured 25.5 N against 40.1 N
+    # without the correction each tip stops where the servos and the contact balance,
+    # short of its target (2 mm outside); with it, closer to the target
+    assert out_off > out_on + 0.001 and out_on > 0.0015

@@ -29,8 +29,8 @@ from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
-__all__ = ["ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL", "RobotSimulator", "describe_robots",
-           "robot_control"]
+__all__ = ["DEFAULT_TRACKING_GAIN", "ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL", "RobotSimulator",
+           "describe_robots", "robot_control"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
 #: fingertip (``ControlConfig.max_accel``). The free fingertips' 20 m/s^2 asks the Panda's
@@ -49,6 +49,10 @@ ROBOT_MAX_ACCEL = 8.0
 #: before the IK's observed object and the rod's outward lean)
 #: (docs/benchmarks.md, "ik22").
 ROBOT_TRANSIT_ACCEL = 8.0
+
+#: One arm's contact tracking correction gain, 1/s (:class:`RobotSimulator`'s
+#: ``tracking_gain`` with one fingertip; several fingertips, a pinch, run without it).
+DEFAULT_TRACKING_GAIN = 20.0
 
 FloatArray = NDArray[np.float64]
 
@@ -106,9 +110,18 @@ class RobotSimulator(Simulator):
         gives way along the measured contact force as the free fingertip's spring would.
         Off (the default): the stiff position-controlled arm (docs/robot.md gives the
         measured figures of both, for one arm and for two).
-    tracking_gain : float
+    tracking_gain : float, optional
         Gain (1/s) of the fingertips' contact tracking correction
-        (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off).
+        (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off). Default: 20 with one
+        fingertip, 0 (off) with several. With two arms pinching, the correction integrated
+        the part of the error no rigid tip can close (the references put a pinching pad
+        2-8 mm inside the cube) into a harder squeeze (contact forces up to 70 N), the
+        cube stayed tilted between the fingers and the tumble-twist's first attempt failed
+        in every one of the 24 two-finger tumble-twists at nominal physics; the retries
+        ("slower, higher") then put a rod on the tilted cube. Off, 12 of 24 succeed at the
+        first attempt, and rod contact over the 96 two-finger transitions fell from 26
+        runs to 9 (36 to 12 after the IK's object pose fix; docs/benchmarks.md, two22c's
+        section).
     radius_offset : bool
         Move each target near the object out along its normal by the arm's fingertip
         radius minus the references' (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
@@ -118,7 +131,7 @@ class RobotSimulator(Simulator):
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
                  control_every: int = DEFAULT_CONTROL_EVERY,
-                 force_limit: float | None = None, tracking_gain: float = 20.0,
+                 force_limit: float | None = None, tracking_gain: float | None = None,
                  compliance: bool = False, radius_offset: bool = False) -> None:
         if force_limit is not None and not compliance:
             # before the force-limited command, force_limit alone made the tip yield: a call
@@ -140,6 +153,8 @@ class RobotSimulator(Simulator):
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
         self.judge = Judge(poly, self.scale, params, self.model, self.n_fingers)
+        if tracking_gain is None:  # one arm pushes: on; several pinch: off (see above)
+            tracking_gain = DEFAULT_TRACKING_GAIN if self.n_fingers == 1 else 0.0
         self.robot_driver = RobotArms(self.scene, self.ik_scene, self.data, self.judge,
                                       params.timestep, ik_config, control_every,
                                       params.max_force if force_limit is None
