@@ -813,7 +813,7 @@ class RobotArms:
                 self.ik.dt = self.dt
                 v1 = (q1 - knot) / h
                 if self.torque_share > 0.0:
-                    v1 = self._within_torque(v0, v1, h)
+                    v1 = self._within_torque(v0, v1, h, s0)
                 if j >= n and float(np.abs(v1).max()) < REST_SPEED:
                     # the hold has brought the arm to rest: the set points stop there
                     # (the posture's slow drift in the null space is not followed)
@@ -856,7 +856,8 @@ class RobotArms:
         log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times and solved else math.nan
         return _Segment(j, rows, q, qd)
 
-    def _within_torque(self, v0: FloatArray, v1: FloatArray, h: float) -> FloatArray:
+    def _within_torque(self, v0: FloatArray, v1: FloatArray, h: float,
+                       q0: FloatArray | None = None) -> FloatArray:
         """``v1``, the set points' velocity at the period's end, with the period's joint
         acceleration ``(v1 - v0) / h`` scaled down (every joint alike: the fingertip keeps
         its direction and falls behind) so that the torque it takes with the arm's own
@@ -890,13 +891,46 @@ class RobotArms:
             s_j = np.where((np.abs(need) > 1e-12) & (np.abs(bias) < lim), hi / need, np.inf)
         # at least ``min_accel_share`` of the IK's acceleration: the set points still turn
         # towards the IK's path (braking included), if more slowly
-        scale = float(min(1.0, max(self.min_accel_share, float(s_j.min()))))
+        floor = self.min_accel_share
+        if q0 is not None:  # and enough to stop short of a range's end (_range_share)
+            floor = max(floor, self._range_share(q0, v0, v1, h))
+        scale = float(min(1.0, max(floor, float(s_j.min()))))
         if scale >= 1.0:
             return v1
         out = v0 + scale * (v1 - v0)
         knot = self.ik.q
         self.ik.set_q(knot - (v1 - out) * h, velocity=out)
         return out
+
+    def _range_share(self, q0: FloatArray, v0: FloatArray, v1: FloatArray, h: float) -> float:
+        """The least share of the IK's acceleration ``(v1 - v0) / h`` that still stops each
+        joint the IK brakes (set points at ``q0``, moving at ``v0``) before the IK's margin
+        inside its range's end (``position_margin_deg``): the deceleration ``v0^2 / (2 d)``
+        over the room ``d`` left after this period, over the IK's. Only joints that need at
+        least half the IK's acceleration bound count (near the end of their stopping
+        distance: a joint far from its end whose IK barely decelerates it yet would ask for
+        the whole acceleration); 0 where none does, 1 where the room is gone. The torque
+        budget keeps at least this share: scaled below it, the braking came too late and the
+        set points ran past the joint's range (a transit across the distribution put the
+        wrist 17 mrad past its upper end for 34 ms, decelerating from 1.5 rad/s); a
+        position limit is hard."""
+        sc = self.scene
+        margin = math.radians(self.ik.config.position_margin_deg)
+        room = np.where(v0 > 0.0, sc.upper - margin - q0, q0 - sc.lower - margin)
+        room = room - np.abs(v0) * h
+        dv = v1 - v0
+        braking = dv * v0 < 0.0
+        if not np.any(braking):
+            return 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            need = np.where(room > 0.0, v0 * v0 / (2.0 * room), np.inf)
+        bound = float(self.ik.config.joint_accel)
+        near = braking & (need >= 0.5 * bound) if math.isfinite(bound) else braking
+        if not np.any(near):
+            return 0.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            want = need * h / np.abs(dv)
+        return float(min(1.0, float(np.max(np.where(near, want, 0.0)))))
 
     def _noise_offset(self, noise: FloatArray) -> FloatArray:
         """Joint offsets moving the tips by ``noise`` (shape (k, n_fingers, 3)), shape
