@@ -199,6 +199,40 @@ def test_the_torque_budget_counts_the_implicit_integrators_inertia() -> None:
     np.testing.assert_allclose(drv._implicit[5], 1e-3 * (200.0 + 0.5))
 
 
+def test_the_torque_budget_lets_a_joint_brake_short_of_its_range() -> None:
+    """The wrist runs at 2 rad/s towards its upper end, 60 mrad from the IK's margin
+    inside it, and the IK brakes it at 60 rad/s^2: the budget alone would scale that to
+    27 rad/s^2 (the wrist's share of its 12 N m), and the set points would run 15 mrad past
+    the margin (across the distribution a transit put the wrist 17 mrad past
+    its end for 34 ms). The budget keeps enough of the braking to stop short of the margin.
+    Truth: the stopping distance ``v^2 / (2 a)`` at the set points' deceleration, from the
+    joint's range and margin as the IK configures them."""
+    sim = _sim()
+    drv: RobotArms = sim.robot_driver
+    m, d = sim.model, sim.data
+    drv.place(d, np.array([[0.30, 0.05, 0.12]]))
+    mujoco.mj_forward(m, d)
+    h = drv.every * drv.dt
+    margin = math.radians(drv.ik.config.position_margin_deg)
+    q0 = np.array(d.qpos[sim.scene.qadr])
+    q0[5] = sim.scene.upper[5] - margin - 0.06
+    v0 = np.zeros(7)
+    v0[5] = 2.0
+    v1 = v0.copy()
+    v1[5] -= 60.0 * h
+    alone = drv._within_torque(v0, v1, h)
+    braking = (v0[5] - alone[5]) / h
+    assert braking < 30.0  # the budget alone scales the braking down
+    assert v0[5] ** 2 / (2.0 * braking) > 0.06  # and the joint would not stop in time
+    out = drv._within_torque(v0, v1, h, q0)
+    braking = (v0[5] - out[5]) / h
+    assert v0[5] ** 2 / (2.0 * braking) <= 0.06
+    assert out[5] > v1[5]  # still within the budget's scaling, not the IK's whole braking
+    # far from the end, the same state is scaled as before
+    q0[5] = 0.0
+    assert np.array_equal(drv._within_torque(v0, v1, h, q0), alone)
+
+
 def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> None:
     """A 12 mm fingertip following references recorded with a 6 mm one: a target on or in
     the cube's face is moved out by the 6 mm difference along the face's normal; beyond
