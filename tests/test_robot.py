@@ -592,6 +592,39 @@ def test_ik_keeps_the_joints_a_margin_inside_their_ranges() -> None:
     assert ik0._box.bounds(q, dt)[0][j] == pytest.approx(0.95 * math.radians(0.3), abs=1e-9)
 
 
+def test_ik_approaches_a_range_end_no_faster_than_it_can_stop() -> None:
+    """Near a joint's range end the IK's step is at most ``dt sqrt(2 A d)`` (``A`` its
+    acceleration bound, ``d`` the room to the margin): from that velocity the joint stops
+    within the room at ``A``. Before, the step could take 0.95 of the room: across the
+    distribution the wrist came to its margin at 1.5 rad/s, braked at 100 rad/s^2 and held
+    its 12 N m for 11 ms (34 ms past its end before the torque budget kept the braking).
+    Truth: the stopping distance ``v^2 / (2 A)`` from the scene's joint range; far from the
+    end the box is the velocity and acceleration bounds as before."""
+    sc = build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.builtin(),
+                                                        BasePose(0.0, 0.0, 0.0))],
+                           mocap_object=True)
+    cfg = IKConfig(collisions=False)
+    ik = FingertipIK(sc, 0.01, cfg)
+    dt, j, acc = 0.01, 5, cfg.joint_accel  # the wrist
+    margin = math.radians(cfg.position_margin_deg)
+    v_max = cfg.velocity_fraction * sc.velocity[j]
+    for room in (0.002, 0.01, 0.02, 0.04):
+        q = np.array(sc.home, dtype=float)
+        q[j] = sc.upper[j] - margin - room
+        prev = np.zeros(len(q))
+        prev[j] = 1.5
+        ik._box.prev = prev
+        upper, _ = ik._box.bounds(q, dt)
+        v = upper[j] / dt
+        assert v > 0.0
+        assert v * v / (2.0 * acc) <= room * (1.0 + 1e-9)
+    q = np.array(sc.home, dtype=float)
+    q[j] = sc.upper[j] - margin - 0.5
+    ik._box.prev = prev
+    upper, _ = ik._box.bounds(q, dt)
+    assert upper[j] == pytest.approx(min(v_max * dt, (1.5 + acc * dt) * dt), abs=1e-12)
+
+
 def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
     """The stiff arm is the default (the measured choice, docs/robot.md); an explicit choice
     wins; a sweep's robot says which."""

@@ -188,7 +188,9 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
     """Joint position, velocity and acceleration limits as one box on the step ``dq``:
     ``max(-v dt, gain (lo - q), (v_prev - a dt) dt) <= dq <= min(v dt, gain (hi - q),
     (v_prev + a dt) dt)`` (``v_prev``: the last solve's joint velocities, attribute ``prev``;
-    the acceleration rows give way where they conflict with the others). ``lo`` and ``hi``
+    the acceleration rows give way where they conflict with the others), and, with an
+    acceleration bound, ``|dq| <= dt sqrt(2 a d)`` towards an end ``d`` away: a joint comes
+    no faster to its end than the bound can stop it there. ``lo`` and ``hi``
     are the joint's range narrowed by ``margin`` (rad) at each end; a joint inside that
     margin is brought back out at ``back_speed`` (rad/s) at most, not in one step.
 
@@ -232,7 +234,14 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             # (negative room), back out at ``back_speed`` at most
             room = np.multiply(self._sign, q)
             room += self._edge
+            if math.isfinite(accel):
+                # no faster towards an end than the acceleration bound can stop in the
+                # room left, sqrt(2 a room): the gain alone let the wrist come to its margin
+                # at 1.5 rad/s, then brake at 100 rad/s^2 at its torque limit
+                stop = np.sqrt(2.0 * accel * np.maximum(room, 0.0)) * dt
             room *= gain
+            if math.isfinite(accel):
+                np.minimum(room, stop, out=room)
             np.maximum(room, -self.back * dt, out=room)
             # (the velocity bound first, as before: the same operand order)
             np.minimum(self._velocity2 * dt, room, out=room)
