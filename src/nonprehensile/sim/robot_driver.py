@@ -584,6 +584,13 @@ class RobotArms:
         self._ma_full = np.zeros(nv)
         self._damping = np.array(m.dof_damping[scene.dadr])
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
+        self._damping_list: list[float] = self._damping.tolist()
+        # the joints' torque budget per the shares it was made with (_within_torque)
+        self._lim_key: tuple[float, float] | None = None
+        self._lim: list[float] = []
+        # the bias forces' and velocities' views (MjData's arrays never move)
+        self._bias_views = ((data.qfrc_bias[self._dsl], data.qvel[self._dsl])
+                            if isinstance(self._dsl, slice) else None)
         self._controls: _OnlineControls | None = None  # the trajectory read now (hold_row)
         # the fingertip radius offset (_tool; off by default, docs/robot.md says why), and
         # the object's shape it needs
@@ -840,20 +847,37 @@ class RobotArms:
         full = self._acc_full
         full[self._dsl] = a
         mujoco.mj_mulM(m, d, self._ma_full, full)
-        need = self._ma_full[self._dsl]
-        bias = d.qfrc_bias[self._dsl] + self._damping * d.qvel[self._dsl]
-        lim = self._torque_max * np.where(self._torque_max < LIGHT_JOINT, self.torque_share_light,
-                                          self.torque_share)
+        # the few joints' numbers in plain Python (this runs every control period; numpy
+        # calls on 7 numbers cost more than the arithmetic): the same IEEE operations in
+        # the same order as the arrays' (``bias + damping qvel``, ``lim - bias``,
+        # ``-lim - bias``, ``hi / need``), so the same numbers
+        need = self._ma_full[self._dsl].tolist()
+        views = self._bias_views
+        if views is not None:
+            fb, qv = views
+        else:
+            fb, qv = d.qfrc_bias[self._dsl], d.qvel[self._dsl]
+        key = (self.torque_share, self.torque_share_light)
+        if key != self._lim_key:  # the shares are attributes: the limits as they are now
+            self._lim_key = key
+            self._lim = (self._torque_max * np.where(self._torque_max < LIGHT_JOINT,
+                                                     self.torque_share_light,
+                                                     self.torque_share)).tolist()
         # per joint the largest s with |bias + s need| <= lim; a joint whose bias alone is
         # past it has no say (scaling the accelerations cannot help it, and a set point
         # that may not accelerate at all runs on at its velocity, away from the IK: the
         # main plan then ran into the joints' limits)
-        hi = np.where(need > 0.0, lim - bias, -lim - bias)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_j = np.where((np.abs(need) > 1e-12) & (np.abs(bias) < lim), hi / need, np.inf)
+        s_min = math.inf
+        for nd, b, dq, v, lm in zip(need, fb.tolist(), self._damping_list, qv.tolist(),
+                                    self._lim, strict=True):
+            bias = b + dq * v
+            if abs(nd) > 1e-12 and abs(bias) < lm:
+                s = ((lm - bias) if nd > 0.0 else (-lm - bias)) / nd
+                if s < s_min:
+                    s_min = s
         # at least ``min_accel_share`` of the IK's acceleration: the set points still turn
         # towards the IK's path (braking included), if more slowly
-        scale = float(min(1.0, max(self.min_accel_share, float(s_j.min()))))
+        scale = float(min(1.0, max(self.min_accel_share, s_min)))
         if scale >= 1.0:
             return v1
         out = v0 + scale * (v1 - v0)
