@@ -357,6 +357,17 @@ def _as_slice(idx: NDArray[np.int64]) -> slice | NDArray[np.int64]:
     return idx
 
 
+def _as_stride(idx: NDArray[np.int64]) -> slice | NDArray[np.int64]:
+    """``idx`` as a slice when its indices are evenly spaced and rising (a step of 1 or
+    more), else itself."""
+    if len(idx) >= 2:
+        step = int(idx[1]) - int(idx[0])
+        if step >= 1 and np.array_equal(idx, np.arange(idx[0], idx[0] + step * len(idx),
+                                                        step)):
+            return slice(int(idx[0]), int(idx[0]) + step * (len(idx) - 1) + 1, step)
+    return _as_slice(idx)
+
+
 def _longest_run(flags: NDArray[np.bool_]) -> int:
     """Length of the longest run of True."""
     best = run = 0
@@ -544,6 +555,14 @@ class RobotArms:
                        else None)
         tips = _as_slice(self._tip_sites)
         self._tips_view = data.site_xpos[tips] if isinstance(tips, slice) else None
+        # the actuator rows' columns (_segment): the position and velocity servos' as
+        # strided slices where they are evenly spaced (the Panda's alternate), written as
+        # views, not gathered; the velocity bounds negated once (``-v``: exact)
+        self._ctrl: FloatArray = data.ctrl  # (float64, never moves: read as a view)
+        self._pos_cols = _as_stride(scene.pos_act)
+        self._vel_cols = _as_stride(scene.vel_act)
+        self._vel_max = scene.velocity
+        self._vel_min = -scene.velocity
         self._n = 0
         self._touch = False
         self._other = False
@@ -803,14 +822,13 @@ class RobotArms:
             qd = v0[None, :] + c * dv[None, :]
             self._state = (q[k], qd[k])
         self._pinv = None
-        sc = self.scene
-        rows = np.repeat(np.asarray(self.data.ctrl, dtype=np.float64)[None, :], k, axis=0)
+        rows = np.repeat(self._ctrl[None, :], k, axis=0)
         pos = q[:k]
         if ctl.noise is not None:
             pos = pos + self._noise_offset(ctl.noise[idx])
-        rows[:, sc.pos_act] = pos
-        v = sc.velocity
-        rows[:, sc.vel_act] = np.maximum(np.minimum(qd[:k], v), -v)
+        rows[:, self._pos_cols] = pos
+        v = self._vel_max
+        rows[:, self._vel_cols] = np.maximum(np.minimum(qd[:k], v), self._vel_min)
         # the log's set points and targets of the period, written once (a period replaced
         # before its end is overwritten from where it stopped)
         log = self.log
