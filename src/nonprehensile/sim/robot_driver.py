@@ -762,7 +762,8 @@ class RobotArms:
         # the rows' targets (and fingertip noise): past the end, the last one held
         idx = slice(j, j + kk) if j + kk <= n else np.minimum(np.arange(j, j + kk), last)
         ahead = targets[min(j + kk + kk // 2, last)]  # the knot's (every > 1)
-        tool = self._tool(targets[idx], ahead)
+        rows_t = targets[idx]  # (once: the radius offset's and the log's)
+        tool = self._tool(rows_t, ahead)
         now = targets[min(j, last)]  # past the end (hold): the last target, held
         if tool is not None:  # the commands: the targets plus the tip radius offset
             now = now + tool[0]
@@ -818,8 +819,9 @@ class RobotArms:
                 basis = self._basis[k] = (tau, tau * tau / (2.0 * h), tau / h)
             a, b, c = basis
             dv = v1 - v0
-            q = s0[None, :] + a * v0[None, :] + b * dv[None, :]
-            qd = v0[None, :] + c * dv[None, :]
+            # (columns ``a``, ``b``, ``c`` broadcast against the rows: the same products)
+            q = s0 + a * v0 + b * dv
+            qd = v0 + c * dv
             self._state = (q[k], qd[k])
         self._pinv = None
         rows = np.repeat(self._ctrl[None, :], k, axis=0)
@@ -835,7 +837,7 @@ class RobotArms:
         log.reserve(k)
         log._q_ref[t0:t0 + k] = q[:k]
         log._qd_ref[t0:t0 + k] = qd[:k]
-        log._target[t0:t0 + k] = targets[idx]
+        log._target[t0:t0 + k] = rows_t
         log._tool[t0:t0 + k] = 0.0 if tool is None else tool[:k]
         log._noise[t0:t0 + k] = 0.0 if ctl.noise is None else ctl.noise[idx]
         # the give and the force are logged per physics step by _comply; the stiff arm's
@@ -1055,8 +1057,8 @@ class RobotArms:
         of the command."""
         arr = np.asarray(targets, dtype=np.float64)
         now_ = arr if now is None else np.asarray(now, dtype=np.float64)
-        # the correction against the command now (the give included: it is on the set points)
-        out = self._correct(arr, now_ + self._offset, steps, noise)
+        # the correction against the command now (the give is added there, in contact only)
+        out = self._correct(arr, now_, steps, noise)
         if self.compliance:
             self._pinv_c = None  # the give's Jacobian, at this solve's joints (_comply)
         elif self._touch:  # the stiff arm's force, for the records only
@@ -1129,8 +1131,8 @@ class RobotArms:
         In contact the object pushes back on the fingertip and the stiff but finite joint
         servos give: a 3.2-3.4 mm steady error in the pushes of a roll-arc and a roll-pull
         at nominal physics (the joints' set points 2-3 mrad ahead of the joints). The
-        correction integrates the fingertip's error against its command (``now``: the
-        target plus the give, plus ``noise``) while it touches the object, at
+        correction integrates the fingertip's error against its command (``now``, the
+        target, plus the give, plus ``noise``) while it touches the object, at
         ``tracking_gain`` (1/s; with several fingertips, every fingertip's while any one
         touches: measured better in the two-arm tumbles than a per-fingertip switch,
         ``docs/robot.md``), so the set points lead by what the contact takes. It is bounded by
@@ -1149,7 +1151,8 @@ class RobotArms:
             return targets
         dt = steps * self.dt
         if self._touch:
-            e = self.data.site_xpos[self._tip_sites] - now
+            # (the command ``now + give`` formed here: out of contact it is not read)
+            e = self.data.site_xpos[self._tip_sites] - (now + self._offset)
             if noise is not None:
                 e = e - noise
             sc = self.scene
