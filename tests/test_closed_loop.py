@@ -722,6 +722,9 @@ def test_flat_rows_are_the_control_rows() -> None:
     assert width == 5
     out = np.full(5, np.nan)
     view = memoryview(out)
+    assert rows is not None
     for i in range(len(ctrl)):
         view[:] = rows[i * width:(i + 1) * width]
         assert out.tobytes() == ctrl[i].tobytes()
+    # a robot's controls, solved as they are read, are read row by row
+    assert _flat_rows([[0.0] * 5]) == (None, 0)  # type: ignore[arg-type]

@@ -266,10 +266,12 @@ class _Runner:
         n_extra = round(hold / dt)
         t_end = self.t + max_time
         step = mujoco.mj_step
-        # the controls are copied row by row between memoryviews (a slice of the rows'
-        # buffer into ``d.ctrl``'s): a memcpy of the same doubles, cheaper than numpy's
-        # row indexing and assignment
-        ctrl_out = memoryview(d.ctrl)
+        # an array of controls is copied row by row between memoryviews (a slice of the
+        # rows' buffer into ``d.ctrl``'s): a memcpy of the same doubles, cheaper than
+        # numpy's row indexing and assignment; a robot's controls are rows solved as they
+        # are read (``rows`` None), read by index
+        ctrl_view = d.ctrl
+        ctrl_out = memoryview(ctrl_view)
         rows, width = _flat_rows(ctrl)
         at = 0  # i * width
         # the free fingertips' joint velocities are their speeds (a robot's driver has none);
@@ -292,8 +294,11 @@ class _Runner:
         obs_at = next_obs - 1e-9
         while True:
             if i < n_ctrl:
-                ctrl_out[:] = rows[at:at + width]
-                at += width
+                if rows is not None:
+                    ctrl_out[:] = rows[at:at + width]
+                    at += width
+                else:
+                    ctrl_view[...] = ctrl[i]
             step(m, d)
             i += 1
             n += 1
@@ -442,9 +447,12 @@ class _Runner:
         return got[-1]
 
 
-def _flat_rows(ctrl: FloatArray) -> tuple[memoryview, int]:
+def _flat_rows(ctrl: FloatArray) -> tuple[memoryview | None, int]:
     """The rows of ``ctrl`` (shape (n, nu)) as one flat memoryview of doubles, C order,
-    and the row's length: row ``i`` is ``[i * nu:(i + 1) * nu]``."""
+    and the row's length: row ``i`` is ``[i * nu:(i + 1) * nu]``. None for controls that
+    are not an array (a robot's, solved as the loop reads them: every row must be read)."""
+    if not isinstance(ctrl, np.ndarray):
+        return None, 0
     flat = np.ascontiguousarray(ctrl, dtype=np.float64).reshape(-1)
     return flat.data, int(ctrl.shape[1])
 
