@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import mujoco
@@ -99,6 +99,10 @@ class RobotMetrics:
     longest_at_limit_contact_s : float
         The longest time any joint stayed at any limit while a fingertip touched the object
         (``longest_at_limit_s`` counts the whole run, transits included).
+    longest_at_limit_contact_by_kind_s : dict of str to float
+        As ``longest_at_limit_contact_s``, per kind of limit (``position``, ``velocity``,
+        ``torque``): whose limit is held while touching (the bars' "no limit held for more
+        than 10 ms" during contact) without reading the log.
     position_margin_min_rad : float
         Least distance of a joint to an end of its range.
     velocity_margin_min, torque_margin_min : float
@@ -130,6 +134,7 @@ class RobotMetrics:
     contact_force_max_n: float | None = None
     give_contact_max_m: float | None = None
     longest_at_limit_contact_s: float = 0.0
+    longest_at_limit_contact_by_kind_s: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form (rounded)."""
@@ -143,6 +148,8 @@ class RobotMetrics:
             "contact_force_max_n": r(self.contact_force_max_n, 3),
             "give_contact_max_m": r(self.give_contact_max_m),
             "longest_at_limit_contact_s": round(self.longest_at_limit_contact_s, 4),
+            "longest_at_limit_contact_by_kind_s": {
+                k: round(v, 4) for k, v in self.longest_at_limit_contact_by_kind_s.items()},
             "position_margin_min_rad": r(self.position_margin_min_rad, 4),
             "velocity_margin_min": r(self.velocity_margin_min, 4),
             "torque_margin_min": r(self.torque_margin_min, 4),
@@ -337,6 +344,7 @@ class RobotLog:
             float(force.max()) if len(force) else None,
             float(np.sqrt((give * give).sum(axis=2)).max()) if touch.any() else None,
             _longest_run(any_at & touch) * dt,
+            {k: _longest_run(v & touch) * dt for k, v in at.items()},
         )
 
     def window(self, t0: float, t1: float) -> tuple[int, int]:
