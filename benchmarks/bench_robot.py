@@ -269,11 +269,18 @@ def _robot_report(res) -> None:
         kinds = Counter(max(m["longest_at_limit_s"], key=m["longest_at_limit_s"].get)
                         for m in group if max(m["longest_at_limit_s"].values(),
                                               default=0.0) > 0.010)
+        # while touching, per kind: runs with that limit held over 10 ms during contact
+        touching = Counter(k for m in group for k, v in
+                           m.get("longest_at_limit_contact_by_kind_s", {}).items()
+                           if v > 0.010)
         trk = sorted(m["tracking_error_contact_max_m"] for m in group
                      if m["tracking_error_contact_max_m"] is not None)
         print(f"     {name:16s} tracking <= 3 mm {sum(v <= 0.003 for v in trk)}/{len(group)} "
-              f"(median {1000 * trk[len(trk) // 2] if trk else 0:.1f} mm); over 10 ms at a "
-              f"limit {sum(kinds.values())} {dict(kinds)}; link/rod contact "
+              f"(median {1000 * trk[len(trk) // 2] if trk else 0:.1f} mm, max "
+              f"{1000 * trk[-1] if trk else 0:.1f} mm); over 10 ms at a limit "
+              f"{sum(kinds.values())} {dict(kinds)}, while touching "
+              f"{sum(m.get('longest_at_limit_contact_s', 0.0) > 0.010 for m in group)} "
+              f"{dict(touching)}; link/rod contact "
               f"{sum(m['other_contact_s'] > 0 for m in group)}")
     print(f"   {res.steps()} physics steps, {res.wall_seconds:.0f} s wall ({res.how})")
 

@@ -709,3 +709,22 @@ def test_a_blown_up_object_never_reads_as_still(where: int) -> None:
     assert j.speed(d) == float(np.abs(d.qvel[j.dadr:j.dadr + 6]).max()) == 0.7
     d.qvel[j.dadr + where] = math.nan
     assert math.isnan(j.speed(d)) and not j.is_still(d)
+
+
+def test_flat_rows_are_the_control_rows() -> None:
+    """The step loop's controls as one flat memoryview (p21d): row ``i`` of any layout is
+    ``[i * nu:(i + 1) * nu]``, and copying it into ``d.ctrl``'s memoryview writes the row's
+    doubles."""
+    from nonprehensile.sim.closed_loop import _flat_rows
+
+    ctrl = np.arange(40.0).reshape(8, 5)[:, ::-1][::2]  # neither C- nor F-contiguous
+    rows, width = _flat_rows(ctrl)
+    assert width == 5
+    out = np.full(5, np.nan)
+    view = memoryview(out)
+    assert rows is not None
+    for i in range(len(ctrl)):
+        view[:] = rows[i * width:(i + 1) * width]
+        assert out.tobytes() == ctrl[i].tobytes()
+    # a robot's controls, solved as they are read, are read row by row
+    assert _flat_rows([[0.0] * 5]) == (None, 0)  # type: ignore[arg-type]

@@ -9,7 +9,10 @@ gives what its numpy form gives, bit for bit, or hands over to it.
   :meth:`Judge.element` and ``Judge._ground_and_margin``, and a margin no larger;
 * ``a.dot(b)`` in place of ``a @ b`` (the same BLAS call without the matmul ufunc's
   dispatch) in :meth:`Judge.pose`, the observation noise, :func:`state_of_pose` and
-  :func:`hull_distance`: the same numbers as the ``@`` forms they replaced.
+  :func:`hull_distance`: the same numbers as the ``@`` forms they replaced;
+* p21d: the observation noise drawn in two parts (the pose's, the tips'), the turned points
+  of a follow-through or a top roll built at once, and the hand-written ``__init__`` of
+  ``ObjectPose`` and ``Observation``.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 from scipy.spatial.transform import Rotation
 
-from nonprehensile.control import _slid_beyond
+from nonprehensile.control import _slid_beyond, _turned_about
 from nonprehensile.geometry import Polyhedron, cube, prism
 from nonprehensile.observation import (
     Observation,
@@ -35,6 +38,7 @@ from nonprehensile.observation import (
 )
 from nonprehensile.planning import ObjectPose
 from nonprehensile.states import State, state_of_pose, state_pose
+from nonprehensile.step_paths import ease
 from nonprehensile.transit import hull_distance
 
 SOLIDS = {"cube": cube(), "prism6": prism(6)}
@@ -272,3 +276,101 @@ def test_slid_beyond_equals_numpy(x: float, y: float, tol: float) -> None:
     assert _slid_beyond(com, origin, tol) == want
     at = float(np.hypot(*(com[:2] - origin)))  # exactly at the distance: numpy decides
     assert _slid_beyond(com, origin, at) is False
+
+
+def _push_as_one_draw(model: ObservationModel, rng: np.random.Generator, pose: ObjectPose,
+                      tips: np.ndarray) -> tuple[ObjectPose, np.ndarray]:
+    """The observation noise as p21c drew it: one ``standard_normal`` for the whole sample
+    (the pose's six numbers, then the tips'), scaled by numpy."""
+    noisy_pose = model.position_noise > 0 or (model.angle_noise_deg or 0.0) > 0
+    n_pose = 6 if noisy_pose else 0
+    n_tips = tips.size if model.finger_noise > 0 else 0
+    z = rng.standard_normal(n_pose + n_tips) if n_pose + n_tips else None
+    if z is not None and noisy_pose:
+        a = math.radians(model.angle_noise_deg or 0.0)
+        p = model.position_noise
+        z0, z1, z2, z3, z4, z5 = z[:6].tolist()
+        dr = rotvec_matrix(np.array([0.0 + a * z0, 0.0 + a * z1, 0.0 + a * z2]))
+        com = pose.com + np.array([0.0 + p * z3, 0.0 + p * z4, 0.0 + p * z5])
+        trans = com - dr @ (pose.com - pose.translation)
+        pose = ObjectPose(dr @ pose.rotation, trans, com, pose.scale)
+    if z is not None and n_tips:
+        tips = tips + (0.0 + model.finger_noise * z[n_pose:]).reshape(tips.shape)
+    else:
+        tips = np.array(tips, dtype=np.float64)
+    return pose, tips
+
+
+@settings(max_examples=200)
+@given(seed=st.integers(0, 2**31 - 1), position=st.sampled_from([0.0, 0.0005, 0.003]),
+       angle=st.sampled_from([None, 0.0, 0.8]), finger=st.sampled_from([0.0, 0.001, 0.004]),
+       n_tips=st.integers(1, 3), samples=st.integers(1, 4))
+def test_observation_noise_equals_one_draw(seed: int, position: float, angle: float | None,
+                                           finger: float, n_tips: int, samples: int) -> None:
+    """The noise drawn as the pose's ``standard_normal(6)`` and the tips' ``normal(0, s)``
+    (p21d): the numbers of one ``standard_normal`` for the sample scaled by numpy, bit for
+    bit, sample after sample (the generator keeps no spare normals between draws)."""
+    poly = SOLIDS["prism6"] if seed % 2 else SOLIDS["cube"]
+    pose = _posed(poly, seed, 0.3)
+    model = ObservationModel(position_noise=position, angle_noise_deg=angle,
+                             finger_noise=finger)
+    stream = ObservationStream(model, np.random.default_rng(seed))
+    rng = np.random.default_rng(seed)
+    for k in range(samples):
+        tips = _tips(poly, pose, np.random.default_rng(seed + k), n_tips)
+        stream.push(0.01 * k, pose, tips)
+        got = stream.latest(0.01 * k)
+        assert got is not None
+        want_pose, want_tips = _push_as_one_draw(model, rng, pose, tips)
+        assert got.pose.rotation.tobytes() == want_pose.rotation.tobytes()
+        assert got.pose.translation.tobytes() == want_pose.translation.tobytes()
+        assert got.pose.com.tobytes() == want_pose.com.tobytes()
+        assert got.pose.scale == want_pose.scale
+        assert got.tips.tobytes() == want_tips.tobytes()
+        assert got.tips.shape == want_tips.shape and got.tips.flags.c_contiguous
+
+
+@settings(max_examples=300)
+@given(seed=st.integers(0, 2**31 - 1), n=st.integers(1, 80), k=st.integers(0, 3),
+       small=st.booleans())
+def test_turned_about_equals_a_rotation_per_sample(seed: int, n: int, k: int,
+                                                   small: bool) -> None:
+    """The follow-through's and the top roll's turned points, built at once (p21d): the
+    numbers of one scipy rotation per sample, bit for bit, for a point or a stack of one to
+    three, small angles (scipy's series) included."""
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    angle = float(rng.uniform(-3.5, 3.5)) * (1e-4 if small else 1.0)
+    s = ease(np.linspace(0.0, 1.0, n)) if seed % 2 else np.sort(rng.uniform(0.0, 1.0, n))
+    pts = rng.normal(size=3) * 0.05 if k == 0 else rng.normal(size=(k, 3)) * 0.05
+    want = np.stack([Rotation.from_rotvec(axis * angle * si).apply(pts) for si in s])
+    got = _turned_about(axis, angle, s, pts)
+    assert got.shape == want.shape
+    assert got.tobytes() == want.tobytes()
+
+
+def test_hand_written_inits_keep_the_dataclasses() -> None:
+    """``ObjectPose`` and ``Observation`` with their own ``__init__`` (p21d): the same
+    fields, defaults, equality, frozen fields, ``replace`` and pickling."""
+    import dataclasses
+    import pickle
+
+    r, t, c = np.eye(3), np.array([0.1, 0.2, 0.3]), np.array([0.1, 0.2, 0.35])
+    pose = ObjectPose(r, t, c)
+    assert pose.scale == 1.0 and pose.rotation is r and pose.translation is t and pose.com is c
+    assert [f.name for f in dataclasses.fields(ObjectPose)] == [
+        "rotation", "translation", "com", "scale"]
+    assert ObjectPose(rotation=r, translation=t, com=c, scale=0.5).scale == 0.5
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        pose.scale = 2.0  # type: ignore[misc]
+    moved = dataclasses.replace(pose, scale=0.05)
+    assert moved.scale == 0.05 and moved.rotation is r
+    back = pickle.loads(pickle.dumps(moved))
+    assert back.scale == 0.05 and back.com.tobytes() == c.tobytes()
+    obs = Observation(0.25, pose, np.zeros((2, 3)))
+    assert obs.time == 0.25 and obs.pose is pose
+    assert Observation(time=0.25, pose=pose, tips=obs.tips) == obs
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        obs.time = 1.0  # type: ignore[misc]
+    assert "time=0.25" in repr(obs)

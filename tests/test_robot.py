@@ -702,3 +702,32 @@ def test_compliance_refuses_what_is_not_its_type(kw: dict[str, object], what: st
     for ok in (True, False):
         assert RobotSimulator(CUBE, arm, scale=SCALE, compliance=ok).robot_driver.compliance \
             is ok
+
+
+def test_metrics_give_the_longest_time_at_each_limit_while_touching() -> None:
+    """``RobotLog.metrics`` gives, per kind of limit, the longest run at it while a
+    fingertip touches the object. Truth: a log written by hand, its runs counted by hand."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
+                         scale=SCALE)
+    sc, log = sim.scene, sim.robot_log
+    dt = log.dt
+    n = 100
+    log.clear()
+    log.reserve(n)
+    log.n = n
+    log._time[:n] = np.arange(n) * dt
+    log._q[:n] = sc.home  # mid-range: no position limit but where set below
+    log._qd[:n] = 0.0
+    log._tau[:n] = 0.0
+    log._touch[15:41] = True  # touching from row 15 to row 40
+    log._tau[10:30, 0] = sc.torque[0]  # 20 rows at a torque limit, 15 of them touching
+    log._q[50:62, 1] = sc.upper[1]  # 12 rows at a position limit, none touching
+    log._qd[35:40, 2] = sc.velocity[2]  # 5 rows at a velocity limit, all touching
+    m = log.metrics()
+    assert m.longest_at_limit_s == pytest.approx(
+        {"position": 12 * dt, "velocity": 5 * dt, "torque": 20 * dt})
+    assert m.longest_at_limit_contact_by_kind_s == pytest.approx(
+        {"position": 0.0, "velocity": 5 * dt, "torque": 15 * dt})
+    assert m.longest_at_limit_contact_s == pytest.approx(15 * dt)  # the union's longest
+    doc = m.to_dict()["longest_at_limit_contact_by_kind_s"]
+    assert doc == {"position": 0.0, "velocity": round(5 * dt, 4), "torque": round(15 * dt, 4)}

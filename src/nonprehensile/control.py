@@ -279,6 +279,26 @@ class PlanarTransform:
                 "shift_m": [round(v, 6) for v in self.shift]}
 
 
+def _turned_about(axis: FloatArray, angle: float, s: FloatArray, points: FloatArray
+                 ) -> FloatArray:
+    """``points`` (shape (3,) or (k, 3)) turned by ``angle * si`` (radians) about the unit
+    ``axis`` through the origin, for each ``si`` of ``s``: shape ``(len(s), *points.shape)``.
+
+    The numbers of ``np.stack([Rotation.from_rotvec(axis * angle * si).apply(points) for
+    si in s])``, built at once: ``from_rotvec`` and ``as_matrix`` of a stack run scipy's
+    loop of the single rotation row by row, and ``apply`` of a single rotation is one
+    ``np.matmul`` of its matrix (a stack of one), which a stack of matrices repeats matrix
+    by matrix (numpy's matmul chooses its kernel by the shapes and strides of one matrix).
+    A list of a few hundred single rotations costs scipy's checks each time.
+    """
+    mats = Rotation.from_rotvec((axis * angle)[None, :] * s[:, None]).as_matrix()
+    if points.ndim == 1:
+        return np.asarray(np.matmul(mats, points))
+    if len(points) == 1:
+        return np.asarray(np.matmul(mats, points[0]))[:, None, :]
+    return np.asarray(np.matmul(mats, points, axes=[(-2, -1), (-1, -2), (-1, -2)]))
+
+
 def _element_vertices(poly: Polyhedron, element: ObjectElement) -> list[int]:
     if isinstance(element, Face):
         return list(poly.faces[element.id])
@@ -615,8 +635,7 @@ def top_roll(spec: StepSpec, poly: Polyhedron, finger_radius: float, *,
     # object back (the turned press points away from the pivot) and the pivot slides
     rel = c - mid
     lead = press * (down + toward) / math.sqrt(2.0)
-    roll = with_stop(np.stack([Rotation.from_rotvec(axis * angle * si).apply(rel) + mid + lead
-                               for si in s])[:, None, :], rate)
+    roll = with_stop((_turned_about(axis, angle, s, rel) + mid + lead)[:, None, :], rate)
     end = roll[-1, 0]
     retreat = with_stop(line(end, end - lift * down, 2.0 * approach_speed), rate)
     arcs = (replace(spec.arcs[0], positions=approach),
@@ -900,8 +919,7 @@ class StepMonitor:
         used = [k - 1 for k in self.spec.used]
         start = np.asarray(command, dtype=np.float64)[used] - pivot
         s = ease(np.linspace(0.0, 1.0, n))
-        path = np.stack([Rotation.from_rotvec(axis * angle * si).apply(start) + pivot
-                         for si in s])
+        path = _turned_about(axis, angle, s, start) + pivot
         self._followed = duration
         self.log.append({"time": round(obs.time - self._t0, 4), "follow_through": str(ground),
                          "deg": self.cfg.follow_deg})

@@ -70,6 +70,13 @@ class Observation:
     pose: ObjectPose
     tips: FloatArray
 
+    def __init__(self, time: float, pose: ObjectPose, tips: FloatArray) -> None:
+        # by hand, as :class:`~nonprehensile.planning.ObjectPose`'s (one per sample)
+        v = self.__dict__
+        v["time"] = time
+        v["pose"] = pose
+        v["tips"] = tips
+
 
 @dataclass(frozen=True)
 class ObservationModel:
@@ -159,15 +166,14 @@ class ObservationStream:
         self._next = max(self._next + self.period, now + 0.5 * self.period)
         noisy_pose = m.position_noise > 0 or (m.angle_noise_deg or 0.0) > 0
         tips = np.asarray(tips, dtype=np.float64)
-        n_pose = 6 if noisy_pose else 0
         n_tips = tips.size if m.finger_noise > 0 else 0
-        # one draw for the whole sample: the same numbers, in the same order, as a draw per
-        # quantity (``normal(0, s)`` is ``0 + s * z`` of the generator's next ``z``)
-        z = self.rng.standard_normal(n_pose + n_tips) if n_pose + n_tips else None
-        if z is not None and noisy_pose:
+        # a draw for the pose, then one for the tips: the same numbers, in the same order,
+        # as a draw per quantity (``normal(0, s)`` is ``0 + s * z`` of the generator's next
+        # ``z``, in C; the generator keeps no spare normals between draws)
+        if noisy_pose:
             a = math.radians(m.angle_noise_deg or 0.0)
             p = m.position_noise
-            z0, z1, z2, z3, z4, z5 = z[:6].tolist()
+            z0, z1, z2, z3, z4, z5 = self.rng.standard_normal(6).tolist()
             dr = _rotvec_matrix(0.0 + a * z0, 0.0 + a * z1, 0.0 + a * z2)
             com = pose.com + np.array([0.0 + p * z3, 0.0 + p * z4, 0.0 + p * z5])
             # the noisy rotation turns the body about its (noisy) centre of mass
@@ -175,8 +181,8 @@ class ObservationStream:
             # matmul ufunc's dispatch)
             trans = com - dr.dot(pose.com - pose.translation)
             pose = ObjectPose(dr.dot(pose.rotation), trans, com, pose.scale)
-        if z is not None and n_tips:
-            tips = tips + (0.0 + m.finger_noise * z[n_pose:]).reshape(tips.shape)
+        if n_tips:
+            tips = tips + self.rng.normal(0.0, m.finger_noise, tips.shape)
         else:
             tips = np.array(tips, dtype=np.float64)
         self._queue.append(Observation(now, pose, tips))

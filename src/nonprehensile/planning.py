@@ -223,6 +223,18 @@ class ObjectPose:
     com: FloatArray
     scale: float = 1.0
 
+    def __init__(self, rotation: FloatArray, translation: FloatArray, com: FloatArray,
+                 scale: float = 1.0) -> None:
+        # written by hand (a dataclass keeps a class's own ``__init__``): the generated one
+        # of a frozen dataclass sets each field by ``object.__setattr__``, twice the cost of
+        # the whole construction here, and the executor builds poses at every observation;
+        # the fields land in the instance's dict as there
+        v = self.__dict__
+        v["rotation"] = rotation
+        v["translation"] = translation
+        v["com"] = com
+        v["scale"] = scale
+
     @property
     def position(self) -> tuple[float, float]:
         """The centre of mass on the table (world ``x``, ``y``)."""

@@ -266,7 +266,14 @@ class _Runner:
         n_extra = round(hold / dt)
         t_end = self.t + max_time
         step = mujoco.mj_step
+        # an array of controls is copied row by row between memoryviews (a slice of the
+        # rows' buffer into ``d.ctrl``'s): a memcpy of the same doubles, cheaper than
+        # numpy's row indexing and assignment; a robot's controls are rows solved as they
+        # are read (``rows`` None), read by index
         ctrl_view = d.ctrl
+        ctrl_out = memoryview(ctrl_view)
+        rows, width = _flat_rows(ctrl)
+        at = 0  # i * width
         # the free fingertips' joint velocities are their speeds (a robot's driver has none);
         # a view of them, read as floats (the speed's square is compared: the square root
         # of the largest is the largest square root, bit for bit)
@@ -274,6 +281,7 @@ class _Runner:
         # a robot's IK avoids the object where it is observed (never the true pose)
         see = getattr(sim.driver, "see", None)
         vel = None if finger_dofs is None else _velocity_view(d, finger_dofs)
+        triples = range(0, 0 if finger_dofs is None else len(finger_dofs), 3)  # (built once)
         qvel = d.qvel
         speed2 = self.tip_speed * self.tip_speed
         trace_every = self.keep_trace
@@ -289,7 +297,11 @@ class _Runner:
         hold_row = getattr(sim.driver, "hold_row", None)
         while True:
             if i < n_ctrl:
-                ctrl_view[...] = ctrl[i]
+                if rows is not None:
+                    ctrl_out[:] = rows[at:at + width]
+                    at += width
+                else:
+                    ctrl_view[...] = ctrl[i]
             elif hold_row is not None:
                 ctrl_view[...] = hold_row()
             step(m, d)
@@ -309,7 +321,7 @@ class _Runner:
                         self.touch_log.append((t, touch, sim.pose().com))
                 if finger_dofs is not None:
                     v = (vel if vel is not None else qvel[finger_dofs]).tolist()
-                    for k in range(0, len(v), 3):
+                    for k in triples:
                         x, y, z = v[k], v[k + 1], v[k + 2]
                         s2 = x * x + y * y + z * z
                         if s2 > speed2:
@@ -339,6 +351,8 @@ class _Runner:
                         seg, i = new, 0
                         ctrl = sim.driver.controls(self._noisy(seg))
                         n_ctrl = len(ctrl)
+                        rows, width = _flat_rows(ctrl)
+                        at = 0
                     if dec.done:
                         self._stop(seg, i)
                         return dec
@@ -436,6 +450,16 @@ class _Runner:
                 f"no observation arrived within 5 s at t={self.t:.3f} s; expected one every "
                 f"1/{model.rate:g} s after {model.latency:g} s of latency")
         return got[-1]
+
+
+def _flat_rows(ctrl: FloatArray) -> tuple[memoryview | None, int]:
+    """The rows of ``ctrl`` (shape (n, nu)) as one flat memoryview of doubles, C order,
+    and the row's length: row ``i`` is ``[i * nu:(i + 1) * nu]``. None for controls that
+    are not an array (a robot's, solved as the loop reads them: every row must be read)."""
+    if not isinstance(ctrl, np.ndarray):
+        return None, 0
+    flat = np.ascontiguousarray(ctrl, dtype=np.float64).reshape(-1)
+    return flat.data, int(ctrl.shape[1])
 
 
 def _velocity_view(d: Any, dofs: NDArray[np.int64]) -> FloatArray | None:

@@ -444,6 +444,10 @@ class FingertipIK:
         self._mocap = int(m.body_mocapid[self._obj])
         # the object's geoms with their poses in its body frame (set_object poses them)
         self._obj_rot = np.empty(9)
+        self._obj_r = self._obj_rot.reshape(3, 3)  # (a view: written by set_object)
+        self._pose_data: Any = None  # the data whose views set_object writes (_pose_views)
+        self._pose_rows: tuple[FloatArray, ...] = ()
+        self._pose_geoms: list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = []
         self._obj_geoms = []
         for gid in np.flatnonzero(m.geom_bodyid == self._obj):
             gmat = np.empty(9)
@@ -515,8 +519,11 @@ class FingertipIK:
     def set_object(self, position: FloatArray, quat: FloatArray) -> None:
         """Where the object is now (the body's origin and ``(w, x, y, z)`` orientation)."""
         d = self.configuration.data
-        d.mocap_pos[self._mocap] = position
-        d.mocap_quat[self._mocap] = quat
+        if d is not self._pose_data:
+            self._pose_views(d)
+        mpos, mquat, xpos, xquat, xmat = self._pose_rows
+        mpos[:] = position
+        mquat[:] = quat
         # the object's body and geoms posed now: the collision rows read the geoms' poses,
         # which MuJoCo's kinematics would derive from the mocap pose only at the next
         # configuration update (after this solve's integration), so the rows saw the
@@ -524,14 +531,25 @@ class FingertipIK:
         # 1,336 solves, up to 3.95 mm off)
         rot = self._obj_rot
         mujoco.mju_quat2Mat(rot, np.asarray(quat, dtype=np.float64))
-        r = rot.reshape(3, 3)
+        r = self._obj_r
         p = np.asarray(position, dtype=np.float64)
-        d.xpos[self._obj] = p
-        d.xquat[self._obj] = quat
-        d.xmat[self._obj] = rot
-        for g, gpos, gmat in self._obj_geoms:
-            d.geom_xpos[g] = p + r @ gpos
-            d.geom_xmat[g] = (r @ gmat).ravel()
+        xpos[:] = p
+        xquat[:] = quat
+        xmat[:] = rot
+        for gx, gm, gpos, gmat in self._pose_geoms:
+            gx[:] = p + r @ gpos
+            gm[:] = (r @ gmat).ravel()
+
+    def _pose_views(self, d: Any) -> None:
+        """The rows :meth:`set_object` writes, as views into ``d`` (MjData's arrays never
+        move: made once per data, not at every solve; each attribute read of the data
+        costs about as much as the row's write)."""
+        self._pose_data = d
+        mo, ob = self._mocap, self._obj
+        self._pose_rows = (d.mocap_pos[mo], d.mocap_quat[mo], d.xpos[ob], d.xquat[ob],
+                           d.xmat[ob])
+        self._pose_geoms = [(d.geom_xpos[g], d.geom_xmat[g], gpos, gmat)
+                            for g, gpos, gmat in self._obj_geoms]
 
     def tips(self) -> FloatArray:
         """The IK's fingertip positions, shape (n_fingers, 3)."""

@@ -174,12 +174,14 @@ class Judge:
         self._vel: FloatArray = np.zeros(6)
         self._r: FloatArray = np.eye(3)
         self._t: FloatArray = np.zeros(3)
+        self._r2: FloatArray = self._r[2]
 
     def _views(self, data: Any) -> tuple[FloatArray, FloatArray]:
         """The object's rotation matrix and position in ``data`` (views)."""
         if data is not self._bound:
             self._r = data.xmat[self.body].reshape(3, 3)
             self._t = data.xpos[self.body]
+            self._r2 = self._r[2]  # the ground's read needs the last row alone
             self._bound = data
         return self._r, self._t
 
@@ -370,19 +372,20 @@ class Judge:
         """The contact pairs now, whether a fingertip touches the table, and whether any
         part of a finger other than its tip (a link of a robot arm) touches the object or
         the table."""
-        n = data.ncon
-        if n == 0:
-            return _NO_CONTACT, False, False
         con = data.contact
         # the arrays read in bulk, once: each field read builds a numpy view (MuJoCo's
-        # contact arrays are ``ncon`` long)
-        geoms, dist = con.geom.tolist(), con.dist.tolist()
+        # contact arrays are ``ncon`` long: their length is ``ncon``, without reading it)
+        geoms = con.geom.tolist()
+        n = len(geoms)
+        if n == 0:
+            return _NO_CONTACT, False, False
+        dist = con.dist.tolist()
         r, t = self._views(data)
         on, no = self._on_table
         if geoms.count(on) + geoms.count(no) == n and max(dist) <= 1e-4:
             # every contact the object's on the table (what the loop below finds then: the
             # ground alone), counted at C speed
-            pair = self._ground_pair_at(r, t)
+            pair = self._ground_pair_at(r, t, self._r2)
             last = self._ground_set
             if last is None or last[0] is not pair:
                 last = self._ground_set = (pair, self._contact_set([pair]))
@@ -426,14 +429,16 @@ class Judge:
             got = self._set_memo[key] = frozenset(found)
         return got
 
-    def _ground_pair_at(self, r: FloatArray, t: FloatArray) -> ContactPair:
+    def _ground_pair_at(self, r: FloatArray, t: FloatArray,
+                        row: FloatArray | None = None) -> ContactPair:
         """The ground's contact pair at the pose ``(r, t)``, read again only when the
         object has moved enough since the last read to change the set of low vertices: a
         vertex's height changes by at most ``|dR[2]| * reach + |dt_z|`` and its height above
         the lowest one by twice that (most reads find the object resting or rolling on the
-        same element: the pair is then the one computed afresh)."""
-        rx, ry, rz = r[2].tolist()
-        tz = float(t[2])
+        same element: the pair is then the one computed afresh). ``row``: ``r[2]``, if
+        kept (indexing builds a new view at every read)."""
+        rx, ry, rz = (r[2] if row is None else row).tolist()
+        tz = t.item(2)  # (the float ``float(t[2])`` gives, without the numpy scalar)
         last = self._ground_last
         if last is not None:
             dx, dy, dz = rx - last[0], ry - last[1], rz - last[2]

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import mujoco
@@ -101,6 +101,10 @@ class RobotMetrics:
     longest_at_limit_contact_s : float
         The longest time any joint stayed at any limit while a fingertip touched the object
         (``longest_at_limit_s`` counts the whole run, transits included).
+    longest_at_limit_contact_by_kind_s : dict of str to float
+        As ``longest_at_limit_contact_s``, per kind of limit (``position``, ``velocity``,
+        ``torque``): whose limit is held while touching (the bars' "no limit held for more
+        than 10 ms" during contact) without reading the log.
     position_margin_min_rad : float
         Least distance of a joint to an end of its range.
     velocity_margin_min, torque_margin_min : float
@@ -132,6 +136,7 @@ class RobotMetrics:
     contact_force_max_n: float | None = None
     give_contact_max_m: float | None = None
     longest_at_limit_contact_s: float = 0.0
+    longest_at_limit_contact_by_kind_s: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form (rounded)."""
@@ -145,6 +150,8 @@ class RobotMetrics:
             "contact_force_max_n": r(self.contact_force_max_n, 3),
             "give_contact_max_m": r(self.give_contact_max_m),
             "longest_at_limit_contact_s": round(self.longest_at_limit_contact_s, 4),
+            "longest_at_limit_contact_by_kind_s": {
+                k: round(v, 4) for k, v in self.longest_at_limit_contact_by_kind_s.items()},
             "position_margin_min_rad": r(self.position_margin_min_rad, 4),
             "velocity_margin_min": r(self.velocity_margin_min, 4),
             "torque_margin_min": r(self.torque_margin_min, 4),
@@ -339,6 +346,7 @@ class RobotLog:
             float(force.max()) if len(force) else None,
             float(np.sqrt((give * give).sum(axis=2)).max()) if touch.any() else None,
             _longest_run(any_at & touch) * dt,
+            {k: _longest_run(v & touch) * dt for k, v in at.items()},
         )
 
     def window(self, t0: float, t1: float) -> tuple[int, int]:
@@ -357,6 +365,17 @@ def _as_slice(idx: NDArray[np.int64]) -> slice | NDArray[np.int64]:
     if len(idx) and np.array_equal(idx, np.arange(idx[0], idx[0] + len(idx))):
         return slice(int(idx[0]), int(idx[0]) + len(idx))
     return idx
+
+
+def _as_stride(idx: NDArray[np.int64]) -> slice | NDArray[np.int64]:
+    """``idx`` as a slice when its indices are evenly spaced and rising (a step of 1 or
+    more), else itself."""
+    if len(idx) >= 2:
+        step = int(idx[1]) - int(idx[0])
+        if step >= 1 and np.array_equal(idx, np.arange(idx[0], idx[0] + step * len(idx),
+                                                        step)):
+            return slice(int(idx[0]), int(idx[0]) + step * (len(idx) - 1) + 1, step)
+    return _as_slice(idx)
 
 
 def _implicit_inertia(m: Any, dofs: NDArray[np.int64]) -> FloatArray:
@@ -576,6 +595,14 @@ class RobotArms:
                        else None)
         tips = _as_slice(self._tip_sites)
         self._tips_view = data.site_xpos[tips] if isinstance(tips, slice) else None
+        # the actuator rows' columns (_segment): the position and velocity servos' as
+        # strided slices where they are evenly spaced (the Panda's alternate), written as
+        # views, not gathered; the velocity bounds negated once (``-v``: exact)
+        self._ctrl: FloatArray = data.ctrl  # (float64, never moves: read as a view)
+        self._pos_cols = _as_stride(scene.pos_act)
+        self._vel_cols = _as_stride(scene.vel_act)
+        self._vel_max = scene.velocity
+        self._vel_min = -scene.velocity
         self._n = 0
         self._touch = False
         self._other = False
@@ -617,6 +644,13 @@ class RobotArms:
         self._damping = np.array(m.dof_damping[scene.dadr])
         self._implicit = _implicit_inertia(m, scene.dadr)
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
+        self._damping_list: list[float] = self._damping.tolist()
+        # the joints' torque budget per the shares it was made with (_within_torque)
+        self._lim_key: tuple[float, float] | None = None
+        self._lim: list[float] = []
+        # the bias forces' and velocities' views (MjData's arrays never move)
+        self._bias_views = ((data.qfrc_bias[self._dsl], data.qvel[self._dsl])
+                            if isinstance(self._dsl, slice) else None)
         self._controls: _OnlineControls | None = None  # the trajectory read now (hold_row)
         # the fingertip radius offset (_tool; off by default, docs/robot.md says why), and
         # the object's shape it needs
@@ -769,7 +803,8 @@ class RobotArms:
         # the rows' targets (and fingertip noise): past the end, the last one held
         idx = slice(j, j + kk) if j + kk <= n else np.minimum(np.arange(j, j + kk), last)
         ahead = targets[min(j + kk + kk // 2, last)]  # the knot's (every > 1)
-        tool = self._tool(targets[idx], ahead)
+        rows_t = targets[idx]  # (once: the radius offset's and the log's)
+        tool = self._tool(rows_t, ahead)
         now = targets[min(j, last)]  # past the end (hold): the last target, held
         if tool is not None:  # the commands: the targets plus the tip radius offset
             now = now + tool[0]
@@ -825,25 +860,25 @@ class RobotArms:
                 basis = self._basis[k] = (tau, tau * tau / (2.0 * h), tau / h)
             a, b, c = basis
             dv = v1 - v0
-            q = s0[None, :] + a * v0[None, :] + b * dv[None, :]
-            qd = v0[None, :] + c * dv[None, :]
+            # (columns ``a``, ``b``, ``c`` broadcast against the rows: the same products)
+            q = s0 + a * v0 + b * dv
+            qd = v0 + c * dv
             self._state = (q[k], qd[k])
         self._pinv = None
-        sc = self.scene
-        rows = np.repeat(np.asarray(self.data.ctrl, dtype=np.float64)[None, :], k, axis=0)
+        rows = np.repeat(self._ctrl[None, :], k, axis=0)
         pos = q[:k]
         if ctl.noise is not None:
             pos = pos + self._noise_offset(ctl.noise[idx])
-        rows[:, sc.pos_act] = pos
-        v = sc.velocity
-        rows[:, sc.vel_act] = np.maximum(np.minimum(qd[:k], v), -v)
+        rows[:, self._pos_cols] = pos
+        v = self._vel_max
+        rows[:, self._vel_cols] = np.maximum(np.minimum(qd[:k], v), self._vel_min)
         # the log's set points and targets of the period, written once (a period replaced
         # before its end is overwritten from where it stopped)
         log = self.log
         log.reserve(k)
         log._q_ref[t0:t0 + k] = q[:k]
         log._qd_ref[t0:t0 + k] = qd[:k]
-        log._target[t0:t0 + k] = targets[idx]
+        log._target[t0:t0 + k] = rows_t
         log._tool[t0:t0 + k] = 0.0 if tool is None else tool[:k]
         log._noise[t0:t0 + k] = 0.0 if ctl.noise is None else ctl.noise[idx]
         # the give and the force are logged per physics step by _comply; the stiff arm's
@@ -878,23 +913,40 @@ class RobotArms:
         full = self._acc_full
         full[self._dsl] = a
         mujoco.mj_mulM(m, d, self._ma_full, full)
-        need = self._ma_full[self._dsl] + self._implicit * a
-        bias = d.qfrc_bias[self._dsl] + self._damping * d.qvel[self._dsl]
-        lim = self._torque_max * np.where(self._torque_max < LIGHT_JOINT, self.torque_share_light,
-                                          self.torque_share)
+        # the few joints' numbers in plain Python (this runs every control period; numpy
+        # calls on 7 numbers cost more than the arithmetic): the same IEEE operations in
+        # the same order as the arrays' (``bias + damping qvel``, ``lim - bias``,
+        # ``-lim - bias``, ``hi / need``), so the same numbers
+        need = (self._ma_full[self._dsl] + self._implicit * a).tolist()
+        views = self._bias_views
+        if views is not None:
+            fb, qv = views
+        else:
+            fb, qv = d.qfrc_bias[self._dsl], d.qvel[self._dsl]
+        key = (self.torque_share, self.torque_share_light)
+        if key != self._lim_key:  # the shares are attributes: the limits as they are now
+            self._lim_key = key
+            self._lim = (self._torque_max * np.where(self._torque_max < LIGHT_JOINT,
+                                                     self.torque_share_light,
+                                                     self.torque_share)).tolist()
         # per joint the largest s with |bias + s need| <= lim; a joint whose bias alone is
         # past it has no say (scaling the accelerations cannot help it, and a set point
         # that may not accelerate at all runs on at its velocity, away from the IK: the
         # main plan then ran into the joints' limits)
-        hi = np.where(need > 0.0, lim - bias, -lim - bias)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_j = np.where((np.abs(need) > 1e-12) & (np.abs(bias) < lim), hi / need, np.inf)
+        s_min = math.inf
+        for nd, b, dq, v, lm in zip(need, fb.tolist(), self._damping_list, qv.tolist(),
+                                    self._lim, strict=True):
+            bias = b + dq * v
+            if abs(nd) > 1e-12 and abs(bias) < lm:
+                s = ((lm - bias) if nd > 0.0 else (-lm - bias)) / nd
+                if s < s_min:
+                    s_min = s
         # at least ``min_accel_share`` of the IK's acceleration: the set points still turn
         # towards the IK's path (braking included), if more slowly
         floor = self.min_accel_share
         if q0 is not None:  # and enough to stop short of a range's end (_range_share)
             floor = max(floor, self._range_share(q0, v0, v1, h))
-        scale = float(min(1.0, max(floor, float(s_j.min()))))
+        scale = float(min(1.0, max(floor, s_min)))
         if scale >= 1.0:
             return v1
         out = v0 + scale * (v1 - v0)
@@ -1084,8 +1136,8 @@ class RobotArms:
         of the command."""
         arr = np.asarray(targets, dtype=np.float64)
         now_ = arr if now is None else np.asarray(now, dtype=np.float64)
-        # the correction against the command now (the give included: it is on the set points)
-        out = self._correct(arr, now_ + self._offset, steps, noise)
+        # the correction against the command now (the give is added there, in contact only)
+        out = self._correct(arr, now_, steps, noise)
         if self.compliance:
             self._pinv_c = None  # the give's Jacobian, at this solve's joints (_comply)
         elif self._touch:  # the stiff arm's force, for the records only
@@ -1158,8 +1210,8 @@ class RobotArms:
         In contact the object pushes back on the fingertip and the stiff but finite joint
         servos give: a 3.2-3.4 mm steady error in the pushes of a roll-arc and a roll-pull
         at nominal physics (the joints' set points 2-3 mrad ahead of the joints). The
-        correction integrates the fingertip's error against its command (``now``: the
-        target plus the give, plus ``noise``) while it touches the object, at
+        correction integrates the fingertip's error against its command (``now``, the
+        target, plus the give, plus ``noise``) while it touches the object, at
         ``tracking_gain`` (1/s; with several fingertips, every fingertip's while any one
         touches: measured better in the two-arm tumbles than a per-fingertip switch,
         ``docs/robot.md``), so the set points lead by what the contact takes. It is bounded by
@@ -1178,7 +1230,8 @@ class RobotArms:
             return targets
         dt = steps * self.dt
         if self._touch:
-            e = self.data.site_xpos[self._tip_sites] - now
+            # (the command ``now + give`` formed here: out of contact it is not read)
+            e = self.data.site_xpos[self._tip_sites] - (now + self._offset)
             if noise is not None:
                 e = e - noise
             sc = self.scene
