@@ -200,6 +200,8 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
     one degree of freedom: mocap object).
     """
 
+    two_a = 2.0 * accel  # (as ``2.0 * accel * x`` evaluates it: the scalar product first)
+
     class JointBoxLimit(mink.Limit):  # type: ignore[misc]
         def __init__(self) -> None:
             n = scene.model.nv
@@ -224,36 +226,54 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             self._sign_acc = np.array([[1.0], [-1.0]])
             self._edge = np.vstack([self.upper, -self.lower])
             self._velocity2 = np.vstack([self.velocity, self.velocity])
+            self._dt = math.nan  # the period of the products below (bounds)
+            self._velocity2_dt = self._velocity2
+            self._back_dt = 0.0
+            self._stop = np.empty((2, len(self.qadr)))
 
         def bounds(self, qpos: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
             """``(upper, lower)`` bounds on the step ``dq``, shape (nv,) each."""
             q = qpos if self.identity else qpos[self.qadr]
+            finite = math.isfinite(accel)
             # the up (row 0) and down (row 1) bounds at once, on one (2, n) array: fewer
             # numpy calls than on two (n,) arrays (this runs every solve). A joint outside
             # its range may only move back in, as with mink's own limit; inside the margin
             # (negative room), back out at ``back_speed`` at most
+            if dt != self._dt:  # the products with dt, once per control period
+                self._dt = dt
+                self._velocity2_dt = self._velocity2 * dt
+                self._back_dt = -self.back * dt
             room = np.multiply(self._sign, q)
             room += self._edge
-            if math.isfinite(accel):
+            if finite:
                 # no faster towards an end than the acceleration bound can stop in the
                 # room left, sqrt(2 a room): the gain alone let the wrist come to its margin
-                # at 1.5 rad/s, then brake at 100 rad/s^2 at its torque limit
-                stop = np.sqrt(2.0 * accel * np.maximum(room, 0.0)) * dt
+                # at 1.5 rad/s, then brake at 100 rad/s^2 at its torque limit. (In place in
+                # one buffer, the same operations in the same order as
+                # ``np.sqrt(2 a max(room, 0)) dt``.)
+                stop = np.maximum(room, 0.0, out=self._stop)
+                stop *= two_a
+                np.sqrt(stop, out=stop)
+                stop *= dt
             room *= gain
-            if math.isfinite(accel):
+            if finite:
                 np.minimum(room, stop, out=room)
-            np.maximum(room, -self.back * dt, out=room)
+            np.maximum(room, self._back_dt, out=room)
             # (the velocity bound first, as before: the same operand order)
-            np.minimum(self._velocity2 * dt, room, out=room)
-            if math.isfinite(accel):
+            np.minimum(self._velocity2_dt, room, out=room)
+            if finite:
                 adt = accel * dt
                 acc = np.multiply(self._sign_acc, self.prev)
                 acc += adt
                 acc *= dt
                 np.minimum(room, acc, out=acc)
-                ok = acc[0] + acc[1] >= 0.0
-                # the acceleration bounds give way where they leave no room
-                room = acc if ok.all() else np.where(ok, acc, room)
+                # the acceleration bounds give way where they leave no room (both rows'
+                # sum, as ``acc[0] + acc[1]``, checked in two calls in the usual case)
+                total = acc.sum(axis=0)
+                if not total.min() >= 0.0:
+                    room = np.where(total >= 0.0, acc, room)
+                else:
+                    room = acc
             up, down = room[0], room[1]
             if self.identity:  # the IK scene's joints are its degrees of freedom, in order
                 return up, -down
@@ -462,8 +482,13 @@ class FingertipIK:
         self._verts = np.asarray(verts, dtype=np.float64) @ rot.reshape(3, 3).T + m.geom_pos[g]
         self._vmean = self._verts.mean(axis=0)
         self._rot = np.empty(9)
-        self._pose_key: tuple[float, ...] = ()  # the object's pose at the last pointing
-        self._pose_top = (0.0, 0.0, 0.0)  # its top height and centre (x, y) there
+        # set_object counts the poses it sets; pointing derives the object's top height and
+        # centre (x, y) once per pose (a key made of the pose's floats cost more than the
+        # rest of the pointing)
+        self._pose_version = 0
+        self._top_version = -1
+        self._pose_top = (0.0, 0.0, 0.0)
+        self._band = max(self.config.side_tilt_band, 1e-6)
         self._tilt = float(np.radians(self.config.side_tilt_deg))
         w_out = self.config.side_tilt_outward
         self._lean_out = float(w_out if w_out is not None
@@ -539,6 +564,7 @@ class FingertipIK:
         for gx, gm, gpos, gmat in self._pose_geoms:
             gx[:] = p + r @ gpos
             gm[:] = (r @ gmat).ravel()
+        self._pose_version += 1
 
     def _pose_views(self, d: Any) -> None:
         """The rows :meth:`set_object` writes, as views into ``d`` (MjData's arrays never
@@ -574,19 +600,23 @@ class FingertipIK:
         if self._tilt <= 0.0:
             return out
         # scalar arithmetic: this runs every solve, for one to a few fingers
-        d = self.configuration.data
-        pos = d.mocap_pos[self._mocap]
-        quat = d.mocap_quat[self._mocap]
-        key = (*pos.tolist(), *quat.tolist())
-        if key != self._pose_key:  # the object moved since the last solve
-            rot = self._rot
-            mujoco.mju_quat2Mat(rot, quat)
-            self._pose_key = key
-            self._pose_top = (float((self._verts @ rot[6:9]).max()) + key[2],
-                              float(rot[0:3] @ self._vmean) + key[0],
-                              float(rot[3:6] @ self._vmean) + key[1])
+        if self._top_version != self._pose_version:  # the object moved since the last solve
+            d = self.configuration.data
+            if d is not self._pose_data:
+                self._pose_views(d)
+            pos = self._pose_rows[0]
+            if self._pose_version:  # set_object's rotation of this pose
+                rot = self._obj_rot
+            else:  # the model's own pose: no set_object yet
+                rot = self._rot
+                mujoco.mju_quat2Mat(rot, self._pose_rows[1])
+            self._top_version = self._pose_version
+            px, py, pz = pos.tolist()
+            self._pose_top = (float((self._verts @ rot[6:9]).max()) + pz,
+                              float(rot[0:3] @ self._vmean) + px,
+                              float(rot[3:6] @ self._vmean) + py)
         top, cx, cy = self._pose_top
-        band = max(self.config.side_tilt_band, 1e-6)
+        band = self._band
         for k, (x, y, z) in enumerate(targets.tolist()):
             hx, hy = x - cx, y - cy
             n = math.hypot(hx, hy)
@@ -643,7 +673,8 @@ class FingertipIK:
                 dx = x - task.target
                 n = math.sqrt(float(dx @ dx))
                 task.feed[:3] = dx if n <= cap else dx * (cap / n)
-                axis_prev = task.axis.copy()
+                # (no copy: the axis is only ever replaced by a new array, below)
+                axis_prev = task.axis
             else:
                 task.feed[:] = 0.0
                 axis_prev = None
@@ -766,13 +797,25 @@ class FingertipIK:
         g_rows: list[FloatArray] = []
         h_rows: list[float] = []
         pairs = lim.geom_id_pairs
+        still = self._pair_still
         for idx in self._broad_phase(data):
             g1, g2 = pairs[idx]
             dist = mujoco.mj_geomDistance(model, data, g1, g2, distmax, fromto)
             if abs(dist - distmax) < 1e-12:
                 continue
-            row = self._contact_jacobian(model, data, g1, g2, fromto, normal, jac1, jac2)
             h_rows.append(gain * (dist - min_dist) / dt + relax if dist > min_dist else relax)
+            body2 = still[idx]
+            if body2 >= 0:
+                # the second geom does not move with the joints (the object, a mocap body
+                # here, or the table): its Jacobian is zero and mink's row
+                # ``normal @ (jac2 - jac1)`` is ``-(normal @ jac1)``, one ``mj_jac`` fewer
+                np.subtract(fromto[3:], fromto[:3], out=normal)
+                mujoco.mju_normalize3(normal)
+                mujoco.mj_jac(model, data, jac1, None, fromto[:3], body2)
+                row = normal @ jac1
+                g_rows.append(row if dist >= 0 else -row)
+                continue
+            row = self._contact_jacobian(model, data, g1, g2, fromto, normal, jac1, jac2)
             g_rows.append(-row if dist >= 0 else row)
         if not g_rows:
             return None
@@ -784,6 +827,17 @@ class FingertipIK:
         planes' normals and offsets taken once (the IK scene's planes are static: the
         table)."""
         lim, m = self._coll, self.scene.model
+        # per pair: the first geom's body when the second geom's body has no degree of
+        # freedom on its way to the world (its Jacobian is zero), else -1
+        def moves(body: int) -> bool:
+            while body > 0:
+                if int(m.body_dofnum[body]) > 0:
+                    return True
+                body = int(m.body_parentid[body])
+            return False
+
+        self._pair_still = [-1 if moves(int(m.geom_bodyid[g2])) else int(m.geom_bodyid[g1])
+                            for g1, g2 in lim.geom_id_pairs]
         pairs = np.array(lim.geom_id_pairs, dtype=np.int64).reshape(-1, 2)
         g1, g2 = pairs[:, 0], pairs[:, 1]
         rb = m.geom_rbound
@@ -823,13 +877,17 @@ class FingertipIK:
         self._bp_gather = np.concatenate([others, self._bp_pg_other])
         self._bp_ns = ns
         self._bp_nothing: list[int] = self._bp_keep.tolist()
+        self._bp_data: Any = None
+        self._bp_xpos: FloatArray = np.zeros((0, 3))
 
     def _broad_phase(self, data: Any) -> list[int]:
         """The pairs that may lie within the detection distance (indices into mink's
         ``geom_id_pairs``): the same strict pre-filter as mink's, in fewer numpy calls."""
         if self._bp_all:
             return list(range(len(self._coll.geom_id_pairs)))
-        x = data.geom_xpos
+        if data is not self._bp_data:  # (a view made once per data: MjData's arrays stay)
+            self._bp_data, self._bp_xpos = data, data.geom_xpos
+        x = self._bp_xpos
         if self._bp_one >= 0 and (self._bp_up or not len(self._bp_pg)):
             ns = self._bp_ns
             xs = x[self._bp_gather]
