@@ -47,6 +47,10 @@ _FEED_SPEED = 1.0
 _CROSS_ROWS = np.array([1, 2, 0, 2, 0, 1])
 _CROSS_Z = np.array([8, 2, 5, 5, 8, 2])
 
+#: The reductions ``ndarray.sum``, ``min`` and ``max`` call (the same numbers), without the
+#: Python wrappers around them: the solve's hot path makes a few each time.
+_SUM, _MIN, _MAX = np.add.reduce, np.minimum.reduce, np.maximum.reduce
+
 
 def import_mink() -> Any:
     """mink, or an :class:`InputError` saying how to install it."""
@@ -269,8 +273,10 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                 np.minimum(room, acc, out=acc)
                 # the acceleration bounds give way where they leave no room (both rows'
                 # sum, as ``acc[0] + acc[1]``, checked in two calls in the usual case)
-                total = acc.sum(axis=0)
-                if not total.min() >= 0.0:
+                # (the ufuncs' reductions that ``sum`` and ``min`` call, without their
+                # Python wrappers)
+                total = _SUM(acc, axis=0)
+                if not _MIN(total) >= 0.0:
                     room = np.where(total >= 0.0, acc, room)
                 else:
                     room = acc
@@ -358,8 +364,8 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
             # d z / dt = w x z: rows jr[1] z2 - jr[2] z1, jr[2] z0 - jr[0] z2,
             # jr[0] z1 - jr[1] z0, as one product of gathered rows and their difference
             # (the same numbers)
-            np.take(jr, _CROSS_ROWS, axis=0, out=self._cross)
-            np.take(self._xmat, _CROSS_Z, out=self._z)
+            jr.take(_CROSS_ROWS, axis=0, out=self._cross)
+            self._xmat.take(_CROSS_Z, out=self._z)
             self._cross *= self._zcol
             np.subtract(self._ca, self._cb, out=self._jz)
             return self._j
@@ -454,6 +460,12 @@ class FingertipIK:
                                     t.cost[:, None]))
             r += k
         self._no_rows = np.zeros((0, m.nv))
+        # the usual scene: the robot's joints are its degrees of freedom in order, and no
+        # equality constraint (step integrates without mink's wrappers)
+        self._plain = bool(m.neq == 0 and np.array_equal(scene.qadr, np.arange(m.nq))
+                           and np.array_equal(scene.dadr, np.arange(m.nv)))
+        self._post_gain = math.nan  # the posture gain of the two arrays below (_solve)
+        self._post_diag = self._post_lin = np.zeros(m.nv)
         self._sense: dict[int, NDArray[np.intc]] = {}  # daqp's constraint kinds (all bounds)
         self._no_lower = np.full(len(self.limits[1].geom_id_pairs) if cfg.collisions else 0,
                                  -1e30)  # a collision row's lower bound: none
@@ -489,6 +501,7 @@ class FingertipIK:
         self._top_version = -1
         self._pose_top = (0.0, 0.0, 0.0)
         self._band = max(self.config.side_tilt_band, 1e-6)
+        self._down = np.tile((0.0, 0.0, -1.0), (len(scene.tip_sites), 1))  # (copied)
         self._tilt = float(np.radians(self.config.side_tilt_deg))
         w_out = self.config.side_tilt_outward
         self._lean_out = float(w_out if w_out is not None
@@ -595,8 +608,8 @@ class FingertipIK:
         would make the wrist follow the face round in a twist, to its joint limits).
         """
         targets = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
-        out = np.zeros_like(targets)
-        out[:, 2] = -1.0
+        out = self._down.copy() if len(targets) == len(self._down) else \
+            np.tile((0.0, 0.0, -1.0), (len(targets), 1))
         if self._tilt <= 0.0:
             return out
         # scalar arithmetic: this runs every solve, for one to a few fingers
@@ -612,9 +625,10 @@ class FingertipIK:
                 mujoco.mju_quat2Mat(rot, self._pose_rows[1])
             self._top_version = self._pose_version
             px, py, pz = pos.tolist()
-            self._pose_top = (float((self._verts @ rot[6:9]).max()) + pz,
-                              float(rot[0:3] @ self._vmean) + px,
-                              float(rot[3:6] @ self._vmean) + py)
+            # (``.dot`` of two vectors: the same BLAS dot as ``@``, in less dispatch)
+            self._pose_top = (float(_MAX(self._verts @ rot[6:9])) + pz,
+                              float(rot[0:3].dot(self._vmean)) + px,
+                              float(rot[3:6].dot(self._vmean)) + py)
         top, cx, cy = self._pose_top
         band = self._band
         for k, (x, y, z) in enumerate(targets.tolist()):
@@ -671,7 +685,7 @@ class FingertipIK:
             task.gain = gain
             if gain < 1.0 and self._fed:
                 dx = x - task.target
-                n = math.sqrt(float(dx @ dx))
+                n = math.sqrt(float(dx.dot(dx)))
                 task.feed[:3] = dx if n <= cap else dx * (cap / n)
                 # (no copy: the axis is only ever replaced by a new array, below)
                 axis_prev = task.axis
@@ -683,7 +697,7 @@ class FingertipIK:
             # acceleration (stopping in time): a sudden turn of the goal swings the wrist at
             # its velocity limits, a sudden start at its torque limit
             ax = task.axis
-            c = min(max(float(ax @ a), -1.0), 1.0)
+            c = min(max(float(ax.dot(a)), -1.0), 1.0)
             ang = math.acos(c)
             w = min(cfg.tilt_rate, self._turn[k] + cfg.tilt_accel * self.dt,
                     math.sqrt(2.0 * cfg.tilt_accel * ang))
@@ -695,7 +709,7 @@ class FingertipIK:
                 continue
             if ang > turn:
                 perp = a - c * ax
-                perp /= max(math.sqrt(float(perp @ perp)), 1e-12)
+                perp /= max(math.sqrt(float(perp.dot(perp))), 1e-12)
                 a = math.cos(turn) * ax + math.sin(turn) * perp
             task.axis = a / math.sqrt(float(a.dot(a)))  # (np.linalg.norm's own sum)
             if axis_prev is not None:
@@ -704,11 +718,22 @@ class FingertipIK:
         v = self._solve()
         if v is None:
             v = self._brake()
-        self.configuration.integrate_inplace(v, self.dt)
-        qd = v[self.scene.dadr]  # (a new array: v is float64)
+        if self._plain:
+            # mink's ``integrate_inplace`` (``mj_integratePos``, then ``mj_kinematics`` and
+            # ``mj_comPos``: no equality constraints here), without its two Python calls
+            m, d = self.scene.model, self.configuration.data
+            mujoco.mj_integratePos(m, d.qpos, v, self.dt)
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_comPos(m, d)
+            qd = v.copy()  # (the robot's joints are the scene's degrees of freedom, in order)
+            q = d.qpos.copy()
+        else:
+            self.configuration.integrate_inplace(v, self.dt)
+            qd = v[self.scene.dadr]  # (a new array: v is float64)
+            q = self.q
         self._box.prev = qd
         self.solve_times.append(time.perf_counter() - t0)
-        return self.q, qd.copy()
+        return q, qd.copy()
 
     def _brake(self) -> FloatArray:
         """The joint velocities of a step whose QP has no solution: the last velocities
@@ -757,7 +782,12 @@ class FingertipIK:
             np.multiply(cost_col, task.compute_jacobian(conf), out=w_k)
             np.multiply(cost, -task.gain * task.compute_error(conf), out=we_k)
         post = self.posture
-        cp2 = post.cost * post.cost
+        if post.gain != self._post_gain:  # the posture's constant arrays (converge sets
+            # another gain): ``cp2 gain (q - q_home)`` evaluates ``cp2 gain`` first
+            cp2 = post.cost * post.cost
+            self._post_gain = post.gain
+            self._post_diag = cp2 + self.config.damping
+            self._post_lin = cp2 * post.gain
         h = w.T @ w
         c = -(we @ w)
         qpos = conf.data.qpos  # (read only: mink's ``q`` is a copy)
@@ -765,8 +795,8 @@ class FingertipIK:
         # the diagonal as a strided view of the fresh, contiguous ``h`` (``h.flat`` costs
         # more)
         diag = h.reshape(-1)[::n + 1]
-        diag += cp2 + self.config.damping
-        c += cp2 * post.gain * (qpos - post.target_q)
+        diag += self._post_diag
+        c += self._post_lin * (qpos - post.target_q)
         upper, lower = self._box.bounds(qpos, dt)
         rows = self._collision_rows(conf, dt) if self._coll is not None else None
         if rows is None:
@@ -812,7 +842,7 @@ class FingertipIK:
                 np.subtract(fromto[3:], fromto[:3], out=normal)
                 mujoco.mju_normalize3(normal)
                 mujoco.mj_jac(model, data, jac1, None, fromto[:3], body2)
-                row = normal @ jac1
+                row = normal.dot(jac1)
                 g_rows.append(row if dist >= 0 else -row)
                 continue
             row = self._contact_jacobian(model, data, g1, g2, fromto, normal, jac1, jac2)
@@ -892,7 +922,7 @@ class FingertipIK:
             ns = self._bp_ns
             xs = x[self._bp_gather]
             d = xs[:ns] - x[self._bp_one]
-            got: list[int] = self._bp_ss[(d * d).sum(axis=1) <= self._bp_ss_bound2].tolist()
+            got: list[int] = self._bp_ss[_SUM(d * d, axis=1) <= self._bp_ss_bound2].tolist()
             if len(self._bp_pg):
                 got += self._bp_pg[xs[ns:, 2] <= self._bp_pg_c].tolist()
             return got + self._bp_nothing if self._bp_nothing else got
