@@ -462,6 +462,9 @@ class FingertipIK:
         self._no_rows = np.zeros((0, m.nv))
         # the usual scene: the robot's joints are its degrees of freedom in order, and no
         # equality constraint (step integrates without mink's wrappers)
+        # the IK data's joint positions, a view made once (each read of an MjData array
+        # attribute builds a new array object; mink's configuration keeps its data)
+        self._qpos: FloatArray = self.configuration.data.qpos
         self._plain = bool(m.neq == 0 and np.array_equal(scene.qadr, np.arange(m.nq))
                            and np.array_equal(scene.dadr, np.arange(m.nv)))
         self._post_gain = math.nan  # the posture gain of the two arrays below (_solve)
@@ -722,11 +725,12 @@ class FingertipIK:
             # mink's ``integrate_inplace`` (``mj_integratePos``, then ``mj_kinematics`` and
             # ``mj_comPos``: no equality constraints here), without its two Python calls
             m, d = self.scene.model, self.configuration.data
-            mujoco.mj_integratePos(m, d.qpos, v, self.dt)
+            qpos = self._qpos
+            mujoco.mj_integratePos(m, qpos, v, self.dt)
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
             qd = v.copy()  # (the robot's joints are the scene's degrees of freedom, in order)
-            q = d.qpos.copy()
+            q = qpos.copy()
         else:
             self.configuration.integrate_inplace(v, self.dt)
             qd = v[self.scene.dadr]  # (a new array: v is float64)
@@ -790,7 +794,7 @@ class FingertipIK:
             self._post_lin = cp2 * post.gain
         h = w.T @ w
         c = -(we @ w)
-        qpos = conf.data.qpos  # (read only: mink's ``q`` is a copy)
+        qpos = self._qpos  # (read only: mink's ``q`` is a copy)
         # posture: J = I, e = q - q_home (hinge and slide joints only: checked in __init__);
         # the diagonal as a strided view of the fresh, contiguous ``h`` (``h.flat`` costs
         # more)
@@ -817,8 +821,12 @@ class FingertipIK:
     def _collision_rows(self, conf: Any, dt: float) -> tuple[FloatArray, FloatArray] | None:
         """mink's ``CollisionAvoidanceLimit`` rows of the pairs within its detection distance
         (its broad phase, then ``mj_geomDistance``), shape (k, nv) and (k,); None if none."""
+        data = conf.data
+        near = self._broad_phase(data)
+        if not near:  # (most solves: nothing within reach of the detection distance)
+            return None
         lim = self._coll
-        model, data = lim.model, conf.data
+        model = lim.model
         distmax = lim.collision_detection_distance
         min_dist = lim.minimum_distance_from_collisions
         gain, relax = lim.gain, lim.bound_relaxation
@@ -828,7 +836,7 @@ class FingertipIK:
         h_rows: list[float] = []
         pairs = lim.geom_id_pairs
         still = self._pair_still
-        for idx in self._broad_phase(data):
+        for idx in near:
             g1, g2 = pairs[idx]
             dist = mujoco.mj_geomDistance(model, data, g1, g2, distmax, fromto)
             if abs(dist - distmax) < 1e-12:
