@@ -262,6 +262,44 @@ def test_ik_set_object_poses_the_object_as_mujoco_kinematics(pos: list[float],
     np.testing.assert_allclose(d.xpos[obj], pos, atol=1e-12)  # the pose really moved
 
 
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.floats(-0.02, 0.02), min_size=6, max_size=6),
+       st.lists(st.floats(-1.0, 1.0), min_size=8, max_size=8).filter(
+           lambda q: sum(x * x for x in q[:4]) > 1e-3 and sum(x * x for x in q[4:]) > 1e-3))
+def test_ik_pointing_follows_every_object_pose(shift: list[float], quats: list[float]) -> None:
+    """The finger's lean reads the object's top where the object is now: an IK that pointed
+    at one pose and then at another gives the pointing of an IK that saw only the second
+    (the top is derived once per pose, not per solve), and that top is the highest vertex
+    of the mesh as MuJoCo's own kinematics poses it."""
+    sc = build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.builtin(), BasePose(-0.3, 0.1,
+                                                                                  0.0))],
+                           mocap_object=True)
+    moved, fresh = FingertipIK(sc, 0.01, IKConfig()), FingertipIK(sc, 0.01, IKConfig())
+    base = np.array([0.3, 0.1, SCALE / 2])
+    poses = [(base + np.asarray(shift[3 * i:3 * i + 3]),
+              np.asarray(quats[4 * i:4 * i + 4]) / np.linalg.norm(quats[4 * i:4 * i + 4]))
+             for i in range(2)]
+    # beside the object, from above its top down to its middle: leaning, partly, or not
+    targets = [base + np.array([0.04, 0.01, dz]) for dz in (0.06, 0.02, 0.0, -0.02)]
+    for t in targets:
+        moved.pointing(t[None])
+    moved.set_object(*poses[0])
+    for t in targets:
+        moved.pointing(t[None])
+    moved.set_object(*poses[1])
+    fresh.set_object(*poses[1])
+    for t in targets:
+        np.testing.assert_array_equal(moved.pointing(t[None]), fresh.pointing(t[None]))
+    d, m = fresh.configuration.data, fresh.configuration.model
+    mujoco.mj_kinematics(m, d)
+    g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")
+    mesh = int(m.geom_dataid[g])
+    verts = m.mesh_vert[m.mesh_vertadr[mesh]:m.mesh_vertadr[mesh] + m.mesh_vertnum[mesh]]
+    world = verts @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
+    assert moved._pose_top[0] == pytest.approx(float(world[:, 2].max()), abs=1e-12)
+    assert fresh._pose_top[0] == moved._pose_top[0]
+
+
 def test_robot_executes_a_push_roll_step() -> None:
     """Step 1 of the main plan's skill, by the bundled Panda at a fixed base: the cube rolls
     onto the predicted face; the judge's records are those of the free fingertips."""

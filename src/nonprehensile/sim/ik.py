@@ -276,10 +276,7 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                 # (the ufuncs' reductions that ``sum`` and ``min`` call, without their
                 # Python wrappers)
                 total = _SUM(acc, axis=0)
-                if not _MIN(total) >= 0.0:
-                    room = np.where(total >= 0.0, acc, room)
-                else:
-                    room = acc
+                room = acc if _MIN(total) >= 0.0 else np.where(total >= 0.0, acc, room)
             up, down = room[0], room[1]
             if self.identity:  # the IK scene's joints are its degrees of freedom, in order
                 return up, -down
