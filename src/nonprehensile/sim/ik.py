@@ -234,6 +234,11 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             self._velocity2_dt = self._velocity2
             self._back_dt = 0.0
             self._stop = np.empty((2, len(self.qadr)))
+            # the room past which the stopping bound ``sqrt(2 a room)`` exceeds the velocity
+            # bound (bounds), with a relative margin far above the rounding of either
+            self._free_room = (self._velocity2 * self._velocity2 / two_a * (1.0 + 1e-9)
+                               if math.isfinite(accel) and accel > 0.0
+                               else np.full_like(self._velocity2, math.inf))
 
         def bounds(self, qpos: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
             """``(upper, lower)`` bounds on the step ``dq``, shape (nv,) each."""
@@ -249,18 +254,22 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                 self._back_dt = -self.back * dt
             room = np.multiply(self._sign, q)
             room += self._edge
-            if finite:
-                # no faster towards an end than the acceleration bound can stop in the
-                # room left, sqrt(2 a room): the gain alone let the wrist come to its margin
-                # at 1.5 rad/s, then brake at 100 rad/s^2 at its torque limit. (In place in
-                # one buffer, the same operations in the same order as
-                # ``np.sqrt(2 a max(room, 0)) dt``.)
+            # no faster towards an end than the acceleration bound can stop in the room
+            # left, sqrt(2 a room): the gain alone let the wrist come to its margin at
+            # 1.5 rad/s, then brake at 100 rad/s^2 at its torque limit. Where every room is
+            # past ``v^2 / 2a`` that bound is above the velocity bound, which then decides
+            # alone (the same numbers: rounding is monotone and the threshold has a margin),
+            # so it is computed only near a range end
+            near_end = finite and not _MIN(room - self._free_room, axis=None) >= 0.0
+            if near_end:
+                # (in place in one buffer, the same operations in the same order as
+                # ``np.sqrt(2 a max(room, 0)) dt``)
                 stop = np.maximum(room, 0.0, out=self._stop)
                 stop *= two_a
                 np.sqrt(stop, out=stop)
                 stop *= dt
             room *= gain
-            if finite:
+            if near_end:
                 np.minimum(room, stop, out=room)
             np.maximum(room, self._back_dt, out=room)
             # (the velocity bound first, as before: the same operand order)
@@ -322,6 +331,8 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
             # views made once (every solve runs these two methods): the Jacobian's position
             # rows, written by mj_jacSite in place; the gathered rows of the cross product,
             # its two halves, its gathered rotation entries as a column
+            self._e = np.zeros(6)
+            self._e_p, self._e_z = self._e[:3], self._e[3:]
             self._jp = self._j[:3]
             self._jz = self._j[3:]
             self._cross = np.zeros((6, model.nv))
@@ -345,9 +356,11 @@ def _fingertip_task(mink: Any, model: Any, site: int, position_cost: float,
             d = configuration.data
             if d is not self._data:
                 self._views(d)
-            e = np.empty(6)
-            np.subtract(self._xpos, self.target, out=e[:3])
-            np.subtract(self._zaxis, self.axis, out=e[3:])
+            # (a buffer and its halves made once: the error is read at once, by the QP's
+            # assembly or mink's)
+            e = self._e
+            np.subtract(self._xpos, self.target, out=self._e_p)
+            np.subtract(self._zaxis, self.axis, out=self._e_z)
             if self.gain < 1.0:
                 e -= self.feed / self.gain
             return e
@@ -446,6 +459,7 @@ class FingertipIK:
                              "joint in the robot file): give the robot hinge joints")
         rows = sum(len(t.cost) for t in self.position_tasks)
         self._w = np.zeros((rows, m.nv))
+        self._wT = self._w.T  # (a view, made once)
         self._we = np.zeros(rows)
         # each fingertip task's rows of ``_w`` and ``_we`` (views) with its weights, as a
         # vector and a column (_solve)
@@ -776,7 +790,7 @@ class FingertipIK:
         collision pairs within the detection distance as rows (mink's limit writes a row of
         zeros and an infinite bound for every other pair), no ``qpsolvers.Problem``.
         """
-        conf, dt, n = self.configuration, self.dt, self._nv
+        conf, dt = self.configuration, self.dt
         w = self._w
         we = self._we
         for task, w_k, we_k, cost, cost_col in self._task_rows:
@@ -787,16 +801,15 @@ class FingertipIK:
             # another gain): ``cp2 gain (q - q_home)`` evaluates ``cp2 gain`` first
             cp2 = post.cost * post.cost
             self._post_gain = post.gain
-            self._post_diag = cp2 + self.config.damping
+            # posture: J = I, e = q - q_home (hinge and slide joints only: checked in
+            # __init__); its Hessian and the damping as a diagonal matrix, added to ``h``
+            # whole (off the diagonal ``x + 0.0`` is ``x``)
+            self._post_diag = np.diag(cp2 + self.config.damping)
             self._post_lin = cp2 * post.gain
-        h = w.T @ w
+        h = self._wT @ w
         c = -(we @ w)
         qpos = self._qpos  # (read only: mink's ``q`` is a copy)
-        # posture: J = I, e = q - q_home (hinge and slide joints only: checked in __init__);
-        # the diagonal as a strided view of the fresh, contiguous ``h`` (``h.flat`` costs
-        # more)
-        diag = h.reshape(-1)[::n + 1]
-        diag += self._post_diag
+        h += self._post_diag
         c += self._post_lin * (qpos - post.target_q)
         upper, lower = self._box.bounds(qpos, dt)
         rows = self._collision_rows(conf, dt) if self._coll is not None else None
@@ -813,7 +826,7 @@ class FingertipIK:
         x, _, flag, _ = self._daqp.solve(h, c, a, bu, bl, sense)
         if flag <= 0:
             return None
-        return np.asarray(x, dtype=np.float64) / dt
+        return x / dt  # type: ignore[no-any-return]  # (daqp's solution: a float64 array)
 
     def _collision_rows(self, conf: Any, dt: float) -> tuple[FloatArray, FloatArray] | None:
         """mink's ``CollisionAvoidanceLimit`` rows of the pairs within its detection distance
