@@ -279,8 +279,10 @@ def test_ik_pointing_follows_every_object_pose(shift: list[float], quats: list[f
     poses = [(base + np.asarray(shift[3 * i:3 * i + 3]),
               np.asarray(quats[4 * i:4 * i + 4]) / np.linalg.norm(quats[4 * i:4 * i + 4]))
              for i in range(2)]
-    # beside the object, from above its top down to its middle: leaning, partly, or not
-    targets = [base + np.array([0.04, 0.01, dz]) for dz in (0.06, 0.02, 0.0, -0.02)]
+    # beside the object on the arm's side, from far above its top (a transit: the top is not
+    # derived)
+    # down to its middle: leaning, partly, or not
+    targets = [base + np.array([-0.04, 0.01, dz]) for dz in (0.2, 0.06, 0.02, 0.0, -0.02)]
     for t in targets:
         moved.pointing(t[None])
     moved.set_object(*poses[0])
@@ -290,6 +292,8 @@ def test_ik_pointing_follows_every_object_pose(shift: list[float], quats: list[f
     fresh.set_object(*poses[1])
     for t in targets:
         np.testing.assert_array_equal(moved.pointing(t[None]), fresh.pointing(t[None]))
+    np.testing.assert_array_equal(moved.pointing(targets[0][None]), [[0.0, 0.0, -1.0]])
+    assert not np.array_equal(moved.pointing(targets[-1][None]), [[0.0, 0.0, -1.0]])
     d, m = fresh.configuration.data, fresh.configuration.model
     mujoco.mj_kinematics(m, d)
     g = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "object")

@@ -507,6 +507,7 @@ class FingertipIK:
         mujoco.mju_quat2Mat(rot, m.geom_quat[g])
         self._verts = np.asarray(verts, dtype=np.float64) @ rot.reshape(3, 3).T + m.geom_pos[g]
         self._vmean = self._verts.mean(axis=0)
+        self._reach = float(np.linalg.norm(self._verts, axis=1).max())  # (pointing)
         self._rot = np.empty(9)
         # set_object counts the poses it sets; pointing derives the object's top height and
         # centre (x, y) once per pose (a key made of the pose's floats cost more than the
@@ -627,25 +628,32 @@ class FingertipIK:
         if self._tilt <= 0.0:
             return out
         # scalar arithmetic: this runs every solve, for one to a few fingers
+        rows = targets.tolist()
         if self._top_version != self._pose_version:  # the object moved since the last solve
             d = self.configuration.data
             if d is not self._pose_data:
                 self._pose_views(d)
             pos = self._pose_rows[0]
+            px, py, pz = pos.tolist()
+            # a target above any top the object can have (its farthest vertex from its
+            # origin, straight up) gets no lean whatever the top (a transit, an approach
+            # from above): the top is derived only when a target may be below it
+            ceiling = pz + self._reach + self._band + 1e-6
+            if all(r[2] > ceiling for r in rows):
+                return out
             if self._pose_version:  # set_object's rotation of this pose
                 rot = self._obj_rot
             else:  # the model's own pose: no set_object yet
                 rot = self._rot
                 mujoco.mju_quat2Mat(rot, self._pose_rows[1])
             self._top_version = self._pose_version
-            px, py, pz = pos.tolist()
             # (``.dot`` of two vectors: the same BLAS dot as ``@``, in less dispatch)
             self._pose_top = (float(_MAX(self._verts @ rot[6:9])) + pz,
                               float(rot[0:3].dot(self._vmean)) + px,
                               float(rot[3:6].dot(self._vmean)) + py)
         top, cx, cy = self._pose_top
         band = self._band
-        for k, (x, y, z) in enumerate(targets.tolist()):
+        for k, (x, y, z) in enumerate(rows):
             hx, hy = x - cx, y - cy
             n = math.hypot(hx, hy)
             bx, by = self._bases[k][0] - x, self._bases[k][1] - y
