@@ -3,6 +3,7 @@ fallback when its QP has no solution, and the tracking error's reference (the co
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,7 @@ pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
                                    "pip install 'nonprehensile[robot]'")
 
 from nonprehensile.geometry.build import cube  # noqa: E402
-from nonprehensile.sim.ik import FingertipIK  # noqa: E402
+from nonprehensile.sim.ik import FingertipIK, IKConfig  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
 from nonprehensile.sim.robot_run import (  # noqa: E402
     DEFAULT_TRACKING_GAIN,
@@ -22,7 +23,7 @@ from nonprehensile.sim.robot_run import (  # noqa: E402
     RobotSimulator,
     robot_control,
 )
-from nonprehensile.sim.robot_scene import Arm  # noqa: E402
+from nonprehensile.sim.robot_scene import Arm, build_robot_scene  # noqa: E402
 
 CUBE = cube()
 SCALE = 0.05
@@ -245,3 +246,76 @@ def test_two_arms_pinch_without_the_contact_tracking_correction() -> None:
     # without the correction each tip stops where the servos and the contact balance,
     # short of its target (2 mm outside); with it, closer to the target
     assert out_off > out_on + 0.001 and out_on > 0.0015
+
+
+#: The bases the two-arm transition sweep found for the 96 two-finger transitions
+#: (``NP_PARTS=transitions NP_ROBOT_ARMS=2 python -m benchmarks robot``).
+SWEEP_BASES_2 = (BasePose(0.611572, -0.269299, 157.5), BasePose(-0.547628, 0.536875, -45.0))
+
+
+def test_two_arms_tumble_twist_without_rod_contact() -> None:
+    """The two-arm sweep's tumble-twist ``a:0 -> d:90`` at nominal physics, closed loop,
+    without a re-planner: the first attempt reaches ``d:90`` and nothing but the fingertips
+    touches the cube or the table. With the rods leaning 30 degrees as in a twist, the lift
+    onto the vertex tilted the first arm's face 19 degrees over its finger and the rod's
+    lower end touched it (60 ms), the attempt ended with the cube held on its vertex, and
+    the retry put the second arm's rod on the cube's edge for 1.1 s (docs/benchmarks.md,
+    two23)."""
+    from nonprehensile.cli.options import state_set
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.sim.closed_loop import execute_plan
+    from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION
+    from nonprehensile.sim.robustness import transition_units
+
+    poly, skills = read_skills(SKILLS)
+    exp = expand(poly, skills, state_set(poly, 90.0, None, 1e-6))
+    ds, motions = motions_from_dataset("cube", skills=skills, poly=poly)
+    units = transition_units(poly, exp, motions, scale=ds.scale, angle_tol=1e-6,
+                             sources=("tumble-twist",))
+    unit = next(u for u in units if u.label["from"] == {"face": "a", "theta": 0.0})
+    params = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale).base
+    sim = RobotSimulator(poly, [Arm(Robot.builtin(), b) for b in SWEEP_BASES_2],
+                         scale=ds.scale, params=params)
+    ex = execute_plan(sim, unit.plan, fingers=ds.fingers, loop="closed",
+                      config=robot_control(n_fingers=sim.n_fingers))
+    assert ex.success, ex.reason
+    assert not ex.replans  # no retry
+    assert sim.robot_log.metrics().other_contact_s == 0.0
+
+
+def test_tumbling_pinch_leans_further_out_one_finger_never() -> None:
+    """``set_tumbling``: with several fingertips the side lean's goal is ``tumble_tilt_deg``
+    (36) instead of ``side_tilt_deg`` (30) for a target on a side face, back to 30 when off
+    and at a new start; one fingertip keeps 30 (truth: the pointing goals' angle from
+    straight down, the targets level with the faces' middles, the bases straight out of
+    them: the lean full, outward)."""
+    v = np.asarray(CUBE.vertices, dtype=float) * SCALE
+    c = v.mean(axis=0)
+    pose = (np.array([-c[0], -c[1], -v[:, 2].min()]), np.array([1.0, 0.0, 0.0, 0.0]))
+    on_face = np.array([[0.025 + 0.006, 0.0, 0.025], [-0.025 - 0.006, 0.0, 0.025]])
+
+    def lean(ik: FingertipIK, targets: np.ndarray) -> list[float]:
+        axes = ik.pointing(targets)
+        return [math.degrees(math.acos(-float(a[2]))) for a in axes]
+
+    two = build_robot_scene(CUBE, scale=SCALE, mocap_object=True,
+                            arms=[Arm(Robot.builtin(), BasePose(0.5, 0.0, 180.0)),
+                                  Arm(Robot.builtin(), BasePose(-0.5, 0.0, 0.0))])
+    ik = FingertipIK(two, 0.01, IKConfig(collisions=False))
+    ik.set_object(*pose)
+    assert lean(ik, on_face) == pytest.approx([30.0, 30.0], abs=1e-6)
+    ik.set_tumbling(True)
+    assert lean(ik, on_face) == pytest.approx([36.0, 36.0], abs=1e-6)
+    ik.set_tumbling(False)
+    assert lean(ik, on_face) == pytest.approx([30.0, 30.0], abs=1e-6)
+    ik.set_tumbling(True)
+    ik.reset(two.home)
+    assert lean(ik, on_face) == pytest.approx([30.0, 30.0], abs=1e-6)
+    one = build_robot_scene(CUBE, scale=SCALE, mocap_object=True,
+                            arms=[Arm(Robot.builtin(), BasePose(0.5, 0.0, 180.0))])
+    ik1 = FingertipIK(one, 0.01, IKConfig(collisions=False))
+    ik1.set_object(*pose)
+    ik1.set_tumbling(True)
+    assert lean(ik1, on_face[:1]) == pytest.approx([30.0], abs=1e-6)

@@ -681,6 +681,7 @@ def execute_plan(
     mujoco.mj_resetData(m, d)
     sim.set_pose(perturbation.start_pose(first.start_pose))
     see = getattr(sim.driver, "see", None)  # a robot's IK: the object's believed pose
+    tumbling = getattr(sim.driver, "tumbling", None)  # a robot's IK: the rods' lean
     if see is not None:  # closed loop: planned until observed; open loop: nothing observed
         see(first.start_pose if loop == "closed" else None)
     # the fingertips start out of the way, above the object's start
@@ -767,6 +768,10 @@ def execute_plan(
             spec = one_finger_push(spec, sim.poly, p.finger_radius, higher=higher)
         if slow != 1.0:  # ... and the reference played slower
             spec = replace(spec, rate=spec.rate / slow)
+        if tumbling is not None:  # a pinch that tumbles the object: the rods lean further
+            # out of the faces it tilts over them (a robot's IK; from the transit on)
+            tumbling(len(spec.used) > 1
+                     and step.start_world.face != step.end_world.face)
         number = len(ex.steps) + 1
         t_step = run.t
         n_events = len(run.log.events)
@@ -950,6 +955,8 @@ def execute_plan(
                 break
             steps = list(new_plan.steps)
             index = 0
+    if tumbling is not None:
+        tumbling(False)
     # at the end: slide the object onto the goal position if it rests off it
     if loop == "closed" and not ex.reason and cfg.correct_position:
         for _ in range(3):  # sliding may turn it a little (on a grippy table, 5-8 deg):

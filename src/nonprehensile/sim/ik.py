@@ -102,6 +102,17 @@ class IKConfig:
         contact in all 24 twists of the two-arm sweep); straight out, the wrist follows the
         face round in a twist to its joint limits. One arm keeps 0: at 0.5, 15 of the 24
         single-arm roll-pulls held a torque limit for 11-12 ms (none did at 0).
+    tumble_tilt_deg : float
+        ``side_tilt_deg`` while several fingertips pinch an object they tumble (a step whose
+        start and end faces differ: :meth:`FingertipIK.set_tumbling`). Lifting a cube onto
+        its vertex tilts the pinched face over the finger by up to 19 degrees while the pad
+        presses 4.6 mm into it (the tip's centre 1.4 mm outside the face), and at 30 degrees
+        the rod's lower end, 16 mm above the tip, touched the face in every two-arm
+        tumble-twist; the retries that followed put a rod on the cube for up to 1.2 s (the
+        arm saturated at its velocity bound, the soft pointing given up by 10-15 degrees).
+        A lean that follows the face's tilt comes too late (the pointing's rate bounds) and
+        holds the wrists at their limits; the twists keep 30 (at 36 the twist:reverse's
+        let-go tracked 6 mm, not 3.5).
     side_tilt_band : float
         The lean grows from none ``side_tilt_band`` m above the top to full at the top (and
         from none on the object's vertical axis to full this far from it).
@@ -147,6 +158,7 @@ class IKConfig:
     collisions: bool = True
     side_tilt_deg: float = 30.0
     side_tilt_outward: float | None = None
+    tumble_tilt_deg: float = 36.0
     side_tilt_band: float = 0.02
     tilt_rate: float = 1.0
     tilt_accel: float = 4.0
@@ -160,7 +172,8 @@ class IKConfig:
         # from the setting that caused it: refuse it here, naming the setting
         ranges = {"collision_gain": (0.0, 1.0, False), "side_tilt_outward": (0.0, 1.0, True),
                   "velocity_fraction": (0.0, 1.0, False),
-                  "position_margin_deg": (0.0, 10.0, True), "side_tilt_deg": (0.0, 90.0, True)}
+                  "position_margin_deg": (0.0, 10.0, True), "side_tilt_deg": (0.0, 90.0, True),
+                  "tumble_tilt_deg": (0.0, 90.0, True)}
         for name, value in asdict(self).items():
             if name == "collisions":
                 if not isinstance(value, bool):
@@ -518,6 +531,8 @@ class FingertipIK:
         self._band = max(self.config.side_tilt_band, 1e-6)
         self._down = np.tile((0.0, 0.0, -1.0), (len(scene.tip_sites), 1))  # (copied)
         self._tilt = float(np.radians(self.config.side_tilt_deg))
+        self._tilt_side = self._tilt  # (set_tumbling switches between the two)
+        self._tilt_tumble = float(np.radians(self.config.tumble_tilt_deg))
         w_out = self.config.side_tilt_outward
         self._lean_out = float(w_out if w_out is not None
                                else (0.5 if len(scene.tip_sites) > 1 else 0.0))
@@ -558,6 +573,7 @@ class FingertipIK:
         self._box.prev = np.zeros(len(self.scene.dadr))  # at rest
         self._fed = False  # no previous target to feed forward from
         self._deadbeat = False
+        self._tilt = self._tilt_side  # a new start leans as on a side face (set_tumbling)
 
     def set_q(self, q: FloatArray, velocity: FloatArray | None = None) -> None:
         """Carry on from joint positions ``q`` (scene joint order), keeping the timings;
@@ -604,6 +620,14 @@ class FingertipIK:
                            d.xmat[ob])
         self._pose_geoms = [(d.geom_xpos[g], d.geom_xmat[g], gpos, gmat)
                             for g, gpos, gmat in self._obj_geoms]
+
+    def set_tumbling(self, tumbling: bool) -> None:
+        """Whether the fingertips now pinch an object they tumble: the side lean is then
+        ``tumble_tilt_deg`` instead of ``side_tilt_deg`` (several fingertips only; one
+        fingertip keeps ``side_tilt_deg``). The pointing turns to the new lean at its own
+        rate bounds."""
+        several = len(self.position_tasks) > 1
+        self._tilt = self._tilt_tumble if tumbling and several else self._tilt_side
 
     def tips(self) -> FloatArray:
         """The IK's fingertip positions, shape (n_fingers, 3)."""

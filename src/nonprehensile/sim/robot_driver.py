@@ -1048,6 +1048,12 @@ class RobotArms:
         self._seen = (np.array(pose.translation, dtype=np.float64), quat)
         self._seen_rot = np.array(rot)
 
+    def tumbling(self, tumbling: bool) -> None:
+        """Whether the next step tumbles the object (its start and end faces differ): the
+        fingers lean further out of a pinched face (:meth:`~nonprehensile.sim.ik.
+        FingertipIK.set_tumbling`; several fingertips only)."""
+        self.ik.set_tumbling(tumbling)
+
     def set_shape(self, normals: FloatArray, offsets: FloatArray, scale: float) -> None:
         """The object's face planes (model frame: unit ``normals``, shape (faces, 3), and
         ``offsets``, ``n . x = offset`` on a face) and its scale, for the fingertip radius
