@@ -6,10 +6,12 @@ joints' torque limits by the arm's dynamics; the fingertip radius offset of the 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 mujoco = pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not installed")
 pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
@@ -231,6 +233,91 @@ def test_the_torque_budget_lets_a_joint_brake_short_of_its_range() -> None:
     # far from the end, the same state is scaled as before
     q0[5] = 0.0
     assert np.array_equal(drv._within_torque(v0, v1, h, q0), alone)
+
+
+def test_the_log_written_through_memoryviews_equals_numpy_rows() -> None:
+    """Each physics step's state (time, joints, torques, tips, contacts) is copied into the
+    log through flat memoryviews (``RobotArms.record``): the log equals the one written
+    by numpy's row assignments (the path of a scene whose joints or tips are not in a row),
+    across the log's growth beyond its first capacity."""
+    logs = []
+    for memoryviews in (True, False):
+        sim = _sim()
+        drv: RobotArms = sim.robot_driver
+        assert drv._sources is not None
+        if not memoryviews:
+            drv._sources = None
+        drv.log.clear(capacity=64)  # grown four times over the run
+        a = np.array([0.30, 0.05, 0.12])
+        _drive(sim, _line(a, np.array([0.34, 0.12, 0.09]), 701), hold=300)
+        logs.append(drv.log)
+    assert logs[0].n == logs[1].n == 700 + 300
+    for name in ("time", "q", "qd", "tau", "touch", "other", "error", "error_ref"):
+        got, want = getattr(logs[0], name), getattr(logs[1], name)
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes(), name
+
+
+def _range_share_numpy(drv: RobotArms, q0: np.ndarray, v0: np.ndarray, v1: np.ndarray,
+                       h: float) -> float:
+    """``RobotArms._range_share`` as it was written with numpy arrays (cpu23 wrote it per
+    joint in floats): the reference its float form must equal bit for bit."""
+    sc = drv.scene
+    margin = math.radians(drv.ik.config.position_margin_deg)
+    room = np.where(v0 > 0.0, sc.upper - margin - q0, q0 - sc.lower - margin)
+    room = room - np.abs(v0) * h
+    dv = v1 - v0
+    braking = dv * v0 < 0.0
+    if not np.any(braking):
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        need = np.where(room > 0.0, v0 * v0 / (2.0 * room), np.inf)
+    bound = float(drv.ik.config.joint_accel)
+    near = braking & (need >= 0.5 * bound) if math.isfinite(bound) else braking
+    if not np.any(near):
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        want = need * h / np.abs(dv)
+    return float(min(1.0, float(np.max(np.where(near, want, 0.0)))))
+
+
+_RANGE_SIM: list[RobotSimulator] = []
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), bound=st.sampled_from([30.0, 0.0, 4.0, math.inf]),
+       every=st.sampled_from([1, 10]))
+def test_range_share_in_floats_equals_its_numpy_form(seed: int, bound: float,
+                                                     every: int) -> None:
+    """The braking share a joint needs to stop short of its range (``_range_share``),
+    computed per joint in floats: the number of its numpy form, bit for bit, for set points
+    anywhere in and near the joints' ranges (past them too), at rest or moving at up to
+    twice the velocity limits, braking or not, with the IK's acceleration bound finite,
+    zero or infinite."""
+    if not _RANGE_SIM:
+        _RANGE_SIM.append(_sim())
+    drv: RobotArms = _RANGE_SIM[0].robot_driver
+    sc = drv.scene
+    rng = np.random.default_rng(seed)
+    n = len(sc.lower)
+    h = every * drv.dt
+    saved = drv.ik.config
+    drv.ik.config = dataclasses.replace(saved, joint_accel=bound)
+    try:
+        for _ in range(20):
+            span = sc.upper - sc.lower
+            q0 = sc.lower - 0.05 * span + rng.random(n) * 1.1 * span
+            # a few joints right at the margin's edge or the range's end
+            edge = rng.random(n) < 0.2
+            margin = math.radians(drv.ik.config.position_margin_deg)
+            q0[edge] = np.where(rng.random(int(edge.sum())) < 0.5, sc.upper[edge] - margin,
+                                sc.lower[edge])
+            v0 = (rng.random(n) * 4.0 - 2.0) * sc.velocity * (rng.random(n) < 0.8)
+            v1 = v0 + (rng.random(n) * 2.0 - 1.0) * rng.choice([0.01, 0.3, 3.0]) * h * 100
+            got = drv._range_share(q0, v0, v1, h)
+            want = _range_share_numpy(drv, q0, v0, v1, h)
+            assert np.float64(got).tobytes() == np.float64(want).tobytes()
+    finally:
+        drv.ik.config = saved
 
 
 def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> None:

@@ -201,6 +201,15 @@ class RobotLog:
         self._touch = np.zeros(capacity, dtype=bool)
         self._other = np.zeros(capacity, dtype=bool)
         self._ik = np.full(capacity, math.nan)
+        self._flat()
+
+    def _flat(self) -> None:
+        """Flat memoryviews of the arrays :meth:`RobotArms.record` writes every physics step
+        (``time``, ``q``, ``qd``, ``tau``, the tips, ``touch``, ``other``), made again with
+        the arrays: a row written through them is a memcpy, without numpy's indexing (a
+        third of its row assignment's cost)."""
+        self._mv = tuple(memoryview(getattr(self, name).reshape(-1)) for name in
+                         ("_time", "_q", "_qd", "_tau", "_tips", "_touch", "_other"))
 
     _ROWS = ("_time", "_q", "_qd", "_tau", "_q_ref", "_qd_ref", "_tips", "_target", "_noise",
              "_give", "_tool", "_force", "_touch", "_other", "_ik")
@@ -219,6 +228,7 @@ class RobotLog:
                 np.zeros((cap, *old.shape[1:]), dtype=old.dtype)
             new[:self.n] = old[:self.n]
             setattr(self, name, new)
+        self._flat()
 
     @property
     def time(self) -> FloatArray:
@@ -586,15 +596,17 @@ class RobotArms:
         # after another): a view copied, not a gather, every step
         self._qsl = _as_slice(scene.qadr)
         self._dsl = _as_slice(scene.dadr)
-        # views into the data's arrays, made once (MjData's arrays never move): the log
-        # copies from them every step
-        # (views only where the indices are slices: an index array would copy)
-        self._views = ((data.qpos[self._qsl], data.qvel[self._dsl],
-                        data.qfrc_actuator[self._dsl])
-                       if isinstance(self._qsl, slice) and isinstance(self._dsl, slice)
-                       else None)
+        # the rows the log copies every physics step (record) as flat memoryviews of the
+        # data's arrays, made once (MjData's arrays never move): a memcpy into the log's
+        # (RobotLog._flat) each; None unless the joints and the tips are each in a row (an
+        # index array would gather a copy, not a view)
         tips = _as_slice(self._tip_sites)
-        self._tips_view = data.site_xpos[tips] if isinstance(tips, slice) else None
+        self._sources = (tuple(memoryview(v.reshape(-1)) for v in (
+            data.qpos[self._qsl], data.qvel[self._dsl], data.qfrc_actuator[self._dsl],
+            data.site_xpos[tips]))
+            if isinstance(self._qsl, slice) and isinstance(self._dsl, slice)
+            and isinstance(tips, slice) else None)
+        self._widths = (len(scene.joint_names), 3 * scene.n_fingers)
         # the actuator rows' columns (_segment): the position and velocity servos' as
         # strided slices where they are evenly spaced (the Panda's alternate), written as
         # views, not gathered; the velocity bounds negated once (``-v``: exact)
@@ -645,6 +657,8 @@ class RobotArms:
         self._implicit = _implicit_inertia(m, scene.dadr)
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
         self._damping_list: list[float] = self._damping.tolist()
+        self._lower_list: list[float] = np.asarray(scene.lower, dtype=np.float64).tolist()
+        self._upper_list: list[float] = np.asarray(scene.upper, dtype=np.float64).tolist()
         # the joints' torque budget per the shares it was made with (_within_torque)
         self._lim_key: tuple[float, float] | None = None
         self._lim: list[float] = []
@@ -966,23 +980,28 @@ class RobotArms:
         set points ran past the joint's range (a transit across the distribution put the
         wrist 17 mrad past its upper end for 34 ms, decelerating from 1.5 rad/s); a
         position limit is hard."""
-        sc = self.scene
+        # per joint in plain Python (this runs every control period, and numpy calls on 7
+        # numbers cost more than the arithmetic): the same IEEE operations in the same order
+        # as the arrays' (``upper - margin - q0``, ``room - |v0| h``, ``v0 v0 / (2 room)``,
+        # ``need h / |dv|``), so the same number; a joint that does not brake (NaN
+        # included) or is not near its end gives 0, as its masked entry did
         margin = math.radians(self.ik.config.position_margin_deg)
-        room = np.where(v0 > 0.0, sc.upper - margin - q0, q0 - sc.lower - margin)
-        room = room - np.abs(v0) * h
-        dv = v1 - v0
-        braking = dv * v0 < 0.0
-        if not np.any(braking):
-            return 0.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            need = np.where(room > 0.0, v0 * v0 / (2.0 * room), np.inf)
         bound = float(self.ik.config.joint_accel)
-        near = braking & (need >= 0.5 * bound) if math.isfinite(bound) else braking
-        if not np.any(near):
-            return 0.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            want = need * h / np.abs(dv)
-        return float(min(1.0, float(np.max(np.where(near, want, 0.0)))))
+        half = 0.5 * bound if math.isfinite(bound) else -math.inf  # (inf: every braking one)
+        best = 0.0
+        for q, v, w, lo, hi in zip(q0.tolist(), v0.tolist(), v1.tolist(), self._lower_list,
+                                   self._upper_list, strict=True):
+            dv = w - v
+            if not dv * v < 0.0:  # not braking
+                continue
+            room = ((hi - margin - q) if v > 0.0 else (q - lo - margin)) - abs(v) * h
+            need = v * v / (2.0 * room) if room > 0.0 else math.inf
+            if not need >= half:
+                continue
+            want = need * h / abs(dv)
+            if want > best:
+                best = want
+        return min(1.0, best)
 
     def _noise_offset(self, noise: FloatArray) -> FloatArray:
         """Joint offsets moving the tips by ``noise`` (shape (k, n_fingers, 3)), shape
@@ -1311,18 +1330,22 @@ class RobotArms:
         n = log.n
         if n >= len(log._time):
             log.reserve(1)
-        views = self._views
-        if views is not None:
-            q, qd, tau = views
-        else:
-            q, qd, tau = (d.qpos[self._qsl], d.qvel[self._dsl],
-                          d.qfrc_actuator[self._dsl])
+        src = self._sources
+        if src is not None:  # (every robot scene built here: its joints and tips in a row)
+            t, q, qd, tau, tips, touch, other = log._mv
+            nj, nt = self._widths
+            a, b = n * nj, n * nt
+            q[a:a + nj], qd[a:a + nj], tau[a:a + nj], tips[b:b + nt] = src
+            t[n] = d.time
+            touch[n] = self._touch
+            other[n] = self._other
+            log.n = n + 1
+            return
         log._time[n] = d.time
-        log._q[n] = q
-        log._qd[n] = qd
-        log._tau[n] = tau
-        tips = self._tips_view
-        log._tips[n] = tips if tips is not None else d.site_xpos[self._tip_sites]
+        log._q[n] = d.qpos[self._qsl]
+        log._qd[n] = d.qvel[self._dsl]
+        log._tau[n] = d.qfrc_actuator[self._dsl]
+        log._tips[n] = d.site_xpos[self._tip_sites]
         log._touch[n] = self._touch
         log._other[n] = self._other
         log.n = n + 1
