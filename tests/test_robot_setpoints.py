@@ -320,6 +320,73 @@ def test_range_share_in_floats_equals_its_numpy_form(seed: int, bound: float,
         drv.ik.config = saved
 
 
+def _correct_numpy(drv: RobotArms, c: np.ndarray, targets: np.ndarray, now: np.ndarray,
+                   steps: int, noise: np.ndarray | None) -> np.ndarray:
+    """``RobotArms._correct``'s update in contact as it was written with numpy arrays
+    (cpu23 wrote it per fingertip in floats), on ``c`` in place: the reference its float
+    form must equal bit for bit."""
+    dt = steps * drv.dt
+    e = drv.data.site_xpos[drv._tip_sites] - (now + drv._offset)
+    if noise is not None:
+        e = e - noise
+    sc = drv.scene
+    tau = np.abs(drv.data.qfrc_actuator[drv._dsl])
+    finite = np.isfinite(sc.torque)
+    guard = bool(finite.any()) and float(
+        (tau[finite] / sc.torque[finite]).max()) > drv.torque_guard
+    if not guard:
+        c -= min(drv.tracking_gain * dt, 1.0) * e
+    n = np.sqrt((c * c).sum(axis=1))
+    over = n > drv.tracking_bound
+    if over.any():
+        c[over] *= (drv.tracking_bound / n[over])[:, None]
+    return np.asarray(targets + c)
+
+
+_CORRECT_SIMS: dict[int, RobotSimulator] = {}
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), arms=st.sampled_from([1, 2]),
+       steps=st.sampled_from([1, 10]), noisy=st.booleans())
+def test_contact_correction_in_floats_equals_its_numpy_form(seed: int, arms: int, steps: int,
+                                                            noisy: bool) -> None:
+    """The contact tracking correction's update while touching (``_correct``), computed per
+    fingertip in floats: the correction and the IK's targets of its numpy form, bit for
+    bit, with one arm and two, with and without fingertip noise, for errors from microns to
+    centimetres (the bound's scaling included), joint torques below and above the guard,
+    and a NaN torque (numpy's maximum is NaN then: the correction grows)."""
+    if arms not in _CORRECT_SIMS:
+        bases = [BASE, BasePose(0.05, 0.55, -80.0)][:arms]
+        _CORRECT_SIMS[arms] = RobotSimulator(CUBE, [Arm(Robot.builtin(), b) for b in bases],
+                                             scale=SCALE, tracking_gain=20.0)  # (2: off)
+    drv: RobotArms = _CORRECT_SIMS[arms].robot_driver
+    d, nf = drv.data, drv.n_fingers
+    rng = np.random.default_rng(seed)
+    for _ in range(10):
+        size = rng.choice([1e-6, 1e-3, 1e-2])
+        d.site_xpos[drv._tip_sites] = rng.normal(0.3, 0.1, (nf, 3))
+        tau = rng.normal(0.0, 1.0, len(drv.scene.dadr)) * drv.scene.torque * rng.choice(
+            [0.3, 1.0])
+        if rng.random() < 0.1:
+            tau[rng.integers(len(tau))] = math.nan
+        d.qfrc_actuator[drv.scene.dadr] = tau
+        drv._offset[:] = rng.normal(0.0, size, (nf, 3)) * (rng.random() < 0.5)
+        start = rng.normal(0.0, drv.tracking_bound, (nf, 3))
+        targets = rng.normal(0.3, 0.1, (nf, 3))
+        now = d.site_xpos[drv._tip_sites] + rng.normal(0.0, size, (nf, 3))
+        noise = rng.normal(0.0, size, (nf, 3)) if noisy else None
+        c = start.copy()
+        want = _correct_numpy(drv, c, targets, now, steps, noise)
+        drv._corr[:] = start
+        drv._touch = True
+        got = drv._correct(targets, now, steps, noise)
+        assert got.tobytes() == want.tobytes()
+        assert drv._corr.tobytes() == c.tobytes()
+    drv._corr[:] = 0.0
+    drv._offset[:] = 0.0
+
+
 def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> None:
     """A 12 mm fingertip following references recorded with a 6 mm one: a target on or in
     the cube's face is moved out by the 6 mm difference along the face's normal; beyond

@@ -614,6 +614,8 @@ class RobotArms:
         self._pos_cols = _as_stride(scene.pos_act)
         self._vel_cols = _as_stride(scene.vel_act)
         self._vel_max = scene.velocity
+        self._servos_only = sorted([*scene.pos_act.tolist(), *scene.vel_act.tolist()]) == \
+            list(range(m.nu))
         self._vel_min = -scene.velocity
         self._n = 0
         self._touch = False
@@ -635,7 +637,9 @@ class RobotArms:
         self.torque_guard = 0.85
         self.release_rate = 50.0
         self._corr = np.zeros((scene.n_fingers, 3))
-        self._torque_finite = np.isfinite(scene.torque)
+        # the finite torque limits by joint (_correct's guard)
+        self._torque_limits = [(i, lim) for i, lim in enumerate(
+            np.asarray(scene.torque, dtype=np.float64).tolist()) if math.isfinite(lim)]
         self._fbuf = np.zeros(6)
         self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
         # the object's believed pose (body origin, (w, x, y, z)): see()
@@ -879,29 +883,28 @@ class RobotArms:
             qd = v0 + c * dv
             self._state = (q[k], qd[k])
         self._pinv = None
-        rows = np.repeat(self._ctrl[None, :], k, axis=0)
-        pos = q[:k]
-        if ctl.noise is not None:
-            pos = pos + self._noise_offset(ctl.noise[idx])
-        rows[:, self._pos_cols] = pos
-        v = self._vel_max
-        rows[:, self._vel_cols] = np.maximum(np.minimum(qd[:k], v), self._vel_min)
+        qk, qdk = q[:k], qd[:k]
+        # (the servos' columns are every actuator's on a robot scene: nothing to carry over
+        # from ``ctrl`` then)
+        rows = (np.empty((k, len(self._ctrl))) if self._servos_only
+                else np.repeat(self._ctrl[None, :], k, axis=0))
+        rows[:, self._pos_cols] = (qk if ctl.noise is None
+                                   else qk + self._noise_offset(ctl.noise[idx]))
+        rows[:, self._vel_cols] = np.maximum(np.minimum(qdk, self._vel_max), self._vel_min)
         # the log's set points and targets of the period, written once (a period replaced
-        # before its end is overwritten from where it stopped)
+        # before its end is overwritten from where it stopped); the give, the force and the
+        # IK time are left as the log made them (0, NaN, NaN) past the period's first row:
+        # nothing writes those past the row recorded last (_comply writes that row, a solve
+        # only its own row, the next to be recorded)
         log = self.log
         log.reserve(k)
-        log._q_ref[t0:t0 + k] = q[:k]
-        log._qd_ref[t0:t0 + k] = qd[:k]
+        log._q_ref[t0:t0 + k] = qk
+        log._qd_ref[t0:t0 + k] = qdk
         log._target[t0:t0 + k] = rows_t
         log._tool[t0:t0 + k] = 0.0 if tool is None else tool[:k]
         log._noise[t0:t0 + k] = 0.0 if ctl.noise is None else ctl.noise[idx]
-        # the give and the force are logged per physics step by _comply; the stiff arm's
-        # force is read at the solves
-        log._give[t0:t0 + k] = 0.0
-        log._force[t0:t0 + k] = math.nan
-        if not self.compliance:
+        if not self.compliance:  # the stiff arm's force, read at the solve (_yield)
             log._force[t0] = self._force_now
-        log._ik[t0 + 1:t0 + k] = math.nan
         log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times and solved else math.nan
         return _Segment(j, rows, q, qd)
 
@@ -1249,23 +1252,40 @@ class RobotArms:
             return targets
         dt = steps * self.dt
         if self._touch:
-            # (the command ``now + give`` formed here: out of contact it is not read)
-            e = self.data.site_xpos[self._tip_sites] - (now + self._offset)
-            if noise is not None:
-                e = e - noise
-            sc = self.scene
-            tau = np.abs(self.data.qfrc_actuator[self._dsl])
-            finite = self._torque_finite
-            guard = bool(finite.any()) and float(
-                (tau[finite] / sc.torque[finite]).max()) > self.torque_guard
+            # per fingertip and axis in plain Python (a few numbers: numpy calls on them cost
+            # more than the arithmetic), the same IEEE operations in the same order as the
+            # arrays' were (``tip - (now + give) - noise``, ``c - g e``, the norm's
+            # ``(x x + y y) + z z``, ``c (bound / norm)``), so the same numbers
+            qf = self.data.qfrc_actuator[self._dsl].tolist()
+            ratios = [abs(qf[i]) / lim for i, lim in self._torque_limits]
+            top = max(ratios, default=-math.inf)
+            # (a NaN torque held it as numpy's NaN maximum did: not above the guard)
+            guard = top > self.torque_guard and all(r == r for r in ratios)
+            cl: list[list[float]] = c.tolist()
             if not guard:
-                c -= min(gain * dt, 1.0) * e
+                src = self._sources
+                tips = (src[3].tolist() if src is not None else
+                        self.data.site_xpos[self._tip_sites].ravel().tolist())
+                g = min(gain * dt, 1.0)
+                noisy = None if noise is None else noise.tolist()
+                # (the command ``now + give`` formed here: out of contact it is not read)
+                for f, (cf, nw, gv) in enumerate(zip(cl, now.tolist(), self._offset.tolist(),
+                                                     strict=True)):
+                    for a in range(3):
+                        e = tips[3 * f + a] - (nw[a] + gv[a])
+                        if noisy is not None:
+                            e = e - noisy[f][a]
+                        cf[a] = cf[a] - g * e
             # else held: near a torque limit a fingertip presses no harder (an object that
             # does not give is not pushed into up to the limits)
-            n = np.sqrt((c * c).sum(axis=1))
-            over = n > self.tracking_bound
-            if over.any():
-                c[over] *= (self.tracking_bound / n[over])[:, None]
+            bound = self.tracking_bound
+            for cf in cl:
+                x, y, z = cf
+                n = math.sqrt(x * x + y * y + z * z)
+                if n > bound:
+                    s = bound / n
+                    cf[0], cf[1], cf[2] = x * s, y * s, z * s
+            c[:] = cl
         elif c.any():
             c *= math.exp(-self.release_rate * dt)
             if float(np.abs(c).max()) < 1e-7:
