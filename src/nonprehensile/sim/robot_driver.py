@@ -1322,15 +1322,16 @@ class RobotArms:
     def _contacts(self, d: Any) -> tuple[bool, bool]:
         """Whether a fingertip touches the object, and whether a link or the rod touches the
         object or the table (the judge's rule: contacts within 0.1 mm), in one pass."""
-        n = d.ncon
-        if n == 0:
-            return False, False
         con = d.contact
         # the fields read in bulk, then plain Python over a handful of contacts (numpy
-        # masks over them cost more than the loop)
+        # masks over them cost more than the loop); MuJoCo's contact arrays are ``ncon``
+        # long (their length is ``ncon``, without reading it or slicing to it)
+        geoms = con.geom.tolist()
+        if not geoms:
+            return False, False
         obj, tips, links = self._obj_geom, self._tip_set, self._link_set
         touch = other = False
-        for (a, b), dd in zip(con.geom[:n].tolist(), con.dist[:n].tolist(), strict=True):
+        for (a, b), dd in zip(geoms, con.dist.tolist(), strict=True):
             if dd > 1e-4:
                 continue
             if a in links or b in links:
