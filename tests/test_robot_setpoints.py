@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import pickle
 
 import numpy as np
 import pytest
@@ -255,6 +256,12 @@ def test_the_log_written_through_memoryviews_equals_numpy_rows() -> None:
     for name in ("time", "q", "qd", "tau", "touch", "other", "error", "error_ref"):
         got, want = getattr(logs[0], name), getattr(logs[1], name)
         assert got.dtype == want.dtype and got.tobytes() == want.tobytes(), name
+    # the log pickles (its memoryviews are made again), and the copy records on
+    back = pickle.loads(pickle.dumps(logs[0]))
+    assert back.n == logs[0].n and back.q.tobytes() == logs[0].q.tobytes()
+    back.reserve(5000)
+    assert back.q.tobytes() == logs[0].q.tobytes()
+    assert len(back._mv[1]) == len(back._q.reshape(-1))
 
 
 def _range_share_numpy(drv: RobotArms, q0: np.ndarray, v0: np.ndarray, v1: np.ndarray,

@@ -211,6 +211,17 @@ class RobotLog:
         self._mv = tuple(memoryview(getattr(self, name).reshape(-1)) for name in
                          ("_time", "_q", "_qd", "_tau", "_tips", "_touch", "_other"))
 
+    def __getstate__(self) -> dict[str, Any]:
+        """The log without its memoryviews (they do not pickle): :meth:`__setstate__`
+        makes them again."""
+        state = dict(self.__dict__)
+        del state["_mv"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._flat()
+
     _ROWS = ("_time", "_q", "_qd", "_tau", "_q_ref", "_qd_ref", "_tips", "_target", "_noise",
              "_give", "_tool", "_force", "_touch", "_other", "_ik")
 
@@ -1255,11 +1266,12 @@ class RobotArms:
             # per fingertip and axis in plain Python (a few numbers: numpy calls on them cost
             # more than the arithmetic), the same IEEE operations in the same order as the
             # arrays' were (``tip - (now + give) - noise``, ``c - g e``, the norm's
-            # ``(x x + y y) + z z``, ``c (bound / norm)``), so the same numbers
+            # ``(x x + y y) + z z``, ``c (bound / norm)``), so the same numbers (held to the
+            # numpy form by tests/test_robot_setpoints.py)
             qf = self.data.qfrc_actuator[self._dsl].tolist()
             ratios = [abs(qf[i]) / lim for i, lim in self._torque_limits]
             top = max(ratios, default=-math.inf)
-            # (a NaN torque held it as numpy's NaN maximum did: not above the guard)
+            # (with a NaN torque numpy's maximum was NaN, never above the guard: so here)
             guard = top > self.torque_guard and all(r == r for r in ratios)
             cl: list[list[float]] = c.tolist()
             if not guard:
