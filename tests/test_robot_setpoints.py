@@ -6,10 +6,13 @@ joints' torque limits by the arm's dynamics; the fingertip radius offset of the 
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import pickle
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 mujoco = pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not installed")
 pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
@@ -231,6 +234,164 @@ def test_the_torque_budget_lets_a_joint_brake_short_of_its_range() -> None:
     # far from the end, the same state is scaled as before
     q0[5] = 0.0
     assert np.array_equal(drv._within_torque(v0, v1, h, q0), alone)
+
+
+def test_the_log_written_through_memoryviews_equals_numpy_rows() -> None:
+    """Each physics step's state (time, joints, torques, tips, contacts) is copied into the
+    log through flat memoryviews (``RobotArms.record``): the log equals the one written
+    by numpy's row assignments (the path of a scene whose joints or tips are not in a row),
+    across the log's growth beyond its first capacity."""
+    logs = []
+    for memoryviews in (True, False):
+        sim = _sim()
+        drv: RobotArms = sim.robot_driver
+        assert drv._sources is not None
+        if not memoryviews:
+            drv._sources = None
+        drv.log.clear(capacity=64)  # grown four times over the run
+        a = np.array([0.30, 0.05, 0.12])
+        _drive(sim, _line(a, np.array([0.34, 0.12, 0.09]), 701), hold=300)
+        logs.append(drv.log)
+    assert logs[0].n == logs[1].n == 700 + 300
+    for name in ("time", "q", "qd", "tau", "touch", "other", "error", "error_ref"):
+        got, want = getattr(logs[0], name), getattr(logs[1], name)
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes(), name
+    # the log pickles (its memoryviews are made again), and the copy records on
+    back = pickle.loads(pickle.dumps(logs[0]))
+    assert back.n == logs[0].n and back.q.tobytes() == logs[0].q.tobytes()
+    back.reserve(5000)
+    assert back.q.tobytes() == logs[0].q.tobytes()
+    assert len(back._mv[1]) == len(back._q.reshape(-1))
+
+
+def _range_share_numpy(drv: RobotArms, q0: np.ndarray, v0: np.ndarray, v1: np.ndarray,
+                       h: float) -> float:
+    """``RobotArms._range_share`` as it was written with numpy arrays (cpu23 wrote it per
+    joint in floats): the reference its float form must equal bit for bit."""
+    sc = drv.scene
+    margin = math.radians(drv.ik.config.position_margin_deg)
+    room = np.where(v0 > 0.0, sc.upper - margin - q0, q0 - sc.lower - margin)
+    room = room - np.abs(v0) * h
+    dv = v1 - v0
+    braking = dv * v0 < 0.0
+    if not np.any(braking):
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        need = np.where(room > 0.0, v0 * v0 / (2.0 * room), np.inf)
+    bound = float(drv.ik.config.joint_accel)
+    near = braking & (need >= 0.5 * bound) if math.isfinite(bound) else braking
+    if not np.any(near):
+        return 0.0
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        want = need * h / np.abs(dv)
+    return float(min(1.0, float(np.max(np.where(near, want, 0.0)))))
+
+
+_RANGE_SIM: list[RobotSimulator] = []
+
+
+@settings(max_examples=300, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), bound=st.sampled_from([30.0, 0.0, 4.0, math.inf]),
+       every=st.sampled_from([1, 10]))
+def test_range_share_in_floats_equals_its_numpy_form(seed: int, bound: float,
+                                                     every: int) -> None:
+    """The braking share a joint needs to stop short of its range (``_range_share``),
+    computed per joint in floats: the number of its numpy form, bit for bit, for set points
+    anywhere in and near the joints' ranges (past them too), at rest or moving at up to
+    twice the velocity limits, braking or not, with the IK's acceleration bound finite,
+    zero or infinite."""
+    if not _RANGE_SIM:
+        _RANGE_SIM.append(_sim())
+    drv: RobotArms = _RANGE_SIM[0].robot_driver
+    sc = drv.scene
+    rng = np.random.default_rng(seed)
+    n = len(sc.lower)
+    h = every * drv.dt
+    saved = drv.ik.config
+    drv.ik.config = dataclasses.replace(saved, joint_accel=bound)
+    try:
+        for _ in range(20):
+            span = sc.upper - sc.lower
+            q0 = sc.lower - 0.05 * span + rng.random(n) * 1.1 * span
+            # a few joints right at the margin's edge or the range's end
+            edge = rng.random(n) < 0.2
+            margin = math.radians(drv.ik.config.position_margin_deg)
+            q0[edge] = np.where(rng.random(int(edge.sum())) < 0.5, sc.upper[edge] - margin,
+                                sc.lower[edge])
+            v0 = (rng.random(n) * 4.0 - 2.0) * sc.velocity * (rng.random(n) < 0.8)
+            v1 = v0 + (rng.random(n) * 2.0 - 1.0) * rng.choice([0.01, 0.3, 3.0]) * h * 100
+            got = drv._range_share(q0, v0, v1, h)
+            want = _range_share_numpy(drv, q0, v0, v1, h)
+            assert np.float64(got).tobytes() == np.float64(want).tobytes()
+    finally:
+        drv.ik.config = saved
+
+
+def _correct_numpy(drv: RobotArms, c: np.ndarray, targets: np.ndarray, now: np.ndarray,
+                   steps: int, noise: np.ndarray | None) -> np.ndarray:
+    """``RobotArms._correct``'s update in contact as it was written with numpy arrays
+    (cpu23 wrote it per fingertip in floats), on ``c`` in place: the reference its float
+    form must equal bit for bit."""
+    dt = steps * drv.dt
+    e = drv.data.site_xpos[drv._tip_sites] - (now + drv._offset)
+    if noise is not None:
+        e = e - noise
+    sc = drv.scene
+    tau = np.abs(drv.data.qfrc_actuator[drv._dsl])
+    finite = np.isfinite(sc.torque)
+    guard = bool(finite.any()) and float(
+        (tau[finite] / sc.torque[finite]).max()) > drv.torque_guard
+    if not guard:
+        c -= min(drv.tracking_gain * dt, 1.0) * e
+    n = np.sqrt((c * c).sum(axis=1))
+    over = n > drv.tracking_bound
+    if over.any():
+        c[over] *= (drv.tracking_bound / n[over])[:, None]
+    return np.asarray(targets + c)
+
+
+_CORRECT_SIMS: dict[int, RobotSimulator] = {}
+
+
+@settings(max_examples=200, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1), arms=st.sampled_from([1, 2]),
+       steps=st.sampled_from([1, 10]), noisy=st.booleans())
+def test_contact_correction_in_floats_equals_its_numpy_form(seed: int, arms: int, steps: int,
+                                                            noisy: bool) -> None:
+    """The contact tracking correction's update while touching (``_correct``), computed per
+    fingertip in floats: the correction and the IK's targets of its numpy form, bit for
+    bit, with one arm and two, with and without fingertip noise, for errors from microns to
+    centimetres (the bound's scaling included), joint torques below and above the guard,
+    and a NaN torque (numpy's maximum is NaN then: the correction grows)."""
+    if arms not in _CORRECT_SIMS:
+        bases = [BASE, BasePose(0.05, 0.55, -80.0)][:arms]
+        _CORRECT_SIMS[arms] = RobotSimulator(CUBE, [Arm(Robot.builtin(), b) for b in bases],
+                                             scale=SCALE, tracking_gain=20.0)  # (2: off)
+    drv: RobotArms = _CORRECT_SIMS[arms].robot_driver
+    d, nf = drv.data, drv.n_fingers
+    rng = np.random.default_rng(seed)
+    for _ in range(10):
+        size = rng.choice([1e-6, 1e-3, 1e-2])
+        d.site_xpos[drv._tip_sites] = rng.normal(0.3, 0.1, (nf, 3))
+        tau = rng.normal(0.0, 1.0, len(drv.scene.dadr)) * drv.scene.torque * rng.choice(
+            [0.3, 1.0])
+        if rng.random() < 0.1:
+            tau[rng.integers(len(tau))] = math.nan
+        d.qfrc_actuator[drv.scene.dadr] = tau
+        drv._offset[:] = rng.normal(0.0, size, (nf, 3)) * (rng.random() < 0.5)
+        start = rng.normal(0.0, drv.tracking_bound, (nf, 3))
+        targets = rng.normal(0.3, 0.1, (nf, 3))
+        now = d.site_xpos[drv._tip_sites] + rng.normal(0.0, size, (nf, 3))
+        noise = rng.normal(0.0, size, (nf, 3)) if noisy else None
+        c = start.copy()
+        want = _correct_numpy(drv, c, targets, now, steps, noise)
+        drv._corr[:] = start
+        drv._touch = True
+        got = drv._correct(targets, now, steps, noise)
+        assert got.tobytes() == want.tobytes()
+        assert drv._corr.tobytes() == c.tobytes()
+    drv._corr[:] = 0.0
+    drv._offset[:] = 0.0
 
 
 def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> None:

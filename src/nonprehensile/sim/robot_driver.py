@@ -201,6 +201,26 @@ class RobotLog:
         self._touch = np.zeros(capacity, dtype=bool)
         self._other = np.zeros(capacity, dtype=bool)
         self._ik = np.full(capacity, math.nan)
+        self._flat()
+
+    def _flat(self) -> None:
+        """Flat memoryviews of the arrays :meth:`RobotArms.record` writes every physics step
+        (``time``, ``q``, ``qd``, ``tau``, the tips, ``touch``, ``other``), made again with
+        the arrays: a row written through them is a memcpy, without numpy's indexing (a
+        third of its row assignment's cost)."""
+        self._mv = tuple(memoryview(getattr(self, name).reshape(-1)) for name in
+                         ("_time", "_q", "_qd", "_tau", "_tips", "_touch", "_other"))
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The log without its memoryviews (they do not pickle): :meth:`__setstate__`
+        makes them again."""
+        state = dict(self.__dict__)
+        del state["_mv"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._flat()
 
     _ROWS = ("_time", "_q", "_qd", "_tau", "_q_ref", "_qd_ref", "_tips", "_target", "_noise",
              "_give", "_tool", "_force", "_touch", "_other", "_ik")
@@ -219,6 +239,7 @@ class RobotLog:
                 np.zeros((cap, *old.shape[1:]), dtype=old.dtype)
             new[:self.n] = old[:self.n]
             setattr(self, name, new)
+        self._flat()
 
     @property
     def time(self) -> FloatArray:
@@ -586,15 +607,17 @@ class RobotArms:
         # after another): a view copied, not a gather, every step
         self._qsl = _as_slice(scene.qadr)
         self._dsl = _as_slice(scene.dadr)
-        # views into the data's arrays, made once (MjData's arrays never move): the log
-        # copies from them every step
-        # (views only where the indices are slices: an index array would copy)
-        self._views = ((data.qpos[self._qsl], data.qvel[self._dsl],
-                        data.qfrc_actuator[self._dsl])
-                       if isinstance(self._qsl, slice) and isinstance(self._dsl, slice)
-                       else None)
+        # the rows the log copies every physics step (record) as flat memoryviews of the
+        # data's arrays, made once (MjData's arrays never move): a memcpy into the log's
+        # (RobotLog._flat) each; None unless the joints and the tips are each in a row (an
+        # index array would gather a copy, not a view)
         tips = _as_slice(self._tip_sites)
-        self._tips_view = data.site_xpos[tips] if isinstance(tips, slice) else None
+        self._sources = (tuple(memoryview(v.reshape(-1)) for v in (
+            data.qpos[self._qsl], data.qvel[self._dsl], data.qfrc_actuator[self._dsl],
+            data.site_xpos[tips]))
+            if isinstance(self._qsl, slice) and isinstance(self._dsl, slice)
+            and isinstance(tips, slice) else None)
+        self._widths = (len(scene.joint_names), 3 * scene.n_fingers)
         # the actuator rows' columns (_segment): the position and velocity servos' as
         # strided slices where they are evenly spaced (the Panda's alternate), written as
         # views, not gathered; the velocity bounds negated once (``-v``: exact)
@@ -602,6 +625,8 @@ class RobotArms:
         self._pos_cols = _as_stride(scene.pos_act)
         self._vel_cols = _as_stride(scene.vel_act)
         self._vel_max = scene.velocity
+        self._servos_only = sorted([*scene.pos_act.tolist(), *scene.vel_act.tolist()]) == \
+            list(range(m.nu))
         self._vel_min = -scene.velocity
         self._n = 0
         self._touch = False
@@ -623,7 +648,9 @@ class RobotArms:
         self.torque_guard = 0.85
         self.release_rate = 50.0
         self._corr = np.zeros((scene.n_fingers, 3))
-        self._torque_finite = np.isfinite(scene.torque)
+        # the finite torque limits by joint (_correct's guard)
+        self._torque_limits = [(i, lim) for i, lim in enumerate(
+            np.asarray(scene.torque, dtype=np.float64).tolist()) if math.isfinite(lim)]
         self._fbuf = np.zeros(6)
         self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
         # the object's believed pose (body origin, (w, x, y, z)): see()
@@ -645,6 +672,8 @@ class RobotArms:
         self._implicit = _implicit_inertia(m, scene.dadr)
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
         self._damping_list: list[float] = self._damping.tolist()
+        self._lower_list: list[float] = np.asarray(scene.lower, dtype=np.float64).tolist()
+        self._upper_list: list[float] = np.asarray(scene.upper, dtype=np.float64).tolist()
         # the joints' torque budget per the shares it was made with (_within_torque)
         self._lim_key: tuple[float, float] | None = None
         self._lim: list[float] = []
@@ -865,29 +894,28 @@ class RobotArms:
             qd = v0 + c * dv
             self._state = (q[k], qd[k])
         self._pinv = None
-        rows = np.repeat(self._ctrl[None, :], k, axis=0)
-        pos = q[:k]
-        if ctl.noise is not None:
-            pos = pos + self._noise_offset(ctl.noise[idx])
-        rows[:, self._pos_cols] = pos
-        v = self._vel_max
-        rows[:, self._vel_cols] = np.maximum(np.minimum(qd[:k], v), self._vel_min)
+        qk, qdk = q[:k], qd[:k]
+        # (the servos' columns are every actuator's on a robot scene: nothing to carry over
+        # from ``ctrl`` then)
+        rows = (np.empty((k, len(self._ctrl))) if self._servos_only
+                else np.repeat(self._ctrl[None, :], k, axis=0))
+        rows[:, self._pos_cols] = (qk if ctl.noise is None
+                                   else qk + self._noise_offset(ctl.noise[idx]))
+        rows[:, self._vel_cols] = np.maximum(np.minimum(qdk, self._vel_max), self._vel_min)
         # the log's set points and targets of the period, written once (a period replaced
-        # before its end is overwritten from where it stopped)
+        # before its end is overwritten from where it stopped); the give, the force and the
+        # IK time are left as the log made them (0, NaN, NaN) past the period's first row:
+        # nothing writes those past the row recorded last (_comply writes that row, a solve
+        # only its own row, the next to be recorded)
         log = self.log
         log.reserve(k)
-        log._q_ref[t0:t0 + k] = q[:k]
-        log._qd_ref[t0:t0 + k] = qd[:k]
+        log._q_ref[t0:t0 + k] = qk
+        log._qd_ref[t0:t0 + k] = qdk
         log._target[t0:t0 + k] = rows_t
         log._tool[t0:t0 + k] = 0.0 if tool is None else tool[:k]
         log._noise[t0:t0 + k] = 0.0 if ctl.noise is None else ctl.noise[idx]
-        # the give and the force are logged per physics step by _comply; the stiff arm's
-        # force is read at the solves
-        log._give[t0:t0 + k] = 0.0
-        log._force[t0:t0 + k] = math.nan
-        if not self.compliance:
+        if not self.compliance:  # the stiff arm's force, read at the solve (_yield)
             log._force[t0] = self._force_now
-        log._ik[t0 + 1:t0 + k] = math.nan
         log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times and solved else math.nan
         return _Segment(j, rows, q, qd)
 
@@ -966,23 +994,28 @@ class RobotArms:
         set points ran past the joint's range (a transit across the distribution put the
         wrist 17 mrad past its upper end for 34 ms, decelerating from 1.5 rad/s); a
         position limit is hard."""
-        sc = self.scene
+        # per joint in plain Python (this runs every control period, and numpy calls on 7
+        # numbers cost more than the arithmetic): the same IEEE operations in the same order
+        # as the arrays' (``upper - margin - q0``, ``room - |v0| h``, ``v0 v0 / (2 room)``,
+        # ``need h / |dv|``), so the same number; a joint that does not brake (NaN
+        # included) or is not near its end gives 0, as its masked entry did
         margin = math.radians(self.ik.config.position_margin_deg)
-        room = np.where(v0 > 0.0, sc.upper - margin - q0, q0 - sc.lower - margin)
-        room = room - np.abs(v0) * h
-        dv = v1 - v0
-        braking = dv * v0 < 0.0
-        if not np.any(braking):
-            return 0.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            need = np.where(room > 0.0, v0 * v0 / (2.0 * room), np.inf)
         bound = float(self.ik.config.joint_accel)
-        near = braking & (need >= 0.5 * bound) if math.isfinite(bound) else braking
-        if not np.any(near):
-            return 0.0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            want = need * h / np.abs(dv)
-        return float(min(1.0, float(np.max(np.where(near, want, 0.0)))))
+        half = 0.5 * bound if math.isfinite(bound) else -math.inf  # (inf: every braking one)
+        best = 0.0
+        for q, v, w, lo, hi in zip(q0.tolist(), v0.tolist(), v1.tolist(), self._lower_list,
+                                   self._upper_list, strict=True):
+            dv = w - v
+            if not dv * v < 0.0:  # not braking
+                continue
+            room = ((hi - margin - q) if v > 0.0 else (q - lo - margin)) - abs(v) * h
+            need = v * v / (2.0 * room) if room > 0.0 else math.inf
+            if not need >= half:
+                continue
+            want = need * h / abs(dv)
+            if want > best:
+                best = want
+        return min(1.0, best)
 
     def _noise_offset(self, noise: FloatArray) -> FloatArray:
         """Joint offsets moving the tips by ``noise`` (shape (k, n_fingers, 3)), shape
@@ -1236,23 +1269,41 @@ class RobotArms:
             return targets
         dt = steps * self.dt
         if self._touch:
-            # (the command ``now + give`` formed here: out of contact it is not read)
-            e = self.data.site_xpos[self._tip_sites] - (now + self._offset)
-            if noise is not None:
-                e = e - noise
-            sc = self.scene
-            tau = np.abs(self.data.qfrc_actuator[self._dsl])
-            finite = self._torque_finite
-            guard = bool(finite.any()) and float(
-                (tau[finite] / sc.torque[finite]).max()) > self.torque_guard
+            # per fingertip and axis in plain Python (a few numbers: numpy calls on them cost
+            # more than the arithmetic), the same IEEE operations in the same order as the
+            # arrays' were (``tip - (now + give) - noise``, ``c - g e``, the norm's
+            # ``(x x + y y) + z z``, ``c (bound / norm)``), so the same numbers (held to the
+            # numpy form by tests/test_robot_setpoints.py)
+            qf = self.data.qfrc_actuator[self._dsl].tolist()
+            ratios = [abs(qf[i]) / lim for i, lim in self._torque_limits]
+            top = max(ratios, default=-math.inf)
+            # (with a NaN torque numpy's maximum was NaN, never above the guard: so here)
+            guard = top > self.torque_guard and all(r == r for r in ratios)
+            cl: list[list[float]] = c.tolist()
             if not guard:
-                c -= min(gain * dt, 1.0) * e
+                src = self._sources
+                tips = (src[3].tolist() if src is not None else
+                        self.data.site_xpos[self._tip_sites].ravel().tolist())
+                g = min(gain * dt, 1.0)
+                noisy = None if noise is None else noise.tolist()
+                # (the command ``now + give`` formed here: out of contact it is not read)
+                for f, (cf, nw, gv) in enumerate(zip(cl, now.tolist(), self._offset.tolist(),
+                                                     strict=True)):
+                    for a in range(3):
+                        e = tips[3 * f + a] - (nw[a] + gv[a])
+                        if noisy is not None:
+                            e = e - noisy[f][a]
+                        cf[a] = cf[a] - g * e
             # else held: near a torque limit a fingertip presses no harder (an object that
             # does not give is not pushed into up to the limits)
-            n = np.sqrt((c * c).sum(axis=1))
-            over = n > self.tracking_bound
-            if over.any():
-                c[over] *= (self.tracking_bound / n[over])[:, None]
+            bound = self.tracking_bound
+            for cf in cl:
+                x, y, z = cf
+                n = math.sqrt(x * x + y * y + z * z)
+                if n > bound:
+                    s = bound / n
+                    cf[0], cf[1], cf[2] = x * s, y * s, z * s
+            c[:] = cl
         elif c.any():
             c *= math.exp(-self.release_rate * dt)
             if float(np.abs(c).max()) < 1e-7:
@@ -1289,15 +1340,16 @@ class RobotArms:
     def _contacts(self, d: Any) -> tuple[bool, bool]:
         """Whether a fingertip touches the object, and whether a link or the rod touches the
         object or the table (the judge's rule: contacts within 0.1 mm), in one pass."""
-        n = d.ncon
-        if n == 0:
-            return False, False
         con = d.contact
         # the fields read in bulk, then plain Python over a handful of contacts (numpy
-        # masks over them cost more than the loop)
+        # masks over them cost more than the loop); MuJoCo's contact arrays are ``ncon``
+        # long (their length is ``ncon``, without reading it or slicing to it)
+        geoms = con.geom.tolist()
+        if not geoms:
+            return False, False
         obj, tips, links = self._obj_geom, self._tip_set, self._link_set
         touch = other = False
-        for (a, b), dd in zip(con.geom[:n].tolist(), con.dist[:n].tolist(), strict=True):
+        for (a, b), dd in zip(geoms, con.dist.tolist(), strict=True):
             if dd > 1e-4:
                 continue
             if a in links or b in links:
@@ -1317,18 +1369,22 @@ class RobotArms:
         n = log.n
         if n >= len(log._time):
             log.reserve(1)
-        views = self._views
-        if views is not None:
-            q, qd, tau = views
-        else:
-            q, qd, tau = (d.qpos[self._qsl], d.qvel[self._dsl],
-                          d.qfrc_actuator[self._dsl])
+        src = self._sources
+        if src is not None:  # (every robot scene built here: its joints and tips in a row)
+            t, q, qd, tau, tips, touch, other = log._mv
+            nj, nt = self._widths
+            a, b = n * nj, n * nt
+            q[a:a + nj], qd[a:a + nj], tau[a:a + nj], tips[b:b + nt] = src
+            t[n] = d.time
+            touch[n] = self._touch
+            other[n] = self._other
+            log.n = n + 1
+            return
         log._time[n] = d.time
-        log._q[n] = q
-        log._qd[n] = qd
-        log._tau[n] = tau
-        tips = self._tips_view
-        log._tips[n] = tips if tips is not None else d.site_xpos[self._tip_sites]
+        log._q[n] = d.qpos[self._qsl]
+        log._qd[n] = d.qvel[self._dsl]
+        log._tau[n] = d.qfrc_actuator[self._dsl]
+        log._tips[n] = d.site_xpos[self._tip_sites]
         log._touch[n] = self._touch
         log._other[n] = self._other
         log.n = n + 1
