@@ -295,8 +295,6 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                 np.minimum(room, acc, out=acc)
                 # the acceleration bounds give way where they leave no room (both rows'
                 # sum, as ``acc[0] + acc[1]``, checked in two calls in the usual case)
-                # (the ufuncs' reductions that ``sum`` and ``min`` call, without their
-                # Python wrappers)
                 total = _SUM(acc, axis=0)
                 room = acc if _MIN(total) >= 0.0 else np.where(total >= 0.0, acc, room)
             up, down = room[0], room[1]
@@ -484,11 +482,11 @@ class FingertipIK:
                                     t.cost[:, None]))
             r += k
         self._no_rows = np.zeros((0, m.nv))
-        # the usual scene: the robot's joints are its degrees of freedom in order, and no
-        # equality constraint (step integrates without mink's wrappers)
         # the IK data's joint positions, a view made once (each read of an MjData array
         # attribute builds a new array object; mink's configuration keeps its data)
         self._qpos: FloatArray = self.configuration.data.qpos
+        # the usual scene: the robot's joints are its degrees of freedom in order, and no
+        # equality constraint (step integrates without mink's wrappers)
         self._plain = bool(m.neq == 0 and np.array_equal(scene.qadr, np.arange(m.nq))
                            and np.array_equal(scene.dadr, np.arange(m.nv)))
         self._post_gain = math.nan  # the posture gain of the two arrays below (_solve)
