@@ -36,6 +36,15 @@ def _sim(radius_offset: bool = False, **params: float) -> RobotSimulator:
                           params=SimParams(**params), radius_offset=radius_offset)
 
 
+def _placed() -> tuple[RobotSimulator, RobotArms]:
+    """A Panda placed at rest with its fingertip on (0.30, 0.05, 0.12) m, kinematics done."""
+    sim = _sim()
+    drv: RobotArms = sim.robot_driver
+    drv.place(sim.data, np.array([[0.30, 0.05, 0.12]]))
+    mujoco.mj_forward(sim.model, sim.data)
+    return sim, drv
+
+
 def _drive(sim: RobotSimulator, targets: np.ndarray, hold: int = 0) -> None:
     """Targets every physics step (the step loop's order: place, then row i before step i),
     then ``hold`` steps of the driver's hold rows, as the closed loop holds a trajectory's
@@ -128,11 +137,8 @@ def test_set_point_accelerations_stay_within_the_torque_limits() -> None:
     a quarter of it. Truth: MuJoCo's inverse dynamics in discrete time (``mj_inverse`` with
     ``mjENBL_INVDISCRETE``: the force the actuators must give for that acceleration under
     the scene's implicit integrator), computed here."""
-    sim = _sim()
-    drv: RobotArms = sim.robot_driver
+    sim, drv = _placed()
     m, d = sim.model, sim.data
-    drv.place(d, np.array([[0.30, 0.05, 0.12]]))
-    mujoco.mj_forward(m, d)
     h = drv.every * drv.dt
     v0 = np.zeros(7)
     v1 = np.array([0.0, 0.6, 0.0, -0.6, 0.0, 0.6, 0.0])  # 60 rad/s^2: past the limits
@@ -179,11 +185,9 @@ def test_the_torque_budget_counts_the_implicit_integrators_inertia() -> None:
     m^2 to its 0.14 (a transit of the main plan at 30 rad/s^2 held the wrist at its 12 N m
     for 17 ms while the mass matrix alone said 6 N m). Truth: MuJoCo's ``mj_inverse`` in
     discrete time, at a moving state with wrist and shoulder accelerations."""
-    sim = _sim()
-    drv: RobotArms = sim.robot_driver
+    sim, drv = _placed()
     m, d = sim.model, sim.data
     dof = sim.scene.dadr
-    drv.place(d, np.array([[0.30, 0.05, 0.12]]))
     d.qvel[dof] = [0.3, -0.2, 0.5, 0.4, 1.5, 2.0, 0.3]
     mujoco.mj_forward(m, d)
     acc = np.array([3.0, 5.0, -4.0, -5.0, 10.0, 30.0, 2.0])
@@ -210,11 +214,8 @@ def test_the_torque_budget_lets_a_joint_brake_short_of_its_range() -> None:
     its end for 34 ms). The budget keeps enough of the braking to stop short of the margin.
     Truth: the stopping distance ``v^2 / (2 a)`` at the set points' deceleration, from the
     joint's range and margin as the IK configures them."""
-    sim = _sim()
-    drv: RobotArms = sim.robot_driver
-    m, d = sim.model, sim.data
-    drv.place(d, np.array([[0.30, 0.05, 0.12]]))
-    mujoco.mj_forward(m, d)
+    sim, drv = _placed()
+    d = sim.data
     h = drv.every * drv.dt
     margin = math.radians(drv.ik.config.position_margin_deg)
     q0 = np.array(d.qpos[sim.scene.qadr])

@@ -481,17 +481,7 @@ class _OnlineControls:
 
     def __getitem__(self, i: int) -> FloatArray:
         if i == self._i + 1 and self._row is not None:  # the step loop's next row
-            seg = self.seg
-            if seg is not None and i < seg.stop:
-                self.driver.record(seg, i)
-                row: FloatArray = seg.rows[i - seg.start]
-                if self.driver.compliance:
-                    row = self.driver._comply(seg, i, row)
-            else:
-                row = self.driver.row(self, i)
-            self._i = i
-            self._row = row
-            return row
+            return self.hold()
         if i < 0 or i >= len(self.targets):
             raise IndexError(i)
         if i == self._i and self._row is not None:
@@ -513,7 +503,8 @@ class _OnlineControls:
         step loop applies while it holds a trajectory's end (a hold until an observation,
         a settle). The set points carry on along the spline and come to rest on the last
         target, as the IK leads them there (a held last row stopped a moving arm at once:
-        a step of ``kv v`` in every velocity servo, up to 120 N m asked)."""
+        a step of ``kv v`` in every velocity servo, up to 120 N m asked). Within the
+        targets it is the next row, which the step loop reads through ``[]``."""
         i = self._i + 1
         seg = self.seg
         if seg is not None and seg.start <= i < seg.stop and self._row is not None:
