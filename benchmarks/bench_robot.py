@@ -28,6 +28,11 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
    closed loop with re-plans: the single-finger ones by one Panda (placed once for all of
    them), the two-finger ones by two Pandas; the rates per group and per source skill.
 
+5. ``cost``: every single-finger cube transition at nominal physics, closed loop, executed by
+   one Panda and by the free fingertip alternately in this process: the CPU of each, the
+   ratio of the sums ("a robot-executed transition <= 3x the free-fingertip one" over every
+   transition one arm runs, beside the main plan's in part 1).
+
 ``NP_PARTS`` picks parts (default ``plan,wheel``; ``sweep`` and ``transitions`` are long:
 ``NP_PARTS=sweep NP_ROBOT_SAMPLES=100 NP_WORKERS=2 nice python -m benchmarks robot``);
 ``NP_ROBOT_UNITS=K`` runs every K-th transition only (development); ``NP_ROBOT_ARMS=1`` or
@@ -367,7 +372,71 @@ def transitions() -> None:
         _robot_report(run_sweep(spec, workers=WORKERS, chunk_size=1))
 
 
+def cost() -> None:
+    """Every single-finger cube transition executed by one Panda and by the free fingertip,
+    closed loop at nominal physics, one after the other in this process (part 5): the CPU
+    of each execution, the ratio of the sums and the median of the per-transition ratios."""
+    from dataclasses import replace
+
+    from nonprehensile.sim.closed_loop import scene_fingers
+    from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION, PhysicsDistribution
+    from nonprehensile.sim.execute import fingers_of
+    from nonprehensile.sim.robot import Robot
+    from nonprehensile.sim.robustness import (
+        SweepRobot,
+        SweepSpec,
+        _Worker,
+        frozen_library,
+        place_sweep_arms,
+        transition_units,
+    )
+
+    poly, skills, ds, motions, expand_ = _cube()
+    dist = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale)
+    b = dist.base
+    nominal = replace(dist, **{n: (getattr(b, n), getattr(b, n))
+                               for n in PhysicsDistribution.RANGED},
+                      start_offset=0.0, start_yaw=0.0, tracking_noise=0.0, finger_noise=0.0)
+    sk = [s for s in skills if max(fingers_of(s), default=1) <= 1]
+    exp = expand_(sk)
+    units = tuple(u for u in transition_units(poly, exp, motions, scale=ds.scale,
+                                              angle_tol=1e-6)
+                  if scene_fingers(u.plan) == 1)[::EVERY_UNIT]
+    arms, found = place_sweep_arms(Robot.builtin("panda"), units, poly, ds.scale, ds.fingers,
+                                   n_arms=1, params=dist.base)
+    lib = frozen_library(exp, motions)
+    specs = {kind: SweepSpec(poly, ds.scale, units, nominal, SEED, 1, ("closed",),
+                             dict(ds.fingers), expansion=exp, library=lib,
+                             robot=SweepRobot(tuple(arms)) if kind == "robot" else None)
+             for kind in ("robot", "free")}
+    workers = {kind: _Worker(spec) for kind, spec in specs.items()}
+    for w in workers.values():  # warm: the first execution compiles and caches
+        w.run(0, 0)
+    cpu: dict[str, list[float]] = {"robot": [], "free": []}
+    ok = {"robot": 0, "free": 0}
+    sim = {"robot": 0.0, "free": 0.0}
+    for u in range(len(units)):
+        # alternate which goes first, so a burst of load hits both alike
+        for kind in (("robot", "free") if u % 2 == 0 else ("free", "robot")):
+            t0 = time.process_time()
+            rec = workers[kind].run(u, 0)[0]
+            cpu[kind].append(time.process_time() - t0)
+            ok[kind] += rec.success
+            sim[kind] += rec.sim_seconds
+    r, f = sum(cpu["robot"]), sum(cpu["free"])
+    per = sorted(a / b for a, b in zip(cpu["robot"], cpu["free"], strict=True))
+    print(f"{len(units)} single-finger transitions, nominal, closed loop, one Panda at "
+          f"{found[0].to_dict()['base']} against the free fingertip, in one process: "
+          f"success {ok['robot']} / {ok['free']}; CPU robot {r:.2f} s, free {f:.2f} s: "
+          f"**{r / f:.2f}x** (sum); per transition median {statistics.median(per):.2f}x, "
+          f"range {per[0]:.2f}-{per[-1]:.2f}x; simulated {sim['robot']:.1f} s / "
+          f"{sim['free']:.1f} s; per simulated second "
+          f"{(r / sim['robot']) / (f / sim['free']):.2f}x")
+
+
 def main(plan: bool = True) -> None:
+    if "cost" in PARTS:
+        cost()
     if "sweep" in PARTS:
         sweep()
     if "transitions" in PARTS:

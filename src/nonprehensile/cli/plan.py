@@ -131,7 +131,32 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
                     "the object at each step's planned start pose; `simulate plan --robot` "
                     "executes it in physics")
     doc["robot"] = meta
-    return write_joint_trajectories(trajectories, out_dir, meta)
+    written = list(write_joint_trajectories(trajectories, out_dir, meta))
+    searched = placement if isinstance(placement, list) else [placement]
+    if placement is not None:  # searched: the reachability map of each arm's search
+        from pathlib import Path
+
+        import numpy as np
+
+        from nonprehensile.sim.placement import plan_targets
+        from nonprehensile.viz import save_figure
+        from nonprehensile.viz._figures import require_matplotlib
+        from nonprehensile.viz.reachability import reachability_figure
+
+        try:
+            require_matplotlib()
+        except InputError as exc:  # the trajectories are written; the picture is optional
+            err.print(f"no reachability map: {exc}")
+            return written
+        per_arm = len(robot.tip_sites) if robot is not None else 1
+        paths = plan_targets(result, ds.fingers, per_arm * len(searched))
+        for i, pl in enumerate(searched):
+            xy = np.concatenate([arr[:, i * per_arm, :2] for arr, _ in paths])
+            name = "reachability.png" if len(searched) == 1 else f"reachability_arm{i + 1}.png"
+            written.append(save_figure(
+                reachability_figure(pl.candidates_dict(), pl.base.to_dict(), xy),
+                Path(out_dir) / name))
+    return written
 
 
 @click.command("plan")

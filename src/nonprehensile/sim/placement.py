@@ -3,8 +3,9 @@
 :func:`place_base` tries base positions on rings around the plan's fingertip paths, the base
 facing them, and keeps the one that reaches every target of the whole plan (largest fingertip
 error under ``reach_tol``, 5 mm) with the largest joint-limit margin (least distance of any joint to
-an end of its range, in radians, over the whole plan). The search is kinematic (the IK at
-``search_rate``, no collision avoidance): the chosen base is then judged by physics.
+an end of its range, in radians, over the whole plan), the transits between steps included
+(:func:`transit_path`). The search is kinematic (the IK at ``search_rate``, no collision
+avoidance): the chosen base is then judged by physics.
 
 :func:`joint_trajectory` runs the fingertip IK (with collision avoidance, the object at each
 step's planned start pose) along a plan's reference motion at the control rate, and
@@ -16,10 +17,11 @@ limits).
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,7 +39,7 @@ from nonprehensile.sim.robot_scene import Arm, build_robot_scene
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
 __all__ = ["JointTrajectory", "Placement", "joint_trajectory", "place_base", "plan_targets",
-           "write_joint_trajectories"]
+           "transit_path", "write_joint_trajectories"]
 
 FloatArray = NDArray[np.float64]
 
@@ -57,6 +59,11 @@ class Placement:
         Whether the reach error is under the tolerance.
     tried : int
         Candidate bases evaluated.
+    candidates : tuple of Placement
+        Every candidate evaluated, in the search's order (each with its own reach error,
+        joint margin and verdict; ``tried`` its number from 1; no candidates of their own):
+        the reachability map (:func:`nonprehensile.viz.reachability.reachability_figure`).
+        Not part of equality or the JSON form.
     """
 
     base: BasePose
@@ -64,12 +71,19 @@ class Placement:
     joint_margin_rad: float
     feasible: bool
     tried: int
+    candidates: tuple[Placement, ...] = field(default=(), compare=False, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form."""
         return {"base": self.base.to_dict(), "reach_error_m": round(self.reach_error_m, 6),
                 "joint_margin_rad": round(self.joint_margin_rad, 4),
                 "feasible": self.feasible, "candidates": self.tried}
+
+    def candidates_dict(self) -> list[dict[str, Any]]:
+        """The candidates in JSON form (base, reach error, joint margin, feasible)."""
+        return [{"base": c.base.to_dict(), "reach_error_m": round(c.reach_error_m, 6),
+                 "joint_margin_rad": round(c.joint_margin_rad, 4), "feasible": c.feasible}
+                for c in self.candidates]
 
 
 def plan_targets(plan: Plan, fingers: Mapping[str, str], n_fingers: int = 1) -> list[
@@ -95,6 +109,30 @@ def plan_targets(plan: Plan, fingers: Mapping[str, str], n_fingers: int = 1) -> 
         hold = arr[-1]
         out.append((arr, rate))
     return out
+
+
+def transit_path(start: FloatArray, end: FloatArray, *, lift: float = 0.05,
+                 spacing: float = 0.005) -> FloatArray:
+    """A base search's stand-in for the transit between two fingertip paths: straight up
+    from ``start`` to ``lift`` (m) above the higher of the two ends, across, and straight down
+    to ``end`` (each shape (n_fingers, 3)), every finger alike; no coordinate of a finger
+    moves more than ``spacing`` (m) between two points; both ends included; shape
+    (n, n_fingers, 3).
+
+    The executor's transits retreat, clear the object and approach
+    (:mod:`nonprehensile.transit`); this is the kinematic search's simpler path over the same
+    ground, so that the arm's reach is judged between steps too, not on a jump."""
+    a = np.asarray(start, dtype=np.float64)
+    b = np.asarray(end, dtype=np.float64)
+    top = max(float(a[..., 2].max()), float(b[..., 2].max())) + lift
+    way = [a, np.concatenate([a[..., :2], np.full((*a.shape[:-1], 1), top)], -1),
+           np.concatenate([b[..., :2], np.full((*b.shape[:-1], 1), top)], -1), b]
+    legs = []
+    for p0, p1 in itertools.pairwise(way):
+        # ``n`` points make ``n - 1`` intervals of at most ``spacing``
+        n = max(2, int(np.ceil(float(np.abs(p1 - p0).max()) / spacing)) + 1)
+        legs.append(p0 + np.linspace(0, 1, n)[:, None, None] * (p1 - p0))
+    return np.concatenate(legs)
 
 
 def _rz(yaw_deg: float) -> FloatArray:
@@ -147,21 +185,31 @@ def place_base(
                               params=params, mocap_object=True)
     ik = FingertipIK(scene, 1.0 / search_rate, IKConfig(collisions=False))
     ik.set_object(np.array([0.0, 0.0, -10.0]), np.array([1.0, 0.0, 0.0, 0.0]))
-    sampled = []
+    sampled: list[FloatArray] = []
+    own: list[FloatArray] = []  # the plan's own targets (the centre of the candidates' rings)
     for arr, rate in paths:
         every = max(1, round(rate / search_rate))
         if not 0 <= finger < arr.shape[1]:
             raise InputError(f"finger R{finger + 1} is not in the paths "
                              f"({arr.shape[1]} finger(s))")
-        sampled.append(arr[::every, finger:finger + 1])
+        seg = arr[::every, finger:finger + 1]
+        if sampled:
+            # the transit between two steps (a step's reference starts where the last one
+            # did not end: 61 mm away in the main plan): followed as a jump, the IK's lag on
+            # it counted as a reach error of 44 mm at every candidate, and the search then
+            # ranked the bases by that lag instead of by their joint margin
+            sampled.append(transit_path(sampled[-1][-1], seg[0]))
+        sampled.append(seg)
+        own.append(seg)
     allt = np.concatenate(sampled)
-    centre = allt.reshape(-1, 3)[:, :2].mean(axis=0)
+    centre = np.concatenate(own).reshape(-1, 3)[:, :2].mean(axis=0)
     every_finger = np.concatenate([arr[::max(1, round(rate / search_rate))]
                                    for arr, rate in paths]).reshape(-1, 3)[:, :2].mean(axis=0)
     side = centre - every_finger
     side_ok = float(np.hypot(*side)) > 0.005
     best: Placement | None = None
     tried = 0
+    evaluated: list[Placement] = []
     for r in radii:
         for k in range(n_directions):
             a = 2 * math.pi * k / n_directions
@@ -189,6 +237,7 @@ def place_base(
                                                              scene.upper - q))))
             cand = Placement(base, err, margin if math.isfinite(margin) else 0.0,
                              err <= reach_tol, tried)
+            evaluated.append(cand)
             if best is None or (cand.feasible, cand.joint_margin_rad if cand.feasible
                                 else -cand.reach_error_m) > (
                     best.feasible, best.joint_margin_rad if best.feasible
@@ -198,7 +247,7 @@ def place_base(
         raise InputError("no candidate base is far enough from the other arms' bases on "
                          "this finger's side: give --base X Y YAW for each arm")
     return Placement(best.base, best.reach_error_m, best.joint_margin_rad, best.feasible,
-                     tried)
+                     tried, tuple(evaluated))
 
 
 @dataclass(frozen=True)

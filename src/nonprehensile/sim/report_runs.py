@@ -499,8 +499,8 @@ def robot_execution(
     if any(max(fingers_of(s.transition.skill), default=1) > n_tips for s in plan.steps):
         raise InputError(f"the plan has a step for more fingers than the Panda's {n_tips}")
     params = DEFAULT_PARAMS
-    placement = place_base(robot, poly, scale, plan_targets(plan, fingers, n_tips),
-                           params=params)
+    paths = plan_targets(plan, fingers, n_tips)
+    placement = place_base(robot, poly, scale, paths, params=params)
     sim = RobotSimulator(poly, [Arm(robot, placement.base)], scale=scale, params=params)
     if sim.n_fingers < scene_fingers(plan):
         raise InputError(f"the plan needs {scene_fingers(plan)} fingers; the Panda has "
@@ -523,7 +523,11 @@ def robot_execution(
         "placement": {"base": placement.base.to_dict(),
                       "reach_error_m": placement.reach_error_m,
                       "joint_margin_rad": placement.joint_margin_rad,
-                      "feasible": placement.feasible, "candidates": placement.tried},
+                      "feasible": placement.feasible, "candidates": placement.tried,
+                      # the reachability map's numbers: every candidate, and the fingertip
+                      # path seen from above (every 10th target)
+                      "tried": placement.candidates_dict(),
+                      "targets_xy": np.concatenate([arr[::10, 0, :2] for arr, _ in paths])},
         "metrics": log.metrics().to_dict(),
         "log": {"time": np.array(log.time), "error": np.array(log.error),
                 "touch": np.array(log.touch, dtype=bool), "q": np.array(log.q),

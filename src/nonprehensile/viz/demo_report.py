@@ -490,6 +490,18 @@ def robot_section(ctx: ReportContext) -> Section:
                      f"{1000 * rm.get('other_contact_s', 0.0):.0f}",
                      "yes" if r["success"] else "NO"])
     figures: list[tuple[bytes | HtmlFigure, str]] = []
+    if pl.get("tried"):
+        from nonprehensile.viz.reachability import reachability_figure
+
+        n_ok = sum(bool(c["feasible"]) for c in pl["tried"])
+        figures.append((figure_to_png(reachability_figure(pl["tried"], base,
+                                                          pl.get("targets_xy"))), (
+            f"Where the arm may stand: the {len(pl['tried'])} candidate bases of the placement "
+            f"search, seen from above, each facing the plan's fingertip path (orange). "
+            f"{n_ok} reach every target of the plan, the transits between steps included "
+            "(coloured by their least joint margin over it; crosses: out of reach); the star "
+            "and arrow: the chosen base and its heading (the most joint margin among those "
+            "that reach).")))
     if doc.get("frames"):
         figures.append((figure_to_png(arm_filmstrip_figure(doc["frames"])), (
             "Filmstrip of the arm, seen from the side (across the line from its base to the "
