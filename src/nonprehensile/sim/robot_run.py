@@ -24,7 +24,12 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import ObjectPose
 from nonprehensile.sim.ik import IKConfig
 from nonprehensile.sim.judge import Judge
-from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY, RobotArms, RobotLog
+from nonprehensile.sim.robot_driver import (
+    DEFAULT_CONTROL_EVERY,
+    RobotArms,
+    RobotLog,
+    check_press,
+)
 from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
@@ -126,13 +131,24 @@ class RobotSimulator(Simulator):
         Move each target near the object out along its normal by the arm's fingertip
         radius minus the references' (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
         _tool`; off by default: docs/robot.md gives the measured figures).
+    press_depth : float or None
+        The contact-consistent command (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
+        _press_push`): the deepest, in m, that a fingertip's command (the centre of the
+        arm's fingertip sphere, radius ``params.finger_radius``) may put the sphere inside
+        the object as the arm believes it (the latest observation); a command deeper is
+        pushed out along the object's normal, keeping its motion along the surface. None:
+        no bound (the references as they are).
+    press_correction : bool
+        Whether the contact tracking correction may drive the IK's target past
+        ``press_depth`` (True) or is bounded with it (False).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
                  control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float | None = None, tracking_gain: float | None = None,
-                 compliance: bool = False, radius_offset: bool = False) -> None:
+                 compliance: bool = False, radius_offset: bool = False,
+                 press_depth: float | None = None, press_correction: bool = True) -> None:
         if force_limit is not None and not compliance:
             # before the force-limited command, force_limit alone made the tip yield: a call
             # written then must not now run the stiff arm without a word
@@ -169,6 +185,9 @@ class RobotSimulator(Simulator):
         if not isinstance(radius_offset, bool):
             raise InputError(f"radius_offset is True or False, got {radius_offset!r}")
         self.robot_driver.radius_offset = radius_offset
+        check_press(press_depth, press_correction)
+        self.robot_driver.press_depth = None if press_depth is None else float(press_depth)
+        self.robot_driver.press_correction = press_correction
         self.robot_driver.finger_radius = params.finger_radius
         self._body = self.judge.body
         self._qadr = self.judge.qadr
