@@ -495,6 +495,7 @@ def test_press_bound_keeps_every_command_at_most_depth_inside_the_posed_cube(
     sim = _sim(finger_radius=radius)
     drv = sim.robot_driver
     drv.press_depth = depth
+    drv.press_rate = None  # the bound itself (its rate limit: the test below)
     rng = np.random.default_rng(seed)
     rot = Rotation.from_euler("zyx", [yaw, tilt, roll], degrees=True).as_matrix()
     lo = CUBE.vertices.min(axis=0)
@@ -538,3 +539,49 @@ def test_press_bound_refuses_what_is_not_one(depth: object, correction: object) 
     with pytest.raises(InputError):
         SweepRobot((Arm(Robot.builtin(), BASE),), press_depth=depth,  # type: ignore[arg-type]
                    press_correction=correction)  # type: ignore[arg-type]
+
+
+def test_press_push_moves_at_most_press_rate_and_reaches_the_bound() -> None:
+    """The bound's push changes by at most ``press_rate`` times the physics step from row to
+    row (the knot's target ``k // 2 + 1`` steps past the last row), from zero at a new
+    start, and settles on the unlimited push (the bound itself) when the command stays: a
+    command 8 mm deep in the cube's +x face, a 10 mm tip, a 1 mm bound (a 17 mm push).
+    Truth: the cube's distance by hand (:func:`_box_distance`) and the step bound."""
+    sim = _sim(finger_radius=0.010)
+    drv = sim.robot_driver
+    drv.press_depth = 0.001
+    rot = np.eye(3)
+    lo = CUBE.vertices.min(axis=0)
+    hi = CUBE.vertices.max(axis=0)
+    centre = np.array([0.3, 0.1, 0.025])
+    drv.see(ObjectPose(rot, centre - SCALE * rot @ (0.5 * (lo + hi)), centre, SCALE))
+    half = 0.5 * SCALE * float((hi - lo)[0])
+    deep = centre + np.array([half - 0.008, 0.0, 0.0])
+    k = 10
+    rows = np.repeat(deep[None, None], k, axis=0)
+    drv.press_rate = None
+    full = drv._tool(rows, deep[None])
+    assert full is not None
+    # the bound itself: the command's centre 9 mm from the cube (its push 17 mm and more:
+    # the blended normal leans towards the top face's at 8 mm of blend)
+    np.testing.assert_allclose(_box_distance(deep[None] + full[0], centre, rot, half), 0.009,
+                               atol=1e-9)
+    assert 0.017 <= float(np.linalg.norm(full[0, 0])) < 0.018 and full[0, 0, 0] > 0.0169
+    unit = full[0, 0] / np.linalg.norm(full[0, 0])
+    drv.press_rate = 0.1
+    step = 0.1 * drv.dt
+    prev = np.zeros(3)
+    for period in range(40):
+        got = drv._tool(rows, deep[None])
+        assert got is not None
+        for i in range(k):
+            assert np.linalg.norm(got[i, 0] - prev) <= step + 1e-12
+            prev = got[i, 0]
+        assert np.linalg.norm(got[k, 0] - got[k - 1, 0]) <= step * (k // 2 + 1) + 1e-12
+        if period == 0:
+            np.testing.assert_allclose(got[k - 1, 0], k * step * unit, atol=1e-12)
+    np.testing.assert_allclose(got, full, atol=1e-12)
+    drv.reset()  # a new start: the push starts from zero again
+    got = drv._tool(rows, deep[None])
+    assert got is not None
+    np.testing.assert_allclose(got[0, 0], step * unit, atol=1e-12)

@@ -698,11 +698,14 @@ class RobotArms:
         # the contact-consistent command (_press_push; off by default, docs/robot.md says
         # why): the deepest a fingertip command may put the tip inside the object as
         # observed (m; None: no bound), whether the contact tracking correction may press
-        # past it (False: the IK's target is bounded too, _bounded), and the softmax scale
-        # of the push's normal round an edge (m)
+        # past it (False: the IK's target is bounded too, _bounded), the softmax scale of
+        # the push's normal round an edge (m), and the push's rate limit (m/s, None: none;
+        # _press_limited) with the push it carries on from
         self.press_depth: float | None = None
         self.press_correction = True
         self.press_blend = 0.008
+        self.press_rate: float | None = 0.1
+        self._press_last = np.zeros((scene.n_fingers, 3))
 
     # --------------------------------------------------------------------- protocol
     def controls(self, targets: FloatArray) -> Any:
@@ -779,6 +782,7 @@ class RobotArms:
         self._n = 0
         self._offset[:] = 0.0
         self._corr[:] = 0.0
+        self._press_last[:] = 0.0
         self._state = None
 
     def begin(self) -> None:
@@ -1109,8 +1113,11 @@ class RobotArms:
 
     def _tool(self, rows: FloatArray, ahead: FloatArray) -> FloatArray | None:
         """The fingertip radius offset of the targets ``rows`` (shape (k, n_fingers, 3))
-        and ``ahead`` (shape (n_fingers, 3)), shape (k + 1, n_fingers, 3); None where there
-        is none (the arm's fingertip as large as the references', or no object shape).
+        and ``ahead`` (shape (n_fingers, 3)), plus the contact-consistent command's push
+        where ``press_depth`` is set (:meth:`_press_push`, rate-limited by
+        :meth:`_press_limited`), shape (k + 1, n_fingers, 3); None where there is neither
+        (the arm's fingertip as large as the references' or the offset off, and nothing
+        pushed; or no object shape).
 
         The references are fingertip-centre paths recorded with a fingertip of radius
         ``reference_radius`` (the free fingertip's 6 mm); the arm's tip has
@@ -1157,10 +1164,36 @@ class RobotArms:
             out = (delta * fade)[:, None] * nrm
             local = local + out @ rot
         if press is not None:
-            out = out + self._press_push(local, press, rot) @ rot.T
+            push = self._press_push(local, press, rot) @ rot.T
+            if self.press_rate is not None:
+                push = self._press_limited(push.reshape(len(rows) + 1, -1, 3)).reshape(-1, 3)
+            out = out + push
         if not offset and not out.any():
             return None
         return np.asarray(out.reshape(len(rows) + 1, -1, 3))
+
+    def _press_limited(self, push: FloatArray) -> FloatArray:
+        """The pushes of a control period's rows and its knot's target (shape (k + 1,
+        n_fingers, 3), world m), each row's moved from the row before's by at most
+        ``press_rate`` (m/s) times the physics step (the knot's, ``k // 2 + 1`` steps past
+        the last row), from the last row the previous period gave: where the reference
+        crosses the object's interior the push turned from one face to another within a
+        control period, a command step of 8-35 mm no tip follows."""
+        out = np.array(push)
+        step = float(self.press_rate) * self.dt  # type: ignore[arg-type]
+        prev = self._press_last
+        k = len(out) - 1
+        for i in range(k + 1):
+            room = step if i < k else step * (k // 2 + 1)
+            base = prev if i == 0 else out[i - 1]
+            dv = out[i] - base
+            n = np.sqrt((dv * dv).sum(axis=1))
+            big = n > room
+            if big.any():
+                dv[big] *= (room / n[big])[:, None]
+            out[i] = base + dv
+        self._press_last = np.array(out[k - 1] if k > 0 else out[0])
+        return out
 
     def _press_push(self, local: FloatArray, depth: float, rot: FloatArray) -> FloatArray:
         """The push out of the object (object frame, m; shape of ``local``, (m, 3)) that
