@@ -81,11 +81,13 @@ LIMIT_BANDS = {"position_rad": np.radians(0.5), "velocity_fraction": 0.98,
 
 def check_press(depth: object, correction: object = True) -> None:
     """Refuse a contact-consistent command that is not one (one line saying what came):
-    ``depth`` None or a finite depth of 0 to 20 mm in m, ``correction`` a bool."""
-    if depth is not None and not (isinstance(depth, numbers.Real)
+    ``depth`` None, ``"auto"`` (by the number of fingertips:
+    :class:`~nonprehensile.sim.robot_run.RobotSimulator`) or a finite depth of 0 to 20 mm
+    in m, ``correction`` a bool."""
+    if depth is not None and depth != "auto" and not (isinstance(depth, numbers.Real)
                                   and not isinstance(depth, (bool, np.bool_))
                                   and 0.0 <= float(depth) <= 0.02):  # (NaN, inf: no)
-        raise InputError(f"the press depth is None or 0..0.02 m, got {depth!r}")
+        raise InputError(f"the press depth is None, 'auto' or 0..0.02 m, got {depth!r}")
     if not isinstance(correction, bool):
         raise InputError(f"press_correction is True or False, got {correction!r}")
 

@@ -414,9 +414,10 @@ class SweepRobot:
         The arms' force-limited finger command with each sample's ``stiffness`` and
         ``max_force`` (:class:`~nonprehensile.sim.robot_run.RobotSimulator`; off by
         default).
-    press_depth : float or None
+    press_depth : float, None or "auto"
         The contact-consistent command's bound, m (the deepest a fingertip command may put
-        the arm's fingertip sphere inside the object as observed; None: none), and
+        the arm's fingertip sphere inside the object as observed; None: none; ``"auto"``,
+        the default: none with one arm's fingertip, 2 mm with several), and
     press_correction : bool
         whether the contact tracking correction may press past it
         (:class:`~nonprehensile.sim.robot_run.RobotSimulator`).
@@ -426,7 +427,7 @@ class SweepRobot:
     control_every: int = 10  # robot_driver.DEFAULT_CONTROL_EVERY (a test holds them equal)
     max_accel: float = None  # type: ignore[assignment]
     compliance: bool = False
-    press_depth: float | None = None
+    press_depth: float | str | None = "auto"
     press_correction: bool = True
 
     def __post_init__(self) -> None:
