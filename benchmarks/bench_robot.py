@@ -63,6 +63,13 @@ EVERY_UNIT = int(os.environ.get("NP_ROBOT_UNITS", "1"))
 ARMS = [int(a) for a in os.environ.get("NP_ROBOT_ARMS", "1,2").split(",")]
 REPEAT = max(1, int(os.environ.get("NP_ROBOT_REPEAT", "1")))
 COMPLIANCE = os.environ.get("NP_ROBOT_COMPLIANCE", "0") == "1"
+# the contact-consistent command's bound in mm ("off": none; unset: the default), and
+# whether the contact correction may press past it (NP_ROBOT_PRESS_CORRECTION=0: no)
+_PRESS = os.environ.get("NP_ROBOT_PRESS")
+PRESS: dict = ({} if _PRESS is None else
+               {"press_depth": None if _PRESS == "off" else float(_PRESS) / 1000.0})
+if "NP_ROBOT_PRESS_CORRECTION" in os.environ:
+    PRESS["press_correction"] = os.environ["NP_ROBOT_PRESS_CORRECTION"] == "1"
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 
@@ -134,7 +141,7 @@ def main_plan() -> None:
         for (label, base), every in ((b, e) for b in bases
                                  for e in (DEFAULT_CONTROL_EVERY, 1)):
             sim = RobotSimulator(poly, [Arm(robot, base)], scale=ds.scale, control_every=every,
-                                 compliance=COMPLIANCE)
+                                 compliance=COMPLIANCE, **PRESS)
             cfg = robot_control(n_fingers=sim.n_fingers)
             times = []
             for _ in range(REPEAT):
@@ -319,8 +326,9 @@ def sweep() -> None:
           f"{SAMPLES} samples, seed {SEED}, {WORKERS} workers")
     spec = SweepSpec(poly, ds.scale, units, dist, SEED, SAMPLES, ("closed",),
                      dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
-                     robot=SweepRobot(tuple(arms), compliance=COMPLIANCE))
-    print(f"   force-limited finger command: {_compliance(1)}")
+                     robot=SweepRobot(tuple(arms), compliance=COMPLIANCE, **PRESS))
+    print(f"   force-limited finger command: {_compliance(1)}; contact-consistent command: "
+          f"{PRESS or 'the default'}")
     _robot_report(run_sweep(spec, workers=WORKERS))
 
 
@@ -367,8 +375,9 @@ def transitions() -> None:
               f"({time.perf_counter() - t0:.0f} s search)")
         spec = SweepSpec(poly, ds.scale, tuple(units), nominal, SEED, 1, ("closed",),
                          dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
-                         robot=SweepRobot(tuple(arms), compliance=COMPLIANCE))
-        print(f"   force-limited finger command: {_compliance(n_arms)}")
+                         robot=SweepRobot(tuple(arms), compliance=COMPLIANCE, **PRESS))
+        print(f"   force-limited finger command: {_compliance(n_arms)}; contact-consistent "
+              f"command: {PRESS or 'the default'}")
         _robot_report(run_sweep(spec, workers=WORKERS, chunk_size=1))
 
 

@@ -200,7 +200,10 @@ def _pinch(gain: float | None) -> tuple[float, float, RobotSimulator]:
     arms = [Arm(Robot.builtin(), BasePose(0.025, -0.5, 90.0)),
             Arm(Robot.builtin(), BasePose(0.025, 0.55, -90.0))]
     kw = {} if gain is None else {"tracking_gain": gain}
-    sim = RobotSimulator(CUBE, arms, scale=SCALE, **kw)  # type: ignore[arg-type]
+    # the contact-consistent command off: this pinch is the correction's (its bound, on by
+    # default for several fingertips, would hold the commands 4 mm outside the faces)
+    sim = RobotSimulator(CUBE, arms, scale=SCALE, press_depth=None,
+                         **kw)  # type: ignore[arg-type]
     drv, d, m = sim.robot_driver, sim.data, sim.model
     mujoco.mj_resetData(m, d)
     # 6 mm fingertips, centres 2 mm outside the faces y = 0 and y = 0.05: 4 mm into them
@@ -319,3 +322,21 @@ def test_tumbling_pinch_leans_further_out_one_finger_never() -> None:
     ik1.set_object(*pose)
     ik1.set_tumbling(True)
     assert lean(ik1, on_face[:1]) == pytest.approx([30.0], abs=1e-6)
+
+
+def test_the_contact_consistent_command_is_on_for_a_pinch_and_off_for_one_arm() -> None:
+    """``press_depth="auto"`` (the default): no bound with one fingertip (an arm pushing),
+    :data:`PINCH_PRESS_DEPTH` with two arms' fingertips; an explicit value or None wins."""
+    from nonprehensile.sim.robot_run import PINCH_PRESS_DEPTH
+
+    one = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
+                         scale=SCALE)
+    assert one.robot_driver.press_depth is None
+    arms = [Arm(Robot.builtin(), BasePose(0.025, -0.5, 90.0)),
+            Arm(Robot.builtin(), BasePose(0.025, 0.55, -90.0))]
+    two = RobotSimulator(CUBE, arms, scale=SCALE)
+    assert two.robot_driver.press_depth == PINCH_PRESS_DEPTH == 0.002
+    assert RobotSimulator(CUBE, arms, scale=SCALE, press_depth=None).robot_driver.press_depth \
+        is None
+    assert RobotSimulator(CUBE, arms[:1], scale=SCALE,
+                          press_depth=0.003).robot_driver.press_depth == 0.003

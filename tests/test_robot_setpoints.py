@@ -464,3 +464,124 @@ def test_hold_row_before_any_trajectory_keeps_the_controls() -> None:
     row = sim.robot_driver.hold_row()
     assert row.shape == sim.data.ctrl.shape and np.all(np.isfinite(row))
     np.testing.assert_array_equal(row, sim.data.ctrl)
+
+
+def _box_distance(points: np.ndarray, centre: np.ndarray, rot: np.ndarray,
+                  half: float) -> np.ndarray:
+    """Signed distance (m) of ``points`` (shape (n, 3)) to a cube of half-width ``half``
+    centred at ``centre`` and turned by ``rot``, by hand: in the cube's frame the excess of
+    each coordinate over the half-width; outside, the norm of the positive excesses (the
+    nearest face, edge or vertex), inside the largest (negative) excess."""
+    e = np.abs((points - centre) @ rot) - half
+    out = np.maximum(e, 0.0)
+    return np.where(e.max(axis=1) > 0.0, np.sqrt((out * out).sum(axis=1)), e.max(axis=1))
+
+
+@settings(max_examples=150, deadline=None)
+@given(yaw=st.floats(-180.0, 180.0), tilt=st.floats(-40.0, 40.0), roll=st.floats(-40.0, 40.0),
+       radius=st.floats(0.005, 0.012), depth=st.sampled_from([0.0, 0.0005, 0.001, 0.002]),
+       seed=st.integers(0, 2**31 - 1))
+def test_press_bound_keeps_every_command_at_most_depth_inside_the_posed_cube(
+        yaw: float, tilt: float, roll: float, radius: float, depth: float,
+        seed: int) -> None:
+    """The contact-consistent command: every command (rows and the knot's target) whose
+    fingertip sphere would sit deeper than ``press_depth`` inside the cube as observed is
+    pushed out until it sits exactly that deep (its centre ``radius - depth`` from the
+    cube), never out through a face that looks down at the table; a command already far
+    enough is not moved at all. Truth: the posed cube's signed distance by hand
+    (:func:`_box_distance`), not the driver's planes."""
+    from scipy.spatial.transform import Rotation
+
+    sim = _sim(finger_radius=radius)
+    drv = sim.robot_driver
+    drv.press_depth = depth
+    drv.press_rate = None  # the bound itself (its rate limit: the test below)
+    rng = np.random.default_rng(seed)
+    rot = Rotation.from_euler("zyx", [yaw, tilt, roll], degrees=True).as_matrix()
+    lo = CUBE.vertices.min(axis=0)
+    hi = CUBE.vertices.max(axis=0)
+    centre = np.array([0.3, 0.1, 0.05])
+    drv.see(ObjectPose(rot, centre - SCALE * rot @ (0.5 * (lo + hi)), centre, SCALE))
+    half = 0.5 * SCALE * float((hi - lo)[0])
+    pts = centre + rng.uniform(-half - 0.02, half + 0.02, (11, 3))
+    got = drv._tool(pts[:10, None], pts[10][None])
+    push = np.zeros((11, 3)) if got is None else got.reshape(11, 3)
+    need = radius - depth
+    before = _box_distance(pts, centre, rot, half)
+    after = _box_distance(pts + push, centre, rot, half)
+    far = before >= need
+    assert not push[far].any()
+    np.testing.assert_allclose(after[~far], need, atol=1e-6)
+    # the push goes out along a blend of the normals of faces that do not look down
+    world = (np.array([CUBE.normals[f] for f in CUBE.face_ids])) @ rot.T
+    usable = world[world[:, 2] >= -math.sqrt(0.5)]
+    for p in push[~far]:
+        n = float(np.linalg.norm(p))
+        if n > 1e-9:
+            assert float((usable @ (p / n)).max()) > 0.0
+    drv.press_depth = None  # the bound off: nothing moves
+    assert drv._tool(pts[:10, None], pts[10][None]) is None
+
+
+@pytest.mark.parametrize("depth, correction", [(-0.001, True), (math.nan, True), (math.inf, True),
+                                               (0.05, True), (True, True), ("1", True),
+                                               (0.001, 1)])
+def test_press_bound_refuses_what_is_not_one(depth: object, correction: object) -> None:
+    """A depth outside 0..20 mm (NaN, inf, a bool, a string) or a correction flag that is
+    not a bool is refused with the project's input error, by the arm's scene and by a
+    sweep's robot alike."""
+    from nonprehensile.errors import InputError
+    from nonprehensile.sim.robustness import SweepRobot
+
+    with pytest.raises(InputError):
+        RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                       press_depth=depth, press_correction=correction)  # type: ignore[arg-type]
+    with pytest.raises(InputError):
+        SweepRobot((Arm(Robot.builtin(), BASE),), press_depth=depth,  # type: ignore[arg-type]
+                   press_correction=correction)  # type: ignore[arg-type]
+
+
+def test_press_push_moves_at_most_press_rate_and_reaches_the_bound() -> None:
+    """The bound's push changes by at most ``press_rate`` times the physics step from row to
+    row (the knot's target ``k // 2 + 1`` steps past the last row), from zero at a new
+    start, and settles on the unlimited push (the bound itself) when the command stays: a
+    command 8 mm deep in the cube's +x face, a 10 mm tip, a 1 mm bound (a 17 mm push).
+    Truth: the cube's distance by hand (:func:`_box_distance`) and the step bound."""
+    sim = _sim(finger_radius=0.010)
+    drv = sim.robot_driver
+    drv.press_depth = 0.001
+    rot = np.eye(3)
+    lo = CUBE.vertices.min(axis=0)
+    hi = CUBE.vertices.max(axis=0)
+    centre = np.array([0.3, 0.1, 0.025])
+    drv.see(ObjectPose(rot, centre - SCALE * rot @ (0.5 * (lo + hi)), centre, SCALE))
+    half = 0.5 * SCALE * float((hi - lo)[0])
+    deep = centre + np.array([half - 0.008, 0.0, 0.0])
+    k = 10
+    rows = np.repeat(deep[None, None], k, axis=0)
+    drv.press_rate = None
+    full = drv._tool(rows, deep[None])
+    assert full is not None
+    # the bound itself: the command's centre 9 mm from the cube (its push 17 mm and more:
+    # the blended normal leans towards the top face's at 8 mm of blend)
+    np.testing.assert_allclose(_box_distance(deep[None] + full[0], centre, rot, half), 0.009,
+                               atol=1e-9)
+    assert 0.017 <= float(np.linalg.norm(full[0, 0])) < 0.018 and full[0, 0, 0] > 0.0169
+    unit = full[0, 0] / np.linalg.norm(full[0, 0])
+    drv.press_rate = 0.1
+    step = 0.1 * drv.dt
+    prev = np.zeros(3)
+    for period in range(40):
+        got = drv._tool(rows, deep[None])
+        assert got is not None
+        for i in range(k):
+            assert np.linalg.norm(got[i, 0] - prev) <= step + 1e-12
+            prev = got[i, 0]
+        assert np.linalg.norm(got[k, 0] - got[k - 1, 0]) <= step * (k // 2 + 1) + 1e-12
+        if period == 0:
+            np.testing.assert_allclose(got[k - 1, 0], k * step * unit, atol=1e-12)
+    np.testing.assert_allclose(got, full, atol=1e-12)
+    drv.reset()  # a new start: the push starts from zero again
+    got = drv._tool(rows, deep[None])
+    assert got is not None
+    np.testing.assert_allclose(got[0, 0], step * unit, atol=1e-12)

@@ -34,7 +34,7 @@ from nonprehensile.sim.judge import CONTACT_EVERY, Judge
 from nonprehensile.sim.robot_scene import RobotScene
 
 __all__ = ["COMPLIANCE_DAMPING", "DEFAULT_CONTROL_EVERY", "LIMIT_BANDS", "RobotArms",
-           "RobotLog", "RobotMetrics"]
+           "RobotLog", "RobotMetrics", "check_press"]
 
 FloatArray = NDArray[np.float64]
 
@@ -67,6 +67,9 @@ TORQUE_SHARE = 0.8
 TORQUE_SHARE_LIGHT = 0.6
 LIGHT_JOINT = 30.0
 
+#: Newton steps of the contact-consistent command's push (:meth:`RobotArms._press_push`).
+PRESS_ITERATIONS = 6
+
 #: The force-limited finger command's damping ``B`` (N s/m, :meth:`RobotArms._comply`).
 COMPLIANCE_DAMPING = 300.0
 
@@ -74,6 +77,19 @@ COMPLIANCE_DAMPING = 300.0
 #: range, velocity and torque at or above 98 % of their limits.
 LIMIT_BANDS = {"position_rad": np.radians(0.5), "velocity_fraction": 0.98,
                "torque_fraction": 0.98}
+
+
+def check_press(depth: object, correction: object = True) -> None:
+    """Refuse a contact-consistent command that is not one (one line saying what came):
+    ``depth`` None, ``"auto"`` (by the number of fingertips:
+    :class:`~nonprehensile.sim.robot_run.RobotSimulator`) or a finite depth of 0 to 20 mm
+    in m, ``correction`` a bool."""
+    if depth is not None and depth != "auto" and not (isinstance(depth, numbers.Real)
+                                  and not isinstance(depth, (bool, np.bool_))
+                                  and 0.0 <= float(depth) <= 0.02):  # (NaN, inf: no)
+        raise InputError(f"the press depth is None, 'auto' or 0..0.02 m, got {depth!r}")
+    if not isinstance(correction, bool):
+        raise InputError(f"press_correction is True or False, got {correction!r}")
 
 
 @dataclass(frozen=True)
@@ -681,6 +697,17 @@ class RobotArms:
         self.reference_radius = REFERENCE_RADIUS
         self.tool_band = 0.015
         self.tool_blend = 0.002
+        # the contact-consistent command (_press_push; off by default, docs/robot.md says
+        # why): the deepest a fingertip command may put the tip inside the object as
+        # observed (m; None: no bound), whether the contact tracking correction may press
+        # past it (False: the IK's target is bounded too, _bounded), the softmax scale of
+        # the push's normal round an edge (m), and the push's rate limit (m/s, None: none;
+        # _press_limited) with the push it carries on from
+        self.press_depth: float | None = None
+        self.press_correction = True
+        self.press_blend = 0.008
+        self.press_rate: float | None = 0.1
+        self._press_last = np.zeros((scene.n_fingers, 3))
 
     # --------------------------------------------------------------------- protocol
     def controls(self, targets: FloatArray) -> Any:
@@ -757,6 +784,7 @@ class RobotArms:
         self._n = 0
         self._offset[:] = 0.0
         self._corr[:] = 0.0
+        self._press_last[:] = 0.0
         self._state = None
 
     def begin(self) -> None:
@@ -842,7 +870,7 @@ class RobotArms:
                 qd1 = np.zeros_like(q1)
             else:
                 self._set_object()
-                q1, qd1 = self.ik.step(self._yield(now, 1, noise_j, now=now))
+                q1, qd1 = self.ik.step(self._bounded(self._yield(now, 1, noise_j, now=now)))
                 if j + 1 >= n:  # the IK solves every step: its last row holds still
                     qd1 = np.zeros_like(qd1)
             q = np.stack([q1, q1])
@@ -864,7 +892,7 @@ class RobotArms:
                 # and a knot clipped into the joints' range at a new trajectory)
                 knot = s0 + (0.5 * h) * v0
                 self.ik.dt = h
-                q1, _ = self.ik.step(self._yield(ahead, k, noise_j, now=now))
+                q1, _ = self.ik.step(self._bounded(self._yield(ahead, k, noise_j, now=now)))
                 self.ik.dt = self.dt
                 v1 = (q1 - knot) / h
                 if self.torque_share > 0.0:
@@ -1087,8 +1115,11 @@ class RobotArms:
 
     def _tool(self, rows: FloatArray, ahead: FloatArray) -> FloatArray | None:
         """The fingertip radius offset of the targets ``rows`` (shape (k, n_fingers, 3))
-        and ``ahead`` (shape (n_fingers, 3)), shape (k + 1, n_fingers, 3); None where there
-        is none (the arm's fingertip as large as the references', or no object shape).
+        and ``ahead`` (shape (n_fingers, 3)), plus the contact-consistent command's push
+        where ``press_depth`` is set (:meth:`_press_push`, rate-limited by
+        :meth:`_press_limited`), shape (k + 1, n_fingers, 3); None where there is neither
+        (the arm's fingertip as large as the references' or the offset off, and nothing
+        pushed; or no object shape).
 
         The references are fingertip-centre paths recorded with a fingertip of radius
         ``reference_radius`` (the free fingertip's 6 mm); the arm's tip has
@@ -1110,7 +1141,9 @@ class RobotArms:
         slippery-table pushes with large fingertips (91/100 against 94/100), where the
         pressing arm had tipped the cube (docs/benchmarks.md, arm22)."""
         delta = self.finger_radius - self.reference_radius
-        if not self.radius_offset or self._planes is None or delta == 0.0:
+        offset = self.radius_offset and delta != 0.0
+        press = self.press_depth
+        if self._planes is None or (not offset and press is None):
             return None
         normals, offsets = self._planes
         if self._seen is not None and self._seen_rot is not None:
@@ -1122,14 +1155,149 @@ class RobotArms:
                               np.asarray(ahead, dtype=np.float64).reshape(-1, 3)])
         local = (pts - t) @ rot  # the object's frame (unscaled: offsets are scaled)
         dist = local @ normals.T - offsets  # (m, faces), world metres
-        top = dist.max(axis=1)
-        w = np.exp((dist - top[:, None]) / self.tool_blend)
-        nrm = (w @ normals) @ rot.T
-        nrm /= np.sqrt((nrm * nrm).sum(axis=1))[:, None]
-        fade = np.clip((self.reference_radius + self.tool_band - top) / self.tool_band,
-                       0.0, 1.0)
-        out = (delta * fade)[:, None] * nrm
+        out = np.zeros_like(pts)
+        if offset:
+            top = dist.max(axis=1)
+            w = np.exp((dist - top[:, None]) / self.tool_blend)
+            nrm = (w @ normals) @ rot.T
+            nrm /= np.sqrt((nrm * nrm).sum(axis=1))[:, None]
+            fade = np.clip((self.reference_radius + self.tool_band - top) / self.tool_band,
+                           0.0, 1.0)
+            out = (delta * fade)[:, None] * nrm
+            local = local + out @ rot
+        if press is not None:
+            push = self._press_push(local, press, rot) @ rot.T
+            if self.press_rate is not None:
+                push = self._press_limited(push.reshape(len(rows) + 1, -1, 3)).reshape(-1, 3)
+            out = out + push
+        if not offset and not out.any():
+            return None
         return np.asarray(out.reshape(len(rows) + 1, -1, 3))
+
+    def _press_limited(self, push: FloatArray) -> FloatArray:
+        """The pushes of a control period's rows and its knot's target (shape (k + 1,
+        n_fingers, 3), world m), each row's moved from the row before's by at most
+        ``press_rate`` (m/s) times the physics step (the knot's, ``k // 2 + 1`` steps past
+        the last row), from the last row the previous period gave: where the reference
+        crosses the object's interior the push turned from one face to another within a
+        control period, a command step of 8-35 mm no tip follows."""
+        out = np.array(push)
+        step = float(self.press_rate) * self.dt  # type: ignore[arg-type]
+        prev = self._press_last
+        k = len(out) - 1
+        for i in range(k + 1):
+            room = step if i < k else step * (k // 2 + 1)
+            base = prev if i == 0 else out[i - 1]
+            dv = out[i] - base
+            n = np.sqrt((dv * dv).sum(axis=1))
+            big = n > room
+            if big.any():
+                dv[big] *= (room / n[big])[:, None]
+            out[i] = base + dv
+        self._press_last = np.array(out[k - 1] if k > 0 else out[0])
+        return out
+
+    def _press_push(self, local: FloatArray, depth: float, rot: FloatArray) -> FloatArray:
+        """The push out of the object (object frame, m; shape of ``local``, (m, 3)) that
+        keeps each fingertip command ``local`` (the centre of the arm's fingertip sphere,
+        radius ``finger_radius``, in the object's frame, m; ``rot``: the object's rotation,
+        for the table's side) at most ``depth`` (m) inside the object: the command's
+        distance to the object at least ``need = finger_radius - depth``.
+
+        The distance is the Euclidean one outside the object and the largest face plane
+        distance inside (:meth:`_signed_distance`). The push goes along the face normals
+        blended by a softmax of the command's plane distances (``press_blend`` m, as the
+        radius offset's in :meth:`_tool`), so that its direction turns smoothly round an edge
+        as the command moves, and never out through a face that looks down at the table
+        (more than 45 degrees below the horizon, as :func:`~nonprehensile.transit.escape`: a
+        command deep inside a cube that lags the plan is nearest whichever face, the bottom
+        one too; it was pushed 17 mm into the table). Its length is where that ray leaves
+        the bound: from where it leaves the face planes moved out by ``need`` (far enough:
+        a plane distance is a lower bound of the distance), Newton's steps back; the signed
+        distance to a convex body is convex along a line, so each step stays far enough and
+        the last one is on the bound (exact off a face and round a box's edges and
+        vertices). A command already far enough (its largest plane distance at least
+        ``need``) is not moved: the motion along the surface and every approach stay the
+        reference's."""
+        normals, offsets = self._planes  # type: ignore[misc]
+        need = self.finger_radius - depth
+        dist = local @ normals.T - offsets
+        top = dist.max(axis=1)
+        out = np.zeros_like(local)
+        near = np.flatnonzero(top < need)
+        if not len(near):
+            return out
+        x = local[near]
+        d = dist[near]
+        # never out through a face that looks down at the table (as transit.escape): a
+        # reference deep in a lagging cube is nearest whichever face, the bottom one too
+        d = np.where((normals @ rot.T)[:, 2] >= -math.sqrt(0.5), d, -np.inf)
+        w = np.exp((d - d.max(axis=1)[:, None]) / self.press_blend)
+        u = w @ normals
+        u /= np.sqrt((u * u).sum(axis=1))[:, None]
+        # start where the ray leaves the face planes moved out by ``need`` (a plane
+        # distance is a lower bound of the distance: that point is far enough, exactly so
+        # off a face), then Newton's steps back towards where it leaves the rounded bound:
+        # the signed distance is convex along the ray, so each step stays far enough
+        un = u @ normals.T  # (m, faces); some face has un > 0 (u blends the normals)
+        exits = np.where(un > 1e-9, (need - d) / np.where(un > 1e-9, un, 1.0), np.inf)
+        s = exits.min(axis=1)
+        for _ in range(PRESS_ITERATIONS):
+            g, grad = self._signed_distance(x + s[:, None] * u)
+            slope = (grad * u).sum(axis=1)
+            back = np.where(slope > 1e-6, (g - need) / np.where(slope > 1e-6, slope, 1.0), 0.0)
+            back = np.clip(back, 0.0, s)
+            s = s - back
+            if float(back.max()) < 1e-9:
+                break
+        out[near] = s[:, None] * u
+        return out
+
+    def _signed_distance(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """The signed distance (m) of points ``x`` (object frame, shape (m, 3)) to the
+        object and its gradient (unit, shape (m, 3)): outside, the distance to the nearest
+        point by projections on the face planes the point lies beyond (three rounds where
+        it lies beyond several: exact for a box, within a fraction of a millimetre between
+        oblique faces); inside, the largest face plane distance and that face's normal."""
+        normals, offsets = self._planes  # type: ignore[misc]
+        dist = x @ normals.T - offsets
+        top = dist.max(axis=1)
+        idx = dist.argmax(axis=1)
+        g = np.array(top)
+        grad = np.array(normals[idx])
+        out = np.flatnonzero(top > 0.0)
+        if len(out):
+            y = np.array(x[out])
+            for _ in range(3):
+                for n, off in zip(normals, offsets, strict=True):
+                    over = y @ n - off
+                    y -= np.maximum(over, 0.0)[:, None] * n
+            v = x[out] - y
+            r = np.sqrt((v * v).sum(axis=1))
+            g[out] = r
+            ok = r > 1e-12
+            grad[out[ok]] = v[ok] / r[ok][:, None]
+        return g, grad
+
+    def _bounded(self, targets: FloatArray) -> FloatArray:
+        """The IK's targets (shape (n_fingers, 3): the commands plus the contact tracking
+        correction, :meth:`_correct`) held at most ``press_depth`` inside the object as
+        well (:meth:`_press_push`), where ``press_correction`` is off: the correction then
+        closes the error along the surface (friction's lag) but cannot drive a command
+        into the object past the bound (against an object that does not give, it
+        integrated its whole ``tracking_bound`` into the press)."""
+        if self.press_depth is None or self.press_correction or self._planes is None:
+            return targets
+        if self._seen is not None and self._seen_rot is not None:
+            t, rot = self._seen[0], self._seen_rot
+        else:
+            d = self.data
+            t, rot = d.xpos[self._obj], d.xmat[self._obj].reshape(3, 3)
+        arr = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
+        push = self._press_push((arr - t) @ rot, self.press_depth, rot)
+        if not push.any():
+            return targets
+        return np.asarray((arr + push @ rot.T).reshape(np.shape(targets)))
 
     def _set_object(self) -> None:
         """The IK's object at the believed pose (:meth:`see`)."""

@@ -414,12 +414,21 @@ class SweepRobot:
         The arms' force-limited finger command with each sample's ``stiffness`` and
         ``max_force`` (:class:`~nonprehensile.sim.robot_run.RobotSimulator`; off by
         default).
+    press_depth : float, None or "auto"
+        The contact-consistent command's bound, m (the deepest a fingertip command may put
+        the arm's fingertip sphere inside the object as observed; None: none; ``"auto"``,
+        the default: none with one arm's fingertip, 2 mm with several), and
+    press_correction : bool
+        whether the contact tracking correction may press past it
+        (:class:`~nonprehensile.sim.robot_run.RobotSimulator`).
     """
 
     arms: tuple[Any, ...]
     control_every: int = 10  # robot_driver.DEFAULT_CONTROL_EVERY (a test holds them equal)
     max_accel: float = None  # type: ignore[assignment]
     compliance: bool = False
+    press_depth: float | str | None = "auto"
+    press_correction: bool = True
 
     def __post_init__(self) -> None:
         if self.max_accel is None:
@@ -436,6 +445,9 @@ class SweepRobot:
                 and self.max_accel > 0):
             raise InputError(f"max_accel must be a finite positive number, got "
                              f"{self.max_accel!r}")
+        from nonprehensile.sim.robot_driver import check_press
+
+        check_press(self.press_depth, self.press_correction)
 
     @property
     def n_fingers(self) -> int:
@@ -448,14 +460,16 @@ class SweepRobot:
 
         return RobotSimulator(poly, self.arms, scale=scale, params=params,
                               control_every=self.control_every,
-                              compliance=self.compliance)
+                              compliance=self.compliance, press_depth=self.press_depth,
+                              press_correction=self.press_correction)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form: robots, bases, rates."""
         return {"robots": [{"robot": a.robot.name, "tip_sites": list(a.robot.tip_sites),
                             "base": a.base.to_dict()} for a in self.arms],
                 "control_every": self.control_every, "max_accel": self.max_accel,
-                "compliance": bool(self.compliance)}
+                "compliance": bool(self.compliance), "press_depth": self.press_depth,
+                "press_correction": bool(self.press_correction)}
 
 
 def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, scale: float,
