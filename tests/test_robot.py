@@ -35,7 +35,7 @@ from nonprehensile.sim.ik import FingertipIK, IKConfig  # noqa: E402
 from nonprehensile.sim.placement import place_base  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
 from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY  # noqa: E402
-from nonprehensile.sim.robot_run import RobotSimulator  # noqa: E402
+from nonprehensile.sim.robot_run import PINCH_PRESS_DEPTH, RobotSimulator  # noqa: E402
 from nonprehensile.sim.robot_scene import Arm, build_robot_scene  # noqa: E402
 from nonprehensile.sim.robustness import SweepRobot  # noqa: E402
 from nonprehensile.sim.scene import DEFAULT_PARAMS  # noqa: E402
@@ -682,6 +682,10 @@ def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
     assert json.loads(json.dumps(doc, allow_nan=False))["ik_object_pose"].startswith("closed")
     stiff = RobotSimulator(CUBE, two, scale=SCALE).describe()["finger_command"]
     assert stiff["compliance"] is False and stiff["force_limit_n"] == DEFAULT_PARAMS.max_force
+    # the contact-consistent command's bound: on for a pinch, off for one arm (press24)
+    assert stiff["press_depth_m"] == PINCH_PRESS_DEPTH
+    assert RobotSimulator(CUBE, one, scale=SCALE).describe()["finger_command"][
+        "press_depth_m"] is None
     assert RobotSimulator(CUBE, two, scale=SCALE, compliance=True).robot_driver.compliance
     assert SweepRobot(tuple(two), compliance=True).to_dict()["compliance"] is True
     assert SweepRobot(tuple(one)).to_dict()["compliance"] is False
@@ -722,11 +726,12 @@ def test_cli_simulate_plan_with_the_force_limited_command() -> None:
     args = ["simulate", "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to",
             "a:290", "--step", "90", "--dataset", "cube", "--json"]
     res = CliRunner().invoke(main, [*args, "--robot", "panda", "--base", "0.53", "-0.51",
-                                    "112.5", "--compliance"])
+                                    "112.5", "--compliance", "--press-depth", "3"])
     assert res.exit_code == 0, res.stderr
     doc = json.loads(res.stdout)
     cmd = doc["robot"]["finger_command"]
     assert cmd["compliance"] is True and cmd["stiffness_n_per_m"] == DEFAULT_PARAMS.stiffness
+    assert cmd["press_depth_m"] == pytest.approx(0.003)  # --press-depth is in millimetres
     assert doc["robot"]["ik_object_pose"].startswith("closed loop: each observation")
     bad = CliRunner().invoke(main, [*args, "--compliance"])
     assert bad.exit_code == 2 and "--compliance is a robot's" in bad.stderr

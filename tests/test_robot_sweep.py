@@ -110,7 +110,11 @@ def test_cli_robustness_bad_robot_options_one_line(tmp_path: Path) -> None:
                         (["--robot", "panda", "--record", str(tmp_path / "rec")], "--record"),
                         (["--robot", "panda", "--arms", "2", "--base", "0.5", "0", "180"],
                          "--base given 1 time(s) for 2 arm(s)"),
-                        (["--compliance"], "--compliance is a robot's finger command")):
+                        (["--compliance"], "--compliance is a robot's finger command"),
+                        (["--press-depth", "3"], "--press-depth is a robot's finger command"),
+                        (["--robot", "panda", "--press-depth", "nan"], "--press-depth"),
+                        (["--robot", "panda", "--press-depth", "0"], "above 0"),
+                        (["--robot", "panda", "--press-depth", "25"], "at most 20 (mm)")):
         res = runner.invoke(main, ["simulate", "robustness", SKILLS, *STEP1, "--samples", "1",
                                    "--workers", "1", *extra])
         assert res.exit_code == 2, (extra, res.output)

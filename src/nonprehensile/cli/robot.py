@@ -9,11 +9,12 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.cli.options import count, number
+from nonprehensile.checks import Range
+from nonprehensile.cli.options import Number, count, number
 from nonprehensile.errors import InputError
 
-__all__ = ["compliance_option", "control_every", "load_robot", "placement_doc", "robot_arms",
-           "robot_options", "robot_table", "wants_robot"]
+__all__ = ["compliance_option", "control_every", "load_robot", "placement_doc", "press_option",
+           "robot_arms", "robot_options", "robot_table", "wants_robot"]
 
 F = Callable[..., Any]
 
@@ -68,6 +69,31 @@ def compliance_option(fn: F) -> F:
              "docs/robot.md); default --stiff, the position-controlled arm.")(fn)
 
 
+class _PressDepth(Number):
+    """``--press-depth``: ``auto``, ``off``, or a depth in millimetres (returned in metres)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None
+                ) -> Any:
+        if isinstance(value, str) and value.strip().lower() in ("auto", "off"):
+            return "auto" if value.strip().lower() == "auto" else None
+        if value is None or value == "auto":  # (the default, or a value converted before)
+            return value
+        return float(super().convert(value, param, ctx)) / 1000.0
+
+
+def press_option(fn: F) -> F:
+    """Add ``--press-depth`` (keyword argument ``press_depth``: ``"auto"``, None or metres)
+    to a command that simulates a robot."""
+    return click.option(
+        "--press-depth", "press_depth", type=_PressDepth(Range(0.0, 20.0, low_open=True,
+                                                                unit="mm")),
+        default="auto", show_default=True, metavar="MM|auto|off",
+        help="Robot: the contact-consistent command: the deepest (mm) a fingertip's command "
+             "may put the arm's fingertip inside the object as observed (a deeper one is "
+             "pushed out along the object's normal); `auto`: 2 mm when several fingertips "
+             "pinch, none for one arm pushing; `off`: none (docs/robot.md).")(fn)
+
+
 def wants_robot(kw: dict[str, Any]) -> bool:
     """Whether a robot option was given (and they agree)."""
     robot, xml, sites, base = (kw.get("robot"), kw.get("robot_xml"), kw.get("tip_sites"),
@@ -81,6 +107,9 @@ def wants_robot(kw: dict[str, Any]) -> bool:
                          "finger)")
     if base and robot is None and xml is None:
         raise InputError("--base places a robot: give --robot NAME or --robot-xml FILE")
+    if kw.get("press_depth", "auto") != "auto" and robot is None and xml is None:
+        raise InputError("--press-depth is a robot's finger command: give --robot NAME or "
+                         "--robot-xml FILE")
     if kw.get("compliance") and robot is None and xml is None:
         raise InputError("--compliance is a robot's finger command: give --robot NAME or "
                          "--robot-xml FILE")

@@ -31,6 +31,7 @@ from nonprehensile.cli.robot import (
     control_every,
     load_robot,
     placement_doc,
+    press_option,
     robot_options,
     wants_robot,
 )
@@ -110,6 +111,7 @@ def _pct(d: dict[str, Any]) -> str:
 @angle_tol_option
 @robot_options
 @compliance_option
+@press_option
 @json_option
 @handle_errors
 def robustness_cmd(skills_file: str, dataset: str, step: float | None,
@@ -271,7 +273,8 @@ def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds
         arms, found = rob.place_sweep_arms(robot, units, poly, ds.scale, ds.fingers,
                                            n_arms=n_arms, params=dist.base)
         placement = found[0] if n_arms == 1 else found
-    return rob.SweepRobot(tuple(arms), every, compliance=bool(kw.get("compliance"))), placement
+    return rob.SweepRobot(tuple(arms), every, compliance=bool(kw.get("compliance")),
+                          press_depth=kw.get("press_depth", "auto")), placement
 
 
 def _robot_summary(result: Any) -> dict[str, Any]:

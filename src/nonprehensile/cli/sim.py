@@ -44,6 +44,7 @@ from nonprehensile.cli.robot import (
     control_every,
     load_robot,
     placement_doc,
+    press_option,
     robot_arms,
     robot_options,
     robot_table,
@@ -365,6 +366,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @_perturbation_options
 @robot_options
 @compliance_option
+@press_option
 @json_option
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
@@ -378,7 +380,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
     it (docs/robot.md)."""
     robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
-                                       "control_rate", "n_arms", "compliance")}
+                                       "control_rate", "n_arms", "compliance", "press_depth")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
@@ -433,7 +435,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                                      robot)
         simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params,
                                    control_every=every,
-                                   compliance=bool(robot_kw.get("compliance")))
+                                   compliance=bool(robot_kw.get("compliance")),
+                                   press_depth=robot_kw.get("press_depth", "auto"))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")

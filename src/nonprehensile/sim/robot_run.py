@@ -272,6 +272,9 @@ class RobotSimulator(Simulator):
                               else None),
             "damping_n_s_per_m": float(drv.compliance_damping),
             "tracking_gain_per_s": drv.tracking_gain,
+            # the contact-consistent command's bound (None: the references as they are)
+            "press_depth_m": drv.press_depth,
+            "press_correction": bool(drv.press_correction),
         }
         doc["ik_object_pose"] = ("closed loop: each observation (RobotArms.see); open loop, "
                                  "where nothing is observed: the simulation's pose")
