@@ -332,12 +332,24 @@ def sweep() -> None:
     _robot_report(run_sweep(spec, workers=WORKERS))
 
 
-def transitions() -> None:
-    """Every cube transition at nominal physics by one arm or two (part 4)."""
+def _nominal(poly: object, scale: float) -> tuple:
+    """The closed-loop issue's distribution for the cube, and its nominal point (every
+    range collapsed to the base value, no start error, no noise)."""
     from dataclasses import replace
 
-    from nonprehensile.sim.closed_loop import scene_fingers
     from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION, PhysicsDistribution
+
+    dist = DEFAULT_DISTRIBUTION.for_object(poly, scale)
+    b = dist.base
+    return dist, replace(dist, **{n: (getattr(b, n), getattr(b, n))
+                                  for n in PhysicsDistribution.RANGED},
+                         start_offset=0.0, start_yaw=0.0, tracking_noise=0.0, finger_noise=0.0)
+
+
+def transitions() -> None:
+    """Every cube transition at nominal physics by one arm or two (part 4)."""
+
+    from nonprehensile.sim.closed_loop import scene_fingers
     from nonprehensile.sim.execute import fingers_of
     from nonprehensile.sim.robot import Robot
     from nonprehensile.sim.robustness import (
@@ -350,11 +362,7 @@ def transitions() -> None:
     )
 
     poly, skills, ds, motions, expand_ = _cube()
-    dist = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale)
-    b = dist.base
-    nominal = replace(dist, **{n: (getattr(b, n), getattr(b, n))
-                               for n in PhysicsDistribution.RANGED},
-                      start_offset=0.0, start_yaw=0.0, tracking_noise=0.0, finger_noise=0.0)
+    dist, nominal = _nominal(poly, ds.scale)
     panda = Robot.builtin("panda")
     full = expand_(skills)
     everything = transition_units(poly, full, motions, scale=ds.scale, angle_tol=1e-6)
@@ -385,10 +393,8 @@ def cost() -> None:
     """Every single-finger cube transition executed by one Panda and by the free fingertip,
     closed loop at nominal physics, one after the other in this process (part 5): the CPU
     of each execution, the ratio of the sums and the median of the per-transition ratios."""
-    from dataclasses import replace
 
     from nonprehensile.sim.closed_loop import scene_fingers
-    from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION, PhysicsDistribution
     from nonprehensile.sim.execute import fingers_of
     from nonprehensile.sim.robot import Robot
     from nonprehensile.sim.robustness import (
@@ -401,11 +407,7 @@ def cost() -> None:
     )
 
     poly, skills, ds, motions, expand_ = _cube()
-    dist = DEFAULT_DISTRIBUTION.for_object(poly, ds.scale)
-    b = dist.base
-    nominal = replace(dist, **{n: (getattr(b, n), getattr(b, n))
-                               for n in PhysicsDistribution.RANGED},
-                      start_offset=0.0, start_yaw=0.0, tracking_noise=0.0, finger_noise=0.0)
+    dist, nominal = _nominal(poly, ds.scale)
     sk = [s for s in skills if max(fingers_of(s), default=1) <= 1]
     exp = expand_(sk)
     units = tuple(u for u in transition_units(poly, exp, motions, scale=ds.scale,
