@@ -1,9 +1,7 @@
-"""The base placement search over the transits between steps, and its reachability map."""
+"""The base placement search over the transits between steps, and its reachability map
+(the command line's map: ``tests/test_robot.py``, the placement test)."""
 
 from __future__ import annotations
-
-import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,10 +11,8 @@ pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
                     "pip install 'nonprehensile[robot]'")
 pytest.importorskip("matplotlib", reason="the viz extra (matplotlib) is not installed")
 
-from click.testing import CliRunner
 from hypothesis import given, settings, strategies as st
 
-from nonprehensile.cli import main
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.build import cube
 from nonprehensile.sim.placement import place_base, transit_path
@@ -25,7 +21,6 @@ from nonprehensile.viz.reachability import reachability_figure
 
 CUBE = cube()
 SCALE = 0.05
-SKILLS = str(Path(__file__).resolve().parents[1] / "src/nonprehensile/data/cube_skills.json")
 
 coord = st.floats(-0.5, 0.5, allow_nan=False)
 height = st.floats(0.0, 0.3, allow_nan=False)
@@ -85,18 +80,3 @@ def test_place_base_reaches_across_a_jump_between_steps() -> None:
 def test_reachability_figure_needs_candidates() -> None:
     with pytest.raises(InputError, match="--base"):
         reachability_figure([], {"x": 0.0, "y": 0.0, "yaw_deg": 0.0})
-
-
-def test_cli_plan_with_a_searched_base_writes_the_reachability_map(tmp_path: Path) -> None:
-    out = tmp_path / "out"
-    res = CliRunner().invoke(main, [
-        "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to", "e:110", "--step",
-        "90", "--dataset", "cube", "--robot", "panda", "--out", str(out), "--json"])
-    assert res.exit_code == 0, res.stderr
-    doc = json.loads(res.stdout)
-    # the main plan's two steps, the transit between them included: a base reaches it all
-    placement = doc["robot"]["placement"]
-    assert placement["feasible"] and placement["reach_error_m"] < 0.005
-    png = out / "reachability.png"
-    assert str(png) in doc["files"]
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

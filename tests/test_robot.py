@@ -349,7 +349,8 @@ def test_robot_executes_a_push_roll_step() -> None:
     assert fast.describe()["rates"]["control_hz"] == 1000.0
 
 
-def test_place_base_and_cli_joint_trajectories(tmp_path: Path) -> None:
+def test_place_base_and_cli_joint_trajectories(tmp_path: Path,
+                                               monkeypatch: pytest.MonkeyPatch) -> None:
     # a short path 0.5 m out: a feasible base faces it
     path = np.tile(np.array([[0.3, 0.1, 0.04]]), (20, 1, 1))
     path[:, 0, 0] += np.linspace(0.0, 0.03, 20)
@@ -357,13 +358,26 @@ def test_place_base_and_cli_joint_trajectories(tmp_path: Path) -> None:
                     n_directions=4)
     assert pl.feasible and pl.tried == 4 and pl.reach_error_m < 0.002
     out = tmp_path / "out"
+    # the base searched (no --base): the joints are the searched base's, and the search is
+    # drawn as a reachability map beside them (a search of 4 candidates, not the default
+    # 144: the command's plumbing is what this checks; tests/test_reachability.py the search)
+    import functools
+
+    import nonprehensile.sim.placement as placement_module
+
+    monkeypatch.setattr(placement_module, "place_base", functools.partial(
+        place_base, radii=(0.5,), n_directions=4))
     res = CliRunner().invoke(main, [
         "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to", "a:290", "--step",
-        "90", "--dataset", "cube", "--robot", "panda", "--base", "0.53", "-0.51", "112.5",
-        "--out", str(out), "--json"])
+        "90", "--dataset", "cube", "--robot", "panda", "--out", str(out), "--json"])
     assert res.exit_code == 0, res.stderr
+    doc = json.loads(res.stdout)
     meta = json.loads((out / "joints_plan.json").read_text())
-    assert meta["robots"][0]["base"] == {"x": 0.53, "y": -0.51, "yaw_deg": 112.5}
+    placement = doc["robot"]["placement"]
+    assert placement["feasible"] and placement["candidates"] == 4
+    assert meta["robots"][0]["base"] == placement["base"]
+    png = out / "reachability.png"
+    assert str(png) in doc["files"] and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert meta["rates"]["control_hz"] == 100.0 and len(meta["joints"]) == 7
     with (out / "joints_step1.csv").open() as fh:
         rows = list(csv.reader(fh))
