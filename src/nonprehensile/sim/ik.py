@@ -52,6 +52,20 @@ _CROSS_Z = np.array([8, 2, 5, 5, 8, 2])
 _SUM, _MIN, _MAX = np.add.reduce, np.minimum.reduce, np.maximum.reduce
 
 
+def _clip_ufunc() -> Any:
+    """numpy's ``clip`` ufunc, without ``np.clip``'s Python wrapper (``numpy._core`` from
+    numpy 2, ``numpy.core`` before)."""
+    import importlib
+
+    try:
+        return importlib.import_module("numpy._core.umath").clip
+    except (ImportError, AttributeError):  # numpy 1.x
+        return importlib.import_module("numpy.core.umath").clip
+
+
+_CLIP = _clip_ufunc()
+
+
 def import_mink() -> Any:
     """mink, or an :class:`InputError` saying how to install it."""
     try:
@@ -284,9 +298,9 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             room *= gain
             if near_end:
                 np.minimum(room, stop, out=room)
-            np.maximum(room, self._back_dt, out=room)
-            # (the velocity bound first, as before: the same operand order)
-            np.minimum(self._velocity2_dt, room, out=room)
+            # ``min(v dt, max(room, -back dt))`` in one call (``-back dt`` <= 0 <= ``v dt``:
+            # the same numbers)
+            _CLIP(room, self._back_dt, self._velocity2_dt, out=room)
             if finite:
                 adt = accel * dt
                 acc = np.multiply(self._sign_acc, self.prev)
@@ -770,7 +784,9 @@ class FingertipIK:
             mujoco.mj_integratePos(m, qpos, v, self.dt)
             mujoco.mj_kinematics(m, d)
             mujoco.mj_comPos(m, d)
-            qd = v.copy()  # (the robot's joints are the scene's degrees of freedom, in order)
+            # (the robot's joints are the scene's degrees of freedom, in order; ``v`` is the
+            # QP's own new array, which nothing else keeps)
+            qd = v
             q = qpos.copy()
         else:
             self.configuration.integrate_inplace(v, self.dt)
@@ -825,7 +841,9 @@ class FingertipIK:
         we = self._we
         for task, w_k, we_k, cost, cost_col in self._task_rows:
             np.multiply(cost_col, task.compute_jacobian(conf), out=w_k)
-            np.multiply(cost, -task.gain * task.compute_error(conf), out=we_k)
+            # (``gain e``, not ``-gain e``: the linear term below is then ``we @ w``, the
+            # same numbers as ``-((-gain e) @ w)``, negation being exact, in one call fewer)
+            np.multiply(cost, task.gain * task.compute_error(conf), out=we_k)
         post = self.posture
         if post.gain != self._post_gain:  # the posture's constant arrays (converge sets
             # another gain): ``cp2 gain (q - q_home)`` evaluates ``cp2 gain`` first
@@ -837,7 +855,7 @@ class FingertipIK:
             self._post_diag = np.diag(cp2 + self.config.damping)
             self._post_lin = cp2 * post.gain
         h = self._wT @ w
-        c = -(we @ w)
+        c = we @ w
         qpos = self._qpos  # (read only: mink's ``q`` is a copy)
         h += self._post_diag
         c += self._post_lin * (qpos - post.target_q)
