@@ -703,6 +703,10 @@ def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
     assert RobotSimulator(CUBE, two, scale=SCALE, compliance=True).robot_driver.compliance
     assert SweepRobot(tuple(two), compliance=True).to_dict()["compliance"] is True
     assert SweepRobot(tuple(one)).to_dict()["compliance"] is False
+    # the sweep's records say which contact-consistent bound ran: "auto" resolved
+    assert SweepRobot(tuple(one)).to_dict()["press_depth_m"] is None
+    assert SweepRobot(tuple(two)).to_dict()["press_depth_m"] == PINCH_PRESS_DEPTH
+    assert SweepRobot(tuple(one), press_depth=0.003).to_dict()["press_depth_m"] == 0.003
     sim = SweepRobot(tuple(one), compliance=True).simulator(CUBE, SCALE, DEFAULT_PARAMS)
     assert sim.robot_driver.compliance  # type: ignore[attr-defined]
     # a sample's physics sets the virtual finger

@@ -469,7 +469,19 @@ class SweepRobot:
                             "base": a.base.to_dict()} for a in self.arms],
                 "control_every": self.control_every, "max_accel": self.max_accel,
                 "compliance": bool(self.compliance), "press_depth": self.press_depth,
+                # the bound that runs ("auto" resolved by the number of fingertips; None: none)
+                "press_depth_m": self.press_depth_m,
                 "press_correction": bool(self.press_correction)}
+
+    @property
+    def press_depth_m(self) -> float | None:
+        """The contact-consistent command's bound that runs, m (``"auto"`` resolved as
+        :class:`~nonprehensile.sim.robot_run.RobotSimulator` resolves it), None for none."""
+        if self.press_depth == "auto":
+            from nonprehensile.sim.robot_run import PINCH_PRESS_DEPTH
+
+            return PINCH_PRESS_DEPTH if self.n_fingers > 1 else None
+        return None if self.press_depth is None else float(self.press_depth)
 
 
 def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, scale: float,
