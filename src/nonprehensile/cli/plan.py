@@ -132,7 +132,6 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
                     "executes it in physics")
     doc["robot"] = meta
     written = list(write_joint_trajectories(trajectories, out_dir, meta))
-    searched = placement if isinstance(placement, list) else [placement]
     if placement is not None:  # searched: the reachability map of each arm's search
         from pathlib import Path
 
@@ -148,6 +147,7 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
         except InputError as exc:  # the trajectories are written; the picture is optional
             err.print(f"no reachability map: {exc}")
             return written
+        searched = placement if isinstance(placement, list) else [placement]
         per_arm = len(robot.tip_sites) if robot is not None else 1
         paths = plan_targets(result, ds.fingers, per_arm * len(searched))
         for i, pl in enumerate(searched):

@@ -35,7 +35,7 @@ from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
 __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL",
-           "RobotSimulator", "describe_robots", "robot_control"]
+           "RobotSimulator", "describe_robots", "resolve_press_depth", "robot_control"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
 #: fingertip (``ControlConfig.max_accel``). The free fingertips' 20 m/s^2 asks the Panda's
@@ -66,6 +66,15 @@ DEFAULT_TRACKING_GAIN = 20.0
 #: no link or rod contact against 5 runs, twist:reverse within 3 mm in 24/24 against 6/24;
 #: one arm pushing loses slippery-table pushes with it (docs/benchmarks.md, press24).
 PINCH_PRESS_DEPTH = 0.002
+
+
+def resolve_press_depth(depth: float | str | None, n_fingers: int) -> float | None:
+    """The contact-consistent command's bound that runs, m (None: none): ``"auto"`` is
+    :data:`PINCH_PRESS_DEPTH` with several fingertips and none with one; a number or None
+    as given."""
+    if depth == "auto":
+        return PINCH_PRESS_DEPTH if n_fingers > 1 else None
+    return None if depth is None else float(depth)
 
 FloatArray = NDArray[np.float64]
 
@@ -198,9 +207,8 @@ class RobotSimulator(Simulator):
             raise InputError(f"radius_offset is True or False, got {radius_offset!r}")
         self.robot_driver.radius_offset = radius_offset
         check_press(press_depth, press_correction)
-        if press_depth == "auto":  # one arm pushes: none; several pinch: the bound
-            press_depth = PINCH_PRESS_DEPTH if self.n_fingers > 1 else None
-        self.robot_driver.press_depth = None if press_depth is None else float(press_depth)
+        # one arm pushes: none; several pinch: the bound
+        self.robot_driver.press_depth = resolve_press_depth(press_depth, self.n_fingers)
         self.robot_driver.press_correction = press_correction
         self.robot_driver.finger_radius = params.finger_radius
         self._body = self.judge.body

@@ -477,11 +477,9 @@ class SweepRobot:
     def press_depth_m(self) -> float | None:
         """The contact-consistent command's bound that runs, m (``"auto"`` resolved as
         :class:`~nonprehensile.sim.robot_run.RobotSimulator` resolves it), None for none."""
-        if self.press_depth == "auto":
-            from nonprehensile.sim.robot_run import PINCH_PRESS_DEPTH
+        from nonprehensile.sim.robot_run import resolve_press_depth
 
-            return PINCH_PRESS_DEPTH if self.n_fingers > 1 else None
-        return None if self.press_depth is None else float(self.press_depth)
+        return resolve_press_depth(self.press_depth, self.n_fingers)
 
 
 def place_sweep_arms(robot: Any, units: Sequence[SweepUnit], poly: Polyhedron, scale: float,
