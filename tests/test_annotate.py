@@ -226,10 +226,16 @@ def test_annotate_then_demo_end_to_end(tmp_path: Path) -> None:
         assert [e.id for e in a.events] == [e.id for e in b.events]
     # a CI-sized robustness sweep: this dataset's plan is not the shipped sweep's, and the
     # default 200 samples ran 400 executions here on every fresh machine (minutes in CI)
+    # (and without the robot section, which tests/test_demo.py runs: its base search and
+    # execution took a third of this test's time)
     res = runner.invoke(main, ["demo", "--dataset", str(takes), "--out",
-                               str(tmp_path / "report"), "--json", "--sweep-samples", "3"])
+                               str(tmp_path / "report"), "--json", "--sweep-samples", "3",
+                               "--no-robot"])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "report" / "index.html").is_file()
+    assert json.loads(res.stdout)["robot"] == {"error": "skipped (--no-robot)"}
+    assert "Not executed: skipped (--no-robot)." in (tmp_path / "report" / "index.html"
+                                                    ).read_text()
 
 
 def test_annotate_bad_input_exits_2(tmp_path: Path) -> None:

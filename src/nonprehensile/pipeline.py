@@ -377,10 +377,15 @@ def write_plan_motions(result: Plan, out_dir: str | Path) -> list[Path]:
     return written
 
 
+#: The report's robot section when the job was asked to skip it (``demo --no-robot``).
+ROBOT_SKIPPED = "skipped (--no-robot)"
+
+
 def _physics_runs(ds: Dataset, exp: Any, result: Plan, motions: ClusteredMotions,
                   states: Sequence[State], *, seed: int, folder: Path | None,
                   samples: int | None, write_sweep: str | Path | None,
-                  progress: StageProgress, command: str) -> dict[str, Any]:
+                  progress: StageProgress, command: str, robot: bool = True
+                  ) -> dict[str, Any]:
     """The report's robustness sweep and robot execution (:mod:`nonprehensile.sim.report_runs`),
     each as its document or ``{"error": why}`` (no ``sim`` or ``robot`` extra, no plan)."""
     runs: dict[str, Any] = {}
@@ -405,6 +410,9 @@ def _physics_runs(ds: Dataset, exp: Any, result: Plan, motions: ClusteredMotions
         if write_sweep:  # asked for the file: its failure is the command's
             raise
         runs["sweep"] = {"error": str(exc)}
+    if not robot:
+        runs["robot"] = {"error": ROBOT_SKIPPED}
+        return runs
     progress("robot", 0, 1)
     try:  # an ImportError past mink's own check: a part of the extra missing
 
@@ -435,6 +443,7 @@ def run_demo(
     cache: str | Path | bool | None = True,
     sweep_samples: int | None = None,
     write_sweep: str | Path | None = None,
+    robot: bool = True,
 ) -> DemoResult:
     """Run the whole pipeline on a dataset and write the report.
 
@@ -468,6 +477,9 @@ def run_demo(
     write_sweep : str or Path, optional
         Run the robustness sweep afresh and write it here with its provenance (the file the
         package ships is ``src/nonprehensile/data/demo_sweep.json``).
+    robot : bool
+        Execute the plan by the bundled Panda for the report's robot section (False: the
+        section says it was skipped; the rest of the job is the same).
 
     Returns
     -------
@@ -508,7 +520,7 @@ def run_demo(
     runs = _physics_runs(ds, exp, result, motions, states, seed=seed, folder=folder,
                          samples=sweep_samples, write_sweep=write_sweep, progress=progress,
                          command=command or f"nonprehensile demo --dataset {dataset} "
-                                            f"--from {start} --to {goal}")
+                                            f"--from {start} --to {goal}", robot=robot)
     lap("physics runs")
 
     summary: dict[str, Any] = {

@@ -55,10 +55,14 @@ def _command_line() -> str | None:
               help="Run the report's robustness sweep afresh and write it to this file with "
                    "its provenance (command, commit, seed); the package ships "
                    "src/nonprehensile/data/demo_sweep.json.")
+@click.option("--no-robot", "no_robot", is_flag=True, default=False,
+              help="Skip the report's robot section (the plan executed by the bundled Panda: "
+                   "its base search and run take a few seconds).")
 @json_option
 @handle_errors
 def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
-         sweep_samples: int | None, write_sweep: str | None, as_json: bool) -> None:
+         sweep_samples: int | None, write_sweep: str | None, no_robot: bool,
+         as_json: bool) -> None:
     """The main job: the whole pipeline on a dataset, ending in an HTML report."""
     from nonprehensile.cli.plan import print_plan
     from nonprehensile.pipeline import run_demo
@@ -67,7 +71,8 @@ def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
     with stage_bars(as_json) as bars:
         result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
                           progress=bars, command=_command_line(),
-                          sweep_samples=sweep_samples, write_sweep=write_sweep)
+                          sweep_samples=sweep_samples, write_sweep=write_sweep,
+                          robot=not no_robot)
     elapsed = time.perf_counter() - t0
     summary = result.summary
     if as_json:
