@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -19,6 +20,12 @@ from nonprehensile.geometry import (
     tetrahedron,
 )
 from nonprehensile.states import State, state_pose
+
+# ``make test`` runs the suite on two processes (pytest-xdist): its workers inherit
+# COLUMNS=80 (measured), and the CLI's tests read output as a pipe gives it (the tables
+# whole: ``cli.common.PIPED_WIDTH``), never squeezed to a width a terminal would set
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.pop("COLUMNS", None)
 
 settings.register_profile("default", max_examples=40, deadline=None)
 settings.load_profile("default")
