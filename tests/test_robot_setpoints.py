@@ -585,3 +585,17 @@ def test_press_push_moves_at_most_press_rate_and_reaches_the_bound() -> None:
     got = drv._tool(rows, deep[None])
     assert got is not None
     np.testing.assert_allclose(got[0, 0], step * unit, atol=1e-12)
+
+
+@given(st.lists(st.booleans(), max_size=60))
+@settings(max_examples=200)
+def test_longest_run_is_the_plain_count(flags: list[bool]) -> None:
+    """The records' longest time at a limit: the vectorised run length equals counting the
+    flags one by one (the truth: a run grows on True and restarts on False)."""
+    from nonprehensile.sim.robot_driver import _longest_run
+
+    best = run = 0
+    for f in flags:
+        run = run + 1 if f else 0
+        best = max(best, run)
+    assert _longest_run(np.array(flags, dtype=bool)) == best

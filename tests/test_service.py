@@ -325,6 +325,9 @@ def _wait_up(url: str, proc: subprocess.Popen[bytes]) -> None:
     import httpx
 
     for _ in range(300):
+        if proc.poll() is not None:  # ours exited (a port taken?): never talk to another
+            pytest.fail("the server exited: " + (proc.stderr.read().decode()[:500]
+                                                 if proc.stderr else ""))
         try:
             if httpx.get(f"{url}/health", timeout=1).status_code == 200:
                 return
@@ -382,7 +385,8 @@ def test_real_uvicorn_on_loopback(backend: str, request: pytest.FixtureRequest,
         proc = _serve(store, port)
         _wait_up(url, proc)
         again = [send(e) for e in takes]
-        assert all(r.status_code == 200 and r.json()["duplicate"] for r in again)
+        assert all(r.status_code == 200 and r.json()["duplicate"] for r in again), [
+            (r.status_code, r.text[:300]) for r in again]
         assert {r.json()["upload"] for r in again} == {r.json()["upload"] for r in replies}
         stats = httpx.get(f"{url}/mentors/dana", timeout=30).json()
         assert stats["uploads"] == 2
