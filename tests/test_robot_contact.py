@@ -18,6 +18,7 @@ from nonprehensile.sim.ik import FingertipIK, IKConfig  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
 from nonprehensile.sim.robot_run import (  # noqa: E402
     DEFAULT_TRACKING_GAIN,
+    PINCH_TRACKING_GAIN,
     ROBOT_MAX_ACCEL,
     ROBOT_TRANSIT_ACCEL,
     RobotSimulator,
@@ -192,14 +193,14 @@ def test_robot_control_bounds_and_bad_values() -> None:
             ControlConfig(transit_accel=bad)
 
 
-def _pinch(gain: float | None) -> tuple[float, float, RobotSimulator]:
+def _pinch(gain: float | None, **extra: object) -> tuple[float, float, RobotSimulator]:
     """Two arms pinch the resting cube (its corner at the origin, 50 mm) on its -y and +y
     faces, each fingertip's target held 4 mm into the face for 0.8 s; the mean normal
     force of the fingertips' contacts with the cube over the last 0.1 s (MuJoCo's
     ``mj_contactForce``) and the fingertips' mean distance outside the faces' planes."""
     arms = [Arm(Robot.builtin(), BasePose(0.025, -0.5, 90.0)),
             Arm(Robot.builtin(), BasePose(0.025, 0.55, -90.0))]
-    kw = {} if gain is None else {"tracking_gain": gain}
+    kw: dict[str, object] = ({} if gain is None else {"tracking_gain": gain}) | extra
     # the contact-consistent command off: this pinch is the correction's (its bound, on by
     # default for several fingertips, would hold the commands 4 mm outside the faces)
     sim = RobotSimulator(CUBE, arms, scale=SCALE, press_depth=None,
@@ -231,24 +232,31 @@ def _pinch(gain: float | None) -> tuple[float, float, RobotSimulator]:
     return float(np.mean(forces[-100:])), outside, sim
 
 
-def test_two_arms_pinch_without_the_contact_tracking_correction() -> None:
-    """Several fingertips run without the contact tracking correction by default (one arm
-    keeps it): two arms pinching a cube with targets inside it press with the servos'
-    equilibrium force, where the correction integrates the tips further in and squeezes
-    harder (truth: MuJoCo's contact forces and the fingertips' positions)."""
+def test_two_arms_pinch_squeezes_no_harder_with_the_surface_correction() -> None:
+    """Several fingertips run the contact tracking correction along the object's surface
+    only by default (one arm integrates its whole error): two arms pinching a cube with
+    targets inside it press with the servos' equilibrium force, as without any correction,
+    where the whole error integrated drives the tips further in and squeezes harder
+    (truth: MuJoCo's contact forces and the fingertips' positions)."""
     one = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
                          scale=SCALE)
     assert one.robot_driver.tracking_gain == DEFAULT_TRACKING_GAIN > 0.0
-    f_off, out_off, sim = _pinch(None)
-    assert sim.robot_driver.tracking_gain == 0.0
-    assert sim.describe()["finger_command"]["tracking_gain_per_s"] == 0.0
-    f_on, out_on, sim_on = _pinch(DEFAULT_TRACKING_GAIN)
-    assert sim_on.robot_driver.tracking_gain == DEFAULT_TRACKING_GAIN
+    assert not one.robot_driver.tracking_tangential
+    f_def, out_def, sim = _pinch(None)
+    assert sim.robot_driver.tracking_gain == PINCH_TRACKING_GAIN > 0.0
+    assert sim.robot_driver.tracking_tangential
+    assert sim.describe()["finger_command"]["tracking_gain_per_s"] == PINCH_TRACKING_GAIN
+    f_off, out_off, _ = _pinch(0.0)
+    f_on, out_on, sim_on = _pinch(DEFAULT_TRACKING_GAIN, tracking_tangential=False,
+                                  tracking_bound=0.004)
+    assert not sim_on.robot_driver.tracking_tangential
     assert f_off > 5.0  # a pinch: both tips press the cube
     assert f_off < 0.8 * f_on  # measured 25.5 N against 40.1 N
+    assert abs(f_def - f_off) < 0.1 * f_off  # along the surface: no harder squeeze
     # without the correction each tip stops where the servos and the contact balance,
-    # short of its target (2 mm outside); with it, closer to the target
+    # short of its target (2 mm outside); with the whole error integrated, closer to it
     assert out_off > out_on + 0.001 and out_on > 0.0015
+    assert abs(out_def - out_off) < 2e-4
 
 
 #: The bases the two-arm transition sweep found for the 96 two-finger transitions

@@ -18,11 +18,16 @@ mujoco = pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not ins
 pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
                                    "pip install 'nonprehensile[robot]'")
 
+from nonprehensile.errors import InputError  # noqa: E402
 from nonprehensile.geometry.build import cube  # noqa: E402
 from nonprehensile.planning import ObjectPose  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
 from nonprehensile.sim.robot_driver import REFERENCE_RADIUS, RobotArms  # noqa: E402
-from nonprehensile.sim.robot_run import RobotSimulator  # noqa: E402
+from nonprehensile.sim.robot_run import (  # noqa: E402
+    PINCH_TRACKING_BOUND,
+    PINCH_TRACKING_GAIN,
+    RobotSimulator,
+)
 from nonprehensile.sim.robot_scene import Arm  # noqa: E402
 from nonprehensile.sim.scene import SimParams  # noqa: E402
 
@@ -366,8 +371,10 @@ def test_contact_correction_in_floats_equals_its_numpy_form(seed: int, arms: int
     and a NaN torque (numpy's maximum is NaN then: the correction grows)."""
     if arms not in _CORRECT_SIMS:
         bases = [BASE, BasePose(0.05, 0.55, -80.0)][:arms]
+        # (the whole error: two fingertips' default is along the surface only, below)
         _CORRECT_SIMS[arms] = RobotSimulator(CUBE, [Arm(Robot.builtin(), b) for b in bases],
-                                             scale=SCALE, tracking_gain=20.0)  # (2: off)
+                                             scale=SCALE, tracking_gain=20.0,
+                                             tracking_tangential=False)
     drv: RobotArms = _CORRECT_SIMS[arms].robot_driver
     d, nf = drv.data, drv.n_fingers
     rng = np.random.default_rng(seed)
@@ -393,6 +400,63 @@ def test_contact_correction_in_floats_equals_its_numpy_form(seed: int, arms: int
         assert drv._corr.tobytes() == c.tobytes()
     drv._corr[:] = 0.0
     drv._offset[:] = 0.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_pinch_correction_integrates_the_error_along_the_surface_only(seed: int) -> None:
+    """Two fingertips' contact tracking correction (the default for several: along the
+    object's surface only) on fingertips pressed into the faces of a cube posed by hand
+    (yawed 30 degrees, both pads within a millimetre of a face's centre): each pad's
+    correction changes by ``-g`` times its error with the component along its face's
+    normal removed. Truth: the face normals from the pose written here, the error from
+    the fingertip and command positions written here."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE),
+                                Arm(Robot.builtin(), BasePose(0.05, 0.55, -80.0))],
+                         scale=SCALE)
+    drv = sim.robot_driver
+    assert drv.tracking_tangential and drv.tracking_gain == PINCH_TRACKING_GAIN
+    assert drv.tracking_bound == PINCH_TRACKING_BOUND
+    doc = sim.describe()["finger_command"]
+    assert doc["tracking_tangential"] is True and doc["tracking_bound_m"] == 0.002
+    rng = np.random.default_rng(seed)
+    yaw = math.radians(30.0)
+    rot = np.array([[math.cos(yaw), -math.sin(yaw), 0.0],
+                    [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    centre = np.array([0.3, 0.1, 0.025])
+    mid = 0.5 * (CUBE.vertices.min(axis=0) + CUBE.vertices.max(axis=0))
+    drv.see(ObjectPose(rot, centre - SCALE * rot @ mid, centre, SCALE))
+    normals = np.stack([rot @ np.array([0.0, -1.0, 0.0]), rot @ np.array([0.0, 1.0, 0.0])])
+    tips = centre + (0.025 - 0.002) * normals + rng.uniform(-1e-3, 1e-3, (2, 3))
+    d = sim.data
+    d.site_xpos[drv._tip_sites] = tips
+    d.qfrc_actuator[:] = 0.0  # far below the torque guard
+    now = tips + rng.normal(0.0, 0.002, (2, 3))
+    start = rng.normal(0.0, 0.0005, (2, 3))
+    drv._corr[:] = start
+    drv._offset[:] = 0.0
+    drv._touch = True
+    got = drv._correct(np.zeros((2, 3)), now, 10, None)
+    e = tips - now
+    e_t = e - (e * normals).sum(axis=1)[:, None] * normals
+    want = start - min(drv.tracking_gain * 10 * drv.dt, 1.0) * e_t
+    n = np.linalg.norm(want, axis=1)
+    want[n > drv.tracking_bound] *= (drv.tracking_bound / n[n > drv.tracking_bound])[:, None]
+    # (the normal blends the faces by a softmax of their planes' distances: the side faces,
+    # 22 mm further, weigh e^-11 beside the pad's own, a 1e-8 m difference at most here)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-7)
+    drv._corr[:] = 0.0
+
+
+def test_tracking_options_are_checked() -> None:
+    for bad in ({"tracking_tangential": 1}, {"tracking_bound": float("nan")},
+                {"tracking_bound": -0.001}, {"tracking_bound": 1.0}):
+        with pytest.raises(InputError, match="tracking_"):
+            RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                           **bad)  # type: ignore[arg-type]
+    one = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE)
+    assert not one.robot_driver.tracking_tangential
+    assert one.robot_driver.tracking_bound == 0.004  # one arm: the driver's own
 
 
 def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> None:

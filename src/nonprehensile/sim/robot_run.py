@@ -10,6 +10,7 @@ robot's own records (tracking error, limits, other contacts, IK time) are in
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any
@@ -34,8 +35,9 @@ from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
-__all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL",
-           "RobotSimulator", "describe_robots", "resolve_press_depth", "robot_control"]
+__all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
+           "PINCH_TRACKING_GAIN", "ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL", "RobotSimulator",
+           "describe_robots", "resolve_press_depth", "robot_control"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
 #: fingertip (``ControlConfig.max_accel``). The free fingertips' 20 m/s^2 asks the Panda's
@@ -56,8 +58,20 @@ ROBOT_MAX_ACCEL = 8.0
 ROBOT_TRANSIT_ACCEL = 8.0
 
 #: One arm's contact tracking correction gain, 1/s (:class:`RobotSimulator`'s
-#: ``tracking_gain`` with one fingertip; several fingertips, a pinch, run without it).
+#: ``tracking_gain`` with one fingertip; several fingertips, a pinch, run
+#: :data:`PINCH_TRACKING_GAIN` along the object's surface only).
 DEFAULT_TRACKING_GAIN = 20.0
+
+#: Several fingertips' (a pinch's) contact tracking correction: gain (1/s) and bound (m) of
+#: the correction along the object's surface only (``RobotArms.tracking_tangential``: the
+#: error along the object's normal, the depth no rigid pad can reach, is left out). The 96
+#: two-finger transitions by two arms at nominal physics: 96/96 as without it, tracking in
+#: contact max 3.8 mm against 7.0 mm, the tumble-lifts within 3 mm in 21/24 against 0/24,
+#: no limit held over 10 ms and no link or rod contact, as without it; with 1.5 mm, 3 mm or
+#: 4 mm bounds, or gains of 10 or 40, the tumble-twist's rod touched the cube in 1-10 runs
+#: (docs/benchmarks.md, "pinch tracking").
+PINCH_TRACKING_GAIN = 20.0
+PINCH_TRACKING_BOUND = 0.002
 
 #: Several fingertips' (a pinch's) contact-consistent command bound, m
 #: (:class:`RobotSimulator`'s ``press_depth="auto"``; one fingertip runs without it). The
@@ -134,16 +148,22 @@ class RobotSimulator(Simulator):
         measured figures of both, for one arm and for two).
     tracking_gain : float, optional
         Gain (1/s) of the fingertips' contact tracking correction
-        (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off). Default: 20 with one
-        fingertip, 0 (off) with several. With two arms pinching, the correction integrated
-        the part of the error no rigid tip can close (the references put a pinching pad
-        2-8 mm inside the cube) into a harder squeeze (contact forces up to 70 N), the
-        cube stayed tilted between the fingers and the tumble-twist's first attempt failed
-        in every one of the 24 two-finger tumble-twists at nominal physics; the retries
-        ("slower, higher") then put a rod on the tilted cube. Off, 12 of 24 succeed at the
-        first attempt, and rod contact over the 96 two-finger transitions fell from 26
-        runs to 9 (36 to 12 after the IK's object pose fix; docs/benchmarks.md, two22c's
-        section).
+        (:class:`~nonprehensile.sim.robot_driver.RobotArms`; 0: off). Default:
+        :data:`DEFAULT_TRACKING_GAIN` with one fingertip, :data:`PINCH_TRACKING_GAIN` with
+        several.
+    tracking_tangential : bool, optional
+        Whether the correction integrates the fingertip's error along the object's surface
+        only (``RobotArms.tracking_tangential``). Default: False with one fingertip, True
+        with several. With two arms pinching, the whole error integrated the part no rigid
+        tip can close (the references put a pinching pad 2-8 mm inside the cube) into a
+        harder squeeze (contact forces up to 70 N), the cube stayed tilted between the
+        fingers and the tumble-twist's first attempt failed in every one of the 24
+        two-finger tumble-twists at nominal physics (docs/benchmarks.md, two22c's section);
+        along the surface only, the correction takes out the arms' lag as they carry the
+        cube (3.5 mm at 0.45 m/s) and squeezes no harder.
+    tracking_bound : float, optional
+        The correction's bound, m. Default: the driver's 4 mm with one fingertip,
+        :data:`PINCH_TRACKING_BOUND` with several.
     radius_offset : bool
         Move each target near the object out along its normal by the arm's fingertip
         radius minus the references' (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
@@ -167,6 +187,8 @@ class RobotSimulator(Simulator):
                  params: SimParams = DEFAULT_PARAMS, ik_config: IKConfig | None = None,
                  control_every: int = DEFAULT_CONTROL_EVERY,
                  force_limit: float | None = None, tracking_gain: float | None = None,
+                 tracking_tangential: bool | None = None,
+                 tracking_bound: float | None = None,
                  compliance: bool = False, radius_offset: bool = False,
                  press_depth: float | str | None = "auto",
                  press_correction: bool = True) -> None:
@@ -190,8 +212,19 @@ class RobotSimulator(Simulator):
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
         self.judge = Judge(poly, self.scale, params, self.model, self.n_fingers)
-        if tracking_gain is None:  # one arm pushes: on; several pinch: off (see above)
-            tracking_gain = DEFAULT_TRACKING_GAIN if self.n_fingers == 1 else 0.0
+        pinch = self.n_fingers > 1
+        if tracking_gain is None:  # one arm pushes; several pinch (see above)
+            tracking_gain = PINCH_TRACKING_GAIN if pinch else DEFAULT_TRACKING_GAIN
+        if tracking_tangential is None:
+            tracking_tangential = pinch
+        if not isinstance(tracking_tangential, bool):
+            raise InputError(f"tracking_tangential is True or False, got "
+                             f"{tracking_tangential!r}")
+        if tracking_bound is not None and not (
+                isinstance(tracking_bound, (int, float)) and not isinstance(tracking_bound, bool)
+                and math.isfinite(tracking_bound) and 0.0 <= tracking_bound <= 0.05):
+            raise InputError(f"tracking_bound is a distance from 0 to 0.05 m, got "
+                             f"{tracking_bound!r}")
         self.robot_driver = RobotArms(self.scene, self.ik_scene, self.data, self.judge,
                                       params.timestep, ik_config, control_every,
                                       params.max_force if force_limit is None
@@ -210,6 +243,10 @@ class RobotSimulator(Simulator):
         # one arm pushes: none; several pinch: the bound
         self.robot_driver.press_depth = resolve_press_depth(press_depth, self.n_fingers)
         self.robot_driver.press_correction = press_correction
+        self.robot_driver.tracking_tangential = tracking_tangential
+        if tracking_bound is not None or pinch:
+            self.robot_driver.tracking_bound = float(
+                PINCH_TRACKING_BOUND if tracking_bound is None else tracking_bound)
         self.robot_driver.finger_radius = params.finger_radius
         self._body = self.judge.body
         self._qadr = self.judge.qadr
@@ -280,6 +317,9 @@ class RobotSimulator(Simulator):
                               else None),
             "damping_n_s_per_m": float(drv.compliance_damping),
             "tracking_gain_per_s": drv.tracking_gain,
+            # the correction along the object's surface only (True) or whole, and its bound
+            "tracking_tangential": bool(drv.tracking_tangential),
+            "tracking_bound_m": float(drv.tracking_bound),
             # the contact-consistent command's bound (None: the references as they are)
             "press_depth_m": drv.press_depth,
             "press_correction": bool(drv.press_correction),
