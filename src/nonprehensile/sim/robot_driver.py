@@ -1418,7 +1418,9 @@ class RobotArms:
         target, plus the give, plus ``noise``) while it touches the object, at
         ``tracking_gain`` (1/s; with several fingertips, every fingertip's while any one
         touches: measured better in the two-arm tumbles than a per-fingertip switch,
-        ``docs/robot.md``), so the set points lead by what the contact takes. It is bounded by
+        ``docs/robot.md``; with ``tracking_tangential``, the default for several, only the
+        error's part along the object's surface: :meth:`_correct_tangential`), so the set
+        points lead by what the contact takes. It is bounded by
         ``tracking_bound`` (m), is held (not grown) while any joint's torque is above
         ``torque_guard`` of its limit (a fingertip against an object that does not give
         must not press harder, up to the limits), and fades with the time constant
