@@ -137,6 +137,16 @@ def pg_url(pg_server: str) -> Iterator[str]:
 
 
 # ------------------------------------------------------------------ the main job, run once
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """On two processes (``make test``: ``pytest -n 2 --dist loadgroup``) the tests that use
+    the main job's session run go to one worker, so the demo runs once, not once per
+    worker (its robot execution and sweep are 15 s of CPU)."""
+    del config
+    for item in items:
+        if {"demo_run", "demo_cache"} & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.xdist_group("demo"))
+
+
 @pytest.fixture(scope="session")
 def demo_cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The demo's own cache folder: its robot execution and sweep are run, not found."""

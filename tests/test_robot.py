@@ -707,6 +707,15 @@ def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
     assert SweepRobot(tuple(one)).to_dict()["press_depth_m"] is None
     assert SweepRobot(tuple(two)).to_dict()["press_depth_m"] == PINCH_PRESS_DEPTH
     assert SweepRobot(tuple(one), press_depth=0.003).to_dict()["press_depth_m"] == 0.003
+    # ... and which contact tracking correction: the scene's own, by the fingertips
+    for arms in (one, two):
+        fc = RobotSimulator(CUBE, arms, scale=SCALE).describe()["finger_command"]
+        d = SweepRobot(tuple(arms)).to_dict()
+        assert [d[k] for k in ("tracking_gain_per_s", "tracking_tangential",
+                               "tracking_bound_m")] == [
+            fc[k] for k in ("tracking_gain_per_s", "tracking_tangential", "tracking_bound_m")]
+    assert SweepRobot(tuple(two)).to_dict()["tracking_tangential"] is True
+    assert SweepRobot(tuple(one)).to_dict()["tracking_tangential"] is False
     sim = SweepRobot(tuple(one), compliance=True).simulator(CUBE, SCALE, DEFAULT_PARAMS)
     assert sim.robot_driver.compliance  # type: ignore[attr-defined]
     # a sample's physics sets the virtual finger

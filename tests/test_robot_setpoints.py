@@ -432,12 +432,13 @@ def test_pinch_correction_integrates_the_error_along_the_surface_only(seed: int)
     d.site_xpos[drv._tip_sites] = tips
     d.qfrc_actuator[:] = 0.0  # far below the torque guard
     now = tips + rng.normal(0.0, 0.002, (2, 3))
+    noise = rng.normal(0.0, 0.001, (2, 3)) if rng.random() < 0.5 else None
     start = rng.normal(0.0, 0.0005, (2, 3))
     drv._corr[:] = start
     drv._offset[:] = 0.0
     drv._touch = True
-    got = drv._correct(np.zeros((2, 3)), now, 10, None)
-    e = tips - now
+    got = drv._correct(np.zeros((2, 3)), now, 10, noise)
+    e = tips - now - (0.0 if noise is None else noise)  # the command is target + noise
     e_t = e - (e * normals).sum(axis=1)[:, None] * normals
     want = start - min(drv.tracking_gain * 10 * drv.dt, 1.0) * e_t
     n = np.linalg.norm(want, axis=1)
@@ -449,14 +450,33 @@ def test_pinch_correction_integrates_the_error_along_the_surface_only(seed: int)
 
 
 def test_tracking_options_are_checked() -> None:
+    """The correction's options: a bool, NaN, a negative or absurd number, a tangential
+    switch that is not a bool are refused with the project's input error (numpy numbers
+    are numbers); one arm keeps its whole-error correction and 4 mm bound."""
     for bad in ({"tracking_tangential": 1}, {"tracking_bound": float("nan")},
-                {"tracking_bound": -0.001}, {"tracking_bound": 1.0}):
+                {"tracking_bound": -0.001}, {"tracking_bound": 1.0},
+                {"tracking_bound": True}, {"tracking_gain": float("nan")},
+                {"tracking_gain": -1.0}, {"tracking_gain": "20"}):
         with pytest.raises(InputError, match="tracking_"):
             RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
                            **bad)  # type: ignore[arg-type]
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                         tracking_bound=np.float32(0.003),  # type: ignore[arg-type]
+                         tracking_gain=np.int64(10))  # type: ignore[arg-type]
+    assert sim.robot_driver.tracking_bound == pytest.approx(0.003)
+    assert sim.robot_driver.tracking_gain == 10.0
     one = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE)
     assert not one.robot_driver.tracking_tangential
     assert one.robot_driver.tracking_bound == 0.004  # one arm: the driver's own
+    # a driver asked for the surface-only correction without the object's faces says so
+    drv = one.robot_driver
+    drv.tracking_tangential, planes, drv._planes = True, drv._planes, None
+    drv._touch = True
+    try:
+        with pytest.raises(InputError, match="set_shape"):
+            drv._correct(np.zeros((1, 3)), np.zeros((1, 3)), 10, None)
+    finally:
+        drv.tracking_tangential, drv._planes, drv._touch = False, planes, False
 
 
 def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> None:

@@ -325,14 +325,15 @@ def _wait_up(url: str, proc: subprocess.Popen[bytes]) -> None:
     import httpx
 
     for _ in range(300):
-        if proc.poll() is not None:  # ours exited (a port taken?): never talk to another
+        if proc.poll() is not None:  # ours exited (its port taken?): say so, with its words
             pytest.fail("the server exited: " + (proc.stderr.read().decode()[:500]
                                                  if proc.stderr else ""))
         try:
             if httpx.get(f"{url}/health", timeout=1).status_code == 200:
                 return
         except httpx.TransportError:
-            time.sleep(0.1)
+            pass
+        time.sleep(0.1)  # (a refused connection and a non-200 reply wait alike)
     pytest.fail("the server did not come up: " + (proc.stderr.read().decode()[:500]
                                                   if proc.stderr else ""))
 

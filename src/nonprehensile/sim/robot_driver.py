@@ -54,6 +54,9 @@ REST_SPEED = 1e-3
 #: bundled demonstrations' synthetic mentor's: :class:`~nonprehensile.sim.scene.SimParams`).
 REFERENCE_RADIUS = 0.006
 
+#: One fingertip's contact tracking correction bound, m (:meth:`RobotArms._correct`).
+DEFAULT_TRACKING_BOUND = 0.004
+
 #: The share of each joint's torque limit the set points' accelerations may take with
 #: the arm's dynamics (:meth:`RobotArms._within_torque`; the rest is the servos' margin).
 TORQUE_SHARE = 0.8
@@ -655,10 +658,11 @@ class RobotArms:
         self._offset = np.zeros((scene.n_fingers, 3))  # the compliance's give, m
         # the contact tracking correction (see _correct)
         self.tracking_gain = float(tracking_gain)
-        self.tracking_bound = 0.004
+        self.tracking_bound = DEFAULT_TRACKING_BOUND
         self.torque_guard = 0.85
         self.release_rate = 50.0
-        # integrate only the error along the object's surface (see _correct)
+        # integrate only the error along the object's surface (_correct_tangential; needs
+        # the object's faces: set_shape. RobotSimulator's default with several fingertips)
         self.tracking_tangential = False
         self._corr = np.zeros((scene.n_fingers, 3))
         # the finite torque limits by joint (_correct's guard)
@@ -1418,8 +1422,9 @@ class RobotArms:
         target, plus the give, plus ``noise``) while it touches the object, at
         ``tracking_gain`` (1/s; with several fingertips, every fingertip's while any one
         touches: measured better in the two-arm tumbles than a per-fingertip switch,
-        ``docs/robot.md``; with ``tracking_tangential``, the default for several, only the
-        error's part along the object's surface: :meth:`_correct_tangential`), so the set
+        ``docs/robot.md``; with ``tracking_tangential``, ``RobotSimulator``'s default for
+        several, only the error's part along the object's surface:
+        :meth:`_correct_tangential`), so the set
         points lead by what the contact takes. It is bounded by
         ``tracking_bound`` (m), is held (not grown) while any joint's torque is above
         ``torque_guard`` of its limit (a fingertip against an object that does not give
@@ -1447,7 +1452,7 @@ class RobotArms:
             # (with a NaN torque numpy's maximum was NaN, never above the guard: so here)
             guard = top > self.torque_guard and all(r == r for r in ratios)
             cl: list[list[float]] = c.tolist()
-            if not guard and self.tracking_tangential and self._planes is not None:
+            if not guard and self.tracking_tangential:
                 cl = self._correct_tangential(now, noise, min(gain * dt, 1.0))
             elif not guard:
                 src = self._sources
@@ -1490,12 +1495,25 @@ class RobotArms:
         the error is what no rigid tip can close, and integrated it squeezed the cube
         harder (up to 70 N). The part along the surface is the arm's lag as it carries the
         cube: 3.5 mm at 0.45 m/s in the tumble-lift's tumble (measured), which the
-        correction takes out as it does for one arm's pushes."""
+        correction takes out as it does for one arm's pushes. Each update is projected, not
+        the correction kept: as the pinched faces turn (a twist), part of what was
+        integrated along them comes to lie along their normals, up to the bound (projecting
+        the whole correction at every update was measured worse: docs/benchmarks.md).
+
+        Raises
+        ------
+        InputError
+            No object faces (:meth:`set_shape`) to take the normals from.
+        """
+        planes = self._planes
+        if planes is None:
+            raise InputError("tracking_tangential needs the object's faces: call "
+                             "RobotArms.set_shape first (RobotSimulator does)")
         tips = self.tips(self.data)
         e = tips - (now + self._offset)
         if noise is not None:
             e = e - noise
-        normals, offsets = self._planes  # type: ignore[misc]
+        normals, offsets = planes
         if self._seen is not None and self._seen_rot is not None:
             t, rot = self._seen[0], self._seen_rot
         else:

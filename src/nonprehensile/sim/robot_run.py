@@ -10,7 +10,7 @@ robot's own records (tracking error, limits, other contacts, IK time) are in
 
 from __future__ import annotations
 
-import math
+import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any
@@ -27,6 +27,7 @@ from nonprehensile.sim.ik import IKConfig
 from nonprehensile.sim.judge import Judge
 from nonprehensile.sim.robot_driver import (
     DEFAULT_CONTROL_EVERY,
+    DEFAULT_TRACKING_BOUND,
     RobotArms,
     RobotLog,
     check_press,
@@ -37,7 +38,7 @@ from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
 __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
            "PINCH_TRACKING_GAIN", "ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL", "RobotSimulator",
-           "describe_robots", "resolve_press_depth", "robot_control"]
+           "describe_robots", "resolve_press_depth", "resolve_tracking", "robot_control"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
 #: fingertip (``ControlConfig.max_accel``). The free fingertips' 20 m/s^2 asks the Panda's
@@ -80,6 +81,38 @@ PINCH_TRACKING_BOUND = 0.002
 #: no link or rod contact against 5 runs, twist:reverse within 3 mm in 24/24 against 6/24;
 #: one arm pushing loses slippery-table pushes with it (docs/benchmarks.md, press24).
 PINCH_PRESS_DEPTH = 0.002
+
+
+def resolve_tracking(n_fingers: int, gain: float | None = None,
+                     tangential: bool | None = None,
+                     bound: float | None = None) -> tuple[float, bool, float]:
+    """The contact tracking correction that runs with ``n_fingers`` fingertips: its gain
+    (1/s), whether it integrates the error along the object's surface only, and its bound
+    (m); None: the default (one fingertip: :data:`DEFAULT_TRACKING_GAIN`, the whole error,
+    ``robot_driver.DEFAULT_TRACKING_BOUND``; several: :data:`PINCH_TRACKING_GAIN`, the
+    surface only, :data:`PINCH_TRACKING_BOUND`).
+
+    Raises
+    ------
+    InputError
+        A gain outside 0-1000 /s, a bound outside 0-0.05 m (NaN, a bool), a ``tangential``
+        that is not True, False or None.
+    """
+    def real(x: object) -> bool:  # numpy's numbers too; a bool is not a number here
+        return isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_))
+
+    if gain is not None and not (real(gain) and 0.0 <= float(gain) <= 1000.0):
+        raise InputError(f"tracking_gain is a rate from 0 to 1000 /s, got {gain!r}")
+    if tangential is not None and not isinstance(tangential, bool):
+        raise InputError(f"tracking_tangential is True or False, got {tangential!r}")
+    if bound is not None and not (real(bound) and 0.0 <= float(bound) <= 0.05):
+        raise InputError(f"tracking_bound is a distance from 0 to 0.05 m, got {bound!r}")
+    pinch = n_fingers > 1
+    return (float(gain) if gain is not None
+            else PINCH_TRACKING_GAIN if pinch else DEFAULT_TRACKING_GAIN,
+            pinch if tangential is None else tangential,
+            float(bound) if bound is not None
+            else PINCH_TRACKING_BOUND if pinch else DEFAULT_TRACKING_BOUND)
 
 
 def resolve_press_depth(depth: float | str | None, n_fingers: int) -> float | None:
@@ -197,6 +230,8 @@ class RobotSimulator(Simulator):
             # written then must not now run the stiff arm without a word
             raise InputError(f"force_limit={force_limit!r} is the force-limited finger "
                              "command's limit: pass compliance=True with it, or drop it")
+        # the correction's options checked before the scenes are built (n_fingers later)
+        resolve_tracking(1, tracking_gain, tracking_tangential, tracking_bound)
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self._force_limit = force_limit
@@ -212,23 +247,13 @@ class RobotSimulator(Simulator):
         self.model = self.scene.model
         self.data = mujoco.MjData(self.model)
         self.judge = Judge(poly, self.scale, params, self.model, self.n_fingers)
-        pinch = self.n_fingers > 1
-        if tracking_gain is None:  # one arm pushes; several pinch (see above)
-            tracking_gain = PINCH_TRACKING_GAIN if pinch else DEFAULT_TRACKING_GAIN
-        if tracking_tangential is None:
-            tracking_tangential = pinch
-        if not isinstance(tracking_tangential, bool):
-            raise InputError(f"tracking_tangential is True or False, got "
-                             f"{tracking_tangential!r}")
-        if tracking_bound is not None and not (
-                isinstance(tracking_bound, (int, float)) and not isinstance(tracking_bound, bool)
-                and math.isfinite(tracking_bound) and 0.0 <= tracking_bound <= 0.05):
-            raise InputError(f"tracking_bound is a distance from 0 to 0.05 m, got "
-                             f"{tracking_bound!r}")
+        # one arm pushes; several pinch (see above)
+        gain, tangential, bound = resolve_tracking(self.n_fingers, tracking_gain,
+                                                   tracking_tangential, tracking_bound)
         self.robot_driver = RobotArms(self.scene, self.ik_scene, self.data, self.judge,
                                       params.timestep, ik_config, control_every,
                                       params.max_force if force_limit is None
-                                      else force_limit, tracking_gain, compliance=compliance,
+                                      else force_limit, gain, compliance=compliance,
                                       finger_stiffness=params.stiffness)
         self.driver = self.robot_driver
         # the fingertip radius offset of the arm's commands (RobotArms._tool)
@@ -243,10 +268,8 @@ class RobotSimulator(Simulator):
         # one arm pushes: none; several pinch: the bound
         self.robot_driver.press_depth = resolve_press_depth(press_depth, self.n_fingers)
         self.robot_driver.press_correction = press_correction
-        self.robot_driver.tracking_tangential = tracking_tangential
-        if tracking_bound is not None or pinch:
-            self.robot_driver.tracking_bound = float(
-                PINCH_TRACKING_BOUND if tracking_bound is None else tracking_bound)
+        self.robot_driver.tracking_tangential = tangential
+        self.robot_driver.tracking_bound = bound
         self.robot_driver.finger_radius = params.finger_radius
         self._body = self.judge.body
         self._qadr = self.judge.qadr

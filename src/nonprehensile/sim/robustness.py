@@ -471,7 +471,18 @@ class SweepRobot:
                 "compliance": bool(self.compliance), "press_depth": self.press_depth,
                 # the bound that runs ("auto" resolved by the number of fingertips; None: none)
                 "press_depth_m": self.press_depth_m,
-                "press_correction": bool(self.press_correction)}
+                "press_correction": bool(self.press_correction),
+                # the contact tracking correction that runs (robot_run.resolve_tracking)
+                **self.tracking()}
+
+    def tracking(self) -> dict[str, Any]:
+        """The contact tracking correction the arms run (the scene's defaults by the number
+        of fingertips): gain, whether along the object's surface only, and bound."""
+        from nonprehensile.sim.robot_run import resolve_tracking
+
+        gain, tangential, bound = resolve_tracking(self.n_fingers)
+        return {"tracking_gain_per_s": gain, "tracking_tangential": tangential,
+                "tracking_bound_m": bound}
 
     @property
     def press_depth_m(self) -> float | None:
