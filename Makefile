@@ -21,7 +21,7 @@ demo: $(STAMP)
 
 test: $(STAMP)
 	# two processes (pytest-xdist): the machines have 2 cores, and the suite stays under 5
-	# minutes (one process: 236-313 s; two: 154-194 s)
+	# minutes (one process: 236-313 s; two: 154-221 s)
 	# (--dist loadgroup: the tests of the demo's session run share one worker, conftest.py)
 	$(BIN)/python -m pytest -n 2 --dist loadgroup
 
