@@ -1156,21 +1156,14 @@ class RobotArms:
         if self._planes is None or (not offset and press is None):
             return None
         normals, offsets = self._planes
-        if self._seen is not None and self._seen_rot is not None:
-            t, rot = self._seen[0], self._seen_rot
-        else:
-            d = self.data
-            t, rot = d.xpos[self._obj], d.xmat[self._obj].reshape(3, 3)
+        t, rot = self._believed_pose()
         pts = np.concatenate([np.asarray(rows, dtype=np.float64).reshape(-1, 3),
                               np.asarray(ahead, dtype=np.float64).reshape(-1, 3)])
         local = (pts - t) @ rot  # the object's frame (unscaled: offsets are scaled)
         dist = local @ normals.T - offsets  # (m, faces), world metres
         out = np.zeros_like(pts)
         if offset:
-            top = dist.max(axis=1)
-            w = np.exp((dist - top[:, None]) / self.tool_blend)
-            nrm = (w @ normals) @ rot.T
-            nrm /= np.sqrt((nrm * nrm).sum(axis=1))[:, None]
+            nrm, top = self._blended_normals(dist, rot)
             fade = np.clip((self.reference_radius + self.tool_band - top) / self.tool_band,
                            0.0, 1.0)
             out = (delta * fade)[:, None] * nrm
@@ -1183,6 +1176,27 @@ class RobotArms:
         if not offset and not out.any():
             return None
         return np.asarray(out.reshape(len(rows) + 1, -1, 3))
+
+    def _believed_pose(self) -> tuple[FloatArray, FloatArray]:
+        """The object's body origin (shape (3,)) and rotation (shape (3, 3)) where the arm
+        believes it (:meth:`see`), else the simulation's."""
+        if self._seen is not None and self._seen_rot is not None:
+            return self._seen[0], self._seen_rot
+        d = self.data
+        return d.xpos[self._obj], d.xmat[self._obj].reshape(3, 3)
+
+    def _blended_normals(self, dist: FloatArray, rot: FloatArray
+                         ) -> tuple[FloatArray, FloatArray]:
+        """The object's outward unit normals (world, shape (m, 3)) at points whose signed
+        distances to the face planes are ``dist`` (shape (m, faces), m): the face normals
+        blended by a softmax of those distances over ``tool_blend``, so that the normal
+        turns smoothly round an edge; and each point's largest distance (shape (m,))."""
+        assert self._planes is not None
+        top = dist.max(axis=1)
+        w = np.exp((dist - top[:, None]) / self.tool_blend)
+        nrm = (w @ self._planes[0]) @ rot.T
+        nrm /= np.sqrt((nrm * nrm).sum(axis=1))[:, None]
+        return nrm, top
 
     def _press_limited(self, push: FloatArray) -> FloatArray:
         """The pushes of a control period's rows and its knot's target (shape (k + 1,
@@ -1298,11 +1312,7 @@ class RobotArms:
         integrated its whole ``tracking_bound`` into the press)."""
         if self.press_depth is None or self.press_correction or self._planes is None:
             return targets
-        if self._seen is not None and self._seen_rot is not None:
-            t, rot = self._seen[0], self._seen_rot
-        else:
-            d = self.data
-            t, rot = d.xpos[self._obj], d.xmat[self._obj].reshape(3, 3)
+        t, rot = self._believed_pose()
         arr = np.asarray(targets, dtype=np.float64).reshape(-1, 3)
         push = self._press_push((arr - t) @ rot, self.press_depth, rot)
         if not push.any():
@@ -1514,14 +1524,9 @@ class RobotArms:
         if noise is not None:
             e = e - noise
         normals, offsets = planes
-        if self._seen is not None and self._seen_rot is not None:
-            t, rot = self._seen[0], self._seen_rot
-        else:
-            t, rot = self.data.xpos[self._obj], self.data.xmat[self._obj].reshape(3, 3)
+        t, rot = self._believed_pose()
         dist = ((tips - t) @ rot) @ normals.T - offsets  # (n_fingers, faces), m
-        w = np.exp((dist - dist.max(axis=1)[:, None]) / self.tool_blend)
-        nrm = (w @ normals) @ rot.T
-        nrm /= np.sqrt((nrm * nrm).sum(axis=1))[:, None]
+        nrm, _ = self._blended_normals(dist, rot)
         e -= (e * nrm).sum(axis=1)[:, None] * nrm
         out: list[list[float]] = (self._corr - g * e).tolist()
         return out
