@@ -38,7 +38,9 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
 ``NP_ROBOT_UNITS=K`` runs every K-th transition only (development); ``NP_ROBOT_ARMS=1`` or
 ``2`` runs one group of ``transitions`` only; ``NP_ROBOT_COMPLIANCE=1`` gives the arms the
 force-limited finger command (each sample's stiffness and force limit, docs/robot.md) in
-``sweep``, ``transitions`` and ``plan``. ``NP_ROBOT_REPEAT=R`` (default 1) executes the main
+``sweep``, ``transitions`` and ``plan``. ``NP_ROBOT_FINGER_DIRECTION=recorded`` points the
+finger tools along the recorded fingers (docs/robot.md) in every part.
+``NP_ROBOT_REPEAT=R`` (default 1) executes the main
 plan ``R`` times by each driver in ``plan`` and prints the median CPU of each (the same plan
 from the same start: the records are those of the last execution; on a shared machine one
 execution's CPU time moves by a third).
@@ -70,6 +72,9 @@ PRESS: dict = ({} if _PRESS is None else
                {"press_depth": None if _PRESS == "off" else float(_PRESS) / 1000.0})
 if "NP_ROBOT_PRESS_CORRECTION" in os.environ:
     PRESS["press_correction"] = os.environ["NP_ROBOT_PRESS_CORRECTION"] == "1"
+# how the finger tools point in a step ("lean", the default, or "recorded": the knuckles)
+if "NP_ROBOT_FINGER_DIRECTION" in os.environ:
+    PRESS["finger_direction"] = os.environ["NP_ROBOT_FINGER_DIRECTION"]
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 
@@ -418,7 +423,8 @@ def cost() -> None:
     lib = frozen_library(exp, motions)
     specs = {kind: SweepSpec(poly, ds.scale, units, nominal, SEED, 1, ("closed",),
                              dict(ds.fingers), expansion=exp, library=lib,
-                             robot=SweepRobot(tuple(arms)) if kind == "robot" else None)
+                             robot=SweepRobot(tuple(arms), **PRESS) if kind == "robot"
+                             else None)
              for kind in ("robot", "free")}
     workers = {kind: _Worker(spec) for kind, spec in specs.items()}
     for w in workers.values():  # warm: the first execution compiles and caches

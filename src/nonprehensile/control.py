@@ -61,7 +61,14 @@ from nonprehensile.skills.contacts import (
     normalize_event,
 )
 from nonprehensile.states import State, angle_diff, state_of_pose
-from nonprehensile.step_paths import ease, fingers_of, resample, step_targets, with_stop
+from nonprehensile.step_paths import (
+    ease,
+    fingers_of,
+    resample,
+    step_directions,
+    step_targets,
+    with_stop,
+)
 
 __all__ = [
     "GO_ON",
@@ -366,6 +373,11 @@ class ArcSpec:
         skill run backwards (``NAME:reverse``) makes each contact at the start of the arc
         that, forwards, ended with it (a reversed twist grips first and then turns): its
         events count near the end of their arcs only (0.9); forwards, whenever seen (0).
+    directions : array, shape (n_frames, n_used, 3), or None
+        The recorded finger directions along the reference (unit, knuckle to tip, world at
+        the plan's predicted poses: :func:`~nonprehensile.step_paths.step_directions`),
+        frame by frame with ``positions``; None when a used finger's knuckle marker is not
+        in the references.
     """
 
     source: str
@@ -377,6 +389,7 @@ class ArcSpec:
     tips: bool
     releases: bool = False
     min_progress: float = 0.0
+    directions: FloatArray | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -454,6 +467,9 @@ def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
     targets, rate, times = step_targets(step, fingers, smooth)
     used = tuple(fingers_of(skill))
     stacked = np.stack([targets[k] for k in used], axis=1)
+    dirs = step_directions(step, fingers, smooth)
+    stacked_dirs = (np.stack([dirs[k] for k in used], axis=1)
+                    if all(k in dirs for k in used) else None)
     events = tuple(_norm_pairs(e, poly) for e in skill.events)
     grounds = tuple(_ground_of(e) for e in events)
     start_face, end_face = Face(step.transition.start.face), Face(step.transition.end.face)
@@ -484,12 +500,18 @@ def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
         piece = np.asarray(stacked[a:b + 1])
         if i < len(step.motions) - 1:
             piece = with_stop(piece, rate)
+        piece_dirs = None
+        if stacked_dirs is not None:  # the direction held while the arc comes to rest
+            piece_dirs = stacked_dirs[a:min(b, len(stacked_dirs) - 1) + 1]
+            piece_dirs = np.concatenate([piece_dirs, np.repeat(
+                piece_dirs[-1:], len(piece) - len(piece_dirs), axis=0)])
         arcs.append(ArcSpec(
             source, target, piece, grounds[i], at_end[i],
             seeks=bool(_fingers_in(tgt) - _fingers_in(src)),
             tips=grounds[i + 1] is not None and grounds[i + 1] != grounds[i],
             releases=bool(_fingers_in(src) - _fingers_in(tgt)),
             min_progress=0.9 if step.transition.source.name.endswith(":reverse") else 0.0,
+            directions=piece_dirs,
         ))
     return StepSpec(step, used, rate, tuple(arcs), events, tuple(e.id for e in skill.events),
                     grounds, step.start_pose, step.end_pose, targets, tuple(times))
@@ -756,6 +778,10 @@ class StepMonitor:
         self._seek_dir = np.zeros((len(spec.used), 3))
         self._yaw: float | None = None  # the last anchor's turn (radians)
         self._followed = 0.0  # how long (s) the current arc's follow-through runs
+        # the running arc's recorded finger directions, anchored as its reference, and the
+        # controller time of its first frame (:meth:`pointing`)
+        self._dirs: FloatArray | None = None
+        self._dirs_t0 = 0.0
 
     # ---------------------------------------------------------------------------- helpers
     def _full(self, used_path: FloatArray) -> FloatArray:
@@ -786,11 +812,36 @@ class StepMonitor:
             ref = np.concatenate([np.repeat(ref[:1], m - n, axis=0), ref])
         w = 1.0 - ease(np.linspace(0.0, 1.0, len(ref)))
         path = ref + w[:, None, None] * gap[None]
+        if arc.directions is not None:  # turned as the reference is (about the vertical)
+            c, s = math.cos(tf.yaw), math.sin(tf.yaw)
+            d = arc.directions
+            dirs = np.stack([c * d[..., 0] - s * d[..., 1], s * d[..., 0] + c * d[..., 1],
+                             d[..., 2]], axis=-1)
+            if m > n:
+                dirs = np.concatenate([np.repeat(dirs[:1], m - n, axis=0), dirs])
+            self._dirs, self._dirs_t0 = dirs, obs.time
+        else:
+            self._dirs = None
         if len(path) >= 2:
             self._seek_dir = path[-1] - path[-2]
         self.log.append({"time": round(obs.time - self._t0, 4), "anchor": arc.source,
                          "arc": f"{arc.source}->{arc.target}", **tf.to_dict()})
         return self._full(resample(path, self.spec.rate, self.dt))
+
+    def pointing(self, time: float) -> FloatArray | None:
+        """The recorded finger directions where the running arc's reference is at
+        controller time ``time`` (unit, world, shape (n_fingers, 3): zero rows for the
+        fingers the step does not use), the last one past its end; None when the arc's
+        references carry no knuckle markers. A robot's IK points its finger tools along
+        them (:meth:`~nonprehensile.sim.robot_run.RobotSimulator`'s ``finger_direction``)."""
+        dirs = self._dirs
+        if dirs is None:
+            return None
+        i = min(max(round((time - self._dirs_t0) * self.spec.rate), 0), len(dirs) - 1)
+        out = np.zeros((len(self.rest), 3))
+        for j, k in enumerate(self.spec.used):
+            out[k - 1] = dirs[i, j]
+        return out
 
     def _abort(self, obs: Observation, reason: str) -> Decision:
         self.phase = "over"

@@ -23,8 +23,8 @@ from nonprehensile.planning import PlanStep
 from nonprehensile.skills.contacts import Finger
 from nonprehensile.skills.skill import Skill
 
-__all__ = ["ease", "fingers_of", "marker_index", "resample", "smooth_markers", "step_targets",
-           "with_stop"]
+__all__ = ["ease", "fingers_of", "knuckle_marker", "marker_index", "resample", "smooth_markers",
+           "step_directions", "step_targets", "with_stop"]
 
 FloatArray = NDArray[np.float64]
 
@@ -111,6 +111,60 @@ def step_targets(
     # the references are measured paths: filtered as a tracking controller would
     return ({k: smooth_markers(np.concatenate(v), smooth) if smooth > 1 else np.concatenate(v)
              for k, v in chunks.items()}, rate, times)
+
+
+def knuckle_marker(tip: str, names: tuple[str, ...] | list[str]) -> str | None:
+    """The knuckle marker of the finger whose tip marker is ``tip``, among ``names``: the
+    tip's name with its ``_tip`` ending turned into ``_knuckle`` (``index_tip`` ->
+    ``index_knuckle``, the bundled recordings' and the paper's Fig. 11 markers); None when
+    the name does not end so or no such marker was recorded."""
+    if not tip.endswith("_tip"):
+        return None
+    name = tip.removesuffix("_tip") + "_knuckle"
+    return name if name in names else None
+
+
+def step_directions(
+    step: PlanStep, fingers: Mapping[str, str] = DEFAULT_FINGERS, smooth: int = 9,
+) -> dict[int, FloatArray]:
+    """The recorded finger directions of a step, frame by frame as :func:`step_targets`
+    gives its targets: the unit vector from each finger's knuckle marker to its tip marker
+    (:func:`knuckle_marker`), the direction a finger tool's axis points from the flange to
+    the tip, filtered as the targets are.
+
+    Returns
+    -------
+    directions : dict of int to array, shape (n_frames, 3)
+        Only the fingers whose knuckle is in every arc's reference (none if any arc has no
+        reference motion: :func:`step_targets` says why).
+    """
+    wanted = fingers_of(step.transition.skill)
+    chunks: dict[int, list[FloatArray]] = {k: [] for k in wanted}
+    total = 0
+    for _, _, _, ref in step.motions:
+        if ref is None:
+            return {}
+        skip = 0 if total == 0 else 1  # arcs share their boundary frame (step_targets)
+        for k in list(chunks):
+            tip = fingers.get(f"R{k}")
+            knuckle = None if tip is None else knuckle_marker(tip, ref.marker_names)
+            if tip is None or knuckle is None or tip not in ref.marker_names:
+                del chunks[k]  # a finger without its knuckle in one arc has no direction
+                continue
+            names = list(ref.marker_names)
+            d = ref.positions[:, names.index(tip)] - ref.positions[:, names.index(knuckle)]
+            chunks[k].append(np.asarray(d[skip:], dtype=np.float64))
+        total += len(ref.positions) - skip
+    out: dict[int, FloatArray] = {}
+    for k, v in chunks.items():
+        d = np.concatenate(v) if v else np.zeros((0, 3))
+        if smooth > 1 and len(d):
+            d = smooth_markers(d, smooth)
+        norm = np.linalg.norm(d, axis=1)
+        if len(d) == 0 or not np.all(norm > 1e-9):  # a marker on top of the other: no axis
+            continue
+        out[k] = d / norm[:, None]
+    return out
 
 
 def resample(path: FloatArray, rate: float, dt: float) -> FloatArray:

@@ -34,6 +34,7 @@ from nonprehensile.cli.options import (
 )
 from nonprehensile.cli.robot import (
     control_every,
+    direction_option,
     load_robot,
     placement_doc,
     robot_arms,
@@ -122,11 +123,13 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
                                  robot)
     cfg = IKConfig()
     every = control_every(robot_kw, DEFAULT_PARAMS.timestep)
+    direction = robot_kw.get("finger_direction", "lean")
     trajectories = joint_trajectory(arms, poly, ds.scale, result, ds.fingers, ik_config=cfg,
-                                    control_every=every)
+                                    control_every=every, finger_direction=direction)
     scene = build_robot_scene(poly, scale=ds.scale, arms=arms, params=DEFAULT_PARAMS)
     meta = describe_robots(arms, scene, DEFAULT_PARAMS, cfg, every)
     meta["placement"] = placement_doc(placement)
+    meta["finger_direction"] = direction
     meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
                     "the object at each step's planned start pose; `simulate plan --robot` "
                     "executes it in physics")
@@ -180,6 +183,7 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
 @click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False),
               help="Write each step's reference trajectories here (C3D and CSV).")
 @robot_options
+@direction_option
 @click.option("--robustness", "rates_file", type=click.Path(dir_okay=False), default=None,
               help="Success rates measured across the physics distribution (`simulate "
                    "robustness -o FILE`): they become arc costs, and transitions below "

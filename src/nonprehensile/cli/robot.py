@@ -13,8 +13,9 @@ from nonprehensile.checks import Range
 from nonprehensile.cli.options import Number, count, number
 from nonprehensile.errors import InputError
 
-__all__ = ["compliance_option", "control_every", "load_robot", "placement_doc", "press_option",
-           "robot_arms", "robot_options", "robot_table", "wants_robot"]
+__all__ = ["compliance_option", "control_every", "direction_option", "load_robot",
+           "placement_doc", "press_option", "robot_arms", "robot_options", "robot_table",
+           "wants_robot"]
 
 F = Callable[..., Any]
 
@@ -94,6 +95,18 @@ def press_option(fn: F) -> F:
              "pinch, none for one arm pushing; `off`: none (docs/robot.md).")(fn)
 
 
+def direction_option(fn: F) -> F:
+    """Add ``--finger-direction`` (keyword argument ``finger_direction``: ``"lean"`` or
+    ``"recorded"``) to a command that moves a robot along a plan."""
+    return click.option(
+        "--finger-direction", "finger_direction",
+        type=click.Choice(["lean", "recorded"]), default="lean", show_default=True,
+        help="Robot: how each finger tool points during a step: `lean`, the IK's rule "
+             "(down, leaning out of a side face); `recorded`, along the demonstrators' "
+             "fingers (knuckle marker to tip marker, `<finger>_knuckle` beside "
+             "`<finger>_tip`), where the references carry them (docs/robot.md).")(fn)
+
+
 def wants_robot(kw: dict[str, Any]) -> bool:
     """Whether a robot option was given (and they agree)."""
     robot, xml, sites, base = (kw.get("robot"), kw.get("robot_xml"), kw.get("tip_sites"),
@@ -110,6 +123,9 @@ def wants_robot(kw: dict[str, Any]) -> bool:
     if kw.get("press_depth", "auto") != "auto" and robot is None and xml is None:
         raise InputError("--press-depth is a robot's finger command: give --robot NAME or "
                          "--robot-xml FILE")
+    if kw.get("finger_direction", "lean") != "lean" and robot is None and xml is None:
+        raise InputError("--finger-direction points a robot's finger tool: give --robot NAME "
+                         "or --robot-xml FILE")
     if kw.get("compliance") and robot is None and xml is None:
         raise InputError("--compliance is a robot's finger command: give --robot NAME or "
                          "--robot-xml FILE")

@@ -29,6 +29,7 @@ from nonprehensile.cli.options import (
 from nonprehensile.cli.robot import (
     compliance_option,
     control_every,
+    direction_option,
     load_robot,
     placement_doc,
     press_option,
@@ -112,6 +113,7 @@ def _pct(d: dict[str, Any]) -> str:
 @robot_options
 @compliance_option
 @press_option
+@direction_option
 @json_option
 @handle_errors
 def robustness_cmd(skills_file: str, dataset: str, step: float | None,
@@ -274,7 +276,8 @@ def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds
                                            n_arms=n_arms, params=dist.base)
         placement = found[0] if n_arms == 1 else found
     return rob.SweepRobot(tuple(arms), every, compliance=bool(kw.get("compliance")),
-                          press_depth=kw.get("press_depth", "auto")), placement
+                          press_depth=kw.get("press_depth", "auto"),
+                          finger_direction=kw.get("finger_direction", "lean")), placement
 
 
 def _robot_summary(result: Any) -> dict[str, Any]:

@@ -42,6 +42,7 @@ from nonprehensile.cli.options import (
 from nonprehensile.cli.robot import (
     compliance_option,
     control_every,
+    direction_option,
     load_robot,
     placement_doc,
     press_option,
@@ -367,6 +368,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @robot_options
 @compliance_option
 @press_option
+@direction_option
 @json_option
 @handle_errors
 def simulate_plan_cmd(skills_file: str, start: State, goal: State,
@@ -380,7 +382,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     the position the plan predicts for it. With --robot or --robot-xml a robot arm executes
     it (docs/robot.md)."""
     robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
-                                       "control_rate", "n_arms", "compliance", "press_depth")}
+                                       "control_rate", "n_arms", "compliance", "press_depth",
+                                       "finger_direction")}
     use_robot = wants_robot(robot_kw)
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
@@ -436,7 +439,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         simulator = RobotSimulator(poly, arms, scale=ds.scale, params=params,
                                    control_every=every,
                                    compliance=bool(robot_kw.get("compliance")),
-                                   press_depth=robot_kw.get("press_depth", "auto"))
+                                   press_depth=robot_kw.get("press_depth", "auto"),
+                                   finger_direction=robot_kw.get("finger_direction", "lean"))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")

@@ -452,6 +452,17 @@ class _Runner:
         return got[-1]
 
 
+def _pointed(mon: StepMonitor, point: Callable[[FloatArray | None], None]
+             ) -> Callable[[Observation, FloatArray], Decision]:
+    """``mon.update`` that also hands ``point`` the recorded finger directions where the
+    reference is at each observation (:meth:`StepMonitor.pointing`)."""
+    def react(obs: Observation, command: FloatArray) -> Decision:
+        dec = mon.update(obs, command)
+        point(mon.pointing(obs.time))
+        return dec
+    return react
+
+
 def _flat_rows(ctrl: FloatArray) -> tuple[memoryview | None, int]:
     """The rows of ``ctrl`` (shape (n, nu)) as one flat memoryview of doubles, C order,
     and the row's length: row ``i`` is ``[i * nu:(i + 1) * nu]``. None for controls that
@@ -818,8 +829,15 @@ def execute_plan(
             dec = mon.begin(obs, run.command)
             assert dec.segment is not None
             budget = mon.expected_duration + 3.0 * cfg.grace + cfg.max_settle + 2.0
+            react: Callable[[Observation, FloatArray], Decision] = mon.update
+            point = getattr(sim.driver, "point", None)
+            if point is not None:  # a robot's finger tools point as the recorded fingers
+                point(mon.pointing(obs.time))
+                react = _pointed(mon, point)
             end = run.drive(run._crossfade(np.array([run.command]), 0, dec.segment),
-                            react=mon.update, max_time=budget)
+                            react=react, max_time=budget)
+            if point is not None:  # the recovery, the transits: the driver's own rule
+                point(None)
             reason = end.reason if end is not None else ""
             aborted = end is not None and end.outcome == "aborted"
             if aborted:

@@ -542,6 +542,9 @@ class FingertipIK:
         self._pose_top = (0.0, 0.0, 0.0)
         self._band = max(self.config.side_tilt_band, 1e-6)
         self._down = np.tile((0.0, 0.0, -1.0), (len(scene.tip_sites), 1))  # (copied)
+        # the recorded finger directions that override the rule (set_pointing): the fingers'
+        # indices and a row per finger, or None
+        self._override: tuple[list[int], FloatArray] | None = None
         self._tilt = float(np.radians(self.config.side_tilt_deg))
         self._tilt_side = self._tilt  # (set_tumbling switches between the two)
         self._tilt_tumble = float(np.radians(self.config.tumble_tilt_deg))
@@ -648,9 +651,41 @@ class FingertipIK:
         return np.asarray(self.configuration.data.site_xpos[self._tip_index],
                           dtype=np.float64)
 
+    def set_pointing(self, directions: FloatArray | None) -> None:
+        """Point the fingers along ``directions`` (shape (n_fingers, 3), world; a finger's
+        row of zeros, or None for all: :meth:`pointing`'s own rule) from the next solve on:
+        the recorded finger directions of the reference being run (the knuckle markers).
+        The pointing task still turns towards them at its bounded rate."""
+        if directions is None:
+            self._override = None
+            return
+        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        norm = np.sqrt((d * d).sum(axis=1))
+        given = norm > 1e-9
+        if not given.any():
+            self._override = None
+            return
+        out = np.zeros_like(d)
+        out[given] = d[given] / norm[given, None]
+        self._override = (np.flatnonzero(given).tolist(), out)
+
     def pointing(self, targets: FloatArray) -> FloatArray:
         """The fingers' pointing directions (unit, world) for ``targets`` (shape
-        (n_fingers, 3)), shape (n_fingers, 3).
+        (n_fingers, 3)), shape (n_fingers, 3): those set by :meth:`set_pointing` where
+        given, else :meth:`lean`'s."""
+        out = self.lean(targets)
+        got = self._override
+        if got is not None:
+            rows, dirs = got
+            out = np.array(out)
+            for k in rows:
+                if k < len(out):
+                    out[k] = dirs[k]
+        return out
+
+    def lean(self, targets: FloatArray) -> FloatArray:
+        """The fingers' pointing directions (unit, world) by the geometric rule, for
+        ``targets`` (shape (n_fingers, 3)), shape (n_fingers, 3).
 
         Down, except where a target lies at or below the object's top beside it (a side
         face): there the rod leans back towards its arm's base by up to ``side_tilt_deg``,

@@ -278,10 +278,18 @@ def joint_trajectory(
     arms: Sequence[Arm], poly: Polyhedron, scale: float, plan: Plan,
     fingers: Mapping[str, str], *, params: SimParams = DEFAULT_PARAMS,
     ik_config: IKConfig | None = None, control_every: int = DEFAULT_CONTROL_EVERY,
+    finger_direction: str = "lean",
 ) -> list[JointTrajectory]:
     """The IK's joint trajectory along the plan's reference motion, per step, one row per
     control step (``control_every`` physics steps; kinematic: the object stands at each
-    step's planned start pose for collision avoidance)."""
+    step's planned start pose for collision avoidance). ``finger_direction="recorded"``
+    points each finger tool along its recorded finger (knuckle to tip,
+    :func:`~nonprehensile.step_paths.step_directions`) where the references carry knuckle
+    markers; ``"lean"`` (the default), the IK's rule."""
+    from nonprehensile.sim.robot_driver import check_finger_direction
+    from nonprehensile.step_paths import step_directions
+
+    check_finger_direction(finger_direction)
     scene = build_robot_scene(poly, scale=scale, arms=arms, params=params, mocap_object=True)
     dt = params.timestep * control_every
     ik = FingertipIK(scene, dt, ik_config)
@@ -300,11 +308,23 @@ def joint_trajectory(
         tr = np.arange(len(arr)) / rate
         x = np.stack([np.stack([np.interp(tt, tr, arr[:, k, a]) for a in range(3)], axis=1)
                       for k in range(arr.shape[1])], axis=1)
+        dirs = None
+        if finger_direction == "recorded":
+            got = step_directions(step, fingers)
+            if got:  # (the recorded fingers; the others keep the rule: zero rows)
+                dirs = np.zeros((n, scene.n_fingers, 3))
+                for k, d in got.items():
+                    if k <= scene.n_fingers:
+                        dd = np.stack([np.interp(tt, tr[:len(d)], d[:, a]) for a in range(3)],
+                                      axis=1)
+                        dirs[:, k - 1] = dd / np.linalg.norm(dd, axis=1)[:, None]
         if not placed:
+            ik.set_pointing(None if dirs is None else dirs[0])
             ik.converge(x[0])
             placed = True
         qs, vs, err = [], [], 0.0
-        for xi in x:
+        for j, xi in enumerate(x):
+            ik.set_pointing(None if dirs is None else dirs[j])
             q, v = ik.step(xi)
             qs.append(q)
             vs.append(v)

@@ -82,6 +82,20 @@ LIMIT_BANDS = {"position_rad": np.radians(0.5), "velocity_fraction": 0.98,
                "torque_fraction": 0.98}
 
 
+#: How a step's finger tools may point (``RobotArms.finger_direction``): ``"lean"``, the
+#: IK's geometric rule (:meth:`~nonprehensile.sim.ik.FingertipIK.lean`); ``"recorded"``,
+#: along the demonstrations' fingers (knuckle to tip) where the references carry knuckle
+#: markers, the rule elsewhere.
+FINGER_DIRECTIONS = ("lean", "recorded")
+
+
+def check_finger_direction(value: object) -> None:
+    """Refuse a ``finger_direction`` that is not one of :data:`FINGER_DIRECTIONS`."""
+    if not isinstance(value, str) or value not in FINGER_DIRECTIONS:
+        raise InputError(f"finger_direction is one of {list(FINGER_DIRECTIONS)}, got "
+                         f"{value!r}")
+
+
 def check_press(depth: object, correction: object = True) -> None:
     """Refuse a contact-consistent command that is not one (one line saying what came):
     ``depth`` None, ``"auto"`` (by the number of fingertips:
@@ -701,6 +715,9 @@ class RobotArms:
         # the fingertip radius offset (_tool; off by default, docs/robot.md says why), and
         # the object's shape it needs
         self.radius_offset = False
+        # how the finger tools point in a step: "recorded" (the knuckle markers, where the
+        # references carry them) or "lean" (the IK's rule only): point()
+        self.finger_direction = "lean"
         self._planes: tuple[FloatArray, FloatArray] | None = None
         self._seen_rot: FloatArray | None = None
         self.finger_radius = REFERENCE_RADIUS
@@ -1109,6 +1126,16 @@ class RobotArms:
         mujoco.mju_mat2Quat(quat, rot.ravel())
         self._seen = (np.array(pose.translation, dtype=np.float64), quat)
         self._seen_rot = np.array(rot)
+
+    def point(self, directions: FloatArray | None) -> None:
+        """The recorded finger directions where the reference being run is (shape
+        (n_fingers, 3), unit, world; zero rows for fingers the step does not use; None:
+        none), handed over by the closed loop at each observation
+        (:meth:`~nonprehensile.control.StepMonitor.pointing`): with
+        ``finger_direction == "recorded"`` the IK points each finger tool along its
+        finger's, else (and with None) by its own rule (:meth:`~nonprehensile.sim.ik.
+        FingertipIK.lean`)."""
+        self.ik.set_pointing(directions if self.finger_direction == "recorded" else None)
 
     def tumbling(self, tumbling: bool) -> None:
         """Whether the next step tumbles the object (its start and end faces differ): the

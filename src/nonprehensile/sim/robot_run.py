@@ -30,6 +30,7 @@ from nonprehensile.sim.robot_driver import (
     DEFAULT_TRACKING_BOUND,
     RobotArms,
     RobotLog,
+    check_finger_direction,
     check_press,
 )
 from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
@@ -214,6 +215,14 @@ class RobotSimulator(Simulator):
     press_correction : bool
         Whether the contact tracking correction may drive the IK's target past
         ``press_depth`` (True) or is bounded with it (False).
+    finger_direction : {"lean", "recorded"}
+        How the finger tools point during a plan step, closed loop: ``"lean"`` (the
+        default), the IK's geometric rule (down, leaning out of a side face:
+        :meth:`~nonprehensile.sim.ik.FingertipIK.lean`); ``"recorded"``, along the
+        demonstrators' fingers, knuckle marker to tip marker, where the reference is at
+        each observation (:meth:`~nonprehensile.control.StepMonitor.pointing`; references
+        without knuckle markers, transits and recoveries keep the rule). Measured: docs/
+        robot.md, "The finger's direction".
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
@@ -224,7 +233,7 @@ class RobotSimulator(Simulator):
                  tracking_bound: float | None = None,
                  compliance: bool = False, radius_offset: bool = False,
                  press_depth: float | str | None = "auto",
-                 press_correction: bool = True) -> None:
+                 press_correction: bool = True, finger_direction: str = "lean") -> None:
         if force_limit is not None and not compliance:
             # before the force-limited command, force_limit alone made the tip yield: a call
             # written then must not now run the stiff arm without a word
@@ -232,6 +241,7 @@ class RobotSimulator(Simulator):
                              "command's limit: pass compliance=True with it, or drop it")
         # the correction's options checked before the scenes are built (n_fingers later)
         resolve_tracking(1, tracking_gain, tracking_tangential, tracking_bound)
+        check_finger_direction(finger_direction)
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
         self._force_limit = force_limit
@@ -271,6 +281,7 @@ class RobotSimulator(Simulator):
         self.robot_driver.tracking_tangential = tangential
         self.robot_driver.tracking_bound = bound
         self.robot_driver.finger_radius = params.finger_radius
+        self.robot_driver.finger_direction = finger_direction
         self._body = self.judge.body
         self._qadr = self.judge.qadr
         self._dadr = self.judge.dadr
@@ -346,6 +357,8 @@ class RobotSimulator(Simulator):
             # the contact-consistent command's bound (None: the references as they are)
             "press_depth_m": drv.press_depth,
             "press_correction": bool(drv.press_correction),
+            # how the finger tools point in a step ("lean" or "recorded": the knuckles)
+            "finger_direction": drv.finger_direction,
         }
         doc["ik_object_pose"] = ("closed loop: each observation (RobotArms.see); open loop, "
                                  "where nothing is observed: the simulation's pose")

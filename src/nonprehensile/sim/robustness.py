@@ -421,6 +421,9 @@ class SweepRobot:
     press_correction : bool
         whether the contact tracking correction may press past it
         (:class:`~nonprehensile.sim.robot_run.RobotSimulator`).
+    finger_direction : {"lean", "recorded"}
+        How the finger tools point in a step (``"lean"``, the default, or along the
+        recorded fingers: :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
     """
 
     arms: tuple[Any, ...]
@@ -429,6 +432,7 @@ class SweepRobot:
     compliance: bool = False
     press_depth: float | str | None = "auto"
     press_correction: bool = True
+    finger_direction: str = "lean"
 
     def __post_init__(self) -> None:
         if self.max_accel is None:
@@ -445,9 +449,10 @@ class SweepRobot:
                 and self.max_accel > 0):
             raise InputError(f"max_accel must be a finite positive number, got "
                              f"{self.max_accel!r}")
-        from nonprehensile.sim.robot_driver import check_press
+        from nonprehensile.sim.robot_driver import check_finger_direction, check_press
 
         check_press(self.press_depth, self.press_correction)
+        check_finger_direction(self.finger_direction)
 
     @property
     def n_fingers(self) -> int:
@@ -461,7 +466,8 @@ class SweepRobot:
         return RobotSimulator(poly, self.arms, scale=scale, params=params,
                               control_every=self.control_every,
                               compliance=self.compliance, press_depth=self.press_depth,
-                              press_correction=self.press_correction)
+                              press_correction=self.press_correction,
+                              finger_direction=self.finger_direction)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form: robots, bases, rates."""
@@ -472,6 +478,7 @@ class SweepRobot:
                 # the bound that runs ("auto" resolved by the number of fingertips; None: none)
                 "press_depth_m": self.press_depth_m,
                 "press_correction": bool(self.press_correction),
+                "finger_direction": self.finger_direction,
                 # the contact tracking correction that runs (robot_run.resolve_tracking)
                 **self.tracking()}
 
