@@ -68,13 +68,15 @@ COMPLIANCE = os.environ.get("NP_ROBOT_COMPLIANCE", "0") == "1"
 # the contact-consistent command's bound in mm ("off": none; unset: the default), and
 # whether the contact correction may press past it (NP_ROBOT_PRESS_CORRECTION=0: no)
 _PRESS = os.environ.get("NP_ROBOT_PRESS")
-PRESS: dict = ({} if _PRESS is None else
-               {"press_depth": None if _PRESS == "off" else float(_PRESS) / 1000.0})
+# the robots' options from the environment (the press bound, its correction, the finger's
+# direction), passed to every part's RobotSimulator / SweepRobot
+ROBOT_KW: dict = ({} if _PRESS is None else
+                  {"press_depth": None if _PRESS == "off" else float(_PRESS) / 1000.0})
 if "NP_ROBOT_PRESS_CORRECTION" in os.environ:
-    PRESS["press_correction"] = os.environ["NP_ROBOT_PRESS_CORRECTION"] == "1"
+    ROBOT_KW["press_correction"] = os.environ["NP_ROBOT_PRESS_CORRECTION"] == "1"
 # how the finger tools point in a step ("lean", the default, or "recorded": the knuckles)
 if "NP_ROBOT_FINGER_DIRECTION" in os.environ:
-    PRESS["finger_direction"] = os.environ["NP_ROBOT_FINGER_DIRECTION"]
+    ROBOT_KW["finger_direction"] = os.environ["NP_ROBOT_FINGER_DIRECTION"]
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 
@@ -146,7 +148,7 @@ def main_plan() -> None:
         for (label, base), every in ((b, e) for b in bases
                                  for e in (DEFAULT_CONTROL_EVERY, 1)):
             sim = RobotSimulator(poly, [Arm(robot, base)], scale=ds.scale, control_every=every,
-                                 compliance=COMPLIANCE, **PRESS)
+                                 compliance=COMPLIANCE, **ROBOT_KW)
             cfg = robot_control(n_fingers=sim.n_fingers)
             times = []
             for _ in range(REPEAT):
@@ -331,9 +333,9 @@ def sweep() -> None:
           f"{SAMPLES} samples, seed {SEED}, {WORKERS} workers")
     spec = SweepSpec(poly, ds.scale, units, dist, SEED, SAMPLES, ("closed",),
                      dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
-                     robot=SweepRobot(tuple(arms), compliance=COMPLIANCE, **PRESS))
+                     robot=SweepRobot(tuple(arms), compliance=COMPLIANCE, **ROBOT_KW))
     print(f"   force-limited finger command: {_compliance(1)}; contact-consistent command: "
-          f"{PRESS or 'the default'}")
+          f"{ROBOT_KW or 'the default'}")
     _robot_report(run_sweep(spec, workers=WORKERS))
 
 
@@ -388,9 +390,9 @@ def transitions() -> None:
               f"({time.perf_counter() - t0:.0f} s search)")
         spec = SweepSpec(poly, ds.scale, tuple(units), nominal, SEED, 1, ("closed",),
                          dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
-                         robot=SweepRobot(tuple(arms), compliance=COMPLIANCE, **PRESS))
+                         robot=SweepRobot(tuple(arms), compliance=COMPLIANCE, **ROBOT_KW))
         print(f"   force-limited finger command: {_compliance(n_arms)}; contact-consistent "
-              f"command: {PRESS or 'the default'}")
+              f"command: {ROBOT_KW or 'the default'}")
         _robot_report(run_sweep(spec, workers=WORKERS, chunk_size=1))
 
 
@@ -423,7 +425,7 @@ def cost() -> None:
     lib = frozen_library(exp, motions)
     specs = {kind: SweepSpec(poly, ds.scale, units, nominal, SEED, 1, ("closed",),
                              dict(ds.fingers), expansion=exp, library=lib,
-                             robot=SweepRobot(tuple(arms), **PRESS) if kind == "robot"
+                             robot=SweepRobot(tuple(arms), **ROBOT_KW) if kind == "robot"
                              else None)
              for kind in ("robot", "free")}
     workers = {kind: _Worker(spec) for kind, spec in specs.items()}

@@ -89,41 +89,61 @@ def test_step_directions_are_the_references_knuckle_to_tip(main_step) -> None:  
 @given(yaw=st.floats(-20.0, 20.0), dx=st.floats(-0.01, 0.01), dy=st.floats(-0.01, 0.01))
 def test_the_monitor_turns_the_directions_as_it_anchors_the_reference(
         yaw: float, dx: float, dy: float) -> None:
-    """Observed turned by ``yaw`` about the vertical and shifted, the object gets the
-    reference turned by the anchor's yaw: the directions turn by the same yaw, frame by
-    frame from the arc's start (its blend-in hold repeating the first)."""
-    from nonprehensile.control import ControlConfig, StepMonitor, step_spec
+    """Observed turned by ``yaw`` about the vertical and shifted, the object gets its
+    reference turned and shifted (``anchor_transform``, the truth here): the direction
+    :meth:`StepMonitor.pointing` gives at a time is the recorded one of the reference frame
+    the segment it emitted reaches at that time, turned by the same yaw."""
+    from nonprehensile.control import ControlConfig, StepMonitor, anchor_transform, step_spec
     from nonprehensile.observation import Observation
     from nonprehensile.planning import ObjectPose
 
     poly, ds, p = _main_step()
     spec = step_spec(poly, p.steps[0], ds.fingers)
+    for a in spec.arcs:  # frame by frame with the positions (their stops included)
+        assert a.directions is not None and a.directions.shape == a.positions.shape
     arc = spec.arcs[0]
-    assert arc.directions is not None and arc.directions.shape == arc.positions.shape
     s0 = spec.start_pose
     c, s = math.cos(math.radians(yaw)), math.sin(math.radians(yaw))
     rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     com = s0.com + np.array([dx, dy, 0.0])
     turned = ObjectPose(rz @ s0.rotation, rz @ (s0.translation - s0.com) + com, com,
                         s0.scale)
-    tips = np.array([[0.0, 0.0, 0.5], [0.1, 0.0, 0.5]])
-    mon = StepMonitor(poly, spec, ControlConfig(), dt=0.001, finger_radius=0.006, rest=tips)
-    # commanded where the reference starts (anchored): no blend-in hold
-    mon.begin(Observation(2.0, turned, tips), tips)
-    got_yaw = math.radians(mon.log[-1]["yaw_deg"])  # (logged to 1e-4 degrees)
-    assert abs(got_yaw - math.radians(yaw)) < 0.02  # the anchor reads the turn
-    c, s = math.cos(got_yaw), math.sin(got_yaw)
+    tf = anchor_transform(poly, arc.anchor, s0, turned)
+    assert abs(tf.yaw - math.radians(yaw)) < 1e-6  # the anchor reads the turn
+    c, s = math.cos(tf.yaw), math.sin(tf.yaw)
     rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-    lead = len(mon._dirs) - len(arc.directions)  # type: ignore[arg-type]
-    for k in (0, len(arc.directions) // 2, len(arc.directions) - 1):
-        got = mon.pointing(2.0 + (k + lead) / spec.rate)
+    placed = tf.apply(arc.positions)  # (n, 1, 3)
+    # the fingertips commanded where the placed reference starts: the segment is the
+    # placed reference itself, at 4 physics steps a reference frame
+    tips = np.array([placed[0, 0], [0.1, 0.0, 0.5]])
+    dt = 1.0 / (4.0 * spec.rate)
+    mon = StepMonitor(poly, spec, ControlConfig(), dt=dt, finger_radius=0.006, rest=tips)
+    t0 = 2.0
+    seg = mon.begin(Observation(t0, turned, tips), tips).segment
+    assert seg is not None
+    for k in (0, len(arc.positions) // 3, len(arc.positions) - 1):
+        np.testing.assert_allclose(seg[4 * k, 0], placed[k, 0], atol=1e-9)
+        got = mon.pointing(t0 + k / spec.rate)
         assert got is not None and got.shape == (2, 3)
-        np.testing.assert_allclose(got[0], rz @ arc.directions[k, 0], atol=1e-5)
+        np.testing.assert_allclose(got[0], rz @ arc.directions[k, 0], atol=1e-9)
         assert not got[1].any()  # R2 is not used by a push-roll
     # past the arc's end, its last direction
     late = mon.pointing(1e3)
     assert late is not None
-    np.testing.assert_allclose(late[0], rz @ arc.directions[-1, 0], atol=1e-5)
+    np.testing.assert_allclose(late[0], rz @ arc.directions[-1, 0], atol=1e-9)
+
+
+def test_an_arc_refuses_directions_that_are_not_frame_by_frame(main_step) -> None:  # type: ignore[no-untyped-def]
+    from dataclasses import replace
+
+    from nonprehensile.control import step_spec
+    from nonprehensile.errors import InputError
+
+    poly, ds, p = main_step
+    arc = step_spec(poly, p.steps[0], ds.fingers).arcs[0]
+    with pytest.raises(InputError, match="frame by frame with its positions"):
+        replace(arc, positions=arc.positions[:-1])
+    assert replace(arc, positions=arc.positions[:-1], directions=None).directions is None
 
 
 # ------------------------------------------------------------------------------- robot
@@ -158,6 +178,17 @@ def test_ik_points_given_fingers_along_their_directions() -> None:
     np.testing.assert_array_equal(got[1], lean[1])
     ik.set_pointing(None)
     np.testing.assert_array_equal(ik.pointing(targets), lean)
+    # a new start forgets them
+    ik.set_pointing(d)
+    ik.reset(scene.home)
+    np.testing.assert_array_equal(ik.pointing(targets), ik.lean(targets))
+    # one row per finger, finite, or one line saying so
+    from nonprehensile.errors import InputError
+
+    for bad in (d[:1], np.zeros((3, 3)), np.full((2, 3), np.nan), np.zeros(6)):
+        with pytest.raises(InputError, match=r"set_pointing takes finite directions of shape "
+                                             r"\(2, 3\)"):
+            ik.set_pointing(bad)
 
 
 def _tool_angles(main_step, mode: str) -> tuple[bool, np.ndarray]:  # type: ignore[no-untyped-def]
@@ -199,6 +230,36 @@ def test_the_robots_finger_tool_points_as_the_recorded_finger(main_step) -> None
     assert len(rec) > 100 and len(lean) > 100
     assert float(np.median(rec)) < 15.0, np.median(rec)
     assert float(np.median(lean)) > 20.0, np.median(lean)
+
+
+def test_a_step_that_raises_leaves_no_recorded_direction_behind(main_step, monkeypatch
+                                                               ) -> None:  # type: ignore[no-untyped-def]
+    """A sweep's worker catches an executor's exception and runs its next sample on the
+    same robot: the directions handed over in the failed step must not steer it."""
+    _robot()
+    from nonprehensile.control import StepMonitor
+    from nonprehensile.sim.closed_loop import execute_plan
+    from nonprehensile.sim.robot import BasePose, Robot
+    from nonprehensile.sim.robot_run import RobotSimulator, robot_control
+    from nonprehensile.sim.robot_scene import Arm
+
+    poly, ds, p = main_step
+    sim = RobotSimulator(poly, [Arm(Robot.builtin(), BasePose(0.53, -0.51, 112.5))],
+                         scale=ds.scale, finger_direction="recorded")
+    update = StepMonitor.update
+    seen: list[bool] = []
+
+    def failing(self, obs, command):  # type: ignore[no-untyped-def]
+        seen.append(sim.driver.ik._override is not None)
+        if len(seen) > 20:
+            raise RuntimeError("an executor's bug")
+        return update(self, obs, command)
+
+    monkeypatch.setattr(StepMonitor, "update", failing)
+    with pytest.raises(RuntimeError, match="an executor's bug"):
+        execute_plan(sim, p, fingers=ds.fingers, config=robot_control(n_fingers=1))
+    assert any(seen)  # the step did point along the recorded finger ...
+    assert sim.driver.ik._override is None  # ... and nothing of it is left
 
 
 def test_finger_direction_is_checked_and_reported() -> None:

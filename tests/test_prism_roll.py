@@ -65,6 +65,10 @@ def test_top_roll_presses_the_top_face_above_the_pivot_and_turns_about_it(prism)
     p = _roll_plan(prism, State("b", 0.0), State("c", 0.0))
     spec = step_spec(poly, p.steps[0], ds.fingers)
     rolled = top_roll(spec, poly, radius, inset=0.005, press=0.006, roll_deg=40.0)
+    # the recorded fingers' directions belong to the recorded push, not to the roll made
+    # up here: a robot's finger tool keeps its own rule (docs/robot.md)
+    assert all(a.directions is not None for a in spec.arcs)
+    assert all(a.directions is None for a in rolled.arcs)
     pose = spec.start_pose
     top = next(f for f in poly.face_ids if (pose.rotation @ poly.normals[f])[2] > 0.99)
     # the pivot: the bottom edge shared with the landing face c

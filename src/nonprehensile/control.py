@@ -280,6 +280,15 @@ class PlanarTransform:
         p[..., 1] = s * x + c * y + self.center[1] + self.shift[1]
         return p
 
+    def turn(self, vectors: FloatArray) -> FloatArray:
+        """Directions of shape (..., 3) turned by ``yaw`` about the vertical (no shift)."""
+        v = np.array(vectors, dtype=np.float64)
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        x, y = v[..., 0].copy(), v[..., 1].copy()
+        v[..., 0] = c * x - s * y
+        v[..., 1] = s * x + c * y
+        return v
+
     def to_dict(self) -> dict[str, Any]:
         """JSON form (degrees, metres)."""
         return {"yaw_deg": round(math.degrees(self.yaw), 4),
@@ -376,8 +385,9 @@ class ArcSpec:
     directions : array, shape (n_frames, n_used, 3), or None
         The recorded finger directions along the reference (unit, knuckle to tip, world at
         the plan's predicted poses: :func:`~nonprehensile.step_paths.step_directions`),
-        frame by frame with ``positions``; None when a used finger's knuckle marker is not
-        in the references.
+        frame by frame with ``positions``; zero rows for a used finger whose knuckle marker
+        is not in the references; None when no used finger's is (or the arc's positions are
+        not the reference's: :func:`top_roll`).
     """
 
     source: str
@@ -390,6 +400,14 @@ class ArcSpec:
     releases: bool = False
     min_progress: float = 0.0
     directions: FloatArray | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.directions is not None and np.shape(self.directions) != np.shape(
+                self.positions):
+            raise InputError(f"arc {self.source}->{self.target}: its directions (shape "
+                             f"{np.shape(self.directions)}) must be frame by frame with its "
+                             f"positions (shape {np.shape(self.positions)}); pass "
+                             f"directions=None with positions that are not the reference's")
 
 
 @dataclass(frozen=True)
@@ -468,8 +486,9 @@ def step_spec(poly: Polyhedron, step: PlanStep, fingers: Mapping[str, str],
     used = tuple(fingers_of(skill))
     stacked = np.stack([targets[k] for k in used], axis=1)
     dirs = step_directions(step, fingers, smooth)
-    stacked_dirs = (np.stack([dirs[k] for k in used], axis=1)
-                    if all(k in dirs for k in used) else None)
+    # a finger without a knuckle marker gets zero rows: no direction, the IK's rule
+    stacked_dirs = (np.stack([dirs.get(k, np.zeros((len(stacked), 3))) for k in used],
+                             axis=1) if any(k in dirs for k in used) else None)
     events = tuple(_norm_pairs(e, poly) for e in skill.events)
     grounds = tuple(_ground_of(e) for e in events)
     start_face, end_face = Face(step.transition.start.face), Face(step.transition.end.face)
@@ -660,10 +679,11 @@ def top_roll(spec: StepSpec, poly: Polyhedron, finger_radius: float, *,
     roll = with_stop((_turned_about(axis, angle, s, rel) + mid + lead)[:, None, :], rate)
     end = roll[-1, 0]
     retreat = with_stop(line(end, end - lift * down, 2.0 * approach_speed), rate)
-    arcs = (replace(spec.arcs[0], positions=approach),
-            replace(spec.arcs[1], positions=push),
-            replace(spec.arcs[2], positions=roll),
-            replace(spec.arcs[3], positions=retreat))
+    # (made-up motions: the recorded fingers' directions belong to the push they replace)
+    arcs = (replace(spec.arcs[0], positions=approach, directions=None),
+            replace(spec.arcs[1], positions=push, directions=None),
+            replace(spec.arcs[2], positions=roll, directions=None),
+            replace(spec.arcs[3], positions=retreat, directions=None))
 
     def on_top(event: Pairs) -> Pairs:
         out = set()
@@ -813,10 +833,7 @@ class StepMonitor:
         w = 1.0 - ease(np.linspace(0.0, 1.0, len(ref)))
         path = ref + w[:, None, None] * gap[None]
         if arc.directions is not None:  # turned as the reference is (about the vertical)
-            c, s = math.cos(tf.yaw), math.sin(tf.yaw)
-            d = arc.directions
-            dirs = np.stack([c * d[..., 0] - s * d[..., 1], s * d[..., 0] + c * d[..., 1],
-                             d[..., 2]], axis=-1)
+            dirs = tf.turn(arc.directions)
             if m > n:
                 dirs = np.concatenate([np.repeat(dirs[:1], m - n, axis=0), dirs])
             self._dirs, self._dirs_t0 = dirs, obs.time
@@ -829,11 +846,26 @@ class StepMonitor:
         return self._full(resample(path, self.spec.rate, self.dt))
 
     def pointing(self, time: float) -> FloatArray | None:
-        """The recorded finger directions where the running arc's reference is at
-        controller time ``time`` (unit, world, shape (n_fingers, 3): zero rows for the
-        fingers the step does not use), the last one past its end; None when the arc's
-        references carry no knuckle markers. A robot's IK points its finger tools along
-        them (:meth:`~nonprehensile.sim.robot_run.RobotSimulator`'s ``finger_direction``)."""
+        """The recorded finger directions where the running arc's reference is.
+
+        A robot's IK points its finger tools along them
+        (:class:`~nonprehensile.sim.robot_run.RobotSimulator`'s ``finger_direction``). The
+        frame is the reference's at ``time`` by the clock of the arc's start, as the
+        segment runs at its own rate: a segment that the runner slows down to its speed
+        bound (``limit_speed``; the bundled references stay under it) runs behind them.
+
+        Parameters
+        ----------
+        time : float
+            Controller time, s (an observation's ``time``).
+
+        Returns
+        -------
+        ndarray, shape (n_fingers, 3), or None
+            Unit vectors (world; zero rows for fingers the step does not use or that have
+            no knuckle marker), the arc's last past its end; None when the arc carries no
+            directions, and from a let-go or follow-through on (the IK's own rule).
+        """
         dirs = self._dirs
         if dirs is None:
             return None
@@ -918,6 +950,7 @@ class StepMonitor:
             step = self._seek_dir
             if arc.releases:  # let go: straight up, away from the object
                 step = np.tile([0.0, 0.0, 1.0], (len(self.spec.used), 1))
+                self._dirs = None  # (a let-go: the IK's own rule)
             norm = float(np.linalg.norm(step, axis=1).max())
             if norm > 1e-9:
                 direction = step / norm
@@ -972,6 +1005,7 @@ class StepMonitor:
         s = ease(np.linspace(0.0, 1.0, n))
         path = _turned_about(axis, angle, s, start) + pivot
         self._followed = duration
+        self._dirs = None  # a turn the recording does not have: the IK's own rule
         self.log.append({"time": round(obs.time - self._t0, 4), "follow_through": str(ground),
                          "deg": self.cfg.follow_deg})
         return Decision(segment=self._full(path))
@@ -994,6 +1028,7 @@ class StepMonitor:
         if abs(left) > 0.5 and left * want > 0:
             return None
         self._released = True
+        self._dirs = None  # a let-go: the IK's own rule
         self.log.append({"time": round(obs.time - self._t0, 4),
                          "turned": round(float(angle_diff(st.theta,
                                                           spec.step.start_world.theta)), 3),

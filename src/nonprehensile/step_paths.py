@@ -114,10 +114,25 @@ def step_targets(
 
 
 def knuckle_marker(tip: str, names: tuple[str, ...] | list[str]) -> str | None:
-    """The knuckle marker of the finger whose tip marker is ``tip``, among ``names``: the
-    tip's name with its ``_tip`` ending turned into ``_knuckle`` (``index_tip`` ->
-    ``index_knuckle``, the bundled recordings' and the paper's Fig. 11 markers); None when
-    the name does not end so or no such marker was recorded."""
+    """The knuckle marker of the finger whose tip marker is ``tip``.
+
+    The rule is a naming convention (the dataset format maps fingers to tip markers only):
+    the tip's name with its ``_tip`` ending turned into ``_knuckle`` (``index_tip`` ->
+    ``index_knuckle``, the bundled recordings' and the paper's Fig. 11 markers).
+
+    Parameters
+    ----------
+    tip : str
+        The finger's tip marker (the dataset's ``fingers`` map).
+    names : sequence of str
+        The markers a recording has.
+
+    Returns
+    -------
+    str or None
+        The knuckle's name; None when ``tip`` does not end in ``_tip`` or no such marker
+        is among ``names``.
+    """
     if not tip.endswith("_tip"):
         return None
     name = tip.removesuffix("_tip") + "_knuckle"

@@ -385,6 +385,10 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                                        "control_rate", "n_arms", "compliance", "press_depth",
                                        "finger_direction")}
     use_robot = wants_robot(robot_kw)
+    if loop == "open" and robot_kw.get("finger_direction") == "recorded":
+        err.print("note: --finger-direction recorded changes nothing here: open loop, the "
+                  "reference is never placed on the object as observed, and the finger "
+                  "tools point by the rule")
     if use_robot and record:
         raise InputError("--record writes free-fingertip episodes; it does not take a robot "
                          "yet (drop --robot, or --record)")

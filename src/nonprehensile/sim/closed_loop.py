@@ -834,10 +834,12 @@ def execute_plan(
             if point is not None:  # a robot's finger tools point as the recorded fingers
                 point(mon.pointing(obs.time))
                 react = _pointed(mon, point)
-            end = run.drive(run._crossfade(np.array([run.command]), 0, dec.segment),
-                            react=react, max_time=budget)
-            if point is not None:  # the recovery, the transits: the driver's own rule
-                point(None)
+            try:
+                end = run.drive(run._crossfade(np.array([run.command]), 0, dec.segment),
+                                react=react, max_time=budget)
+            finally:  # the recovery, the transits, a next run: the driver's own rule
+                if point is not None:
+                    point(None)
             reason = end.reason if end is not None else ""
             aborted = end is not None and end.outcome == "aborted"
             if aborted:

@@ -584,6 +584,7 @@ class FingertipIK:
         self.solve_times = []
         for task in self.position_tasks:  # pointing down again, not turning
             task.axis = np.array([0.0, 0.0, -1.0])
+        self._override = None  # no recorded directions left from a previous run
         self._turn = [0.0] * len(self.position_tasks)
         self._box.prev = np.zeros(len(self.scene.dadr))  # at rest
         self._fed = False  # no previous target to feed forward from
@@ -659,7 +660,12 @@ class FingertipIK:
         if directions is None:
             self._override = None
             return
-        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        d = np.asarray(directions, dtype=np.float64)
+        n = len(self.position_tasks)
+        if d.shape != (n, 3) or not np.isfinite(d).all():
+            raise InputError(f"set_pointing takes finite directions of shape ({n}, 3), one "
+                             f"row per finger (zeros: the rule), or None; got shape "
+                             f"{d.shape}" + ("" if np.isfinite(d).all() else " with NaN"))
         norm = np.sqrt((d * d).sum(axis=1))
         given = norm > 1e-9
         if not given.any():

@@ -314,9 +314,10 @@ def joint_trajectory(
             if got:  # (the recorded fingers; the others keep the rule: zero rows)
                 dirs = np.zeros((n, scene.n_fingers, 3))
                 for k, d in got.items():
+                    # (step_directions gives step_targets' frames: plan_targets' here)
+                    assert len(d) == len(tr), (len(d), len(tr))
                     if k <= scene.n_fingers:
-                        dd = np.stack([np.interp(tt, tr[:len(d)], d[:, a]) for a in range(3)],
-                                      axis=1)
+                        dd = np.stack([np.interp(tt, tr, d[:, a]) for a in range(3)], axis=1)
                         dirs[:, k - 1] = dd / np.linalg.norm(dd, axis=1)[:, None]
         if not placed:
             ik.set_pointing(None if dirs is None else dirs[0])

@@ -1133,8 +1133,8 @@ class RobotArms:
         none), handed over by the closed loop at each observation
         (:meth:`~nonprehensile.control.StepMonitor.pointing`): with
         ``finger_direction == "recorded"`` the IK points each finger tool along its
-        finger's, else (and with None) by its own rule (:meth:`~nonprehensile.sim.ik.
-        FingertipIK.lean`)."""
+        finger's, else (and with None) by its own rule
+        (:meth:`~nonprehensile.sim.ik.FingertipIK.lean`)."""
         self.ik.set_pointing(directions if self.finger_direction == "recorded" else None)
 
     def tumbling(self, tumbling: bool) -> None:
