@@ -665,7 +665,8 @@ class FingertipIK:
         if d.shape != (n, 3) or not np.isfinite(d).all():
             raise InputError(f"set_pointing takes finite directions of shape ({n}, 3), one "
                              f"row per finger (zeros: the rule), or None; got shape "
-                             f"{d.shape}" + ("" if np.isfinite(d).all() else " with NaN"))
+                             f"{d.shape}" + ("" if np.isfinite(d).all()
+                                             else " with values that are not finite"))
         norm = np.sqrt((d * d).sum(axis=1))
         given = norm > 1e-9
         if not given.any():

@@ -221,8 +221,8 @@ class RobotSimulator(Simulator):
         :meth:`~nonprehensile.sim.ik.FingertipIK.lean`); ``"recorded"``, along the
         demonstrators' fingers, knuckle marker to tip marker, where the reference is at
         each observation (:meth:`~nonprehensile.control.StepMonitor.pointing`; references
-        without knuckle markers, transits and recoveries keep the rule). Measured: docs/
-        robot.md, "The finger's direction".
+        without knuckle markers, transits, let-goes, follow-throughs, recoveries and open
+        loop keep the rule). Measured: docs/robot.md, "The finger's direction".
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
