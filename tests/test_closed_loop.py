@@ -728,3 +728,56 @@ def test_flat_rows_are_the_control_rows() -> None:
         assert out.tobytes() == ctrl[i].tobytes()
     # a robot's controls, solved as they are read, are read row by row
     assert _flat_rows([[0.0] * 5]) == (None, 0)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("bound", [0.0, 0.004, 0.006])
+def test_a_bounded_follow_through_never_drives_the_pad_deeper(first_step, bound) -> None:  # type: ignore[no-untyped-def]
+    """A cube that does not turn (balanced on its pivot edge under the pad): the
+    follow-through turns the fingertip about the pivot only as far as the pad stays within
+    ``follow_depth`` of the object's surface as observed. The depth is read here from
+    scipy's convex hull of the posed vertices, not from the model's face planes; unbounded,
+    the same turn goes more than a centimetre into the cube."""
+    from scipy.spatial import ConvexHull
+
+    from nonprehensile.control import StepMonitor, step_spec
+
+    poly, ds, pl, _, _ = first_step
+    spec = step_spec(poly, pl.steps[0], ds.fingers)
+    pose = spec.start_pose
+    radius = 0.006
+    world = pose.to_world(poly.vertices)
+    eqs = ConvexHull(world).equations  # outward unit normals and offsets, world metres
+
+    def depth(points: np.ndarray) -> np.ndarray:
+        signed = (points @ eqs[:, :3].T + eqs[:, 3]).max(axis=-1)
+        return radius - signed
+
+    # the pad pressed 2 mm into the pushed face (c), half-way up it
+    arc = 2  # pivot -> landed: its end event puts the cube on its landing face
+    assert spec.grounds[arc + 1] is not None
+    c = pose.rotation @ poly.normals["c"]
+    centre = pose.com + (0.025 + radius - 0.002) * c
+    tips = np.array([centre, [0.0, 0.0, 0.5]])
+    depths = {}
+    for follow in (bound, None):
+        cfg = ControlConfig(follow_depth=follow)
+        mon = StepMonitor(poly, spec, cfg, dt=0.001, finger_radius=radius, rest=tips)
+        mon.arc, mon.current = arc, spec.events[arc]
+        dec = mon._follow_through(Observation(1.0, pose, tips), tips)
+        assert dec is not None and dec.segment is not None
+        depths[follow] = depth(dec.segment[:, 0]).max()
+    assert depths[None] > 0.01  # unbounded: more than a centimetre into the cube
+    # bounded: no deeper than the bound, or than where the pad began when it began deeper
+    assert depths[bound] <= max(bound, 0.002) + 1e-3
+    assert depths[bound] < depths[None]
+
+
+def test_follow_depth_is_checked_and_robots_get_theirs() -> None:
+    from nonprehensile.sim.robot_run import ROBOT_FOLLOW_DEPTH, robot_control
+
+    for bad in (-0.001, math.nan, math.inf, "2 mm"):
+        with pytest.raises(InputError, match="follow_depth"):
+            ControlConfig(follow_depth=bad)  # type: ignore[arg-type]
+    assert ControlConfig().follow_depth is None  # the free fingertips: unbounded
+    assert robot_control(n_fingers=1).follow_depth == ROBOT_FOLLOW_DEPTH
+    assert robot_control(ControlConfig(follow_depth=0.01), n_fingers=2).follow_depth == 0.01

@@ -165,7 +165,13 @@ class ControlConfig:
         face follows through: the fingers turn on about the pivot by at most this (degrees;
         0: never) ...
     follow_speed : float
-        ... at this rate (degrees/s).
+        ... at this rate (degrees/s) ...
+    follow_depth : float or None
+        ... but no further than where the fingertip sphere would lie more than this (m)
+        inside the object as observed when the follow-through begins: an object that does
+        not turn (heavy, balanced on its edge under the pad) is not driven into. None (the
+        default, the free fingertips'): no bound; robots:
+        :func:`~nonprehensile.sim.robot_run.robot_control`.
     """
 
     confirm: float = 0.015
@@ -194,10 +200,12 @@ class ControlConfig:
     align_tol: float | None = None
     follow_deg: float = 30.0
     follow_speed: float = 60.0
+    follow_depth: float | None = None
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            if isinstance(value, bool) or (name in ("align_tol", "transit_accel")
+            if isinstance(value, bool) or (name in ("align_tol", "transit_accel",
+                                                    "follow_depth")
                                            and value is None):
                 continue
             ok = isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
@@ -1004,11 +1012,34 @@ class StepMonitor:
         start = np.asarray(command, dtype=np.float64)[used] - pivot
         s = ease(np.linspace(0.0, 1.0, n))
         path = _turned_about(axis, angle, s, start) + pivot
+        deg = self.cfg.follow_deg
+        bound = self.cfg.follow_depth
+        if bound is not None:
+            # a stiff finger follows its command: turned on into an object that does not
+            # turn, it presses the object onto its pivot with the arm's whole servo force
+            # (measured: a 0.4 kg cube balanced on an edge, the tip on its top face, the
+            # command 33 mm inside it)
+            deep = self._depth(obs.pose, path) > bound + 1e-12
+            if deep.any():
+                keep = max(int(np.argmax(deep)), 2)  # the path up to its first deep frame
+                deg = self.cfg.follow_deg * float(s[keep - 1])
+                path = path[:keep]
         self._followed = duration
         self._dirs = None  # a turn the recording does not have: the IK's own rule
         self.log.append({"time": round(obs.time - self._t0, 4), "follow_through": str(ground),
-                         "deg": self.cfg.follow_deg})
+                         "deg": round(deg, 3)})
         return Decision(segment=self._full(path))
+
+    def _depth(self, pose: ObjectPose, points: FloatArray) -> FloatArray:
+        """How deep (m) the fingertip spheres centred at ``points`` (shape (n, k, 3)) lie
+        inside the object at ``pose``, the deepest of the ``k`` each, shape (n,): the radius
+        less the centre's signed distance to the face planes (exact inside a convex
+        polyhedron; outside, the largest plane distance is at most the true distance, so a
+        sphere off an edge counts as deeper, never shallower)."""
+        normals, offsets = self._planes
+        local = (np.asarray(points) - pose.translation) @ pose.rotation / pose.scale
+        signed = (local @ normals.T - offsets).max(axis=-1) * pose.scale
+        return np.asarray((self.radius - signed).max(axis=-1), dtype=np.float64)
 
     def _turned_enough(self, obs: Observation, command: FloatArray) -> Decision | None:
         """A turn in place (start and end on the same face) watched by its angle: once the

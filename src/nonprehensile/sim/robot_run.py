@@ -38,8 +38,9 @@ from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
 __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
-           "PINCH_TRACKING_GAIN", "ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL", "RobotSimulator",
-           "describe_robots", "resolve_press_depth", "resolve_tracking", "robot_control"]
+           "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL",
+           "RobotSimulator", "describe_robots", "resolve_press_depth", "resolve_tracking",
+           "robot_control"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
 #: fingertip (``ControlConfig.max_accel``). The free fingertips' 20 m/s^2 asks the Panda's
@@ -82,6 +83,16 @@ PINCH_TRACKING_BOUND = 0.002
 #: no link or rod contact against 5 runs, twist:reverse within 3 mm in 24/24 against 6/24;
 #: one arm pushing loses slippery-table pushes with it (docs/benchmarks.md, press24).
 PINCH_PRESS_DEPTH = 0.002
+
+
+#: Robots' bound on the follow-through (m, ``ControlConfig.follow_depth``): it turns the
+#: fingertips on about the object's pivot no further than where the arm's fingertip sphere
+#: would lie 6 mm inside the object as observed. The main plan's 100 samples by one arm:
+#: 94/100 as without it, the worst tracking in contact 21.3 mm against 42.6, the longest
+#: time at a limit 42 ms against 705, 5 runs over 10 ms against 8 (seed 1: 94/100 both,
+#: 17.7 against 31.5 mm, 7 runs against 10); at nominal physics the 72 one-arm and 96
+#: two-arm transitions and the main plan keep their figures (docs/benchmarks.md).
+ROBOT_FOLLOW_DEPTH = 0.006
 
 
 def resolve_tracking(n_fingers: int, gain: float | None = None,
@@ -134,7 +145,8 @@ def robot_control(config: ControlConfig | None = None, *, n_fingers: int,
     ``max_accel`` for the motions; for the transits the caller's own
     ``config.transit_accel`` if it set one (at most ``max_accel``), else
     :data:`ROBOT_TRANSIT_ACCEL` (at most ``max_accel``) with one fingertip (one arm), half
-    of ``max_accel`` (the free fingertips' rule) with more.
+    of ``max_accel`` (the free fingertips' rule) with more; and the follow-through's bound
+    ``config.follow_depth`` if the caller set one, else :data:`ROBOT_FOLLOW_DEPTH`.
 
     Raises
     ------
@@ -144,6 +156,8 @@ def robot_control(config: ControlConfig | None = None, *, n_fingers: int,
     if isinstance(n_fingers, bool) or not isinstance(n_fingers, int) or n_fingers < 1:
         raise InputError(f"a robot has at least one fingertip, got n_fingers={n_fingers!r}")
     cfg = config or ControlConfig()
+    if cfg.follow_depth is None:  # a stiff arm is not turned on into an object that stays
+        cfg = replace(cfg, follow_depth=ROBOT_FOLLOW_DEPTH)
     if cfg.transit_accel is not None:  # the caller's bound, never silently dropped
         ta: float | None = min(cfg.transit_accel, float(max_accel))
     else:
