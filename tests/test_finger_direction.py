@@ -202,8 +202,10 @@ def _tool_angles(main_step, mode: str) -> tuple[bool, np.ndarray]:  # type: igno
     from nonprehensile.sim.robot_scene import Arm
 
     poly, ds, p = main_step
+    # the closed loop hands the directions over only to a driver that follows them: the
+    # driver says it does, and with ``mode`` "lean" the IK is then given none of them
     sim = RobotSimulator(poly, [Arm(Robot.builtin(), BasePose(0.53, -0.51, 112.5))],
-                         scale=ds.scale, finger_direction=mode)
+                         scale=ds.scale, finger_direction="recorded")
     site = int(sim.scene.tip_sites[0])
     angles: list[float] = []
     handed = sim.driver.point
@@ -212,7 +214,7 @@ def _tool_angles(main_step, mode: str) -> tuple[bool, np.ndarray]:  # type: igno
         if d is not None:
             z = sim.data.site_xmat[site].reshape(3, 3)[:, 2]
             angles.append(math.degrees(math.acos(min(1.0, max(-1.0, float(z @ d[0]))))))
-        handed(d)
+        handed(d if mode == "recorded" else None)
 
     sim.driver.point = point  # type: ignore[method-assign]
     ex = execute_plan(sim, p, fingers=ds.fingers, config=robot_control(n_fingers=1))

@@ -69,6 +69,7 @@ from nonprehensile.step_paths import (
     step_targets,
     with_stop,
 )
+from nonprehensile.transit import hull_distance
 
 __all__ = [
     "GO_ON",
@@ -1019,7 +1020,10 @@ class StepMonitor:
             # turn, it presses the object onto its pivot with the arm's whole servo force
             # (measured: a 0.4 kg cube balanced on an edge, the tip on its top face, the
             # command 33 mm inside it)
-            deep = self._depth(obs.pose, path) > bound + 1e-12
+            # (the pads' depth: the radius less the centres' signed distance, the
+            # deepest finger's at each frame)
+            depth = (self.radius - hull_distance(self.poly, obs.pose, path)).max(axis=-1)
+            deep = depth > bound + 1e-12
             if deep.any():
                 keep = max(int(np.argmax(deep)), 2)  # the path up to its first deep frame
                 deg = self.cfg.follow_deg * float(s[keep - 1])
@@ -1029,17 +1033,6 @@ class StepMonitor:
         self.log.append({"time": round(obs.time - self._t0, 4), "follow_through": str(ground),
                          "deg": round(deg, 3)})
         return Decision(segment=self._full(path))
-
-    def _depth(self, pose: ObjectPose, points: FloatArray) -> FloatArray:
-        """How deep (m) the fingertip spheres centred at ``points`` (shape (n, k, 3)) lie
-        inside the object at ``pose``, the deepest of the ``k`` each, shape (n,): the radius
-        less the centre's signed distance to the face planes (exact inside a convex
-        polyhedron; outside, the largest plane distance is at most the true distance, so a
-        sphere off an edge counts as deeper, never shallower)."""
-        normals, offsets = self._planes
-        local = (np.asarray(points) - pose.translation) @ pose.rotation / pose.scale
-        signed = (local @ normals.T - offsets).max(axis=-1) * pose.scale
-        return np.asarray((self.radius - signed).max(axis=-1), dtype=np.float64)
 
     def _turned_enough(self, obs: Observation, command: FloatArray) -> Decision | None:
         """A turn in place (start and end on the same face) watched by its angle: once the

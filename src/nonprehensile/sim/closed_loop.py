@@ -830,8 +830,11 @@ def execute_plan(
             assert dec.segment is not None
             budget = mon.expected_duration + 3.0 * cfg.grace + cfg.max_settle + 2.0
             react: Callable[[Observation, FloatArray], Decision] = mon.update
-            point = getattr(sim.driver, "point", None)
-            if point is not None:  # a robot's finger tools point as the recorded fingers
+            # a robot's finger tools point as the recorded fingers: the directions are
+            # read at every observation only for a driver that follows them
+            point = (getattr(sim.driver, "point", None)
+                     if getattr(sim.driver, "finger_direction", None) == "recorded" else None)
+            if point is not None:
                 point(mon.pointing(obs.time))
                 react = _pointed(mon, point)
             try:

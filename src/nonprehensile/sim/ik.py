@@ -685,9 +685,8 @@ class FingertipIK:
         if got is not None:
             rows, dirs = got
             out = np.array(out)
-            for k in rows:
-                if k < len(out):
-                    out[k] = dirs[k]
+            for k in rows:  # (set_pointing checked one row per finger)
+                out[k] = dirs[k]
         return out
 
     def lean(self, targets: FloatArray) -> FloatArray:
