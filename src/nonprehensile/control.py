@@ -47,7 +47,12 @@ from scipy.spatial.transform import Rotation
 from nonprehensile.errors import ContactError, GeometryError, InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import Expansion
-from nonprehensile.observation import Observation, PairCache, observed_contacts
+from nonprehensile.observation import (
+    Observation,
+    PairCache,
+    hull_distance,
+    observed_contacts,
+)
 from nonprehensile.planning import MotionLibrary, ObjectPose, Plan, PlanStep, plan
 from nonprehensile.skills.contacts import (
     ContactEvent,
@@ -69,7 +74,6 @@ from nonprehensile.step_paths import (
     step_targets,
     with_stop,
 )
-from nonprehensile.transit import hull_distance
 
 __all__ = [
     "GO_ON",

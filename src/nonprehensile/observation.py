@@ -45,6 +45,7 @@ __all__ = [
     "PairCache",
     "element_at",
     "ground_element",
+    "hull_distance",
     "observed_contacts",
     "rotvec_matrix",
 ]
@@ -201,6 +202,21 @@ class ObservationStream:
         while q and q[0].time + lat <= now + 1e-9:
             self._latest = q.popleft()
         return self._latest
+
+
+def hull_distance(poly: Polyhedron, pose: ObjectPose, points: FloatArray) -> FloatArray:
+    """Lower bound of each point's distance (m) to the posed object (the largest signed
+    distance to its face planes: exact off a face, smaller off an edge or vertex; negative
+    inside). ``points`` has shape (..., 3)."""
+    p = np.asarray(points, dtype=np.float64)
+    # (``a.dot(b)``: the BLAS call ``a @ b`` makes, the same numbers, without the matmul
+    # ufunc's dispatch: a let-go measures its fingertips at every observation)
+    normals, offsets = poly.normal_matrix, poly.plane_offsets  # (kept by the object)
+    if p.ndim > 2:  # (``dot`` of a stack is not matmul's product of each matrix)
+        x = (p - pose.translation) @ pose.rotation / pose.scale
+        return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
+    x = (p - pose.translation).dot(pose.rotation) / pose.scale  # model frame
+    return np.asarray((x.dot(normals.T) - offsets).max(axis=-1) * pose.scale)
 
 
 def rotvec_matrix(v: FloatArray) -> FloatArray:

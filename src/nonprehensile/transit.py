@@ -24,6 +24,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from nonprehensile.geometry.polyhedron import Polyhedron
+
+# (the observed object's distance lives with what a controller observes, below both
+# the transits and the controller's decisions; re-exported here, where it began)
+from nonprehensile.observation import hull_distance
 from nonprehensile.planning import ObjectPose
 from nonprehensile.step_paths import ease
 
@@ -39,21 +43,6 @@ PEAK_ACCEL = 5.7735
 #: Peak speed (m/s) of a transit's last leg, the approach along the next point's normal: a
 #: compliant fingertip lags and overshoots its targets in proportion to its speed.
 APPROACH_SPEED = 0.1
-
-
-def hull_distance(poly: Polyhedron, pose: ObjectPose, points: FloatArray) -> FloatArray:
-    """Lower bound of each point's distance (m) to the posed object (the largest signed
-    distance to its face planes: exact off a face, smaller off an edge or vertex; negative
-    inside). ``points`` has shape (..., 3)."""
-    p = np.asarray(points, dtype=np.float64)
-    # (``a.dot(b)``: the BLAS call ``a @ b`` makes, the same numbers, without the matmul
-    # ufunc's dispatch: a let-go measures its fingertips at every observation)
-    normals, offsets = _planes(poly)
-    if p.ndim > 2:  # (``dot`` of a stack is not matmul's product of each matrix)
-        x = (p - pose.translation) @ pose.rotation / pose.scale
-        return np.asarray((x @ normals.T - offsets).max(axis=-1) * pose.scale)
-    x = (p - pose.translation).dot(pose.rotation) / pose.scale  # model frame
-    return np.asarray((x.dot(normals.T) - offsets).max(axis=-1) * pose.scale)
 
 
 def _planes(poly: Polyhedron) -> tuple[FloatArray, FloatArray]:
