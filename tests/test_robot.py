@@ -199,6 +199,33 @@ def test_ik_tracks_a_line_within_limits() -> None:
     assert worst < 1e-3
 
 
+def test_ik_converge_settles_on_the_damped_iterations_fixed_point() -> None:
+    """A placement's iterations run with a smaller damping (the null space settles in about
+    90 iterations instead of 340): their fixed point does not depend on it, so the posture is
+    that of the run's own damping iterated to rest (3,000 iterations, no early stop)."""
+    sc = build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.builtin(),
+                                                        BasePose(-0.25, 0.1, 0.0))],
+                           mocap_object=True)
+    x0 = np.array([[0.2, 0.12, 0.06]])
+    ik = FingertipIK(sc, 0.001, IKConfig())
+    ik.set_object(np.array([0.3, 0.1, 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+    calls = []
+    step = ik.step
+    ik.step = lambda t: calls.append(1) or step(t)  # type: ignore[method-assign]
+    assert ik.converge(x0) < 1e-4
+    q_fast = ik.q
+    assert len(calls) < 150
+    assert ik._damping == IKConfig().damping  # the run's damping is back
+    # the truth: the same iterations at the run's damping, run to rest
+    slow = FingertipIK(sc, 0.001, IKConfig())
+    slow.set_object(np.array([0.3, 0.1, 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))
+    slow.dt, slow.posture.gain, slow._deadbeat = 0.02, 0.2, True
+    for _ in range(3000):
+        slow.step(x0)
+    assert np.abs(slow.q - q_fast).max() < 2e-4
+    assert np.linalg.norm(slow.tips() - x0) < 1e-5
+
+
 def test_ik_fast_qp_equals_mink_solve_ik_near_the_object() -> None:
     """The IK's own QP assembly (daqp called directly, the joint box as simple bounds, only
     the collision pairs in range as rows) gives mink's ``solve_ik`` step, solve by solve,
