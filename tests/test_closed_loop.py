@@ -21,6 +21,7 @@ from nonprehensile.control import (
     PlanarTransform,
     anchor_transform,
     correction_pushes,
+    push_finger,
     replanner,
 )
 from nonprehensile.errors import InputError
@@ -390,6 +391,27 @@ def test_correction_pushes_span_the_displacement() -> None:
 def _circular_gap(a: float, b: float) -> float:
     d = abs(a - b) % 360.0
     return min(d, 360.0 - d)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-math.pi, math.pi), st.floats(0.3, 1.0), st.floats(0.3, 1.0),
+       st.floats(-0.1, 0.1), st.floats(-0.1, 0.1), st.booleans())
+def test_push_finger_gives_a_push_to_the_finger_behind_it(heading: float, r_behind: float,
+                                                           r_front: float, sx: float,
+                                                           sy: float, first: bool) -> None:
+    """A correction push goes to the finger whose origin (an arm's base) lies behind it:
+    with one origin behind the push's start and one in front (each off the push's line by
+    less than its distance along it), the one behind, in either order; finger 1 without
+    origins (free fingertips) or with one."""
+    d = np.array([math.cos(heading), math.sin(heading), 0.0])
+    side = np.array([-d[1], d[0]])
+    start = np.array([sx, sy, 0.01])
+    behind = start[:2] - r_behind * d[:2] + 0.5 * r_behind * side
+    front = start[:2] + r_front * d[:2] - 0.5 * r_front * side
+    origins = [tuple(behind), tuple(front)] if first else [tuple(front), tuple(behind)]
+    assert push_finger(start, d, origins) == (1 if first else 2)
+    assert push_finger(start, d, None) == 1
+    assert push_finger(start, d, [tuple(front)]) == 1
 
 
 @settings(max_examples=150, deadline=None)

@@ -90,6 +90,7 @@ __all__ = [
     "angular_step",
     "correction_pushes",
     "one_finger_push",
+    "push_finger",
     "raised",
     "replanner",
     "snap_state",
@@ -1496,3 +1497,44 @@ def turn_push(poly: Polyhedron, pose: ObjectPose, turn_deg: float, toward: Seque
     xy = pose.com[:2] + n * (face_dist + finger_radius + clearance) + t * e
     z = max(finger_radius + 0.002, 0.25 * height)
     return TurnPush(f, np.array([xy[0], xy[1], z]), np.array([-n[0], -n[1], 0.0]), e)
+
+
+def push_finger(start: FloatArray | Sequence[float], direction: FloatArray | Sequence[float],
+                origins: Sequence[Sequence[float]] | None) -> int:
+    """The finger (1-based) that runs a correction push (:func:`correction_pushes`,
+    :func:`turn_push`) from ``start`` along ``direction`` (horizontal): the one whose
+    ``origins`` row (x, y: where the finger comes from, a robot arm's base) lies most behind
+    the push, so that it reaches the face from its own side; finger 1 without origins (free
+    fingertips) or with one.
+
+    An arm behind the object reaches its far face over the object's top: with two arms
+    whose bases stand on opposite sides of the cube, finger 1 ran every correction, and
+    pushing the far side low it leaned its rod onto the cube's top edge (the two-arm
+    tumble-twists, ``docs/benchmarks.md``).
+
+    Parameters
+    ----------
+    start : array_like, shape (2,) or (3,)
+        The push's start (the fingertip centre), m.
+    direction : array_like, shape (2,) or (3,)
+        The push's direction (its horizontal part is used).
+    origins : sequence of (x, y), or None
+        Each finger's origin, m, in finger order.
+    """
+    if origins is None or len(origins) <= 1:
+        return 1
+    dx, dy = float(direction[0]), float(direction[1])
+    n = math.hypot(dx, dy)
+    if not n > 0.0:
+        return 1
+    dx, dy = dx / n, dy / n
+    best, best_k = -math.inf, 1
+    for k, (ox, oy) in enumerate(origins, start=1):
+        # the cosine between the push and the way from the origin to the start: 1 for an
+        # origin straight behind the push, -1 for one on the far side of the object
+        vx, vy = float(start[0]) - float(ox), float(start[1]) - float(oy)
+        m = math.hypot(vx, vy)
+        score = (vx * dx + vy * dy) / m if m > 0.0 else -math.inf
+        if score > best:  # (ties: the lower finger number)
+            best, best_k = score, k
+    return best_k

@@ -47,6 +47,7 @@ from nonprehensile.control import (
     correction_pushes,
     observed_state,
     one_finger_push,
+    push_finger,
     same_state,
     snap_state,
     step_spec,
@@ -1086,12 +1087,13 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
         if not pushes:
             return
         push = max(pushes, key=lambda q: q.distance)  # the largest part first
+        k = push_finger(push.start, push.direction, _finger_origins(sim))
         target = np.array(rest)
-        target[0] = push.start
-        seen = do_transit(obs.pose, target, (1,), "correction")
+        target[k - 1] = push.start
+        seen = do_transit(obs.pose, target, (k,), "correction")
         obs = seen if seen is not None else run.wait_observation()
         origin = obs.pose.com[:2].copy()
-        entry = {"kind": "slide", **push.to_dict()}
+        entry = {"kind": "slide", "finger": k, **push.to_dict()}
 
         def react(o: Observation, cmd: FloatArray, origin: FloatArray = origin,
                   push: Any = push) -> Decision:
@@ -1109,7 +1111,7 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
 
         dec, let_go, obs = _push(sim, run, cfg, push, 0.03,
                                  push.distance + p.finger_radius + cfg.clearance + 0.015,
-                                 react)
+                                 react, finger=k)
         entry["let_go"] = let_go
         entry["moved_m"] = round(float((obs.pose.com[:2] - origin) @ push.direction[:2]), 5)
         entry["outcome"] = dec.outcome if dec is not None else ""
@@ -1119,28 +1121,36 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
 
 def _push(sim: Simulator, run: _Runner, cfg: ControlConfig, push: Any, speed: float,
           length: float, react: Callable[[Observation, FloatArray], Decision],
-          ) -> tuple[Decision | None, dict[str, Any], Observation]:
-    """Drive finger 1 ``length`` (m) along ``push.direction`` from ``push.start`` at ``speed``
-    (m/s) until ``react`` says done (or a timeout), and let go (:func:`_let_go`, held clear
-    until the object is still); returns the decision, the let-go's record and the last
-    observation.
+          finger: int = 1) -> tuple[Decision | None, dict[str, Any], Observation]:
+    """Drive ``finger`` (1-based) ``length`` (m) along ``push.direction`` from ``push.start``
+    at ``speed`` (m/s) until ``react`` says done (or a timeout), and let go
+    (:func:`_let_go`, held clear until the object is still); returns the decision, the
+    let-go's record and the last observation.
 
     The slide and turn corrections differ only in their speeds, lengths and stopping rules.
     """
     n = round(length / speed / run.dt) + 1
     s = np.arange(n) * run.dt * speed
     path = np.repeat(run.command[None], n, axis=0)
-    path[:, 0] = push.start[None] + s[:, None] * push.direction[None]
+    path[:, finger - 1] = push.start[None] + s[:, None] * push.direction[None]
     dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
                     max_time=length / speed + 0.5)
     moving = np.zeros(sim.n_fingers, dtype=bool)
-    moving[0] = True
+    moving[finger - 1] = True
     # held clear until the object, which may slide on after the push, is still: what
     # follows is decided on the object at rest
     let_go, obs = _let_go(sim, run, cfg, moving, until_still=True,
                           noise=run.observer.stream.model.position_noise,
                           max_time=cfg.max_settle + 0.5)
     return dec, let_go, obs
+
+
+def _finger_origins(sim: Simulator) -> list[tuple[float, float]] | None:
+    """Where each finger comes from (x, y, m), when the driver says (a robot arm's base:
+    :attr:`~nonprehensile.sim.robot_driver.RobotArms.finger_origins`); None for free
+    fingertips."""
+    got = getattr(sim.driver, "finger_origins", None)
+    return None if got is None else list(got)
 
 
 def _yaw_error(poly: Any, pose: ObjectPose, theta: float) -> float | None:
@@ -1164,9 +1174,10 @@ def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                          clearance=cfg.clearance)
         if push is None:
             return
+        k = push_finger(push.start, push.direction, _finger_origins(sim))
         target = np.array(rest)
-        target[0] = push.start
-        do_transit(obs.pose, target, (1,), "turn")
+        target[k - 1] = push.start
+        do_transit(obs.pose, target, (k,), "turn")
 
         def react(o: Observation, cmd: FloatArray, err0: float = err0) -> Decision:
             e = _yaw_error(sim.poly, o.pose, theta)
@@ -1177,9 +1188,9 @@ def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
             return GO_ON
 
         dec, let_go, obs = _push(sim, run, cfg, push, 0.02,
-                                 p.finger_radius + cfg.clearance + 0.03, react)
+                                 p.finger_radius + cfg.clearance + 0.03, react, finger=k)
         after = _yaw_error(sim.poly, obs.pose, theta)
-        ex.corrections.append({"kind": "turn", **push.to_dict(),
+        ex.corrections.append({"kind": "turn", "finger": k, **push.to_dict(),
                                "theta_error_before_deg": round(err0, 3),
                                "theta_error_after_deg": None if after is None
                                else round(after, 3),

@@ -793,6 +793,13 @@ class RobotArms:
         data.ctrl[:] = row
         self.placed = True
 
+    @property
+    def finger_origins(self) -> list[tuple[float, float]]:
+        """Where each finger comes from: its arm's base (the root body below the world), x
+        and y in m, finger order (the closed loop gives a correction push to the finger
+        behind it, :func:`~nonprehensile.control.push_finger`)."""
+        return list(self.ik._bases)
+
     def tips(self, data: Any) -> FloatArray:
         """The fingertip sites' positions now, shape (n_fingers, 3)."""
         # (an index array's gather is already a copy)
