@@ -414,6 +414,24 @@ def test_push_finger_gives_a_push_to_the_finger_behind_it(heading: float, r_behi
     assert push_finger(start, d, [tuple(front)]) == 1
 
 
+def test_push_finger_falls_back_to_finger_1_on_degenerate_input() -> None:
+    """No direction, or a NaN: finger 1; equal origins (a hand): the lower number; an origin
+    on the push's start is never preferred; an origin's height is not used."""
+    start = np.array([0.1, 0.0, 0.01])
+    behind_second = [(0.5, 0.0), (-0.5, 0.0)]  # pushing +x: the second stands behind
+    assert push_finger(start, np.array([1.0, 0.0, 0.0]), behind_second) == 2
+    assert push_finger(start, np.zeros(3), behind_second) == 1
+    assert push_finger(start, np.array([math.nan, 0.0, 0.0]), behind_second) == 1
+    assert push_finger(np.array([math.nan, 0.0, 0.01]), np.array([1.0, 0.0, 0.0]),
+                       behind_second) == 1
+    # an origin on the start itself is never chosen over another (it has no direction)
+    assert push_finger(start, np.array([1.0, 0.0, 0.0]), [(0.1, 0.0), (0.5, 0.0)]) == 2
+    assert push_finger(start, np.array([1.0, 0.0, 0.0]), [(0.1, 0.0), (0.1, 0.0)]) == 1
+    assert push_finger(start, np.array([1.0, 0.0, 0.0]), [(-0.5, 0.0), (-0.5, 0.0)]) == 1
+    assert push_finger(start, np.array([1.0, 0.0, 0.0]),
+                       [(0.5, 0.0, 0.3), (-0.5, 0.0, 0.3)]) == 2
+
+
 @settings(max_examples=150, deadline=None)
 @given(st.lists(st.tuples(st.sampled_from("abcdef"),
                           # on a 0.01 degree grid: two states are the same or 0.01 apart

@@ -215,7 +215,7 @@ def test_ik_converge_settles_on_the_damped_iterations_fixed_point() -> None:
     assert ik.converge(x0) < 1e-4
     q_fast = ik.q
     assert len(calls) < 150
-    assert ik._damping == IKConfig().damping  # the run's damping is back
+    assert ik._damping is None  # the run's damping (config.damping) is back
     # the truth: the same iterations at the run's damping, run to rest
     slow = FingertipIK(sc, 0.001, IKConfig())
     slow.set_object(np.array([0.3, 0.1, 0.0]), np.array([1.0, 0.0, 0.0, 0.0]))

@@ -1518,8 +1518,14 @@ def push_finger(start: FloatArray | Sequence[float], direction: FloatArray | Seq
         The push's start (the fingertip centre), m.
     direction : array_like, shape (2,) or (3,)
         The push's direction (its horizontal part is used).
-    origins : sequence of (x, y), or None
+    origins : sequence of (x, y) or (x, y, z), or None
         Each finger's origin, m, in finger order.
+
+    Returns
+    -------
+    int
+        The finger's number; ties go to the lower number, and a direction of no length (or
+        NaN) gives finger 1.
     """
     if origins is None or len(origins) <= 1:
         return 1
@@ -1529,10 +1535,11 @@ def push_finger(start: FloatArray | Sequence[float], direction: FloatArray | Seq
         return 1
     dx, dy = dx / n, dy / n
     best, best_k = -math.inf, 1
-    for k, (ox, oy) in enumerate(origins, start=1):
+    for k, o in enumerate(origins, start=1):
         # the cosine between the push and the way from the origin to the start: 1 for an
-        # origin straight behind the push, -1 for one on the far side of the object
-        vx, vy = float(start[0]) - float(ox), float(start[1]) - float(oy)
+        # origin straight behind the push, -1 for one on the far side of the object (an
+        # origin's height, if given, is not used)
+        vx, vy = float(start[0]) - float(o[0]), float(start[1]) - float(o[1])
         m = math.hypot(vx, vy)
         score = (vx * dx + vy * dy) / m if m > 0.0 else -math.inf
         if score > best:  # (ties: the lower finger number)

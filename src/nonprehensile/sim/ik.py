@@ -504,9 +504,9 @@ class FingertipIK:
         self._plain = bool(m.neq == 0 and np.array_equal(scene.qadr, np.arange(m.nq))
                            and np.array_equal(scene.dadr, np.arange(m.nv)))
         self._post_gain = math.nan  # the posture gain of the two arrays below (_solve)
-        #: The QP's Levenberg-Marquardt damping now: ``config.damping``, but during
-        #: :meth:`converge` (see there)
-        self._damping = float(self.config.damping)
+        #: The QP's Levenberg-Marquardt damping during :meth:`converge` (see there); None:
+        #: ``config.damping``, read at every solve
+        self._damping: float | None = None
         self._post_damping = math.nan  # the damping of the two arrays below (_solve)
         self._post_diag = self._post_lin = np.zeros(m.nv)
         self._sense: dict[int, NDArray[np.intc]] = {}  # daqp's constraint kinds (all bounds)
@@ -890,16 +890,17 @@ class FingertipIK:
             # same numbers as ``-((-gain e) @ w)``, negation being exact, in one call fewer)
             np.multiply(cost, task.gain * task.compute_error(conf), out=we_k)
         post = self.posture
-        if post.gain != self._post_gain or self._damping != self._post_damping:
+        damping = self.config.damping if self._damping is None else self._damping
+        if post.gain != self._post_gain or damping != self._post_damping:
             # the posture's constant arrays (converge sets another gain and damping):
             # ``cp2 gain (q - q_home)`` evaluates ``cp2 gain`` first
             cp2 = post.cost * post.cost
             self._post_gain = post.gain
-            self._post_damping = self._damping
+            self._post_damping = damping
             # posture: J = I, e = q - q_home (hinge and slide joints only: checked in
             # __init__); its Hessian and the damping as a diagonal matrix, added to ``h``
             # whole (off the diagonal ``x + 0.0`` is ``x``)
-            self._post_diag = np.diag(cp2 + self._damping)
+            self._post_diag = np.diag(cp2 + damping)
             self._post_lin = cp2 * post.gain
         h = self._wT @ w
         c = we @ w
@@ -1054,7 +1055,9 @@ class FingertipIK:
         mink = self.mink
         try:
             return np.asarray(mink.solve_ik(self.configuration, self.tasks, self.dt, "daqp",
-                                            damping=self._damping,
+                                            damping=(self.config.damping
+                                                     if self._damping is None
+                                                     else self._damping),
                                             limits=self.limits), dtype=np.float64)
         except mink.NoSolutionFound:
             return None
@@ -1064,21 +1067,21 @@ class FingertipIK:
         """Iterate towards fixed ``targets`` (no time meaning: a placement before a run);
         returns the largest fingertip error left, m."""
         saved = self.dt
-        self.dt = 0.02
-        self.posture.gain = 0.2  # settle the null space too: the run starts at rest
         # the null space (where the posture task alone acts) contracts by
         # ``1 - gain cp2 / (cp2 + damping)`` an iteration: at the run's damping (ten times the
         # posture's ``cost^2``) 0.98, and 340 iterations to settle, most of a run's first
         # solve (the main plan's start: 55 to put the fingertip on its target). The
         # iterations' fixed point does not depend on the damping (a step of zero is damped
         # by nothing), so they run with a hundredth of ``cp2``: 0.8 an iteration
-        cp2 = self.posture.cost * self.posture.cost
-        self._damping = (min(self.config.damping, 0.01 * float(np.min(cp2)))
-                         if float(np.min(cp2)) > 0.0 else self.config.damping)
-        # fixed targets: dead-beat iterations (no time meaning, nothing to feed forward)
-        self._deadbeat = True
-        q_prev = self.q
+        cp2 = float(np.min(self.posture.cost * self.posture.cost))
         try:
+            self.dt = 0.02
+            self.posture.gain = 0.2  # settle the null space too: the run starts at rest
+            self._damping = (min(self.config.damping, 0.01 * cp2) if cp2 > 0.0
+                             else self.config.damping)
+            # fixed targets: dead-beat iterations (no time meaning, nothing to feed forward)
+            self._deadbeat = True
+            q_prev = self.q
             for _ in range(iterations):
                 self.step(targets)
                 err = float(np.linalg.norm(self.tips() - targets, axis=1).max())
@@ -1090,7 +1093,7 @@ class FingertipIK:
             self.dt = saved
             self._deadbeat = False
             self.posture.gain = self.config.posture_gain
-            self._damping = float(self.config.damping)
+            self._damping = None
             self._fed = False
         self.solve_times = []
         return float(np.linalg.norm(self.tips() - targets, axis=1).max())

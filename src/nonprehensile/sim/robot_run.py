@@ -73,9 +73,9 @@ DEFAULT_TRACKING_GAIN = 20.0
 #: no limit held over 10 ms and no link or rod contact, as without it; with 1.5 mm, 3 mm or
 #: 4 mm bounds, or gains of 10 or 40, the tumble-twist's rod touched the cube in 1-10 runs
 #: (docs/benchmarks.md, "pinch tracking"). Those figures were measured from start postures the
-#: placement's iterations stopped short of; from the converged ones, 96/96 at 6.3 mm, the
-#: tumble-lifts 18/24, no limit held, no link contact, and the tumble-twist's figures swing
-#: with postures 1e-4 rad apart (docs/robot.md).
+#: placement's iterations stopped short of, finger 1 running every correction push; from the
+#: converged postures, each push run by the arm behind it, 96/96 at 6.3 mm, the tumble-lifts
+#: within 3 mm in 18/24, no limit held, no link or rod contact (docs/robot.md).
 PINCH_TRACKING_GAIN = 20.0
 PINCH_TRACKING_BOUND = 0.002
 
