@@ -9,7 +9,8 @@
 * the tumble-twist ``a:0`` -> ``b:0`` (planned with tumble-twist as the only skill: the
   planner prefers tumble-lift for every transition both make).
 
-Per run: success, the final state and its distance from the goal, and over the whole
+Per run: success, the final state and its distance from the goal, how many step attempts
+and retries or re-plans it took and how the first attempt ended, and over the whole
 execution (transits included) the largest fingertip tracking error while a fingertip touches
 the object (the distance from the fingertip's centre to the target it was given: the figure
 of the single-arm rows in docs/benchmarks.md), the longest time a joint was at a position,
@@ -117,6 +118,12 @@ def main() -> None:
               f"(compliance {'on' if compliance else 'off'}); IK median "
               f"{m.ik_median_ms:.3f} ms; {t_run:.1f} s CPU for {ex.sim_time:.2f} s simulated",
               flush=True)
+        # a success may be a retry's or a re-plan's: the first attempt's outcome says
+        # whether the skill itself worked at these bases
+        first = ex.steps[0] if ex.steps else {}
+        print(f"   {len(ex.steps)} step attempt(s), {len(ex.replans)} retry/re-plan(s); "
+              f"the first: {first.get('outcome', '-')}"
+              + (f" ({first['reason']})" if first.get("reason") else ""), flush=True)
 
 
 if __name__ == "__main__":
