@@ -1087,10 +1087,7 @@ def _correct(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
         if not pushes:
             return
         push = max(pushes, key=lambda q: q.distance)  # the largest part first
-        k = push_finger(push.start, push.direction, _finger_origins(sim))
-        target = np.array(rest)
-        target[k - 1] = push.start
-        seen = do_transit(obs.pose, target, (k,), "correction")
+        k, seen = _to_push(sim, push, rest, do_transit, obs.pose, "correction")
         obs = seen if seen is not None else run.wait_observation()
         origin = obs.pose.com[:2].copy()
         entry = {"kind": "slide", "finger": k, **push.to_dict()}
@@ -1145,6 +1142,19 @@ def _push(sim: Simulator, run: _Runner, cfg: ControlConfig, push: Any, speed: fl
     return dec, let_go, obs
 
 
+def _to_push(sim: Simulator, push: Any, rest: FloatArray,
+             do_transit: Callable[..., Observation | None], pose: ObjectPose,
+             label: str) -> tuple[int, Observation | None]:
+    """Pick the finger that runs a correction ``push`` (the one whose arm stands behind it,
+    :func:`~nonprehensile.control.push_finger`) and transit it to the push's start, the
+    other fingertips to their rest (``rest``, shape (n_fingers, 3)); returns the finger
+    (1-based) and the transit's last observation (None if it made none)."""
+    k = push_finger(push.start, push.direction, _finger_origins(sim))
+    target = np.array(rest)
+    target[k - 1] = push.start
+    return k, do_transit(pose, target, (k,), label)
+
+
 def _finger_origins(sim: Simulator) -> list[tuple[float, float]] | None:
     """Where each finger comes from (x, y, m), when the driver says (a robot arm's base:
     :attr:`~nonprehensile.sim.robot_driver.RobotArms.finger_origins`); None for free
@@ -1174,10 +1184,7 @@ def _align(sim: Simulator, run: _Runner, ex: Execution, cfg: ControlConfig,
                          clearance=cfg.clearance)
         if push is None:
             return
-        k = push_finger(push.start, push.direction, _finger_origins(sim))
-        target = np.array(rest)
-        target[k - 1] = push.start
-        do_transit(obs.pose, target, (k,), "turn")
+        k, _ = _to_push(sim, push, rest, do_transit, obs.pose, "turn")
 
         def react(o: Observation, cmd: FloatArray, err0: float = err0) -> Decision:
             e = _yaw_error(sim.poly, o.pose, theta)

@@ -575,6 +575,12 @@ class FingertipIK:
 
     # -------------------------------------------------------------------------- state
     @property
+    def bases(self) -> list[tuple[float, float]]:
+        """Each fingertip's arm base (the root body below the world), x and y in m, finger
+        order: where the lean of :meth:`lean` points back to."""
+        return list(self._bases)
+
+    @property
     def q(self) -> FloatArray:
         """The IK's joint positions, scene joint order."""
         # (one gather of the data's qpos: mink's ``q`` is a copy of it first)

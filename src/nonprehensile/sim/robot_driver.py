@@ -798,7 +798,7 @@ class RobotArms:
         """Where each finger comes from: its arm's base (the root body below the world), x
         and y in m, finger order (the closed loop gives a correction push to the finger
         behind it, :func:`~nonprehensile.control.push_finger`)."""
-        return list(self.ik._bases)
+        return self.ik.bases
 
     def tips(self, data: Any) -> FloatArray:
         """The fingertip sites' positions now, shape (n_fingers, 3)."""
