@@ -133,40 +133,46 @@ def _leg_time(length: float, max_speed: float, max_accel: float) -> float:
     return max(PEAK_SPEED * length / max_speed, math.sqrt(PEAK_ACCEL * length / max_accel))
 
 
+def _segments_distance(a: FloatArray, b: FloatArray, poly2: FloatArray) -> FloatArray:
+    """The distance (m) from each 2-D segment ``a[k]``-``b[k]`` (shapes (K, 2)) to the
+    convex polygon ``poly2`` (shape (m, 2), counter-clockwise); 0 where they meet.
+    Returns shape (K,)."""
+    u = poly2
+    d = np.roll(poly2, -1, axis=0) - poly2  # the edges, (m, 2)
+    normals = np.column_stack([d[:, 1], -d[:, 0]])  # outward, for counter-clockwise
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    da = np.einsum("kmj,mj->km", a[:, None, :] - u[None], normals)
+    db = np.einsum("kmj,mj->km", b[:, None, :] - u[None], normals)
+    # the part of each segment inside every edge's half-plane (Cyrus-Beck clipping): the
+    # segment meets the polygon where it is not empty
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = da / (da - db)
+    enter = (da > 0.0) & (db <= 0.0)
+    leave = (da <= 0.0) & (db > 0.0)
+    lo = np.where(enter, t, 0.0).max(axis=1)
+    hi = np.where(leave, t, 1.0).min(axis=1)
+    meets = ~((da > 0.0) & (db > 0.0)).any(axis=1) & (lo <= hi)
+
+    def point_seg(p: FloatArray, q0: FloatArray, e: FloatArray) -> FloatArray:
+        # distances from points p (..., 2) to segments q0 + [0, 1] e (broadcast)
+        ee = (e * e).sum(axis=-1)
+        w = np.clip(((p - q0) * e).sum(axis=-1) / np.maximum(ee, 1e-300), 0.0, 1.0)
+        return np.asarray(np.linalg.norm(p - (q0 + w[..., None] * e), axis=-1))
+
+    seg = (b - a)[:, None, :]
+    best = np.minimum.reduce([
+        point_seg(a[:, None, :], u[None], d[None]).min(axis=1),
+        point_seg(b[:, None, :], u[None], d[None]).min(axis=1),
+        point_seg(u[None], a[:, None, :], seg).min(axis=1),
+    ])
+    return np.where(meets, 0.0, best)
+
+
 def _segment_distance(a: FloatArray, b: FloatArray, poly2: FloatArray) -> float:
     """The distance (m) from the 2-D segment ``a``-``b`` to the convex polygon ``poly2``
     (shape (m, 2), counter-clockwise); 0 if they meet."""
-    # inside or crossing: some point of the segment is inside every edge's half-plane
-    edges = np.roll(poly2, -1, axis=0) - poly2
-    normals = np.column_stack([edges[:, 1], -edges[:, 0]])  # outward, for CCW
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    da = np.einsum("ij,ij->i", a[None] - poly2, normals)
-    db = np.einsum("ij,ij->i", b[None] - poly2, normals)
-    # the part of the segment inside all half-planes (Cyrus-Beck clipping)
-    lo, hi = 0.0, 1.0
-    for x, y in zip(da.tolist(), db.tolist(), strict=True):
-        if x > 0.0 and y > 0.0:
-            lo, hi = 1.0, 0.0
-            break
-        if x > 0.0 or y > 0.0:
-            t = x / (x - y)
-            if x > 0.0:
-                lo = max(lo, t)
-            else:
-                hi = min(hi, t)
-    if lo <= hi:
-        return 0.0
-
-    def point_seg(p: FloatArray, u: FloatArray, v: FloatArray) -> float:
-        d = v - u
-        t = min(max(float((p - u) @ d) / max(float(d @ d), 1e-300), 0.0), 1.0)
-        return float(np.linalg.norm(p - (u + t * d)))
-
-    best = math.inf
-    for u, v in zip(poly2, np.roll(poly2, -1, axis=0), strict=True):
-        best = min(best, point_seg(a, u, v), point_seg(b, u, v), point_seg(u, a, b),
-                   point_seg(v, a, b))
-    return best
+    return float(_segments_distance(np.asarray(a, dtype=np.float64)[None],
+                                    np.asarray(b, dtype=np.float64)[None], poly2)[0])
 
 
 def _around(poly: Polyhedron, pose: ObjectPose, a: FloatArray, b: FloatArray, need: float,
@@ -204,7 +210,8 @@ def _around(poly: Polyhedron, pose: ObjectPose, a: FloatArray, b: FloatArray, ne
     a2, b2 = a[:2], b[:2]
     # the ends are the transit's own (``need`` out by the face planes): a tilted object's
     # shadow may reach a little nearer to them; no leg comes nearer than they are
-    floor = min(need, _segment_distance(a2, a2, shadow), _segment_distance(b2, b2, shadow))
+    floor = min(need, float(_segments_distance(np.array([a2, b2]), np.array([a2, b2]),
+                                               shadow).min()))
     if floor < need - _NEAR:
         return None
     edges = np.roll(shadow, -1, axis=0) - shadow
@@ -216,14 +223,25 @@ def _around(poly: Polyhedron, pose: ObjectPose, a: FloatArray, b: FloatArray, ne
         return None
     corners = shadow + need * (n_in + n_out) / denom[:, None]
     # the quickest chain of legs among a, b and the offset corners, a leg only where it
-    # keeps ``need`` from the shadow (consecutive corners always do: an offset edge)
+    # keeps ``need`` from the shadow: consecutive corners always do (an offset edge), two
+    # others never (the chord runs inside the offset outline); a and b are checked against
+    # each other and every corner, at once
     nodes = [a2, b2, *corners]
     m = len(nodes)
     cost = np.full((m, m), math.inf)
-    for i in range(m):
-        for j in range(i + 1, m):
-            if _segment_distance(nodes[i], nodes[j], shadow) >= floor - 1e-9:
-                cost[i, j] = cost[j, i] = float(np.linalg.norm(nodes[i] - nodes[j]))
+    c = len(corners)
+    for i in range(c):
+        j = (i + 1) % c
+        cost[2 + i, 2 + j] = cost[2 + j, 2 + i] = float(np.linalg.norm(corners[j] - corners[i]))
+    ends = np.array([0] + [0] * c + [1] * c)
+    others = np.array([1] + list(range(2, m)) * 2)
+    pa = np.array(nodes)[ends]
+    pb = np.array(nodes)[others]
+    clear = _segments_distance(pa, pb, shadow) >= floor - 1e-9
+    for i, j, ok, length in zip(ends.tolist(), others.tolist(), clear.tolist(),
+                                np.linalg.norm(pb - pa, axis=1).tolist(), strict=True):
+        if ok:
+            cost[i, j] = cost[j, i] = length
     # Dijkstra over the handful of nodes, each leg weighted by its rest-to-rest time
     best = [math.inf] * m
     prev = [-1] * m
