@@ -3,10 +3,8 @@
 Between two steps (and before the first) a fingertip **retreats** from the object along
 the outward normal of the face it is nearest (:func:`escape`), **moves clear** of the
 object's posed hull by a margin (up to a safe height above it, across, and down to a point
-the margin out along the next point's normal; or, one fingertip moving, **around** the
-object's shadow on the table at the margin when that is quicker, :func:`_around`), and
-**approaches** the next reference's first point along that normal, slowly. Each leg is a
-rest-to-rest
+the margin out along the next point's normal), and **approaches** the next reference's
+first point along that normal, slowly. Each leg is a rest-to-rest
 minimum-jerk motion timed so that its peak speed and acceleration stay within the given
 bounds (a minimum-jerk leg of length ``L`` and duration ``T`` peaks at ``1.875 L / T`` and
 ``5.774 L / T^2``). Several fingers move together, each on its own legs, all legs timed
@@ -121,156 +119,8 @@ def _leg(a: FloatArray, b: FloatArray, n: int) -> FloatArray:
     return np.asarray(a[:, None, :] + s[None, :, None] * (b - a)[:, None, :])
 
 
-#: How much nearer than the margin to the object's shadow a transit's ends may lie for the
-#: way round it (:func:`_around`; m): the ends are ``need`` out by the face planes, and a
-#: resting object a hair off flat casts a shadow up to a fraction of a millimetre wider.
-_NEAR = 0.0005
-
-
-def _leg_time(length: float, max_speed: float, max_accel: float) -> float:
-    """The duration (s) of a rest-to-rest minimum-jerk leg of ``length`` (m) within the
-    speed and acceleration bounds."""
-    return max(PEAK_SPEED * length / max_speed, math.sqrt(PEAK_ACCEL * length / max_accel))
-
-
-def _segments_distance(a: FloatArray, b: FloatArray, poly2: FloatArray) -> FloatArray:
-    """The distance (m) from each 2-D segment ``a[k]``-``b[k]`` (shapes (K, 2)) to the
-    convex polygon ``poly2`` (shape (m, 2), counter-clockwise); 0 where they meet.
-    Returns shape (K,)."""
-    u = poly2
-    d = np.roll(poly2, -1, axis=0) - poly2  # the edges, (m, 2)
-    normals = np.column_stack([d[:, 1], -d[:, 0]])  # outward, for counter-clockwise
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    da = np.einsum("kmj,mj->km", a[:, None, :] - u[None], normals)
-    db = np.einsum("kmj,mj->km", b[:, None, :] - u[None], normals)
-    # the part of each segment inside every edge's half-plane (Cyrus-Beck clipping): the
-    # segment meets the polygon where it is not empty
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = da / (da - db)
-    enter = (da > 0.0) & (db <= 0.0)
-    leave = (da <= 0.0) & (db > 0.0)
-    lo = np.where(enter, t, 0.0).max(axis=1)
-    hi = np.where(leave, t, 1.0).min(axis=1)
-    meets = ~((da > 0.0) & (db > 0.0)).any(axis=1) & (lo <= hi)
-
-    def point_seg(p: FloatArray, q0: FloatArray, e: FloatArray) -> FloatArray:
-        # distances from points p (..., 2) to segments q0 + [0, 1] e (broadcast)
-        ee = (e * e).sum(axis=-1)
-        w = np.clip(((p - q0) * e).sum(axis=-1) / np.maximum(ee, 1e-300), 0.0, 1.0)
-        return np.asarray(np.linalg.norm(p - (q0 + w[..., None] * e), axis=-1))
-
-    seg = (b - a)[:, None, :]
-    best = np.minimum.reduce([
-        point_seg(a[:, None, :], u[None], d[None]).min(axis=1),
-        point_seg(b[:, None, :], u[None], d[None]).min(axis=1),
-        point_seg(u[None], a[:, None, :], seg).min(axis=1),
-    ])
-    return np.where(meets, 0.0, best)
-
-
-def _segment_distance(a: FloatArray, b: FloatArray, poly2: FloatArray) -> float:
-    """The distance (m) from the 2-D segment ``a``-``b`` to the convex polygon ``poly2``
-    (shape (m, 2), counter-clockwise); 0 if they meet."""
-    return float(_segments_distance(np.asarray(a, dtype=np.float64)[None],
-                                    np.asarray(b, dtype=np.float64)[None], poly2)[0])
-
-
-def _around(poly: Polyhedron, pose: ObjectPose, a: FloatArray, b: FloatArray, need: float,
-            max_speed: float, max_accel: float) -> list[FloatArray] | None:
-    """Waypoints (3-D) from ``a`` to ``b`` (both shape (3,)) around the posed object at
-    ``need`` (m) from its shadow on the table, the quickest in rest-to-rest legs, ``a`` and
-    ``b`` included; None when ``a`` or ``b`` lies nearer than ``need`` to the shadow.
-
-    Every point horizontally ``need`` from the shadow (the convex hull of the object's
-    vertices seen from above) is at least ``need`` from the object, at any height: the
-    legs keep to the shadow's outline pushed out by ``need`` (its offset edges meet beyond
-    the rounded corners, so a leg along them never comes nearer), their heights running
-    from ``a``'s to ``b``'s. A push low on a side face followed by one on the next face
-    goes round the corner between them instead of up over the object and down (a robot's
-    correction transits: 0.8 s over a 10 cm tall box, most of a correction's time).
-    """
-    from scipy.spatial import ConvexHull  # (the shadow: scipy's hull, counter-clockwise)
-
-    pts = pose.to_world(poly.vertices)[:, :2]
-    try:
-        hull = pts[ConvexHull(pts).vertices]
-    except Exception:  # a flat shadow (no area): no way round it here
-        return None
-    # (an object resting a hair off flat casts near-twin corners: one of each, so that
-    # every edge has a direction)
-    keep = [hull[0]]
-    for q in hull[1:]:
-        if float(np.linalg.norm(q - keep[-1])) > 1e-4:
-            keep.append(q)
-    if len(keep) > 1 and float(np.linalg.norm(keep[-1] - keep[0])) <= 1e-4:
-        keep.pop()
-    if len(keep) < 3:
-        return None
-    shadow = np.array(keep)
-    a2, b2 = a[:2], b[:2]
-    # the ends are the transit's own (``need`` out by the face planes): a tilted object's
-    # shadow may reach a little nearer to them; no leg comes nearer than they are
-    floor = min(need, float(_segments_distance(np.array([a2, b2]), np.array([a2, b2]),
-                                               shadow).min()))
-    if floor < need - _NEAR:
-        return None
-    edges = np.roll(shadow, -1, axis=0) - shadow
-    n_out = np.column_stack([edges[:, 1], -edges[:, 0]])
-    n_out /= np.linalg.norm(n_out, axis=1, keepdims=True)
-    n_in = np.roll(n_out, 1, axis=0)  # the edge that ends at each vertex
-    denom = 1.0 + np.einsum("ij,ij->i", n_in, n_out)
-    if float(denom.min()) < 0.1:  # a corner sharper than ~50 degrees: a long way out
-        return None
-    corners = shadow + need * (n_in + n_out) / denom[:, None]
-    # the quickest chain of legs among a, b and the offset corners, a leg only where it
-    # keeps ``need`` from the shadow: consecutive corners always do (an offset edge), two
-    # others never (the chord runs inside the offset outline); a and b are checked against
-    # each other and every corner, at once
-    nodes = [a2, b2, *corners]
-    m = len(nodes)
-    cost = np.full((m, m), math.inf)
-    c = len(corners)
-    for i in range(c):
-        j = (i + 1) % c
-        cost[2 + i, 2 + j] = cost[2 + j, 2 + i] = float(np.linalg.norm(corners[j] - corners[i]))
-    ends = np.array([0] + [0] * c + [1] * c)
-    others = np.array([1] + list(range(2, m)) * 2)
-    pa = np.array(nodes)[ends]
-    pb = np.array(nodes)[others]
-    clear = _segments_distance(pa, pb, shadow) >= floor - 1e-9
-    for i, j, ok, length in zip(ends.tolist(), others.tolist(), clear.tolist(),
-                                np.linalg.norm(pb - pa, axis=1).tolist(), strict=True):
-        if ok:
-            cost[i, j] = cost[j, i] = length
-    # Dijkstra over the handful of nodes, each leg weighted by its rest-to-rest time
-    best = [math.inf] * m
-    prev = [-1] * m
-    best[0] = 0.0
-    done = [False] * m
-    for _ in range(m):
-        i = min((k for k in range(m) if not done[k]), key=lambda k: best[k])
-        if best[i] == math.inf:
-            break
-        done[i] = True
-        for j in range(m):
-            if not done[j] and cost[i, j] < math.inf:
-                c = best[i] + _leg_time(cost[i, j], max_speed, max_accel)
-                if c < best[j]:
-                    best[j], prev[j] = c, i
-    if best[1] == math.inf:
-        return None
-    chain = [1]
-    while chain[-1] != 0:
-        chain.append(prev[chain[-1]])
-    chain.reverse()
-    xy = np.array([nodes[k] for k in chain])
-    run = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    frac = run / run[-1] if run[-1] > 0 else np.zeros(len(run))
-    z = a[2] + frac * (b[2] - a[2])
-    return [np.array([x, y, zz]) for (x, y), zz in zip(xy, z, strict=True)]
-
-
-def transit(    poly: Polyhedron,
+def transit(
+    poly: Polyhedron,
     pose: ObjectPose,
     start: FloatArray,
     end: FloatArray,
@@ -332,30 +182,13 @@ def transit(    poly: Polyhedron,
     # object, low): the safe height clears the whole hull
     ways = [start, out, up, across, pre, end]
     speeds = [max_speed] * 4 + [min(max_speed, APPROACH_SPEED)]
-    if int(mv.sum()) == 1:
-        # one fingertip moving: round the object at the margin instead, when quicker
-        k = int(np.flatnonzero(mv)[0])
-        way = _around(poly, pose, out[k], pre[k], need, max_speed, max_accel)
-        if way is not None:
-            over = sum(_leg_time(float(np.linalg.norm(q - p)), max_speed, max_accel)
-                       for p, q in itertools.pairwise([out[k], up[k], across[k], pre[k]])
-                       if float(np.linalg.norm(q - p)) >= 1e-6)
-            low = sum(_leg_time(float(np.linalg.norm(q - p)), max_speed, max_accel)
-                      for p, q in itertools.pairwise(way))
-            if low < over:
-                mids = []
-                for w in way[1:-1]:
-                    row = start.copy()  # (the others hold their start)
-                    row[k] = w
-                    mids.append(row)
-                ways = [start, out, *mids, pre, end]
-                speeds = [max_speed] * (len(ways) - 2) + [min(max_speed, APPROACH_SPEED)]
     legs = []
     for (a, b), vmax in zip(itertools.pairwise(ways), speeds, strict=True):
         length = float(np.linalg.norm(b - a, axis=1).max())
         if length < 1e-6:
             continue
-        n = max(2, math.ceil(_leg_time(length, vmax, max_accel) / dt) + 1)
+        t = max(PEAK_SPEED * length / vmax, math.sqrt(PEAK_ACCEL * length / max_accel))
+        n = max(2, math.ceil(t / dt) + 1)
         legs.append(_leg(a, b, n).transpose(1, 0, 2))
     if not legs:
         return np.asarray(np.stack([start, end]))
@@ -504,7 +337,7 @@ def guarded_push(length: float, gap: float, speed: float, *, dt: float,
             if accel > 0.0 and math.isfinite(accel) else 0.0)
     if peak <= speed:  # nothing to gain: the constant-speed push
         n = round(length / speed / dt) + 1
-        return np.arange(n) * dt * speed
+        return np.asarray(np.arange(n) * dt * speed, dtype=np.float64)
     t_ramp = (peak - speed) / accel
     d_ramp = 0.5 * (peak + speed) * t_ramp
     t_cruise = max(gap - 2.0 * d_ramp, 0.0) / peak
