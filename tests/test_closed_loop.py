@@ -37,6 +37,7 @@ from nonprehensile.skills.contacts import Edge, Face
 from nonprehensile.states import State, state_pose
 from nonprehensile.transit import (
     escape,
+    guarded_push,
     hull_distance,
     limit_speed,
     limits_of,
@@ -333,6 +334,54 @@ def test_release_is_quick_and_within_its_bounds(start, vel, move, scale) -> None
     if not np.abs(v).any():
         rest_leg = straight(a, b, dt=dt, max_speed=vmax, max_accel=amax)
         assert len(out) <= len(rest_leg) + 2
+
+
+@settings(max_examples=80, deadline=None)
+@given(length=st.floats(0.0, 0.1), gap=st.floats(-0.01, 0.12), speed=st.floats(0.005, 0.2),
+       fast=st.floats(0.0, 0.4), accel=st.floats(0.1, 20.0))
+def test_guarded_push_crosses_the_gap_quickly_within_its_bounds(length, gap, speed, fast,  # type: ignore[no-untyped-def]
+                                                               accel) -> None:
+    """A correction push's distances: never backwards, at most the approach's peak and
+    its acceleration (from the push's own speed), at the push's speed from the gap on, to
+    the whole length; nowhere later than the old constant-speed push."""
+    dt = 0.001
+    s = guarded_push(length, gap, speed, dt=dt, fast=fast, accel=accel)
+    assert s[0] == 0.0
+    g = min(max(gap, 0.0), length)
+    peak = math.sqrt(accel * g + speed * speed)
+    if min(fast, peak) <= speed:  # no approach to speed up: the old constant-speed push
+        n = round(length / speed / dt) + 1
+        np.testing.assert_array_equal(s, np.arange(n) * dt * speed)
+        return
+    assert float(s[-1]) >= length - 1e-12
+    assert float(s[-1]) <= length + speed * dt + 1e-9
+    v = np.diff(s) / dt
+    assert float(v.min()) >= -1e-12
+    assert float(v.max()) <= max(fast, speed) * (1 + 1e-9) + 1e-12
+    a = np.diff(s, 2) / dt**2
+    # (a sample straddling a switch of the profile averages the two sides)
+    assert float(np.abs(a).max(initial=0.0)) <= accel * (1 + 1e-6) + 1e-9
+    assert abs(float(v[0]) - speed) <= accel * dt * (1 + 1e-6)  # it starts at the speed
+    # past the gap, the push's own speed
+    past = np.flatnonzero(s[:-1] >= g + 1e-9)
+    if len(past) > 1:
+        np.testing.assert_allclose(v[past[1:]], speed, rtol=1e-6)
+    # nowhere behind the old push (``s = speed t`` from the first sample)
+    assert bool(np.all(s >= speed * dt * np.arange(len(s)) - 1e-12))
+
+
+def test_guarded_push_reaches_a_correction_face_in_under_half_the_time() -> None:
+    """The correction pushes' numbers (12 mm to cover of a 15 mm clearance, turns at
+    0.02 m/s, 2 m/s^2 up to 0.1 m/s): the face is reached in 40 % of the old time, the
+    peak speed held to 0.1 m/s, and the push runs at 0.02 m/s from there (worked by hand:
+    0.02 -> 0.1 m/s in 0.04 s over 2.4 mm, back down likewise, 7.2 mm at 0.1 m/s in
+    0.072 s: 0.152 s to the gap, then 3 mm at 0.02 m/s: 0.302 s to the face against
+    0.75 s)."""
+    s = guarded_push(0.05, 0.012, 0.02, dt=0.001, fast=0.1, accel=2.0)
+    assert abs(int(np.searchsorted(s, 0.012 - 1e-12)) - 152) <= 1
+    assert abs(int(np.searchsorted(s, 0.015 - 1e-12)) - 302) <= 1
+    assert abs(float(np.diff(s).max()) / 0.001 - 0.1) <= 1e-9
+    assert len(s) - 1 == 2052  # 0.152 s, then 38 mm at 0.02 m/s
 
 
 def _release_by_arrays(start, velocity, end, *, dt, max_speed, max_accel):  # type: ignore[no-untyped-def]
@@ -821,3 +870,18 @@ def test_follow_depth_is_checked_and_robots_get_theirs() -> None:
     assert ControlConfig().follow_depth is None  # the free fingertips: unbounded
     assert robot_control(n_fingers=1).follow_depth == ROBOT_FOLLOW_DEPTH
     assert robot_control(ControlConfig(follow_depth=0.01), n_fingers=2).follow_depth == 0.01
+
+
+def test_push_approach_is_checked_and_robots_get_theirs() -> None:
+    """The correction pushes' guarded approach: off for the free fingertips (a compliant pad
+    lags its command), the transits' approach speed for robots, the caller's own kept;
+    a speed that is not one, or over the fingertips' 0.5 m/s, is refused by name."""
+    from nonprehensile.sim.robot_run import ROBOT_PUSH_APPROACH, robot_control
+    from nonprehensile.transit import APPROACH_SPEED
+
+    for bad in (0.0, -0.1, 0.6, math.nan, math.inf, "fast"):
+        with pytest.raises(InputError, match="push_approach"):
+            ControlConfig(push_approach=bad)  # type: ignore[arg-type]
+    assert ControlConfig().push_approach is None
+    assert robot_control(n_fingers=1).push_approach == ROBOT_PUSH_APPROACH == APPROACH_SPEED
+    assert robot_control(ControlConfig(push_approach=0.05), n_fingers=2).push_approach == 0.05

@@ -31,8 +31,8 @@ from nonprehensile.observation import hull_distance
 from nonprehensile.planning import ObjectPose
 from nonprehensile.step_paths import ease
 
-__all__ = ["APPROACH_SPEED", "PEAK_ACCEL", "PEAK_SPEED", "escape", "hull_distance",
-           "limit_speed", "limits_of", "release", "straight", "transit"]
+__all__ = ["APPROACH_SPEED", "PEAK_ACCEL", "PEAK_SPEED", "escape", "guarded_push",
+           "hull_distance", "limit_speed", "limits_of", "release", "straight", "transit"]
 
 FloatArray = NDArray[np.float64]
 
@@ -291,6 +291,67 @@ def release(start: FloatArray, velocity: FloatArray, end: FloatArray, *, dt: flo
     out.append(goal.copy()[None])
     out[0] = out[0][None]
     return np.asarray(np.concatenate(out))
+
+
+def guarded_push(length: float, gap: float, speed: float, *, dt: float,
+                 fast: float = APPROACH_SPEED, accel: float = 2.0) -> FloatArray:
+    """Distances along a push, one every ``dt``: across the ``gap`` (m) to the face
+    quickly, then on at the push's ``speed``, to ``length`` (m) in all.
+
+    A guarded move: starting at ``speed`` (as the constant-speed push did, the caller's
+    cross-fade taking the command there from rest) the fingertip speeds up at ``accel``
+    (m/s^2) towards ``fast`` (m/s) and slows down, at the same rate, back to ``speed`` by
+    the time it has come ``gap`` along (a triangle where the gap is too short to reach
+    ``fast``); from there it runs at ``speed``. Never later anywhere than the constant-speed
+    push. A push that starts ``gap`` short of the face at its own slow speed spent most of
+    its time before touching (15 mm at 0.02 m/s: 0.75 s, the longest part of a robot's turn
+    correction). ``gap`` is where the face was observed: the caller keeps a margin of it
+    for the observation's errors.
+
+    Parameters
+    ----------
+    length : float
+        The whole push, m (``>= 0``).
+    gap : float
+        Distance run before being back at ``speed``, m (clipped to ``[0, length]``).
+    speed : float
+        The push's speed, m/s (``> 0``).
+    dt : float
+        Sample period, s.
+    fast : float
+        The approach's peak speed, m/s. Where it, the gap or ``accel`` allows no speed above
+        ``speed``, the push runs at ``speed`` throughout (the constant-speed push).
+    accel : float
+        The approach's acceleration and deceleration, m/s^2.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``s[0] = 0``, increasing, ``s[-1] >= length`` (within half a sample for the
+        constant-speed push, which has ``round(length / speed / dt) + 1`` samples).
+    """
+    gap = min(max(gap, 0.0), length)
+    # the peak: where speeding up from ``speed`` and slowing back to it cover the gap
+    # exactly (``2 (v^2 - speed^2) / 2a = gap``), at most ``fast``
+    peak = (min(fast, math.sqrt(accel * gap + speed * speed))
+            if accel > 0.0 and math.isfinite(accel) else 0.0)
+    if peak <= speed:  # nothing to gain: the constant-speed push
+        n = round(length / speed / dt) + 1
+        return np.asarray(np.arange(n) * dt * speed, dtype=np.float64)
+    t_ramp = (peak - speed) / accel
+    d_ramp = 0.5 * (peak + speed) * t_ramp
+    t_cruise = max(gap - 2.0 * d_ramp, 0.0) / peak
+    t_gap = 2.0 * t_ramp + t_cruise
+    total = t_gap + (length - gap) / speed
+    t = np.arange(math.ceil(total / dt - 1e-9) + 1) * dt
+    t2 = t - t_ramp - t_cruise  # time into the braking
+    s = np.where(
+        t < t_ramp, speed * t + 0.5 * accel * t * t,
+        np.where(t < t_ramp + t_cruise, d_ramp + peak * (t - t_ramp),
+                 np.where(t < t_gap,
+                          d_ramp + peak * t_cruise + peak * t2 - 0.5 * accel * t2 * t2,
+                          gap + speed * (t - t_gap))))
+    return np.asarray(s, dtype=np.float64)
 
 
 def limits_of(targets: FloatArray, dt: float) -> tuple[float, float]:

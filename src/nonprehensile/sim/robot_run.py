@@ -38,7 +38,8 @@ from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
 __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
-           "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_MAX_ACCEL", "ROBOT_TRANSIT_ACCEL",
+           "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_MAX_ACCEL", "ROBOT_PUSH_APPROACH",
+           "ROBOT_TRANSIT_ACCEL",
            "RobotSimulator", "describe_robots", "resolve_press_depth", "resolve_tracking",
            "robot_control"]
 
@@ -59,6 +60,16 @@ ROBOT_MAX_ACCEL = 8.0
 #: before the IK's observed object and the rod's outward lean)
 #: (docs/benchmarks.md, "ik22").
 ROBOT_TRANSIT_ACCEL = 8.0
+
+#: The correction pushes' approach speed for robots (m/s; ``ControlConfig.push_approach``):
+#: the transits' approach speed, ``transit.APPROACH_SPEED``. Measured on the 72
+#: single-finger cube transitions by one arm at nominal physics: the robot's CPU against
+#: the free fingertip's 2.90-2.99x in four runs against 3.21-3.33x at the push's own speed
+#: (half of the robot's CPU there goes to the end-of-plan corrections; their approach was
+#: the longest part of each: 15 mm at 20-30 mm/s), every transition still reached, the
+#: same tracking; the main plan across the distribution 96/100 and 94/100 (seeds 0, 1;
+#: link contact in 0 and 2 runs) against 95/100 and 93/100 (2 and 0) (docs/benchmarks.md).
+ROBOT_PUSH_APPROACH = 0.1
 
 #: One arm's contact tracking correction gain, 1/s (:class:`RobotSimulator`'s
 #: ``tracking_gain`` with one fingertip; several fingertips, a pinch, run
@@ -149,7 +160,9 @@ def robot_control(config: ControlConfig | None = None, *, n_fingers: int,
     ``config.transit_accel`` if it set one (at most ``max_accel``), else
     :data:`ROBOT_TRANSIT_ACCEL` (at most ``max_accel``) with one fingertip (one arm), half
     of ``max_accel`` (the free fingertips' rule) with more; and the follow-through's bound
-    ``config.follow_depth`` if the caller set one, else :data:`ROBOT_FOLLOW_DEPTH`.
+    ``config.follow_depth`` if the caller set one, else :data:`ROBOT_FOLLOW_DEPTH`; and the
+    correction pushes' approach ``config.push_approach`` if set, else
+    :data:`ROBOT_PUSH_APPROACH`.
 
     Raises
     ------
@@ -161,6 +174,8 @@ def robot_control(config: ControlConfig | None = None, *, n_fingers: int,
     cfg = config or ControlConfig()
     if cfg.follow_depth is None:  # a stiff arm is not turned on into an object that stays
         cfg = replace(cfg, follow_depth=ROBOT_FOLLOW_DEPTH)
+    if cfg.push_approach is None:  # an arm follows its command: no pad lag to wait for
+        cfg = replace(cfg, push_approach=ROBOT_PUSH_APPROACH)
     if cfg.transit_accel is not None:  # the caller's bound, never silently dropped
         ta: float | None = min(cfg.transit_accel, float(max_accel))
     else:
