@@ -187,7 +187,8 @@ class ControlConfig:
         its command in proportion to its speed, and measured with 0.1 m/s the free
         fingertips' slides turned the cube on landing (the main plan across the
         distribution 194/200 against 197/200). Robots (a position-controlled arm follows
-        its command within 2 mm): 0.1 m/s, :func:`~nonprehensile.sim.robot_run.robot_control`.
+        its command within 0.2 mm at 0.1 m/s in free motion): 0.1 m/s,
+        :func:`~nonprehensile.sim.robot_run.robot_control`.
     """
 
     confirm: float = 0.015

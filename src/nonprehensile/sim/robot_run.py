@@ -64,7 +64,7 @@ ROBOT_TRANSIT_ACCEL = 8.0
 #: The correction pushes' approach speed for robots (m/s; ``ControlConfig.push_approach``):
 #: the transits' approach speed, ``transit.APPROACH_SPEED``. Measured on the 72
 #: single-finger cube transitions by one arm at nominal physics: the robot's CPU against
-#: the free fingertip's 2.90-2.99x in four runs against 3.21-3.33x at the push's own speed
+#: the free fingertip's 2.82-3.07x in three runs against 3.21-3.33x at the push's own speed
 #: (half of the robot's CPU there goes to the end-of-plan corrections; their approach was
 #: the longest part of each: 15 mm at 20-30 mm/s), every transition still reached, the
 #: same tracking; the main plan across the distribution 96/100 and 94/100 (seeds 0, 1;
