@@ -343,7 +343,8 @@ def guarded_push(length: float, gap: float, speed: float, *, dt: float,
     t_cruise = max(gap - 2.0 * d_ramp, 0.0) / peak
     t_gap = 2.0 * t_ramp + t_cruise
     total = t_gap + (length - gap) / speed
-    t = np.arange(math.ceil(total / dt - 1e-9) + 1) * dt
+    # (at least two samples: a push shorter than a step still ends at its length)
+    t = np.arange(max(1, math.ceil(total / dt - 1e-9)) + 1) * dt
     t2 = t - t_ramp - t_cruise  # time into the braking
     s = np.where(
         t < t_ramp, speed * t + 0.5 * accel * t * t,
