@@ -338,17 +338,17 @@ def test_release_is_quick_and_within_its_bounds(start, vel, move, scale) -> None
 
 @settings(max_examples=80, deadline=None)
 @given(length=st.floats(0.0, 0.1), gap=st.floats(-0.01, 0.12), speed=st.floats(0.005, 0.2),
-       fast=st.floats(0.0, 0.4), accel=st.floats(0.1, 20.0))
+       fast=st.floats(0.0, 0.4), accel=st.floats(0.0, 20.0), hold=st.floats(0.0, 0.2))
 def test_guarded_push_crosses_the_gap_quickly_within_its_bounds(length, gap, speed, fast,  # type: ignore[no-untyped-def]
-                                                               accel) -> None:
+                                                               accel, hold) -> None:
     """A correction push's distances: never backwards, at most the approach's peak and
     its acceleration (from the push's own speed), at the push's speed from the gap on, to
     the whole length; nowhere later than the old constant-speed push."""
     dt = 0.001
-    s = guarded_push(length, gap, speed, dt=dt, fast=fast, accel=accel)
+    s = guarded_push(length, gap, speed, dt=dt, fast=fast, accel=accel, hold=hold)
     assert s[0] == 0.0
     g = min(max(gap, 0.0), length)
-    peak = math.sqrt(accel * g + speed * speed)
+    peak = math.sqrt(accel * (g - min(speed * hold, g)) + speed * speed)
     if min(fast, peak) <= speed:  # no approach to speed up: the old constant-speed push
         n = round(length / speed / dt) + 1
         np.testing.assert_array_equal(s, np.arange(n) * dt * speed)
@@ -366,8 +366,19 @@ def test_guarded_push_crosses_the_gap_quickly_within_its_bounds(length, gap, spe
     past = np.flatnonzero(s[:-1] >= g + 1e-9)
     if len(past) > 1:
         np.testing.assert_allclose(v[past[1:]], speed, rtol=1e-6)
-    # nowhere behind the old push (``s = speed t`` from the first sample)
+    # nowhere behind the old push (``s = speed t`` from the first sample), and at its
+    # speed through the hold
     assert bool(np.all(s >= speed * dt * np.arange(len(s)) - 1e-12))
+    k = int(min(hold, g / speed) / dt)
+    np.testing.assert_allclose(np.diff(s[:k + 1]) / dt, speed, rtol=1e-6)
+
+
+@pytest.mark.parametrize("kw", [{"speed": 0.0}, {"speed": -0.02}, {"length": math.nan},
+                                {"gap": math.inf}, {"hold": -1.0}, {"dt": 0.0}])
+def test_guarded_push_refuses_what_is_not_a_push(kw) -> None:  # type: ignore[no-untyped-def]
+    args = {"length": 0.05, "gap": 0.012, "speed": 0.02, "dt": 0.001, **kw}
+    with pytest.raises(InputError, match=next(iter(kw))):
+        guarded_push(args.pop("length"), args.pop("gap"), args.pop("speed"), **args)
 
 
 def test_guarded_push_reaches_a_correction_face_in_under_half_the_time() -> None:
@@ -879,9 +890,47 @@ def test_push_approach_is_checked_and_robots_get_theirs() -> None:
     from nonprehensile.sim.robot_run import ROBOT_PUSH_APPROACH, robot_control
     from nonprehensile.transit import APPROACH_SPEED
 
-    for bad in (0.0, -0.1, 0.6, math.nan, math.inf, "fast"):
+    for bad in (-0.1, 0.6, math.nan, math.inf, "fast", True):
         with pytest.raises(InputError, match="push_approach"):
             ControlConfig(push_approach=bad)  # type: ignore[arg-type]
     assert ControlConfig().push_approach is None
     assert robot_control(n_fingers=1).push_approach == ROBOT_PUSH_APPROACH == APPROACH_SPEED
     assert robot_control(ControlConfig(push_approach=0.05), n_fingers=2).push_approach == 0.05
+    # 0: a robot's pushes at their own speed throughout (the caller's choice kept)
+    assert robot_control(ControlConfig(push_approach=0.0), n_fingers=1).push_approach == 0.0
+    # a bool is no number for any numeric setting (True would read as 1)
+    for name in ("max_replans", "max_speed", "clearance"):
+        with pytest.raises(InputError, match=name):
+            ControlConfig(**{name: True})  # type: ignore[arg-type]
+
+
+def test_a_guarded_push_faded_in_from_rest_keeps_its_bounds() -> None:
+    """The push as the executor sends it: the cross-fade from the held command into the
+    guarded distances (``_Runner._crossfade``, the executor's own), for a turn (20 mm/s)
+    and a slide (30 mm/s), 12 mm of a 15 mm clearance to cover. Holding the push's speed
+    through the fade, the command stays within 0.1 m/s and the fade's own acceleration
+    (that of the constant-speed push's fade, 1.6-2.4 m/s^2); speeding up inside the fade
+    overshot to 0.15 m/s and 6.7 m/s^2. Without the hold this test fails."""
+    from nonprehensile.sim.closed_loop import CROSSFADE, PUSH_ACCEL, PUSH_MARGIN, _Runner
+    from nonprehensile.transit import APPROACH_SPEED
+
+    class Clock:  # what ``_crossfade`` reads of its runner
+        dt = 0.001
+
+    direction = np.array([1.0, 0.0, 0.0])
+    start = np.array([0.1, 0.2, 0.01])
+    for speed in (0.02, 0.03):
+        length = 0.015 + 0.006 + 0.03
+        s = guarded_push(length, 0.015 - PUSH_MARGIN, speed, dt=0.001, fast=APPROACH_SPEED,
+                         accel=PUSH_ACCEL, hold=CROSSFADE)
+        plain = np.arange(round(length / speed / 0.001) + 1) * 0.001 * speed
+        held = np.array([[start]])
+        limits = []
+        for dist in (s, plain):
+            path = (start[None] + dist[:, None] * direction[None])[:, None, :]
+            faded = _Runner._crossfade(Clock(), held, 0, path)  # type: ignore[arg-type]
+            limits.append(limits_of(faded, 0.001))
+        (v, a), (v0, a0) = limits
+        assert v <= APPROACH_SPEED + 1e-9
+        assert a <= max(a0, PUSH_ACCEL) * (1 + 1e-6)
+        assert v >= 0.9 * APPROACH_SPEED > 1.5 * v0  # and it is faster across the gap

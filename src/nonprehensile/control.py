@@ -180,15 +180,15 @@ class ControlConfig:
         :func:`~nonprehensile.sim.robot_run.robot_control`.
     push_approach : float or None
         A correction push (a slide or a turn at the end of a plan) crosses the clearance
-        between its start and the face as a guarded move at up to this speed (m/s), down
-        to its own speed 3 mm before the face as observed
-        (:func:`~nonprehensile.transit.guarded_push`). None (the default, the free
-        fingertips'): at its own speed from the start; a compliant pad lags and overshoots
-        its command in proportion to its speed, and measured with 0.1 m/s the free
-        fingertips' slides turned the cube on landing (the main plan across the
-        distribution 194/200 against 197/200). Robots (a position-controlled arm follows
-        its command within 0.2 mm at 0.1 m/s in free motion): 0.1 m/s,
-        :func:`~nonprehensile.sim.robot_run.robot_control`.
+        between its start and the face as a guarded move: after the cross-fade into the
+        push, at its own speed, it speeds up to at most this (m/s) and is back at its own
+        speed 3 mm before the face as observed (:func:`~nonprehensile.transit.guarded_push`).
+        None (the default, the free fingertips') or 0: at its own speed throughout; a
+        compliant pad lags and overshoots its command in proportion to its speed, and
+        measured with 0.1 m/s the free fingertips' slides turned the cube on landing (the
+        main plan across the distribution 194/200 against 197/200). Robots (a
+        position-controlled arm follows its command within 0.2 mm at 0.1 m/s in free
+        motion): 0.1 m/s, :func:`~nonprehensile.sim.robot_run.robot_control`.
     """
 
     confirm: float = 0.015
@@ -222,13 +222,16 @@ class ControlConfig:
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            if isinstance(value, bool) or (name in ("align_tol", "transit_accel",
-                                                    "follow_depth", "push_approach")
-                                           and value is None):
-                continue
-            ok = isinstance(value, (int, float)) and math.isfinite(value) and value >= 0
-            if name in ("max_speed", "max_accel", "transit_accel", "reach_speed", "still_time",
-                        "slow_retry", "follow_speed", "push_approach") and ok:
+            if name == "correct_position" or (name in ("align_tol", "transit_accel",
+                                                         "follow_depth", "push_approach")
+                                              and value is None):
+                continue  # (a switch, or a setting left to its default)
+            # (a bool is a number to Python: True would read as 1)
+            ok = (isinstance(value, (int, float)) and not isinstance(value, bool)
+                  and math.isfinite(value) and value >= 0)
+            positive = name in ("max_speed", "max_accel", "transit_accel", "reach_speed",
+                                "still_time", "slow_retry", "follow_speed")
+            if positive and ok:
                 ok = value > 0
             if name in ("max_speed", "push_approach") and ok:
                 ok = value <= 0.5  # the issue's bound on every fingertip
@@ -239,7 +242,8 @@ class ControlConfig:
                          "max_replans": ", whole, <= 100",
                          "max_tries": ", whole, <= 100",
                          "max_corrections": ", whole, <= 100"}.get(name, "")
-                raise InputError(f"control setting {name} must be a finite number >= 0"
+                lower = "> 0" if positive else ">= 0"
+                raise InputError(f"control setting {name} must be a finite number {lower}"
                                  f"{extra}, got {value!r}")
 
     def to_dict(self) -> dict[str, Any]:

@@ -23,6 +23,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 
 # (the observed object's distance lives with what a controller observes, below both
@@ -294,19 +295,21 @@ def release(start: FloatArray, velocity: FloatArray, end: FloatArray, *, dt: flo
 
 
 def guarded_push(length: float, gap: float, speed: float, *, dt: float,
-                 fast: float = APPROACH_SPEED, accel: float = 2.0) -> FloatArray:
+                 fast: float = APPROACH_SPEED, accel: float = 2.0,
+                 hold: float = 0.0) -> FloatArray:
     """Distances along a push, one every ``dt``: across the ``gap`` (m) to the face
     quickly, then on at the push's ``speed``, to ``length`` (m) in all.
 
-    A guarded move: starting at ``speed`` (as the constant-speed push did, the caller's
-    cross-fade taking the command there from rest) the fingertip speeds up at ``accel``
-    (m/s^2) towards ``fast`` (m/s) and slows down, at the same rate, back to ``speed`` by
-    the time it has come ``gap`` along (a triangle where the gap is too short to reach
-    ``fast``); from there it runs at ``speed``. Never later anywhere than the constant-speed
-    push. A push that starts ``gap`` short of the face at its own slow speed spent most of
-    its time before touching (15 mm at 0.02 m/s: 0.75 s, the longest part of a robot's turn
-    correction). ``gap`` is where the face was observed: the caller keeps a margin of it
-    for the observation's errors.
+    A guarded move: the fingertip runs at ``speed`` for ``hold`` seconds (the caller's
+    cross-fade into the push from rest, which a speed change inside it would overshoot:
+    from rest into a path that accelerated at once, the command peaked at 0.15 m/s and
+    6.7 m/s^2), then speeds up at ``accel`` (m/s^2) towards ``fast`` (m/s) and slows
+    down, at the same rate, back to ``speed`` by the time it has come ``gap`` along (a
+    triangle where the gap is too short to reach ``fast``); from there it runs at
+    ``speed``. Never behind the constant-speed push anywhere. A push that starts ``gap``
+    short of the face at its own slow speed spent most of its time before touching (15 mm
+    at 0.02 m/s: 0.75 s, the longest part of a robot's turn correction). ``gap`` is where
+    the face was observed: the caller keeps a margin of it for the observation's errors.
 
     Parameters
     ----------
@@ -317,41 +320,63 @@ def guarded_push(length: float, gap: float, speed: float, *, dt: float,
     speed : float
         The push's speed, m/s (``> 0``).
     dt : float
-        Sample period, s.
+        Sample period, s (``> 0``).
     fast : float
-        The approach's peak speed, m/s. Where it, the gap or ``accel`` allows no speed above
-        ``speed``, the push runs at ``speed`` throughout (the constant-speed push).
+        The approach's peak speed, m/s. Where it, the gap left after the hold or ``accel``
+        allows no speed above ``speed``, the push runs at ``speed`` throughout (the
+        constant-speed push).
     accel : float
         The approach's acceleration and deceleration, m/s^2.
+    hold : float
+        Time at ``speed`` before speeding up, s (``>= 0``).
 
     Returns
     -------
     ndarray, shape (n,)
         ``s[0] = 0``, increasing, ``s[-1] >= length`` (within half a sample for the
         constant-speed push, which has ``round(length / speed / dt) + 1`` samples).
+
+    Raises
+    ------
+    InputError
+        A length, gap or hold that is not a finite number, a speed or ``dt`` not above 0.
     """
+    for name, v, low in (("length", length, 0.0), ("gap", gap, -math.inf),
+                         ("hold", hold, 0.0)):
+        if not (math.isfinite(v) and v >= low):
+            raise InputError(f"guarded_push: {name} must be a finite number"
+                             f"{'' if low == -math.inf else ' >= 0'}, got {v!r}")
+    for name, v in (("speed", speed), ("dt", dt)):
+        if not (math.isfinite(v) and v > 0):
+            raise InputError(f"guarded_push: {name} must be a finite number > 0, got {v!r}")
     gap = min(max(gap, 0.0), length)
-    # the peak: where speeding up from ``speed`` and slowing back to it cover the gap
-    # exactly (``2 (v^2 - speed^2) / 2a = gap``), at most ``fast``
-    peak = (min(fast, math.sqrt(accel * gap + speed * speed))
-            if accel > 0.0 and math.isfinite(accel) else 0.0)
+    d_hold = min(speed * hold, gap)  # the gap left to speed up in, after the hold
+    room = gap - d_hold
+    # the peak: where speeding up from ``speed`` and slowing back to it cover the room
+    # exactly (``2 (v^2 - speed^2) / 2a = room``), at most ``fast``
+    peak = (min(fast, math.sqrt(accel * room + speed * speed))
+            if accel > 0.0 and math.isfinite(accel) and math.isfinite(fast) else 0.0)
     if peak <= speed:  # nothing to gain: the constant-speed push
         n = round(length / speed / dt) + 1
         return np.asarray(np.arange(n) * dt * speed, dtype=np.float64)
+    t_hold = d_hold / speed
     t_ramp = (peak - speed) / accel
     d_ramp = 0.5 * (peak + speed) * t_ramp
-    t_cruise = max(gap - 2.0 * d_ramp, 0.0) / peak
-    t_gap = 2.0 * t_ramp + t_cruise
+    t_cruise = max(room - 2.0 * d_ramp, 0.0) / peak
+    t_gap = t_hold + 2.0 * t_ramp + t_cruise
     total = t_gap + (length - gap) / speed
     # (at least two samples: a push shorter than a step still ends at its length)
     t = np.arange(max(1, math.ceil(total / dt - 1e-9)) + 1) * dt
-    t2 = t - t_ramp - t_cruise  # time into the braking
+    u = t - t_hold  # time since the speeding up began
+    u2 = u - t_ramp - t_cruise  # time into the braking
     s = np.where(
-        t < t_ramp, speed * t + 0.5 * accel * t * t,
-        np.where(t < t_ramp + t_cruise, d_ramp + peak * (t - t_ramp),
-                 np.where(t < t_gap,
-                          d_ramp + peak * t_cruise + peak * t2 - 0.5 * accel * t2 * t2,
-                          gap + speed * (t - t_gap))))
+        u < 0.0, speed * t,
+        np.where(u < t_ramp, d_hold + speed * u + 0.5 * accel * u * u,
+                 np.where(u < t_ramp + t_cruise, d_hold + d_ramp + peak * (u - t_ramp),
+                          np.where(t < t_gap,
+                                   d_hold + d_ramp + peak * t_cruise + peak * u2
+                                   - 0.5 * accel * u2 * u2,
+                                   gap + speed * (t - t_gap)))))
     return np.asarray(s, dtype=np.float64)
 
 

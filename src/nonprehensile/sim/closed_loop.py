@@ -1130,13 +1130,15 @@ def _push(sim: Simulator, run: _Runner, cfg: ControlConfig, push: Any, speed: fl
           length: float, react: Callable[[Observation, FloatArray], Decision],
           finger: int = 1) -> tuple[Decision | None, dict[str, Any], Observation]:
     """Drive ``finger`` (1-based) ``length`` (m) along ``push.direction`` from ``push.start``
-    at ``speed`` (m/s) until ``react`` says done (or a timeout), and let go
+    at ``speed`` (m/s; with ``cfg.push_approach``, faster across the clearance before the
+    face: :func:`~nonprehensile.transit.guarded_push`) until ``react`` says done (or a
+    timeout), and let go
     (:func:`_let_go`, held clear until the object is still); returns the decision, the
     let-go's record and the last observation.
 
     The slide and turn corrections differ only in their speeds, lengths and stopping rules.
     """
-    if cfg.push_approach is None:
+    if not cfg.push_approach:  # (None or 0: the constant-speed push)
         n = round(length / speed / run.dt) + 1
         s = np.arange(n) * run.dt * speed
         max_time = length / speed + 0.5
@@ -1144,8 +1146,11 @@ def _push(sim: Simulator, run: _Runner, cfg: ControlConfig, push: Any, speed: fl
         # across the clearance to the face quickly, then at the push's speed (a guarded
         # move); the face is where it was observed, so the slow part begins PUSH_MARGIN
         # before it
+        # (at its own speed through the cross-fade from rest, which a speed change would
+        # overshoot)
         s = guarded_push(length, max(cfg.clearance - PUSH_MARGIN, 0.0), speed, dt=run.dt,
-                         fast=cfg.push_approach, accel=min(PUSH_ACCEL, cfg.max_accel))
+                         fast=cfg.push_approach, accel=min(PUSH_ACCEL, cfg.max_accel),
+                         hold=CROSSFADE)
         n = len(s)
         max_time = n * run.dt + 0.5
     path = np.repeat(run.command[None], n, axis=0)

@@ -36,6 +36,7 @@ from nonprehensile.sim.robot_driver import (
 from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
+from nonprehensile.transit import APPROACH_SPEED
 
 __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
            "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_MAX_ACCEL", "ROBOT_PUSH_APPROACH",
@@ -69,7 +70,7 @@ ROBOT_TRANSIT_ACCEL = 8.0
 #: the longest part of each: 15 mm at 20-30 mm/s), every transition still reached, the
 #: same tracking; the main plan across the distribution 96/100 and 94/100 (seeds 0, 1;
 #: link contact in 0 and 2 runs) against 95/100 and 93/100 (2 and 0) (docs/benchmarks.md).
-ROBOT_PUSH_APPROACH = 0.1
+ROBOT_PUSH_APPROACH = APPROACH_SPEED
 
 #: One arm's contact tracking correction gain, 1/s (:class:`RobotSimulator`'s
 #: ``tracking_gain`` with one fingertip; several fingertips, a pinch, run
@@ -161,8 +162,8 @@ def robot_control(config: ControlConfig | None = None, *, n_fingers: int,
     :data:`ROBOT_TRANSIT_ACCEL` (at most ``max_accel``) with one fingertip (one arm), half
     of ``max_accel`` (the free fingertips' rule) with more; and the follow-through's bound
     ``config.follow_depth`` if the caller set one, else :data:`ROBOT_FOLLOW_DEPTH`; and the
-    correction pushes' approach ``config.push_approach`` if set, else
-    :data:`ROBOT_PUSH_APPROACH`.
+    correction pushes' approach ``config.push_approach`` if set (0: the constant-speed
+    push), else :data:`ROBOT_PUSH_APPROACH`.
 
     Raises
     ------
