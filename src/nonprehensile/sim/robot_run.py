@@ -65,11 +65,11 @@ ROBOT_TRANSIT_ACCEL = 8.0
 #: The correction pushes' approach speed for robots (m/s; ``ControlConfig.push_approach``):
 #: the transits' approach speed, ``transit.APPROACH_SPEED``. Measured on the 72
 #: single-finger cube transitions by one arm at nominal physics: the robot's CPU against
-#: the free fingertip's 2.82-3.07x in three runs against 3.21-3.33x at the push's own speed
+#: the free fingertip's 2.86-2.91x in four runs against 3.21-3.33x at the push's own speed
 #: (half of the robot's CPU there goes to the end-of-plan corrections; their approach was
 #: the longest part of each: 15 mm at 20-30 mm/s), every transition still reached, the
 #: same tracking; the main plan across the distribution 96/100 and 94/100 (seeds 0, 1;
-#: link contact in 0 and 2 runs) against 95/100 and 93/100 (2 and 0) (docs/benchmarks.md).
+#: link contact in 1 run of each) against 95/100 and 93/100 (2 and 0) (docs/benchmarks.md).
 ROBOT_PUSH_APPROACH = APPROACH_SPEED
 
 #: One arm's contact tracking correction gain, 1/s (:class:`RobotSimulator`'s
