@@ -364,7 +364,10 @@ def guarded_push(length: float, gap: float, speed: float, *, dt: float,
     d_ramp = 0.5 * (peak + speed) * t_ramp
     t_cruise = max(room - 2.0 * d_ramp, 0.0) / peak
     t_gap = t_hold + 2.0 * t_ramp + t_cruise
-    total = t_gap + (length - gap) / speed
+    # where the braking ends, as the phases compute it (the gap itself up to rounding, which
+    # a tiny ``accel`` magnifies): the push runs on from there, so that no sample jumps
+    s_gap = d_hold + 2.0 * d_ramp + peak * t_cruise
+    total = t_gap + max(length - s_gap, 0.0) / speed
     # (at least two samples: a push shorter than a step still ends at its length)
     t = np.arange(max(1, math.ceil(total / dt - 1e-9)) + 1) * dt
     u = t - t_hold  # time since the speeding up began
@@ -376,7 +379,7 @@ def guarded_push(length: float, gap: float, speed: float, *, dt: float,
                           np.where(t < t_gap,
                                    d_hold + d_ramp + peak * t_cruise + peak * u2
                                    - 0.5 * accel * u2 * u2,
-                                   gap + speed * (t - t_gap)))))
+                                   s_gap + speed * (t - t_gap)))))
     return np.asarray(s, dtype=np.float64)
 
 
