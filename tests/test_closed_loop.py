@@ -902,6 +902,8 @@ def test_push_approach_is_checked_and_robots_get_theirs() -> None:
     for name in ("max_replans", "max_speed", "clearance"):
         with pytest.raises(InputError, match=name):
             ControlConfig(**{name: True})  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="correct_position"):
+        ControlConfig(correct_position="no")  # type: ignore[arg-type]
 
 
 def test_a_guarded_push_faded_in_from_rest_keeps_its_bounds() -> None:

@@ -222,10 +222,14 @@ class ControlConfig:
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            if name == "correct_position" or (name in ("align_tol", "transit_accel",
-                                                         "follow_depth", "push_approach")
-                                              and value is None):
-                continue  # (a switch, or a setting left to its default)
+            if name == "correct_position":  # the one switch
+                if not isinstance(value, bool):
+                    raise InputError(f"control setting correct_position must be True or "
+                                     f"False, got {value!r}")
+                continue
+            if name in ("align_tol", "transit_accel", "follow_depth",
+                        "push_approach") and value is None:
+                continue  # (left to its default)
             # (a bool is a number to Python: True would read as 1)
             ok = (isinstance(value, (int, float)) and not isinstance(value, bool)
                   and math.isfinite(value) and value >= 0)
