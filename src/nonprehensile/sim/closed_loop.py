@@ -1138,21 +1138,16 @@ def _push(sim: Simulator, run: _Runner, cfg: ControlConfig, push: Any, speed: fl
 
     The slide and turn corrections differ only in their speeds, lengths and stopping rules.
     """
-    if not cfg.push_approach:  # (None or 0: the constant-speed push)
-        n = round(length / speed / run.dt) + 1
-        s = np.arange(n) * run.dt * speed
-        max_time = length / speed + 0.5
-    else:
-        # across the clearance to the face quickly, then at the push's speed (a guarded
-        # move); the face is where it was observed, so the slow part begins PUSH_MARGIN
-        # before it
-        # (at its own speed through the cross-fade from rest, which a speed change would
-        # overshoot)
-        s = guarded_push(length, max(cfg.clearance - PUSH_MARGIN, 0.0), speed, dt=run.dt,
-                         fast=cfg.push_approach, accel=min(PUSH_ACCEL, cfg.max_accel),
-                         hold=CROSSFADE)
-        n = len(s)
-        max_time = n * run.dt + 0.5
+    # with ``push_approach``, across the clearance to the face quickly (a guarded move: at
+    # its own speed through the cross-fade from rest, which a speed change would overshoot;
+    # slow again PUSH_MARGIN before the face as observed); without (None or 0), the
+    # constant-speed push, which ``guarded_push`` gives when there is nothing to speed up to
+    s = guarded_push(length, max(cfg.clearance - PUSH_MARGIN, 0.0), speed, dt=run.dt,
+                     fast=cfg.push_approach or 0.0, accel=min(PUSH_ACCEL, cfg.max_accel),
+                     hold=CROSSFADE)
+    n = len(s)
+    # (the constant-speed push's timeout as it always was: the same records)
+    max_time = n * run.dt + 0.5 if cfg.push_approach else length / speed + 0.5
     path = np.repeat(run.command[None], n, axis=0)
     path[:, finger - 1] = push.start[None] + s[:, None] * push.direction[None]
     dec = run.drive(run._crossfade(np.array([run.command]), 0, path), react=react,
