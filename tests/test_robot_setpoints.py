@@ -211,6 +211,56 @@ def test_the_torque_budget_counts_the_implicit_integrators_inertia() -> None:
     np.testing.assert_allclose(drv._implicit[5], 1e-3 * (200.0 + 0.5))
 
 
+def test_the_acceleration_feed_forward_is_the_torque_the_acceleration_takes() -> None:
+    """The position set points' offset times each servo's stiffness is the force the set
+    points' joint acceleration takes under the scene's implicit integrator, ``(M + h D)
+    a``. Truth: MuJoCo's discrete-time inverse dynamics at that acceleration less at none
+    (the Coriolis, damping and gravity forces cancel), at a moving state, and the bundled
+    Panda's published gains (``panda.KP``)."""
+    from nonprehensile.sim.panda import KP
+
+    sim, drv = _placed()
+    m, d = sim.model, sim.data
+    dof = sim.scene.dadr
+    d.qvel[dof] = [0.3, -0.2, 0.5, 0.4, 1.5, 2.0, 0.3]
+    mujoco.mj_forward(m, d)
+    acc = np.array([3.0, 5.0, -4.0, -5.0, 10.0, 30.0, 2.0])
+    torque = _inverse(m, d, dof, acc) - _inverse(m, d, dof, np.zeros(7))
+    np.testing.assert_allclose(drv._accel_offset(acc) * np.array(KP), torque, rtol=1e-9,
+                               atol=1e-9)
+
+
+def _smooth(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """``n`` targets from ``a`` to ``b`` from rest to rest (a cosine ramp), shape (n, 1, 3)."""
+    s = (0.5 - 0.5 * np.cos(np.pi * np.linspace(0.0, 1.0, n)))[:, None]
+    return np.asarray((a + s * (b - a))[:, None, :])
+
+
+def test_the_acceleration_feed_forward_takes_out_the_servos_lag() -> None:
+    """An 18 cm move from rest to rest in half a second (0.57 m/s at its peak, 3.5 m/s^2):
+    with the acceleration fed forward the fingertip stays within 1 mm of its command, and
+    within half the error of the same servos without it (measured 0.75 against 2.1 mm; the
+    servos took the torque from their error, a lag of 4-5 ms). Truth: MuJoCo's tip site
+    against the command."""
+    worst = {}
+    for ff in (True, False):
+        sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                             params=SimParams(), accel_feedforward=ff)
+        _drive(sim, _smooth(np.array([0.30, 0.05, 0.12]), np.array([0.40, 0.20, 0.10]), 501),
+               hold=200)
+        worst[ff] = float(sim.robot_log.error.max())
+        assert sim.describe()["controller"]["acceleration_feedforward"] is ff
+    assert worst[True] < 1e-3
+    assert worst[True] < 0.5 * worst[False]
+
+
+@pytest.mark.parametrize("bad", [1, 0, "yes", None])
+def test_the_acceleration_feed_forward_switch_is_a_bool(bad: object) -> None:
+    with pytest.raises(InputError, match="accel_feedforward is True or False"):
+        RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                       accel_feedforward=bad)  # type: ignore[arg-type]
+
+
 def test_the_torque_budget_lets_a_joint_brake_short_of_its_range() -> None:
     """The wrist runs at 2 rad/s towards its upper end, 60 mrad from the IK's margin
     inside it, and the IK brakes it at 60 rad/s^2: the budget alone would scale that to

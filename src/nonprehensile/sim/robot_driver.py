@@ -9,7 +9,9 @@ open loop, which observes nothing, the simulation's; a precomputed joint path wo
 object where it was, not where it is). Each row holds,
 for every joint, the position servo's set point (the IK's joint positions) and the velocity
 servo's (the IK's joint velocities: feed-forward, so the arm does not lag its set points);
-gravity is compensated through the actuators (:mod:`nonprehensile.sim.robot_scene`).
+the torque of the set points' acceleration is fed forward through the position set points
+(:meth:`RobotArms._accel_offset`), and gravity is compensated through the actuators
+(:mod:`nonprehensile.sim.robot_scene`).
 
 :class:`RobotLog` records, every control step, the fingertip tracking error, joint positions,
 velocities and actuator torques, whether a fingertip touches the object, whether a link or the
@@ -701,6 +703,13 @@ class RobotArms:
         self._ma_full = np.zeros(nv)
         self._damping = np.array(m.dof_damping[scene.dadr])
         self._implicit = _implicit_inertia(m, scene.dadr)
+        # the set points' acceleration feed-forward (_accel_offset): on, and each position
+        # servo's stiffness on its joint (N m/rad: the gain times the gear, as the servo's
+        # force ``kp (ctrl - gear q)`` acts on the joint times the gear, the set points
+        # being joint positions)
+        self.accel_feedforward = True
+        self._kp_joint = np.array([float(m.actuator_gainprm[a, 0]) * float(m.actuator_gear[a, 0])
+                                   for a in scene.pos_act])
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
         self._damping_list: list[float] = self._damping.tolist()
         self._lower_list: list[float] = np.asarray(scene.lower, dtype=np.float64).tolist()
@@ -877,7 +886,10 @@ class RobotArms:
         hull (a cubic through the same points overshot inside a period). Rows past the
         trajectory's end (``j >= len``, :meth:`_OnlineControls.hold`) hold its last target:
         the spline comes to rest on it, and once it has, nothing more is solved. At 1 kHz the
-        last row's velocity is zero and a hold keeps that row."""
+        last row's velocity is zero and a hold keeps that row. Below 1 kHz the position set
+        points sent to the servos carry the acceleration feed-forward of the period
+        (:meth:`_accel_offset`; the log's ``q_ref`` is the spline without it); at 1 kHz, where
+        the IK's velocities come one solve at a time, there is none."""
         targets = ctl.targets
         n = len(targets)
         last = n - 1
@@ -894,6 +906,7 @@ class RobotArms:
         t0 = self.log.n
         noise_j = None if ctl.noise is None else ctl.noise[min(j, last)]
         solved = True
+        ff: FloatArray | None = None  # the acceleration feed-forward (with the spline only)
         if self.every == 1:
             k = 1
             if j >= n and self._last is not None:
@@ -942,6 +955,8 @@ class RobotArms:
                 basis = self._basis[k] = (tau, tau * tau / (2.0 * h), tau / h)
             a, b, c = basis
             dv = v1 - v0
+            if self.accel_feedforward and solved:  # (a hold at rest accelerates nothing)
+                ff = self._accel_offset(dv / h)
             # (columns ``a``, ``b``, ``c`` broadcast against the rows: the same products)
             q = s0 + a * v0 + b * dv
             qd = v0 + c * dv
@@ -954,6 +969,8 @@ class RobotArms:
                 else np.repeat(self._ctrl[None, :], k, axis=0))
         rows[:, self._pos_cols] = (qk if ctl.noise is None
                                    else qk + self._noise_offset(ctl.noise[idx]))
+        if ff is not None:  # the torque the period's acceleration takes (_accel_offset)
+            rows[:, self._pos_cols] += ff
         rows[:, self._vel_cols] = np.maximum(np.minimum(qdk, self._vel_max), self._vel_min)
         # the log's set points and targets of the period, written once (a period replaced
         # before its end is overwritten from where it stopped); the give, the force and the
@@ -971,6 +988,32 @@ class RobotArms:
             log._force[t0] = self._force_now
         log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times and solved else math.nan
         return _Segment(j, rows, q, qd)
+
+    def _accel_offset(self, acc: FloatArray) -> FloatArray:
+        """The acceleration feed-forward: the offset of the position set points (rad, shape
+        (n_joints,)) whose servo force is the torque the set points' joint acceleration
+        ``acc`` (rad/s^2, shape (n_joints,): the spline's, constant over a control period)
+        takes, ``K_p^-1 (M(q) + h D) qdd_ref`` (the mass matrix at the arm's state now, and
+        the inertia the physics' implicit integration adds, :func:`_implicit_inertia`, as
+        :meth:`_within_torque` counts it).
+
+        The servos' law is then ``tau = K_p (q_ref - q) + K_v (qd_ref - qd) + (M + h D)
+        qdd_ref + g(q)``: the computed-torque feed-forward of an industrial joint
+        controller, put through the position servos (a user's robot need have nothing but
+        position and velocity servos). Without it the servos took that torque from the
+        error ``q_ref - q``: at the Panda's ``K_p`` 2000-4500 N m/rad the fingertip lagged
+        its command by 4-5 ms in free motion (1.3-2 mm median at 0.1-0.5 m/s, measured in a
+        two-arm tumble-twist), and the two-arm tumbles tracked 3.7-6.3 mm in contact
+        against 1.7-2.3 mm with it (docs/benchmarks.md). Coriolis and centrifugal torques
+        are left out (a few tenths of a N m at these speeds); gravity the actuators
+        compensate. The torque budget (:meth:`_within_torque`) already bounds the period's
+        acceleration by this same torque."""
+        d, m = self.data, self.scene.model
+        full = self._acc_full
+        full[self._dsl] = acc
+        mujoco.mj_mulM(m, d, self._ma_full, full)
+        need = self._ma_full[self._dsl] + self._implicit * acc
+        return np.asarray(need / self._kp_joint, dtype=np.float64)
 
     def _within_torque(self, v0: FloatArray, v1: FloatArray, h: float,
                        q0: FloatArray | None = None) -> FloatArray:

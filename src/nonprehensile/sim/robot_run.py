@@ -256,6 +256,12 @@ class RobotSimulator(Simulator):
         each observation (:meth:`~nonprehensile.control.StepMonitor.pointing`; references
         without knuckle markers, transits, let-goes, follow-throughs, recoveries and open
         loop keep the rule). Measured: docs/robot.md, "The finger's direction".
+    accel_feedforward : bool
+        Whether the servos are given the torque of the set points' acceleration, ``(M(q) +
+        h D) qdd_ref``, through their position set points (the computed-torque
+        feed-forward: :meth:`~nonprehensile.sim.robot_driver.RobotArms._accel_offset`; on
+        by default, at a control rate below the physics rate). Off, the servos take that
+        torque from their error: the fingertip lagged its command by 4-5 ms.
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
@@ -266,7 +272,10 @@ class RobotSimulator(Simulator):
                  tracking_bound: float | None = None,
                  compliance: bool = False, radius_offset: bool = False,
                  press_depth: float | str | None = "auto",
-                 press_correction: bool = True, finger_direction: str = "lean") -> None:
+                 press_correction: bool = True, finger_direction: str = "lean",
+                 accel_feedforward: bool = True) -> None:
+        if not isinstance(accel_feedforward, bool):
+            raise InputError(f"accel_feedforward is True or False, got {accel_feedforward!r}")
         if force_limit is not None and not compliance:
             # before the force-limited command, force_limit alone made the tip yield: a call
             # written then must not now run the stiff arm without a word
@@ -315,6 +324,7 @@ class RobotSimulator(Simulator):
         self.robot_driver.tracking_bound = bound
         self.robot_driver.finger_radius = params.finger_radius
         self.robot_driver.finger_direction = finger_direction
+        self.robot_driver.accel_feedforward = accel_feedforward
         self._body = self.judge.body
         self._qadr = self.judge.qadr
         self._dadr = self.judge.dadr
@@ -374,7 +384,8 @@ class RobotSimulator(Simulator):
         fingertips' command (``finger_command``: the force-limited command's switch, virtual
         finger and tracking correction) and where the IK's object pose comes from."""
         doc = describe_robots(self.arms, self.scene, self.params, self.ik_config,
-                              self.robot_driver.every)
+                              self.robot_driver.every,
+                              accel_feedforward=self.robot_driver.accel_feedforward)
         drv = self.robot_driver
         doc["finger_command"] = {
             "compliance": drv.compliance,
@@ -400,9 +411,13 @@ class RobotSimulator(Simulator):
 
 def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
                     ik_config: IKConfig,
-                    control_every: int = DEFAULT_CONTROL_EVERY) -> dict[str, Any]:
-    """The robots, base poses, controller, gains, rates and limits of a robot scene (JSON)."""
+                    control_every: int = DEFAULT_CONTROL_EVERY, *,
+                    accel_feedforward: bool = True) -> dict[str, Any]:
+    """The robots, base poses, controller, gains, rates and limits of a robot scene (JSON);
+    ``accel_feedforward``: whether the servos get the set points' acceleration torque
+    (:class:`RobotSimulator`'s switch; it runs only below the physics rate)."""
     m, sc = scene.model, scene
+    ff = accel_feedforward and control_every > 1
     joints = []
     for j, name in enumerate(sc.joint_names):
         pa, va = int(sc.pos_act[j]), int(sc.vel_act[j])
@@ -419,9 +434,17 @@ def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
         "robots": [{"robot": a.robot.to_dict(), "base": a.base.to_dict(),
                     "prefix": f"arm{i}/"} for i, a in enumerate(arms)],
         "controller": {
-            "kind": "joint position servo + velocity feed-forward + gravity compensation",
-            "law": "tau = kp (q_ref - q) + kv (qd_ref - qd) + g(q), clamped to the torque "
-                   "limit",
+            "kind": "joint position servo + velocity feed-forward + gravity compensation"
+                    + (" + acceleration feed-forward" if ff else ""),
+            "law": ("tau = kp (q_ref - q) + kv (qd_ref - qd) + (M(q) + h D) qdd_ref + g(q), "
+                    "clamped to the torque limit; qdd_ref: the set points' acceleration "
+                    "(constant over a control period: the quadratic spline's), M: the mass "
+                    "matrix, h D: the physics step times the joint damping and velocity "
+                    "gains (the implicit integrator's added inertia); the acceleration term "
+                    "is sent as a position set-point offset of K_p^-1 (M + h D) qdd_ref" if ff
+                    else "tau = kp (q_ref - q) + kv (qd_ref - qd) + g(q), clamped to the "
+                    "torque limit"),
+            "acceleration_feedforward": ff,
             "ik": "mink differential IK (daqp), one solve per control step",
             "ik_config": ik_config.to_dict(),
         },
