@@ -738,11 +738,15 @@ def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
     for arms in (one, two):
         fc = RobotSimulator(CUBE, arms, scale=SCALE).describe()["finger_command"]
         d = SweepRobot(tuple(arms)).to_dict()
-        assert [d[k] for k in ("tracking_gain_per_s", "tracking_tangential",
-                               "tracking_bound_m")] == [
-            fc[k] for k in ("tracking_gain_per_s", "tracking_tangential", "tracking_bound_m")]
+        keys = ("tracking_gain_per_s", "tracking_tangential", "tracking_bound_m",
+                "tracking_surface_bound_m")
+        assert [d[k] for k in keys] == [fc[k] for k in keys]
+        sim_ = RobotSimulator(CUBE, arms, scale=SCALE)
+        assert d["accel_feedforward"] is sim_.robot_driver.accel_feedforward is True
     assert SweepRobot(tuple(two)).to_dict()["tracking_tangential"] is True
     assert SweepRobot(tuple(one)).to_dict()["tracking_tangential"] is False
+    assert SweepRobot(tuple(one)).to_dict()["tracking_surface_bound_m"] == 0.0005
+    assert SweepRobot(tuple(two)).to_dict()["tracking_surface_bound_m"] is None
     sim = SweepRobot(tuple(one), compliance=True).simulator(CUBE, SCALE, DEFAULT_PARAMS)
     assert sim.robot_driver.compliance  # type: ignore[attr-defined]
     # a sample's physics sets the virtual finger

@@ -26,6 +26,7 @@ from nonprehensile.sim.robot_driver import REFERENCE_RADIUS, RobotArms  # noqa: 
 from nonprehensile.sim.robot_run import (  # noqa: E402
     PINCH_TRACKING_BOUND,
     PINCH_TRACKING_GAIN,
+    ROBOT_TRACKING_SURFACE_BOUND,
     RobotSimulator,
 )
 from nonprehensile.sim.robot_scene import Arm  # noqa: E402
@@ -421,10 +422,12 @@ def test_contact_correction_in_floats_equals_its_numpy_form(seed: int, arms: int
     and a NaN torque (numpy's maximum is NaN then: the correction grows)."""
     if arms not in _CORRECT_SIMS:
         bases = [BASE, BasePose(0.05, 0.55, -80.0)][:arms]
-        # (the whole error: two fingertips' default is along the surface only, below)
+        # (the whole error, unsplit: two fingertips' default is along the surface only, one
+        # fingertip's bounds the part along the surface, below)
         _CORRECT_SIMS[arms] = RobotSimulator(CUBE, [Arm(Robot.builtin(), b) for b in bases],
                                              scale=SCALE, tracking_gain=20.0,
-                                             tracking_tangential=False)
+                                             tracking_tangential=False,
+                                             tracking_surface_bound=math.inf)
     drv: RobotArms = _CORRECT_SIMS[arms].robot_driver
     d, nf = drv.data, drv.n_fingers
     rng = np.random.default_rng(seed)
@@ -497,6 +500,70 @@ def test_pinch_correction_integrates_the_error_along_the_surface_only(seed: int)
     # 22 mm further, weigh e^-11 beside the pad's own, a 1e-8 m difference at most here)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-7)
     drv._corr[:] = 0.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(seed=st.integers(0, 2**31 - 1))
+def test_one_arms_correction_bounds_its_part_along_the_surface(seed: int) -> None:
+    """One fingertip's contact tracking correction (the default for one: the whole error,
+    its part along the object's surface held within ``ROBOT_TRACKING_SURFACE_BOUND``) on a
+    fingertip pressed into a face of a cube posed by hand (yawed 30 degrees): the update
+    ``start - g e`` keeps its component along the face's normal and has the rest scaled
+    down to the bound. Truth: the face normal from the pose written here, the error from
+    the fingertip and command positions written here."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE)
+    drv = sim.robot_driver
+    assert not drv.tracking_tangential
+    assert drv.tracking_surface_bound == ROBOT_TRACKING_SURFACE_BOUND == 0.0005
+    assert sim.describe()["finger_command"]["tracking_surface_bound_m"] == 0.0005
+    rng = np.random.default_rng(seed)
+    yaw = math.radians(30.0)
+    rot = np.array([[math.cos(yaw), -math.sin(yaw), 0.0],
+                    [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    centre = np.array([0.3, 0.1, 0.025])
+    mid = 0.5 * (CUBE.vertices.min(axis=0) + CUBE.vertices.max(axis=0))
+    drv.see(ObjectPose(rot, centre - SCALE * rot @ mid, centre, SCALE))
+    normal = rot @ np.array([0.0, -1.0, 0.0])
+    tip = centre + (0.025 - 0.002) * normal + rng.uniform(-1e-3, 1e-3, 3)
+    d = sim.data
+    d.site_xpos[drv._tip_sites] = tip[None]
+    d.qfrc_actuator[:] = 0.0  # far below the torque guard
+    size = rng.choice([1e-4, 1e-3, 3e-3])
+    now = tip[None] + rng.normal(0.0, size, (1, 3))
+    start = rng.normal(0.0, 0.0003, (1, 3))
+    drv._corr[:] = start
+    drv._offset[:] = 0.0
+    drv._touch = True
+    got = drv._correct(np.zeros((1, 3)), now, 10, None)
+    c = start[0] - min(drv.tracking_gain * 10 * drv.dt, 1.0) * (tip - now[0])
+    cn = (c @ normal) * normal
+    ct = c - cn
+    if np.linalg.norm(ct) > 0.0005:
+        ct *= 0.0005 / np.linalg.norm(ct)
+    want = cn + ct
+    if np.linalg.norm(want) > drv.tracking_bound:
+        want *= drv.tracking_bound / np.linalg.norm(want)
+    np.testing.assert_allclose(got[0], want, rtol=0, atol=1e-7)
+    assert np.linalg.norm(got[0] - (got[0] @ normal) * normal) <= 0.0005 + 1e-7
+    drv._corr[:] = 0.0
+
+
+@pytest.mark.parametrize("bad", [-0.001, 0.06, math.nan, True, "0.001"])
+def test_the_surface_bound_is_checked(bad: object) -> None:
+    with pytest.raises(InputError, match="tracking_surface_bound is a distance"):
+        RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                       tracking_surface_bound=bad)  # type: ignore[arg-type]
+
+
+def test_the_surface_bound_inf_is_none_and_two_arms_have_none() -> None:
+    one = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                         tracking_surface_bound=math.inf)
+    assert one.robot_driver.tracking_surface_bound == math.inf
+    assert one.describe()["finger_command"]["tracking_surface_bound_m"] is None
+    two = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE),
+                                Arm(Robot.builtin(), BasePose(0.05, 0.55, -80.0))],
+                         scale=SCALE)
+    assert two.robot_driver.tracking_surface_bound == math.inf
 
 
 def test_tracking_options_are_checked() -> None:

@@ -677,9 +677,13 @@ class RobotArms:
         self.tracking_bound = DEFAULT_TRACKING_BOUND
         self.torque_guard = 0.85
         self.release_rate = 50.0
-        # integrate only the error along the object's surface (_correct_tangential; needs
+        # integrate only the error along the object's surface (_correct_by_normal; needs
         # the object's faces: set_shape. RobotSimulator's default with several fingertips)
         self.tracking_tangential = False
+        # the bound of the correction's part along the object's surface (m; inf: none, the
+        # whole correction bounded by tracking_bound alone; _correct_by_normal.
+        # RobotSimulator's default with one fingertip: robot_run.ROBOT_TRACKING_SURFACE_BOUND)
+        self.tracking_surface_bound = math.inf
         self._corr = np.zeros((scene.n_fingers, 3))
         # the finite torque limits by joint (_correct's guard)
         self._torque_limits = [(i, lim) for i, lim in enumerate(
@@ -1510,8 +1514,9 @@ class RobotArms:
         ``tracking_gain`` (1/s; with several fingertips, every fingertip's while any one
         touches: measured better in the two-arm tumbles than a per-fingertip switch,
         ``docs/robot.md``; with ``tracking_tangential``, ``RobotSimulator``'s default for
-        several, only the error's part along the object's surface:
-        :meth:`_correct_tangential`), so the set
+        several, only the error's part along the object's surface; with a finite
+        ``tracking_surface_bound``, ``RobotSimulator``'s default for one, the correction's
+        part along the surface within that bound: :meth:`_correct_by_normal`), so the set
         points lead by what the contact takes. It is bounded by
         ``tracking_bound`` (m), is held (not grown) while any joint's torque is above
         ``torque_guard`` of its limit (a fingertip against an object that does not give
@@ -1539,8 +1544,9 @@ class RobotArms:
             # (with a NaN torque numpy's maximum was NaN, never above the guard: so here)
             guard = top > self.torque_guard and all(r == r for r in ratios)
             cl: list[list[float]] = c.tolist()
-            if not guard and self.tracking_tangential:
-                cl = self._correct_tangential(now, noise, min(gain * dt, 1.0))
+            if not guard and (self.tracking_tangential
+                              or self.tracking_surface_bound < math.inf):
+                cl = self._correct_by_normal(now, noise, min(gain * dt, 1.0))
             elif not guard:
                 src = self._sources
                 tips = (src[3].tolist() if src is not None else
@@ -1571,12 +1577,25 @@ class RobotArms:
                 c[:] = 0.0
         return targets + c
 
-    def _correct_tangential(self, now: FloatArray, noise: FloatArray | None,
+    def _correct_by_normal(self, now: FloatArray, noise: FloatArray | None,
                             g: float) -> list[list[float]]:
-        """The contact correction's update with each fingertip's error along the object's
-        surface only (``tracking_tangential``): the error's component along the object's
-        outward normal at the fingertip (the face normals blended as in :meth:`_tool`, the
-        object where the arm believes it) is left out.
+        """The contact correction's update split by the object's outward normal at each
+        fingertip (the face normals blended as in :meth:`_tool`, the object where the arm
+        believes it): with ``tracking_tangential`` the error's component along the normal
+        is left out (below); with a finite ``tracking_surface_bound`` the correction's part
+        along the surface is held within that bound, its part along the normal kept.
+
+        One arm pushing: the contact force deflects the stiff servos along the normal (the
+        press the correction restores) and, through friction, along the surface. A
+        correction along the surface as large as the normal one held the pad sideways
+        (+2.4 mm across a roll-pull) and the cube ended its roll-pulls 3-4 degrees turned,
+        one more turning push each. Bounded to 0.5 mm along the surface, the 72
+        single-finger cube transitions by one arm at nominal physics simulated 336 s
+        against 392 s (the roll-pulls 24 end-of-plan corrections against 48, the roll-arcs
+        54 against 72) with every one reached and the tracking in contact within 2.8 mm;
+        without a surface part at all (the normal only) 318 s, but the push-rolls tracked
+        up to 3.2 mm (the friction's drag along the face); a surface part of a quarter of
+        the error brought all 48 corrections back (docs/benchmarks.md).
 
         Pinching, the references put each pad 2-8 mm inside the cube: the normal part of
         the error is what no rigid tip can close, and integrated it squeezed the cube
@@ -1586,6 +1605,7 @@ class RobotArms:
         the correction kept: as the pinched faces turn (a twist), part of what was
         integrated along them comes to lie along their normals, up to the bound (projecting
         the whole correction at every update was measured worse: docs/benchmarks.md).
+        The bound along the surface applies to the correction itself, after the update.
 
         Raises
         ------
@@ -1604,8 +1624,19 @@ class RobotArms:
         t, rot = self._believed_pose()
         dist = ((tips - t) @ rot) @ normals.T - offsets  # (n_fingers, faces), m
         nrm, _ = self._blended_normals(dist, rot)
-        e -= (e * nrm).sum(axis=1)[:, None] * nrm
-        out: list[list[float]] = (self._corr - g * e).tolist()
+        if self.tracking_tangential:
+            e -= (e * nrm).sum(axis=1)[:, None] * nrm
+        c = self._corr - g * e
+        sb = self.tracking_surface_bound
+        if sb < math.inf:  # the part along the surface within its bound, the normal kept
+            cn = (c * nrm).sum(axis=1)[:, None] * nrm
+            ct = c - cn
+            n = np.sqrt((ct * ct).sum(axis=1))
+            big = n > sb
+            if big.any():
+                ct[big] *= (sb / n[big])[:, None]
+                c = cn + ct
+        out: list[list[float]] = c.tolist()
         return out
 
     def _tip_forces(self) -> FloatArray:

@@ -10,6 +10,7 @@ robot's own records (tracking error, limits, other contacts, IK time) are in
 
 from __future__ import annotations
 
+import math
 import numbers
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -40,8 +41,9 @@ from nonprehensile.transit import APPROACH_SPEED
 
 __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
            "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_MAX_ACCEL", "ROBOT_PUSH_APPROACH",
-           "ROBOT_TRANSIT_ACCEL",
-           "RobotSimulator", "describe_robots", "resolve_press_depth", "resolve_tracking",
+           "ROBOT_TRACKING_SURFACE_BOUND", "ROBOT_TRANSIT_ACCEL",
+           "RobotSimulator", "describe_robots", "resolve_press_depth", "resolve_surface_bound",
+           "resolve_tracking",
            "robot_control"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
@@ -76,6 +78,19 @@ ROBOT_PUSH_APPROACH = APPROACH_SPEED
 #: ``tracking_gain`` with one fingertip; several fingertips, a pinch, run
 #: :data:`PINCH_TRACKING_GAIN` along the object's surface only).
 DEFAULT_TRACKING_GAIN = 20.0
+
+#: One arm's bound on its contact tracking correction's part along the object's surface, m
+#: (:class:`RobotSimulator`'s ``tracking_surface_bound``; the part along the object's normal,
+#: the press the servos lose to the contact force, keeps ``tracking_bound``). Measured with
+#: the acceleration feed-forward on the 72 single-finger cube transitions at nominal
+#: physics: every one reached, tracking in contact within 2.8 mm (1.2 mm without the bound),
+#: 336 s simulated against 392 s (the roll-pulls' end-of-plan corrections 24 against 48,
+#: the roll-arcs' 54 against 72: a correction along the surface holds the pad sideways and
+#: turns the cube); the robot's CPU against the free fingertip's 2.68x against 3.10x (over
+#: the bar of 3x). The main plan across the distribution 94/100 in seeds 0 and 1 (95 and 94
+#: without). Normal only (0): 318 s, but the push-rolls tracked 3.2 mm; 1 mm: 351 s, 2.4
+#: mm (docs/benchmarks.md).
+ROBOT_TRACKING_SURFACE_BOUND = 0.0005
 
 #: Several fingertips' (a pinch's) contact tracking correction: gain (1/s) and bound (m) of
 #: the correction along the object's surface only (``RobotArms.tracking_tangential``: the
@@ -140,6 +155,25 @@ def resolve_tracking(n_fingers: int, gain: float | None = None,
             pinch if tangential is None else tangential,
             float(bound) if bound is not None
             else PINCH_TRACKING_BOUND if pinch else DEFAULT_TRACKING_BOUND)
+
+
+def resolve_surface_bound(n_fingers: int, bound: float | None = None) -> float:
+    """The bound of the contact tracking correction's part along the object's surface
+    that runs with ``n_fingers`` fingertips, m (``inf``: none): None is the default,
+    :data:`ROBOT_TRACKING_SURFACE_BOUND` with one fingertip and none with several.
+
+    Raises
+    ------
+    InputError
+        A bound that is not a number from 0 to 0.05 m or ``inf`` (NaN, a bool, a string).
+    """
+    if bound is None:
+        return ROBOT_TRACKING_SURFACE_BOUND if n_fingers == 1 else math.inf
+    if not (isinstance(bound, numbers.Real) and not isinstance(bound, (bool, np.bool_))
+            and (0.0 <= float(bound) <= 0.05 or float(bound) == math.inf)):
+        raise InputError(f"tracking_surface_bound is a distance from 0 to 0.05 m, or inf for "
+                         f"none, got {bound!r}")
+    return float(bound)
 
 
 def resolve_press_depth(depth: float | str | None, n_fingers: int) -> float | None:
@@ -231,6 +265,11 @@ class RobotSimulator(Simulator):
     tracking_bound : float, optional
         The correction's bound, m. Default: the driver's 4 mm with one fingertip,
         :data:`PINCH_TRACKING_BOUND` with several.
+    tracking_surface_bound : float, optional
+        The bound of the correction's part along the object's surface, m (its part along
+        the object's normal is kept; ``inf``: none). Default:
+        :data:`ROBOT_TRACKING_SURFACE_BOUND` with one fingertip, none with several (a pinch
+        integrates only that part: ``tracking_tangential``).
     radius_offset : bool
         Move each target near the object out along its normal by the arm's fingertip
         radius minus the references' (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
@@ -273,7 +312,8 @@ class RobotSimulator(Simulator):
                  compliance: bool = False, radius_offset: bool = False,
                  press_depth: float | str | None = "auto",
                  press_correction: bool = True, finger_direction: str = "lean",
-                 accel_feedforward: bool = True) -> None:
+                 accel_feedforward: bool = True,
+                 tracking_surface_bound: float | None = None) -> None:
         if not isinstance(accel_feedforward, bool):
             raise InputError(f"accel_feedforward is True or False, got {accel_feedforward!r}")
         if force_limit is not None and not compliance:
@@ -283,6 +323,7 @@ class RobotSimulator(Simulator):
                              "command's limit: pass compliance=True with it, or drop it")
         # the correction's options checked before the scenes are built (n_fingers later)
         resolve_tracking(1, tracking_gain, tracking_tangential, tracking_bound)
+        resolve_surface_bound(1, tracking_surface_bound)
         check_finger_direction(finger_direction)
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
@@ -322,6 +363,8 @@ class RobotSimulator(Simulator):
         self.robot_driver.press_correction = press_correction
         self.robot_driver.tracking_tangential = tangential
         self.robot_driver.tracking_bound = bound
+        self.robot_driver.tracking_surface_bound = resolve_surface_bound(
+            self.n_fingers, tracking_surface_bound)
         self.robot_driver.finger_radius = params.finger_radius
         self.robot_driver.finger_direction = finger_direction
         self.robot_driver.accel_feedforward = accel_feedforward
@@ -398,6 +441,10 @@ class RobotSimulator(Simulator):
             # the correction along the object's surface only (True) or whole, and its bound
             "tracking_tangential": bool(drv.tracking_tangential),
             "tracking_bound_m": float(drv.tracking_bound),
+            # the bound of its part along the object's surface (None: none)
+            "tracking_surface_bound_m": (float(drv.tracking_surface_bound)
+                                         if math.isfinite(drv.tracking_surface_bound)
+                                         else None),
             # the contact-consistent command's bound (None: the references as they are)
             "press_depth_m": drv.press_depth,
             "press_correction": bool(drv.press_correction),

@@ -484,12 +484,17 @@ class SweepRobot:
 
     def tracking(self) -> dict[str, Any]:
         """The contact tracking correction the arms run (the scene's defaults by the number
-        of fingertips): gain, whether along the object's surface only, and bound."""
-        from nonprehensile.sim.robot_run import resolve_tracking
+        of fingertips): gain, whether along the object's surface only, bound, and the bound
+        of its part along the surface (None: none); and whether the servos get the set
+        points' acceleration torque (the scene's default: on)."""
+        from nonprehensile.sim.robot_run import resolve_surface_bound, resolve_tracking
 
         gain, tangential, bound = resolve_tracking(self.n_fingers)
+        surface = resolve_surface_bound(self.n_fingers)
         return {"tracking_gain_per_s": gain, "tracking_tangential": tangential,
-                "tracking_bound_m": bound}
+                "tracking_bound_m": bound,
+                "tracking_surface_bound_m": surface if math.isfinite(surface) else None,
+                "accel_feedforward": True}
 
     @property
     def press_depth_m(self) -> float | None:
