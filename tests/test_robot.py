@@ -741,8 +741,13 @@ def test_compliance_is_off_by_default_and_a_sweep_says_which() -> None:
         keys = ("tracking_gain_per_s", "tracking_tangential", "tracking_bound_m",
                 "tracking_surface_bound_m")
         assert [d[k] for k in keys] == [fc[k] for k in keys]
-        sim_ = RobotSimulator(CUBE, arms, scale=SCALE)
-        assert d["accel_feedforward"] is sim_.robot_driver.accel_feedforward is True
+    # ... and whether the servos get the acceleration feed-forward: as the scene says it
+    # runs, below the physics rate only
+    for every in (10, 1):
+        d = SweepRobot(tuple(one), control_every=every).to_dict()
+        ctl = RobotSimulator(CUBE, one, scale=SCALE, control_every=every).describe()[
+            "controller"]
+        assert d["acceleration_feedforward"] is ctl["acceleration_feedforward"] is (every > 1)
     assert SweepRobot(tuple(two)).to_dict()["tracking_tangential"] is True
     assert SweepRobot(tuple(one)).to_dict()["tracking_tangential"] is False
     assert SweepRobot(tuple(one)).to_dict()["tracking_surface_bound_m"] == 0.0005

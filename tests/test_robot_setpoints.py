@@ -255,6 +255,45 @@ def test_the_acceleration_feed_forward_takes_out_the_servos_lag() -> None:
     assert worst[True] < 0.5 * worst[False]
 
 
+@pytest.mark.parametrize("every", [10, 1])
+def test_the_servos_get_the_set_points_plus_the_periods_acceleration_torque(every: int) -> None:
+    """Row by row, the position servos' set points sent are the log's set points plus, below
+    the physics rate, the torque of the control period's acceleration over each servo's
+    stiffness (the acceleration: the spline's, from the logged velocity set points). Truth:
+    MuJoCo's discrete-time inverse dynamics at the state the row is sent from, and the
+    Panda's published gains. At 1 kHz the rows are the set points themselves."""
+    from nonprehensile.sim.panda import KP
+
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                         control_every=every)
+    m, d, drv = sim.model, sim.data, sim.robot_driver
+    targets = _smooth(np.array([0.30, 0.05, 0.12]), np.array([0.38, 0.16, 0.10]), 301)
+    ctl = drv.controls(targets)
+    drv.place(d, ctl[0])
+    mujoco.mj_forward(m, d)
+    pos, dof, log = sim.scene.pos_act, sim.scene.dadr, drv.log
+    dt = sim.params.timestep
+    worst = 0.0
+    for i in range(1, len(targets)):
+        row = np.array(ctl[i])
+        sent = row[pos] - log.q_ref[-1]
+        if every == 1:
+            assert np.array_equal(row[pos], log.q_ref[-1])
+        else:
+            n = log.n
+            acc = (log._qd_ref[n] - log._qd_ref[n - 1]) / dt  # constant over the period
+            if (n - 1) % every == 0:  # the period's first row: the state it was solved at
+                want = (_inverse(m, d, dof, acc) - _inverse(m, d, dof, np.zeros(7))) / KP
+            # (the driver reads the mass matrix MuJoCo computed at the last step's start, a
+            # physics step before this state: a few 1e-4 of the largest term at these speeds)
+            np.testing.assert_allclose(sent, want, rtol=0,
+                                       atol=2e-3 * float(np.abs(want).max()) + 1e-12)
+            worst = max(worst, float(np.abs(sent).max()))
+        d.ctrl[:] = row
+        mujoco.mj_step(m, d)
+    assert every == 1 or worst > 1e-4  # the move did accelerate the set points
+
+
 @pytest.mark.parametrize("bad", [1, 0, "yes", None])
 def test_the_acceleration_feed_forward_switch_is_a_bool(bad: object) -> None:
     with pytest.raises(InputError, match="accel_feedforward is True or False"):
@@ -502,7 +541,10 @@ def test_pinch_correction_integrates_the_error_along_the_surface_only(seed: int)
     drv._corr[:] = 0.0
 
 
-@settings(max_examples=60, deadline=None)
+_SURFACE_SIMS: dict[bool, RobotSimulator] = {}
+
+
+@settings(max_examples=80, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_one_arms_correction_bounds_its_part_along_the_surface(seed: int) -> None:
     """One fingertip's contact tracking correction (the default for one: the whole error,
@@ -511,12 +553,16 @@ def test_one_arms_correction_bounds_its_part_along_the_surface(seed: int) -> Non
     ``start - g e`` keeps its component along the face's normal and has the rest scaled
     down to the bound. Truth: the face normal from the pose written here, the error from
     the fingertip and command positions written here."""
-    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE)
+    rng = np.random.default_rng(seed)
+    along = bool(rng.random() < 0.25)  # the surface-only rule, with the bound asked for
+    sim = (_SURFACE_SIMS[along] if along in _SURFACE_SIMS else _SURFACE_SIMS.setdefault(
+        along, RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                              tracking_tangential=True, tracking_surface_bound=0.0005)
+        if along else RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE)))
     drv = sim.robot_driver
-    assert not drv.tracking_tangential
+    assert drv.tracking_tangential is along
     assert drv.tracking_surface_bound == ROBOT_TRACKING_SURFACE_BOUND == 0.0005
     assert sim.describe()["finger_command"]["tracking_surface_bound_m"] == 0.0005
-    rng = np.random.default_rng(seed)
     yaw = math.radians(30.0)
     rot = np.array([[math.cos(yaw), -math.sin(yaw), 0.0],
                     [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
@@ -531,11 +577,16 @@ def test_one_arms_correction_bounds_its_part_along_the_surface(seed: int) -> Non
     size = rng.choice([1e-4, 1e-3, 3e-3])
     now = tip[None] + rng.normal(0.0, size, (1, 3))
     start = rng.normal(0.0, 0.0003, (1, 3))
+    if rng.random() < 0.3:  # a press already near the whole bound: the 4 mm bound acts
+        start[0] -= rng.uniform(0.0035, 0.0045) * normal
     drv._corr[:] = start
     drv._offset[:] = 0.0
     drv._touch = True
     got = drv._correct(np.zeros((1, 3)), now, 10, None)
-    c = start[0] - min(drv.tracking_gain * 10 * drv.dt, 1.0) * (tip - now[0])
+    e = tip - now[0]
+    if along:  # the error's part along the normal left out first
+        e = e - (e @ normal) * normal
+    c = start[0] - min(drv.tracking_gain * 10 * drv.dt, 1.0) * e
     cn = (c @ normal) * normal
     ct = c - cn
     if np.linalg.norm(ct) > 0.0005:
@@ -556,10 +607,15 @@ def test_the_surface_bound_is_checked(bad: object) -> None:
 
 
 def test_the_surface_bound_inf_is_none_and_two_arms_have_none() -> None:
+    """``inf`` is no bound, said as None; a correction along the surface only (two arms', or
+    one arm's asked for) has none by default: bounded to 0.5 mm it would be nearly off."""
     one = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
                          tracking_surface_bound=math.inf)
     assert one.robot_driver.tracking_surface_bound == math.inf
     assert one.describe()["finger_command"]["tracking_surface_bound_m"] is None
+    along = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
+                           tracking_tangential=True)
+    assert along.robot_driver.tracking_surface_bound == math.inf
     two = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE),
                                 Arm(Robot.builtin(), BasePose(0.05, 0.55, -80.0))],
                          scale=SCALE)

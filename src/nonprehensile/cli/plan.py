@@ -132,7 +132,10 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
     meta["finger_direction"] = direction
     meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
                     "the object at each step's planned start pose; `simulate plan --robot` "
-                    "executes it in physics")
+                    "executes it in physics. The CSV holds the IK's joint positions and "
+                    "velocities; the controller's acceleration feed-forward "
+                    "(controller.acceleration_feedforward) is the executing controller's own, "
+                    "computed from its model as it runs, not written here")
     doc["robot"] = meta
     written = list(write_joint_trajectories(trajectories, out_dir, meta))
     if placement is not None:  # searched: the reachability map of each arm's search

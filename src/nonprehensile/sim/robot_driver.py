@@ -464,6 +464,20 @@ def _implicit_inertia(m: Any, dofs: NDArray[np.int64]) -> FloatArray:
     return out * float(m.opt.timestep)
 
 
+def _servo_stiffness(m: Any, act: int) -> float:
+    """A position servo's stiffness on its joint, N m/rad: ``kp`` times the gear (its force
+    ``kp (ctrl - gear q)`` acts on the joint times the gear, and an offset of ``ctrl`` gives
+    ``gear kp`` times it), for a plain servo (no activation dynamics, a fixed gain, an
+    affine bias); ``inf`` for any other, so that the acceleration feed-forward
+    (:meth:`RobotArms._accel_offset`) offsets its set point by nothing: a servo with a time
+    constant would deliver the offset late, and another gain law is not ``kp``."""
+    plain = (int(m.actuator_dyntype[act]) == int(mujoco.mjtDyn.mjDYN_NONE)
+             and int(m.actuator_gaintype[act]) == int(mujoco.mjtGain.mjGAIN_FIXED)
+             and int(m.actuator_biastype[act]) == int(mujoco.mjtBias.mjBIAS_AFFINE))
+    k = float(m.actuator_gainprm[act, 0]) * float(m.actuator_gear[act, 0])
+    return k if plain and k > 0.0 else math.inf
+
+
 def _longest_run(flags: NDArray[np.bool_]) -> int:
     """Length of the longest run of True in ``flags`` (shape (n,)).
 
@@ -712,8 +726,9 @@ class RobotArms:
         # force ``kp (ctrl - gear q)`` acts on the joint times the gear, the set points
         # being joint positions)
         self.accel_feedforward = True
-        self._kp_joint = np.array([float(m.actuator_gainprm[a, 0]) * float(m.actuator_gear[a, 0])
-                                   for a in scene.pos_act])
+        self._kp_joint = np.array([_servo_stiffness(m, int(a)) for a in scene.pos_act])
+        # no joint's offset torque beyond what the joint can give at all (N m)
+        self._ff_torque_max = np.where(np.isfinite(scene.torque), scene.torque, np.inf)
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
         self._damping_list: list[float] = self._damping.tolist()
         self._lower_list: list[float] = np.asarray(scene.lower, dtype=np.float64).tolist()
@@ -1006,17 +1021,25 @@ class RobotArms:
         controller, put through the position servos (a user's robot need have nothing but
         position and velocity servos). Without it the servos took that torque from the
         error ``q_ref - q``: at the Panda's ``K_p`` 2000-4500 N m/rad the fingertip lagged
-        its command by 4-5 ms in free motion (1.3-2 mm median at 0.1-0.5 m/s, measured in a
-        two-arm tumble-twist), and the two-arm tumbles tracked 3.7-6.3 mm in contact
-        against 1.7-2.3 mm with it (docs/benchmarks.md). Coriolis and centrifugal torques
-        are left out (a few tenths of a N m at these speeds); gravity the actuators
-        compensate. The torque budget (:meth:`_within_torque`) already bounds the period's
-        acceleration by this same torque."""
+        its command by 4-5 ms in free motion (1.3-2.1 mm median at 0.2-0.5 m/s, measured in
+        a two-arm tumble-twist), and the two-arm tumbles tracked up to 3.1 mm (tumble-lift)
+        and 6.3 mm (tumble-twist) in contact against 1.8 and 2.3 mm with it
+        (docs/benchmarks.md). Coriolis and centrifugal torques are left out (a few tenths of
+        a N m at these speeds); gravity the actuators compensate. The torque budget
+        (:meth:`_within_torque`) scales the period's acceleration so that this torque stays
+        within a share of each joint's limit, but not always (its floor, a joint whose bias
+        alone is past the share, the budget off): the offset's torque is clipped to the
+        joint's limit itself. A joint whose position servo is not a plain one (activation
+        dynamics, a gain that is not fixed: :func:`_servo_stiffness`) gets none. The torque
+        steps at each period's boundary as the spline's acceleration does (a ramp over the
+        period, which delays it, was measured worse: an 11 ms torque limit in the two-arm
+        transitions against 10 ms)."""
         d, m = self.data, self.scene.model
         full = self._acc_full
         full[self._dsl] = acc
         mujoco.mj_mulM(m, d, self._ma_full, full)
-        need = self._ma_full[self._dsl] + self._implicit * acc
+        lim = self._ff_torque_max
+        need = np.clip(self._ma_full[self._dsl] + self._implicit * acc, -lim, lim)
         return np.asarray(need / self._kp_joint, dtype=np.float64)
 
     def _within_torque(self, v0: FloatArray, v1: FloatArray, h: float,
@@ -1614,8 +1637,10 @@ class RobotArms:
         """
         planes = self._planes
         if planes is None:
-            raise InputError("tracking_tangential needs the object's faces: call "
-                             "RobotArms.set_shape first (RobotSimulator does)")
+            raise InputError("the contact correction split by the object's normal "
+                             "(tracking_tangential, tracking_surface_bound) needs the "
+                             "object's faces: call RobotArms.set_shape first "
+                             "(RobotSimulator does)")
         tips = self.tips(self.data)
         e = tips - (now + self._offset)
         if noise is not None:

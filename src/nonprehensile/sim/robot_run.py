@@ -80,16 +80,17 @@ ROBOT_PUSH_APPROACH = APPROACH_SPEED
 DEFAULT_TRACKING_GAIN = 20.0
 
 #: One arm's bound on its contact tracking correction's part along the object's surface, m
-#: (:class:`RobotSimulator`'s ``tracking_surface_bound``; the part along the object's normal,
-#: the press the servos lose to the contact force, keeps ``tracking_bound``). Measured with
+#: (:class:`RobotSimulator`'s ``tracking_surface_bound``, applied after each update; the part
+#: along the object's normal, the press the servos lose to the contact force, is kept, and
+#: the whole correction then keeps ``tracking_bound``). Measured with
 #: the acceleration feed-forward on the 72 single-finger cube transitions at nominal
 #: physics: every one reached, tracking in contact within 2.8 mm (1.2 mm without the bound),
-#: 336 s simulated against 392 s (the roll-pulls' end-of-plan corrections 24 against 48,
+#: 335.7 s simulated against 391.8 s (the roll-pulls' end-of-plan corrections 24 against 48,
 #: the roll-arcs' 54 against 72: a correction along the surface holds the pad sideways and
-#: turns the cube); the robot's CPU against the free fingertip's 2.68x against 3.10x (over
-#: the bar of 3x). The main plan across the distribution 94/100 in seeds 0 and 1 (95 and 94
-#: without). Normal only (0): 318 s, but the push-rolls tracked 3.2 mm; 1 mm: 351 s, 2.4
-#: mm (docs/benchmarks.md).
+#: turns the cube); the robot's CPU against the free fingertip's 2.70-2.72x against
+#: 3.09-3.10x (over the bar of 3x). The main plan across the distribution 94/100 in seeds
+#: 0 and 1 (95 and 94 without). Normal only (0): 318 s, but the push-rolls tracked 3.2 mm;
+#: 1 mm: 351 s, 2.4 mm (docs/benchmarks.md).
 ROBOT_TRACKING_SURFACE_BOUND = 0.0005
 
 #: Several fingertips' (a pinch's) contact tracking correction: gain (1/s) and bound (m) of
@@ -158,10 +159,13 @@ def resolve_tracking(n_fingers: int, gain: float | None = None,
             else PINCH_TRACKING_BOUND if pinch else DEFAULT_TRACKING_BOUND)
 
 
-def resolve_surface_bound(n_fingers: int, bound: float | None = None) -> float:
+def resolve_surface_bound(n_fingers: int, bound: float | None = None,
+                          tangential: bool = False) -> float:
     """The bound of the contact tracking correction's part along the object's surface
     that runs with ``n_fingers`` fingertips, m (``inf``: none): None is the default,
-    :data:`ROBOT_TRACKING_SURFACE_BOUND` with one fingertip and none with several.
+    :data:`ROBOT_TRACKING_SURFACE_BOUND` with one fingertip whose correction integrates the
+    whole error, none otherwise (several fingertips; or a ``tangential`` correction, which
+    integrates the surface part only: bounded to 0.5 mm it would be nearly off).
 
     Raises
     ------
@@ -169,7 +173,7 @@ def resolve_surface_bound(n_fingers: int, bound: float | None = None) -> float:
         A bound that is not a number from 0 to 0.05 m or ``inf`` (NaN, a bool, a string).
     """
     if bound is None:
-        return ROBOT_TRACKING_SURFACE_BOUND if n_fingers == 1 else math.inf
+        return ROBOT_TRACKING_SURFACE_BOUND if n_fingers == 1 and not tangential else math.inf
     if not (isinstance(bound, numbers.Real) and not isinstance(bound, (bool, np.bool_))
             and (0.0 <= float(bound) <= 0.05 or float(bound) == math.inf)):
         raise InputError(f"tracking_surface_bound is a distance from 0 to 0.05 m, or inf for "
@@ -266,11 +270,6 @@ class RobotSimulator(Simulator):
     tracking_bound : float, optional
         The correction's bound, m. Default: the driver's 4 mm with one fingertip,
         :data:`PINCH_TRACKING_BOUND` with several.
-    tracking_surface_bound : float, optional
-        The bound of the correction's part along the object's surface, m (its part along
-        the object's normal is kept; ``inf``: none). Default:
-        :data:`ROBOT_TRACKING_SURFACE_BOUND` with one fingertip, none with several (a pinch
-        integrates only that part: ``tracking_tangential``).
     radius_offset : bool
         Move each target near the object out along its normal by the arm's fingertip
         radius minus the references' (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
@@ -302,6 +301,13 @@ class RobotSimulator(Simulator):
         feed-forward: :meth:`~nonprehensile.sim.robot_driver.RobotArms._accel_offset`; on
         by default, at a control rate below the physics rate). Off, the servos take that
         torque from their error: the fingertip lagged its command by 4-5 ms.
+    tracking_surface_bound : float, optional
+        The bound of the contact tracking correction's part along the object's surface, m,
+        applied after each update (its part along the object's normal is kept; the whole
+        correction keeps ``tracking_bound`` after that; ``inf``: none). Default:
+        :data:`ROBOT_TRACKING_SURFACE_BOUND` with one fingertip integrating the whole error,
+        none otherwise (a pinch, and ``tracking_tangential=True``, integrate only the surface
+        part).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
@@ -365,7 +371,7 @@ class RobotSimulator(Simulator):
         self.robot_driver.tracking_tangential = tangential
         self.robot_driver.tracking_bound = bound
         self.robot_driver.tracking_surface_bound = resolve_surface_bound(
-            self.n_fingers, tracking_surface_bound)
+            self.n_fingers, tracking_surface_bound, tangential)
         self.robot_driver.finger_radius = params.finger_radius
         self.robot_driver.finger_direction = finger_direction
         self.robot_driver.accel_feedforward = accel_feedforward

@@ -486,15 +486,16 @@ class SweepRobot:
         """The contact tracking correction the arms run (the scene's defaults by the number
         of fingertips): gain, whether along the object's surface only, bound, and the bound
         of its part along the surface (None: none); and whether the servos get the set
-        points' acceleration torque (the scene's default: on)."""
+        points' acceleration torque (the scene's default, which runs below the physics
+        rate only: as ``robot.controller.acceleration_feedforward`` of ``simulate plan``)."""
         from nonprehensile.sim.robot_run import resolve_surface_bound, resolve_tracking
 
         gain, tangential, bound = resolve_tracking(self.n_fingers)
-        surface = resolve_surface_bound(self.n_fingers)
+        surface = resolve_surface_bound(self.n_fingers, None, tangential)
         return {"tracking_gain_per_s": gain, "tracking_tangential": tangential,
                 "tracking_bound_m": bound,
                 "tracking_surface_bound_m": surface if math.isfinite(surface) else None,
-                "accel_feedforward": True}
+                "acceleration_feedforward": self.control_every > 1}
 
     @property
     def press_depth_m(self) -> float | None:
