@@ -184,6 +184,16 @@ def _inverse(m: object, d: object, dof: np.ndarray, acc: np.ndarray) -> np.ndarr
     return np.array(d2.qfrc_inverse[dof])
 
 
+def _moving() -> tuple[RobotSimulator, RobotArms, np.ndarray]:
+    """The placed Panda moving (wrist and shoulder among the joints), kinematics done, and
+    joint accelerations to test at (rad/s^2)."""
+    sim, drv = _placed()
+    d = sim.data
+    d.qvel[sim.scene.dadr] = [0.3, -0.2, 0.5, 0.4, 1.5, 2.0, 0.3]
+    mujoco.mj_forward(sim.model, d)
+    return sim, drv, np.array([3.0, 5.0, -4.0, -5.0, 10.0, 30.0, 2.0])
+
+
 def test_the_torque_budget_counts_the_implicit_integrators_inertia() -> None:
     """Under the scene's implicit integrator an actuator's force, read at the step's start,
     is ``(M + h D) a + c + g`` (``D``: joint damping and the servos' velocity gains), and
@@ -191,12 +201,9 @@ def test_the_torque_budget_counts_the_implicit_integrators_inertia() -> None:
     m^2 to its 0.14 (a transit of the main plan at 30 rad/s^2 held the wrist at its 12 N m
     for 17 ms while the mass matrix alone said 6 N m). Truth: MuJoCo's ``mj_inverse`` in
     discrete time, at a moving state with wrist and shoulder accelerations."""
-    sim, drv = _placed()
+    sim, drv, acc = _moving()
     m, d = sim.model, sim.data
     dof = sim.scene.dadr
-    d.qvel[dof] = [0.3, -0.2, 0.5, 0.4, 1.5, 2.0, 0.3]
-    mujoco.mj_forward(m, d)
-    acc = np.array([3.0, 5.0, -4.0, -5.0, 10.0, 30.0, 2.0])
     full = np.zeros(m.nv)
     full[dof] = acc
     ma = np.zeros(m.nv)
@@ -220,12 +227,9 @@ def test_the_acceleration_feed_forward_is_the_torque_the_acceleration_takes() ->
     Panda's published gains (``panda.KP``)."""
     from nonprehensile.sim.panda import KP
 
-    sim, drv = _placed()
+    sim, drv, acc = _moving()
     m, d = sim.model, sim.data
     dof = sim.scene.dadr
-    d.qvel[dof] = [0.3, -0.2, 0.5, 0.4, 1.5, 2.0, 0.3]
-    mujoco.mj_forward(m, d)
-    acc = np.array([3.0, 5.0, -4.0, -5.0, 10.0, 30.0, 2.0])
     torque = _inverse(m, d, dof, acc) - _inverse(m, d, dof, np.zeros(7))
     np.testing.assert_allclose(drv._accel_offset(acc) * np.array(KP), torque, rtol=1e-9,
                                atol=1e-9)
@@ -494,6 +498,18 @@ def test_contact_correction_in_floats_equals_its_numpy_form(seed: int, arms: int
     drv._offset[:] = 0.0
 
 
+def _see_yawed_cube(drv: RobotArms) -> tuple[np.ndarray, np.ndarray]:
+    """Tell ``drv`` the cube stands yawed 30 degrees with its centre at (0.3, 0.1, 0.025)
+    m; its rotation and centre."""
+    yaw = math.radians(30.0)
+    rot = np.array([[math.cos(yaw), -math.sin(yaw), 0.0],
+                    [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    centre = np.array([0.3, 0.1, 0.025])
+    mid = 0.5 * (CUBE.vertices.min(axis=0) + CUBE.vertices.max(axis=0))
+    drv.see(ObjectPose(rot, centre - SCALE * rot @ mid, centre, SCALE))
+    return rot, centre
+
+
 @settings(max_examples=60, deadline=None)
 @given(seed=st.integers(0, 2**31 - 1))
 def test_pinch_correction_integrates_the_error_along_the_surface_only(seed: int) -> None:
@@ -512,12 +528,7 @@ def test_pinch_correction_integrates_the_error_along_the_surface_only(seed: int)
     doc = sim.describe()["finger_command"]
     assert doc["tracking_tangential"] is True and doc["tracking_bound_m"] == 0.002
     rng = np.random.default_rng(seed)
-    yaw = math.radians(30.0)
-    rot = np.array([[math.cos(yaw), -math.sin(yaw), 0.0],
-                    [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
-    centre = np.array([0.3, 0.1, 0.025])
-    mid = 0.5 * (CUBE.vertices.min(axis=0) + CUBE.vertices.max(axis=0))
-    drv.see(ObjectPose(rot, centre - SCALE * rot @ mid, centre, SCALE))
+    rot, centre = _see_yawed_cube(drv)
     normals = np.stack([rot @ np.array([0.0, -1.0, 0.0]), rot @ np.array([0.0, 1.0, 0.0])])
     tips = centre + (0.025 - 0.002) * normals + rng.uniform(-1e-3, 1e-3, (2, 3))
     d = sim.data
@@ -555,20 +566,16 @@ def test_one_arms_correction_bounds_its_part_along_the_surface(seed: int) -> Non
     the fingertip and command positions written here."""
     rng = np.random.default_rng(seed)
     along = bool(rng.random() < 0.25)  # the surface-only rule, with the bound asked for
-    sim = (_SURFACE_SIMS[along] if along in _SURFACE_SIMS else _SURFACE_SIMS.setdefault(
-        along, RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE,
-                              tracking_tangential=True, tracking_surface_bound=0.0005)
-        if along else RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)], scale=SCALE)))
+    if along not in _SURFACE_SIMS:
+        kw = {"tracking_tangential": True, "tracking_surface_bound": 0.0005} if along else {}
+        _SURFACE_SIMS[along] = RobotSimulator(CUBE, [Arm(Robot.builtin(), BASE)],
+                                              scale=SCALE, **kw)  # type: ignore[arg-type]
+    sim = _SURFACE_SIMS[along]
     drv = sim.robot_driver
     assert drv.tracking_tangential is along
     assert drv.tracking_surface_bound == ROBOT_TRACKING_SURFACE_BOUND == 0.0005
     assert sim.describe()["finger_command"]["tracking_surface_bound_m"] == 0.0005
-    yaw = math.radians(30.0)
-    rot = np.array([[math.cos(yaw), -math.sin(yaw), 0.0],
-                    [math.sin(yaw), math.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
-    centre = np.array([0.3, 0.1, 0.025])
-    mid = 0.5 * (CUBE.vertices.min(axis=0) + CUBE.vertices.max(axis=0))
-    drv.see(ObjectPose(rot, centre - SCALE * rot @ mid, centre, SCALE))
+    rot, centre = _see_yawed_cube(drv)
     normal = rot @ np.array([0.0, -1.0, 0.0])
     tip = centre + (0.025 - 0.002) * normal + rng.uniform(-1e-3, 1e-3, 3)
     d = sim.data
