@@ -235,6 +235,37 @@ def test_the_acceleration_feed_forward_is_the_torque_the_acceleration_takes() ->
                                atol=1e-9)
 
 
+def test_the_feed_forward_is_clipped_and_skips_servos_that_are_not_plain() -> None:
+    """An acceleration far past what the joints can give (a thousand times the test's):
+    every joint's offset torque is its torque limit exactly (the scene's, the datasheet's).
+    A position servo with activation dynamics (a user's ``timeconst``) has no stiffness the
+    offset could go through: that joint gets none, the others theirs, and the scene's JSON
+    says which joints are fed forward."""
+    from nonprehensile.sim.panda import KP
+    from nonprehensile.sim.robot_driver import servo_stiffness
+
+    sim, drv, acc = _moving()
+    m = sim.model
+    got = drv._accel_offset(1000.0 * acc) * np.array(KP)
+    np.testing.assert_allclose(got, np.sign(got) * sim.scene.torque, rtol=1e-12)
+    assert all(j["acceleration_feedforward"] for j in sim.describe()["joints"])
+    before = drv._accel_offset(acc)
+    a = int(sim.scene.pos_act[0])
+    assert servo_stiffness(m, a) == KP[0]
+    saved = int(m.actuator_dyntype[a])
+    m.actuator_dyntype[a] = int(mujoco.mjtDyn.mjDYN_FILTER)
+    try:
+        assert servo_stiffness(m, a) == math.inf
+        drv._kp_joint[0] = servo_stiffness(m, a)
+        after = drv._accel_offset(acc)
+        assert after[0] == 0.0 and np.array_equal(after[1:], before[1:])
+        flags = [j["acceleration_feedforward"] for j in sim.describe()["joints"]]
+        assert flags == [False] + [True] * 6
+    finally:
+        m.actuator_dyntype[a] = saved
+        drv._kp_joint[0] = servo_stiffness(m, a)
+
+
 def _smooth(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
     """``n`` targets from ``a`` to ``b`` from rest to rest (a cosine ramp), shape (n, 1, 3)."""
     s = (0.5 - 0.5 * np.cos(np.pi * np.linspace(0.0, 1.0, n)))[:, None]

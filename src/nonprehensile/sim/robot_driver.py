@@ -36,7 +36,7 @@ from nonprehensile.sim.judge import CONTACT_EVERY, Judge
 from nonprehensile.sim.robot_scene import RobotScene
 
 __all__ = ["COMPLIANCE_DAMPING", "DEFAULT_CONTROL_EVERY", "LIMIT_BANDS", "RobotArms",
-           "RobotLog", "RobotMetrics", "check_press"]
+           "RobotLog", "RobotMetrics", "check_press", "servo_stiffness"]
 
 FloatArray = NDArray[np.float64]
 
@@ -464,7 +464,7 @@ def _implicit_inertia(m: Any, dofs: NDArray[np.int64]) -> FloatArray:
     return out * float(m.opt.timestep)
 
 
-def _servo_stiffness(m: Any, act: int) -> float:
+def servo_stiffness(m: Any, act: int) -> float:
     """A position servo's stiffness on its joint, N m/rad: ``kp`` times the gear (its force
     ``kp (ctrl - gear q)`` acts on the joint times the gear, and an offset of ``ctrl`` gives
     ``gear kp`` times it), for a plain servo (no activation dynamics, a fixed gain, an
@@ -726,7 +726,7 @@ class RobotArms:
         # force ``kp (ctrl - gear q)`` acts on the joint times the gear, the set points
         # being joint positions)
         self.accel_feedforward = True
-        self._kp_joint = np.array([_servo_stiffness(m, int(a)) for a in scene.pos_act])
+        self._kp_joint = np.array([servo_stiffness(m, int(a)) for a in scene.pos_act])
         # no joint's offset torque beyond what the joint can give at all (N m)
         self._ff_torque_max = np.where(np.isfinite(scene.torque), scene.torque, np.inf)
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
@@ -1030,7 +1030,7 @@ class RobotArms:
         within a share of each joint's limit, but not always (its floor, a joint whose bias
         alone is past the share, the budget off): the offset's torque is clipped to the
         joint's limit itself. A joint whose position servo is not a plain one (activation
-        dynamics, a gain that is not fixed: :func:`_servo_stiffness`) gets none. The torque
+        dynamics, a gain that is not fixed: :func:`servo_stiffness`) gets none. The torque
         steps at each period's boundary as the spline's acceleration does (a ramp over the
         period, which delays it, was measured worse: an 11 ms torque limit in the two-arm
         transitions against 10 ms)."""

@@ -33,6 +33,7 @@ from nonprehensile.sim.robot_driver import (
     RobotLog,
     check_finger_direction,
     check_press,
+    servo_stiffness,
 )
 from nonprehensile.sim.robot_scene import Arm, RobotScene, build_robot_scene
 from nonprehensile.sim.run import SimResult, Simulator, default_scale
@@ -88,9 +89,10 @@ DEFAULT_TRACKING_GAIN = 20.0
 #: 335.7 s simulated against 391.8 s (the roll-pulls' end-of-plan corrections 24 against 48,
 #: the roll-arcs' 54 against 72: a correction along the surface holds the pad sideways and
 #: turns the cube); the robot's CPU against the free fingertip's 2.70-2.72x against
-#: 3.09-3.10x (over the bar of 3x). The main plan across the distribution 94/100 in seeds
-#: 0 and 1 (95 and 94 without). Normal only (0): 318 s, but the push-rolls tracked 3.2 mm;
-#: 1 mm: 351 s, 2.4 mm (docs/benchmarks.md).
+#: 3.09-3.10x (over the bar of 3x). The main plan across the distribution 95/100 and
+#: 94/100 in seeds 0 and 1 (95 and 94 without; 94 and 94 before the feed-forward's clip).
+#: Normal only (0): 318 s, but the push-rolls tracked 3.2 mm; 1 mm: 351 s, 2.4 mm
+#: (docs/benchmarks.md).
 ROBOT_TRACKING_SURFACE_BOUND = 0.0005
 
 #: Several fingertips' (a pinch's) contact tracking correction: gain (1/s) and bound (m) of
@@ -483,6 +485,8 @@ def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
             else round(float(sc.torque[j]), 6),
             "kp": round(float(m.actuator_gainprm[pa, 0]), 6),
             "kv": round(float(m.actuator_gainprm[va, 0]), 6),
+            # the acceleration's torque goes through this joint's servo (a plain one only)
+            "acceleration_feedforward": ff and math.isfinite(servo_stiffness(m, pa)),
         })
     return {
         "robots": [{"robot": a.robot.to_dict(), "base": a.base.to_dict(),
@@ -495,7 +499,9 @@ def describe_robots(arms: Sequence[Arm], scene: RobotScene, params: SimParams,
                     "(constant over a control period: the quadratic spline's), M: the mass "
                     "matrix, h D: the physics step times the joint damping and velocity "
                     "gains (the implicit integrator's added inertia); the acceleration term "
-                    "is sent as a position set-point offset of K_p^-1 (M + h D) qdd_ref" if ff
+                    "is sent as a position set-point offset of K_p^-1 (M + h D) qdd_ref, its "
+                    "torque clipped to the joint's limit, to the joints whose position servo "
+                    "is a plain one (joints[].acceleration_feedforward)" if ff
                     else "tau = kp (q_ref - q) + kv (qd_ref - qd) + g(q), clamped to the "
                     "torque limit"),
             "acceleration_feedforward": ff,
