@@ -35,7 +35,11 @@ from nonprehensile.sim.ik import FingertipIK, IKConfig  # noqa: E402
 from nonprehensile.sim.placement import place_base  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
 from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY  # noqa: E402
-from nonprehensile.sim.robot_run import PINCH_PRESS_DEPTH, RobotSimulator  # noqa: E402
+from nonprehensile.sim.robot_run import (  # noqa: E402
+    PINCH_PRESS_DEPTH,
+    ROBOT_FORCE_CAP,
+    RobotSimulator,
+)
 from nonprehensile.sim.robot_scene import Arm, build_robot_scene  # noqa: E402
 from nonprehensile.sim.robustness import SweepRobot  # noqa: E402
 from nonprehensile.sim.scene import DEFAULT_PARAMS  # noqa: E402
@@ -552,16 +556,18 @@ def _table_force(m, d, tip: int) -> float:
     return float(np.linalg.norm(total))
 
 
-def _press_table(compliance: bool, stiffness: float, force_limit: float | None):
-    """A target 2 cm inside the table for 1.5 s (the fingertip's centre rests 6 mm above it):
-    the contact forces on the fingertip at every physics step, and the driver."""
+def _press_table(compliance: bool, stiffness: float, force_limit: float | None,
+                 force_cap: float | str | None = None, depth: float = 0.02):
+    """A target ``depth`` (2 cm) inside the table for 1.5 s (the fingertip's centre rests
+    6 mm above it): the contact forces on the fingertip at every physics step, and the
+    driver. The stiff arm without its force cap unless ``force_cap`` is given."""
     params = replace(DEFAULT_PARAMS, stiffness=stiffness)
     sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
                          scale=SCALE, params=params, force_limit=force_limit,
-                         compliance=compliance)
+                         compliance=compliance, force_cap=None if compliance else force_cap)
     drv = sim.robot_driver
     x0 = np.array([[0.0, 0.0, 0.03]])
-    x1 = np.array([[0.0, 0.0, -0.02]])
+    x1 = np.array([[0.0, 0.0, -depth]])
     n = 1500
     targets = np.concatenate([x0 + (x1 - x0) * np.linspace(0.0, 1.0, 500)[:, None, None],
                               np.repeat(x1[None], n - 500, axis=0)])
@@ -611,6 +617,62 @@ def test_compliant_fingertip_presses_like_the_free_fingertip() -> None:
     # the stiff arm (no compliance) at the same target
     f_stiff, _ = _press_table(False, 3000.0, None)
     assert f_stiff[1000:].mean() > 3.0 * steady.mean()
+
+
+def test_the_stiff_arms_force_cap_holds_its_force_at_the_cap() -> None:
+    """The stiff arm's force cap (one fingertip's default, 40 N): pressed 2 cm into the
+    table, the fingertip's command gives way upwards until the force is the cap, and holds
+    it there (truth: MuJoCo's contact forces, summed here, not the driver's reading); the
+    arm without a cap presses several times harder. The tracking error is against the
+    command, the give included. A light press (under the cap) keeps no give."""
+    f, drv = _press_table(False, 600.0, None, force_cap="auto")
+    assert drv.force_cap == ROBOT_FORCE_CAP == 40.0
+    steady = f[1000:]
+    assert abs(steady.mean() - 40.0) < 2.0 and steady.max() < 44.0 and steady.min() > 36.0
+    log = drv.log
+    g = log.give[-1, 0]
+    assert g[2] > 0.005  # up, out of the table
+    tips = np.asarray(log._tips[log.n - 1, 0])
+    cmd = np.asarray(log._target[log.n - 1, 0]) + g
+    assert log.error[-1] == pytest.approx(np.linalg.norm(tips - cmd), abs=1e-9)
+    f_free, _ = _press_table(False, 600.0, None, force_cap=None)
+    assert f_free[1000:].mean() > 3.0 * steady.mean()
+    # a light press: only its first touch's impact goes past the cap; the give is back to
+    # none within a few tenths of a second and the press is the uncapped one's
+    f_light, drv = _press_table(False, 600.0, None, force_cap="auto", depth=-0.0055)
+    f_plain, _ = _press_table(False, 600.0, None, force_cap=None, depth=-0.0055)
+    assert 1.0 < f_light[1000:].mean() < 0.9 * 40.0
+    assert not drv.log.give[-500:].any()
+    assert f_light[-1] == pytest.approx(f_plain[-1], rel=0.02)
+
+
+@pytest.mark.parametrize("bad", [0.0, -5.0, math.inf, math.nan, True, "40", "off"])
+def test_the_force_cap_is_checked(bad: object) -> None:
+    with pytest.raises(InputError, match="force_cap is a force"):
+        RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
+                       scale=SCALE, force_cap=bad)  # type: ignore[arg-type]
+
+
+def test_the_force_cap_runs_for_one_stiff_arm_only() -> None:
+    """``"auto"``: the cap for one stiff arm, none with the force-limited command (its own
+    limit) or with several fingertips (a pinch's squeeze); a number with the compliance is
+    refused; the JSON (the scene's and a sweep's) says which runs."""
+    one = [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))]
+    two = [*one, Arm(Robot.builtin(), BasePose(0.05, 0.55, -80.0))]
+    assert RobotSimulator(CUBE, one, scale=SCALE).describe()["finger_command"][
+        "force_cap_n"] == 40.0
+    assert RobotSimulator(CUBE, one, scale=SCALE, compliance=True).robot_driver.force_cap is None
+    assert RobotSimulator(CUBE, two, scale=SCALE).robot_driver.force_cap is None
+    assert RobotSimulator(CUBE, one, scale=SCALE, force_cap=25).robot_driver.force_cap == 25.0
+    assert RobotSimulator(CUBE, one, scale=SCALE, force_cap=None).robot_driver.force_cap is None
+    with pytest.raises(InputError, match="pass force_limit instead"):
+        RobotSimulator(CUBE, one, scale=SCALE, compliance=True, force_cap=30.0)
+    assert SweepRobot(tuple(one)).to_dict()["force_cap_n"] == 40.0
+    assert SweepRobot(tuple(two)).to_dict()["force_cap_n"] is None
+    assert SweepRobot(tuple(one), compliance=True).to_dict()["force_cap_n"] is None
+    assert SweepRobot(tuple(one), force_cap=None).to_dict()["force_cap_n"] is None
+    with pytest.raises(InputError, match="force_cap is a force"):
+        SweepRobot(tuple(one), force_cap=-1.0)
 
 
 def test_compliance_refuses_a_finger_that_is_not_one() -> None:

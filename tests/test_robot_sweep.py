@@ -232,14 +232,15 @@ def test_robot_contact_flags_match_a_plain_reading() -> None:
                                  if i % 2 else [0.0, 0.0, 0.025])
         d.qpos[qadr + 3:qadr + 7] = [1.0, 0.0, 0.0, 0.0]
         mujoco.mj_forward(m, d)
-        touch = other = False
+        touch = other = any_tip = False
         for c in d.contact[:d.ncon]:
+            pair = {int(c.geom1), int(c.geom2)}
+            any_tip |= bool(pair & tips)  # (the force cap's gate: any distance)
             if c.dist > 1e-4:
                 continue
-            pair = {int(c.geom1), int(c.geom2)}
             touch |= obj in pair and bool(pair & tips)
             other |= bool(pair & links)
-        assert drv._contacts(d) == (touch, other)
+        assert drv._contacts(d) == (touch, other, any_tip)
         seen.add((touch, other))
     assert (True, False) in seen or (True, True) in seen
     assert any(o for _, o in seen)

@@ -561,10 +561,13 @@ class _OnlineControls:
         i = self._i + 1
         seg = self.seg
         if seg is not None and seg.start <= i < seg.stop and self._row is not None:
-            self.driver.record(seg, i)
+            drv = self.driver
+            drv.record(seg, i)
             row: FloatArray = seg.rows[i - seg.start]
-            if self.driver.compliance:
-                row = self.driver._comply(seg, i, row)
+            if drv.compliance:
+                row = drv._comply(seg, i, row)
+            elif drv.force_cap is not None and (drv._tip_contact or drv._cap_on):
+                row = drv._cap(row)
         else:
             row = self.driver.row(self, i)
         self._i = i
@@ -685,6 +688,11 @@ class RobotArms:
         self.check_compliance()
         self.give_bound = 0.03
         self.give_speed = 0.1
+        # the stiff arm's force cap (N; None: none) and its damping (N s/m): _cap
+        self.force_cap: float | None = None
+        self.cap_damping = COMPLIANCE_DAMPING
+        self._cap_on = False  # the cap's give is not zero
+        self._tip_contact = False  # a fingertip touches anything (_contacts)
         self._offset = np.zeros((scene.n_fingers, 3))  # the compliance's give, m
         # the contact tracking correction (see _correct)
         self.tracking_gain = float(tracking_gain)
@@ -845,6 +853,7 @@ class RobotArms:
         self.log.clear()
         self._n = 0
         self._offset[:] = 0.0
+        self._cap_on = False
         self._corr[:] = 0.0
         self._press_last[:] = 0.0
         self._state = None
@@ -883,6 +892,8 @@ class RobotArms:
         row: FloatArray = seg.rows[j - seg.start]
         if self.compliance:
             row = self._comply(seg, j, row)
+        elif self.force_cap is not None and (self._tip_contact or self._cap_on):
+            row = self._cap(row)
         return row
 
     def _segment(self, ctl: _OnlineControls, j: int) -> _Segment:
@@ -1460,9 +1471,11 @@ class RobotArms:
         now_ = arr if now is None else np.asarray(now, dtype=np.float64)
         # the correction against the command now (the give is added there, in contact only)
         out = self._correct(arr, now_, steps, noise)
+        if self.compliance or self.force_cap is not None:
+            self._pinv_c = None  # the give's Jacobian, at this solve's joints (_comply, _cap)
         if self.compliance:
-            self._pinv_c = None  # the give's Jacobian, at this solve's joints (_comply)
-        elif self._touch:  # the stiff arm's force, for the records only
+            return out  # (its force is logged every physics step: _comply)
+        if self._touch:  # the stiff arm's force, for the records only
             f = self._tip_forces()
             self._force_now = np.sqrt((f * f).sum(axis=1))
         else:
@@ -1522,6 +1535,57 @@ class RobotArms:
             self._pinv_c = self._tip_pinv()
         out = np.array(row)
         out[self.scene.pos_act] += self._pinv_c @ off.ravel()
+        return out
+
+    def _cap(self, row: FloatArray) -> FloatArray:
+        """Row ``row`` with each fingertip's give under the stiff arm's force cap
+        (``force_cap``, N), updated over this physics step from the contact force on the
+        fingertip (object and table, MuJoCo's contact forces: a wrist F/T sensor's reading).
+
+        Above the cap the give ``g`` (``self._offset``, part of the command) moves along the
+        force, out of what the fingertip presses, as ``B dg/dt = |F| - cap``
+        (``cap_damping``); below it, it comes back towards none as ``B d|g|/dt = -(cap -
+        |F|)``: continuous at the cap, so the command settles where the force is the cap,
+        and off the object it returns (at most ``give_speed`` either way; bounded by
+        ``give_bound``). On the servos' set points as the force-limited command's give is
+        (``J^+ g``, every physics step: read once per control period the force samples the
+        impacts, and an arm pressed into the table hopped, 0 to 500 N). Only while a
+        fingertip has a contact or a give: elsewhere a step costs nothing more."""
+        cap = self.force_cap
+        assert cap is not None  # (called only with a cap)
+        f = self._tip_forces()
+        h, b = self.dt, self.cap_damping
+        v = self.give_speed * h
+        g = self._offset
+        on = False
+        fl = f.tolist()
+        for i, gi in enumerate(g.tolist()):
+            fx, fy, fz = fl[i]
+            n = math.sqrt(fx * fx + fy * fy + fz * fz)
+            gx, gy, gz = gi
+            ng = math.sqrt(gx * gx + gy * gy + gz * gz)
+            if n > cap:
+                s_ = min(h * (n - cap) / b, v) / n
+                gx, gy, gz = gx + s_ * fx, gy + s_ * fy, gz + s_ * fz
+                ng = math.sqrt(gx * gx + gy * gy + gz * gz)
+                if ng > self.give_bound:
+                    k = self.give_bound / ng
+                    gx, gy, gz, ng = gx * k, gy * k, gz * k, self.give_bound
+            elif ng > 0.0:
+                k = max(0.0, ng - min(h * (cap - n) / b, v)) / ng
+                gx, gy, gz, ng = gx * k, gy * k, gz * k, ng * k
+            g[i] = (gx, gy, gz)
+            on = on or ng > 0.0
+        self._cap_on = on
+        log = self.log
+        i = log.n - 1  # the row just recorded (record)
+        log._give[i] = g
+        if not on:
+            return row
+        if self._pinv_c is None:
+            self._pinv_c = self._tip_pinv()
+        out = np.array(row)
+        out[self.scene.pos_act] += self._pinv_c @ g.ravel()
         return out
 
     def _correct(self, targets: FloatArray, now: FloatArray, steps: int,
@@ -1691,33 +1755,37 @@ class RobotArms:
             out[k] += fw if on2 else -fw
         return out
 
-    def _contacts(self, d: Any) -> tuple[bool, bool]:
-        """Whether a fingertip touches the object, and whether a link or the rod touches the
-        object or the table (the judge's rule: contacts within 0.1 mm), in one pass."""
+    def _contacts(self, d: Any) -> tuple[bool, bool, bool]:
+        """Whether a fingertip touches the object, whether a link or the rod touches the
+        object or the table (the judge's rule: contacts within 0.1 mm), and whether a
+        fingertip has any contact at all (the force cap's gate: any distance), in one
+        pass."""
         con = d.contact
         # the fields read in bulk, then plain Python over a handful of contacts (numpy
         # masks over them cost more than the loop); MuJoCo's contact arrays are ``ncon``
         # long (their length is ``ncon``, without reading it or slicing to it)
         geoms = con.geom.tolist()
         if not geoms:
-            return False, False
+            return False, False, False
         obj, tips, links = self._obj_geom, self._tip_set, self._link_set
-        touch = other = False
+        touch = other = tip = False
         for (a, b), dd in zip(geoms, con.dist.tolist(), strict=True):
+            if a in tips or b in tips:
+                tip = True
             if dd > 1e-4:
                 continue
             if a in links or b in links:
                 other = True
             elif (a == obj and b in tips) or (b == obj and a in tips):
                 touch = True
-        return touch, other
+        return touch, other, tip
 
     def record(self, seg: _Segment, j: int) -> None:
         """Log the robot's state before physics step ``j`` (row ``j`` of ``seg``); the
         period's set points and targets were logged at its solve."""
         d, log = self.data, self.log
         if self._n % CONTACT_EVERY == 0:  # as often as the judge reads contacts
-            self._touch, self._other = self._contacts(d)
+            self._touch, self._other, self._tip_contact = self._contacts(d)
         self._n += 1
         self._last = (seg, j)
         n = log.n

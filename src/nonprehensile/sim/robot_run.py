@@ -41,10 +41,10 @@ from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 from nonprehensile.transit import APPROACH_SPEED
 
 __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
-           "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_MAX_ACCEL", "ROBOT_PUSH_APPROACH",
-           "ROBOT_TRACKING_SURFACE_BOUND", "ROBOT_TRANSIT_ACCEL",
-           "RobotSimulator", "describe_robots", "resolve_press_depth", "resolve_surface_bound",
-           "resolve_tracking",
+           "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_FORCE_CAP", "ROBOT_MAX_ACCEL",
+           "ROBOT_PUSH_APPROACH", "ROBOT_TRACKING_SURFACE_BOUND", "ROBOT_TRANSIT_ACCEL",
+           "RobotSimulator", "describe_robots", "resolve_force_cap", "resolve_press_depth",
+           "resolve_surface_bound", "resolve_tracking",
            "robot_control"]
 
 #: Fingertip acceleration bound (m/s^2) of the executor's motions when an arm moves the
@@ -94,6 +94,15 @@ DEFAULT_TRACKING_GAIN = 20.0
 #: Normal only (0): 318 s, but the push-rolls tracked 3.2 mm; 1 mm: 351 s, 2.4 mm
 #: (docs/benchmarks.md).
 ROBOT_TRACKING_SURFACE_BOUND = 0.0005
+
+#: One arm's force cap, N (:class:`RobotSimulator`'s ``force_cap="auto"``; the stiff arm's
+#: command gives way along the contact force above it: ``RobotArms._cap``). The references
+#: were recorded with a compliant fingertip (8-15 N at most); across the physics
+#: distribution the stiff arm pressed heavy, grippy cubes with up to 340 N and held a
+#: torque limit for over 10 ms while touching in 5 and 4 of 100 runs (seeds 0, 1). At
+#: nominal physics the arm's pushes stay under 40 N (33.5 N at most over the 72
+#: single-finger transitions) (docs/benchmarks.md).
+ROBOT_FORCE_CAP = 40.0
 
 #: Several fingertips' (a pinch's) contact tracking correction: gain (1/s) and bound (m) of
 #: the correction along the object's surface only (``RobotArms.tracking_tangential``: the
@@ -159,6 +168,33 @@ def resolve_tracking(n_fingers: int, gain: float | None = None,
             pinch if tangential is None else tangential,
             float(bound) if bound is not None
             else PINCH_TRACKING_BOUND if pinch else DEFAULT_TRACKING_BOUND)
+
+
+def resolve_force_cap(cap: float | str | None, n_fingers: int,
+                      compliance: bool = False) -> float | None:
+    """The stiff arm's force cap that runs, N (None: none): ``"auto"`` is
+    :data:`ROBOT_FORCE_CAP` with one fingertip of a stiff arm and none otherwise (several
+    fingertips pinch: the cap would loosen the squeeze; the force-limited command has its
+    own limit); a number or None as given.
+
+    Raises
+    ------
+    InputError
+        A cap that is not a finite positive number, None or ``"auto"``; a number with
+        ``compliance`` (whose force limit is ``force_limit``).
+    """
+    if cap == "auto":
+        return ROBOT_FORCE_CAP if n_fingers == 1 and not compliance else None
+    if cap is None:
+        return None
+    if not (isinstance(cap, numbers.Real) and not isinstance(cap, (bool, np.bool_))
+            and math.isfinite(float(cap)) and float(cap) > 0.0):
+        raise InputError(f"force_cap is a force in N > 0, None for none or \"auto\", got "
+                         f"{cap!r}")
+    if compliance:
+        raise InputError(f"force_cap={cap!r} is the stiff arm's cap; the force-limited "
+                         "command (compliance=True) has its own: pass force_limit instead")
+    return float(cap)
 
 
 def resolve_surface_bound(n_fingers: int, bound: float | None = None,
@@ -310,6 +346,12 @@ class RobotSimulator(Simulator):
         :data:`ROBOT_TRACKING_SURFACE_BOUND` with one fingertip integrating the whole error,
         none otherwise (a pinch, and ``tracking_tangential=True``, integrate only the surface
         part).
+    force_cap : float, None or "auto"
+        The stiff arm's force cap, N: above it each fingertip's command gives way along the
+        contact force on it, every physics step, and comes back below it
+        (:meth:`~nonprehensile.sim.robot_driver.RobotArms._cap`; the records' ``give``).
+        ``"auto"`` (the default): :data:`ROBOT_FORCE_CAP` with one fingertip and the stiff
+        arm, none with several or with ``compliance``; None: none.
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
@@ -322,7 +364,8 @@ class RobotSimulator(Simulator):
                  press_depth: float | str | None = "auto",
                  press_correction: bool = True, finger_direction: str = "lean",
                  accel_feedforward: bool = True,
-                 tracking_surface_bound: float | None = None) -> None:
+                 tracking_surface_bound: float | None = None,
+                 force_cap: float | str | None = "auto") -> None:
         if not isinstance(accel_feedforward, bool):
             raise InputError(f"accel_feedforward is True or False, got {accel_feedforward!r}")
         if force_limit is not None and not compliance:
@@ -333,6 +376,7 @@ class RobotSimulator(Simulator):
         # the correction's options checked before the scenes are built (n_fingers later)
         resolve_tracking(1, tracking_gain, tracking_tangential, tracking_bound)
         resolve_surface_bound(1, tracking_surface_bound)
+        resolve_force_cap(force_cap, 1, compliance is True)
         check_finger_direction(finger_direction)
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
@@ -377,6 +421,8 @@ class RobotSimulator(Simulator):
         self.robot_driver.finger_radius = params.finger_radius
         self.robot_driver.finger_direction = finger_direction
         self.robot_driver.accel_feedforward = accel_feedforward
+        self.robot_driver.force_cap = resolve_force_cap(force_cap, self.n_fingers,
+                                                        compliance is True)
         self._body = self.judge.body
         self._qadr = self.judge.qadr
         self._dadr = self.judge.dadr
@@ -451,6 +497,8 @@ class RobotSimulator(Simulator):
             "tracking_tangential": bool(drv.tracking_tangential),
             "tracking_bound_m": float(drv.tracking_bound),
             # the bound of its part along the object's surface (None: none)
+            # the stiff arm's force cap (None: none)
+            "force_cap_n": drv.force_cap,
             "tracking_surface_bound_m": (float(drv.tracking_surface_bound)
                                          if math.isfinite(drv.tracking_surface_bound)
                                          else None),

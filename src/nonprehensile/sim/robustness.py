@@ -424,6 +424,10 @@ class SweepRobot:
     finger_direction : {"lean", "recorded"}
         How the finger tools point in a step (``"lean"``, the default, or along the
         recorded fingers: :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
+    force_cap : float, None or "auto"
+        The stiff arm's force cap, N (``"auto"``, the default: 40 N with one fingertip,
+        none with several or with the compliance; None: none;
+        :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
     """
 
     arms: tuple[Any, ...]
@@ -433,6 +437,7 @@ class SweepRobot:
     press_depth: float | str | None = "auto"
     press_correction: bool = True
     finger_direction: str = "lean"
+    force_cap: float | str | None = "auto"
 
     def __post_init__(self) -> None:
         if self.max_accel is None:
@@ -453,6 +458,9 @@ class SweepRobot:
 
         check_press(self.press_depth, self.press_correction)
         check_finger_direction(self.finger_direction)
+        from nonprehensile.sim.robot_run import resolve_force_cap
+
+        resolve_force_cap(self.force_cap, self.n_fingers, self.compliance is True)
 
     @property
     def n_fingers(self) -> int:
@@ -467,7 +475,8 @@ class SweepRobot:
                               control_every=self.control_every,
                               compliance=self.compliance, press_depth=self.press_depth,
                               press_correction=self.press_correction,
-                              finger_direction=self.finger_direction)
+                              finger_direction=self.finger_direction,
+                              force_cap=self.force_cap)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form: robots, bases, rates."""
@@ -479,8 +488,18 @@ class SweepRobot:
                 "press_depth_m": self.press_depth_m,
                 "press_correction": bool(self.press_correction),
                 "finger_direction": self.finger_direction,
+                # the stiff arm's force cap that runs ("auto" resolved; None: none)
+                "force_cap_n": self.force_cap_n,
                 # the contact tracking correction that runs (robot_run.resolve_tracking)
                 **self.tracking()}
+
+    @property
+    def force_cap_n(self) -> float | None:
+        """The stiff arm's force cap that runs, N (``"auto"`` resolved as
+        :class:`~nonprehensile.sim.robot_run.RobotSimulator` resolves it), None for none."""
+        from nonprehensile.sim.robot_run import resolve_force_cap
+
+        return resolve_force_cap(self.force_cap, self.n_fingers, self.compliance is True)
 
     def tracking(self) -> dict[str, Any]:
         """The contact tracking correction the arms run (the scene's defaults by the number
