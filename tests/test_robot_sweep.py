@@ -234,12 +234,12 @@ def test_robot_contact_flags_match_a_plain_reading() -> None:
         mujoco.mj_forward(m, d)
         touch = other = any_tip = False
         for c in d.contact[:d.ncon]:
-            pair = {int(c.geom1), int(c.geom2)}
-            any_tip |= bool(pair & tips)  # (the force cap's gate: any distance)
             if c.dist > 1e-4:
                 continue
+            pair = {int(c.geom1), int(c.geom2)}
             touch |= obj in pair and bool(pair & tips)
             other |= bool(pair & links)
+            any_tip |= bool(pair & tips) and not pair & links  # (the force cap's gate)
         assert drv._contacts(d) == (touch, other, any_tip)
         seen.add((touch, other))
     assert (True, False) in seen or (True, True) in seen

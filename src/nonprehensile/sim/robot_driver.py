@@ -1554,6 +1554,10 @@ class RobotArms:
         cap = self.force_cap
         assert cap is not None  # (called only with a cap)
         f = self._tip_forces()
+        if not self._cap_on:  # no give: only a force past the cap starts one (most steps)
+            c2 = cap * cap
+            if all(x * x + y * y + z * z <= c2 for x, y, z in f.tolist()):
+                return row
         h, b = self.dt, self.cap_damping
         v = self.give_speed * h
         g = self._offset
@@ -1757,9 +1761,8 @@ class RobotArms:
 
     def _contacts(self, d: Any) -> tuple[bool, bool, bool]:
         """Whether a fingertip touches the object, whether a link or the rod touches the
-        object or the table (the judge's rule: contacts within 0.1 mm), and whether a
-        fingertip has any contact at all (the force cap's gate: any distance), in one
-        pass."""
+        object or the table, and whether a fingertip touches anything (the force cap's
+        gate), by the judge's rule (contacts within 0.1 mm), in one pass."""
         con = d.contact
         # the fields read in bulk, then plain Python over a handful of contacts (numpy
         # masks over them cost more than the loop); MuJoCo's contact arrays are ``ncon``
@@ -1770,14 +1773,14 @@ class RobotArms:
         obj, tips, links = self._obj_geom, self._tip_set, self._link_set
         touch = other = tip = False
         for (a, b), dd in zip(geoms, con.dist.tolist(), strict=True):
-            if a in tips or b in tips:
-                tip = True
             if dd > 1e-4:
                 continue
             if a in links or b in links:
                 other = True
-            elif (a == obj and b in tips) or (b == obj and a in tips):
-                touch = True
+            elif a in tips or b in tips:
+                tip = True
+                if a == obj or b == obj:
+                    touch = True
         return touch, other, tip
 
     def record(self, seg: _Segment, j: int) -> None:
