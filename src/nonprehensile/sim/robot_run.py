@@ -99,9 +99,12 @@ ROBOT_TRACKING_SURFACE_BOUND = 0.0005
 #: command gives way along the contact force above it: ``RobotArms._cap``). The references
 #: were recorded with a compliant fingertip (8-15 N at most); across the physics
 #: distribution the stiff arm pressed heavy, grippy cubes with up to 340 N and held a
-#: torque limit for over 10 ms while touching in 5 and 4 of 100 runs (seeds 0, 1). At
-#: nominal physics the arm's pushes stay under 40 N (33.5 N at most over the 72
-#: single-finger transitions) (docs/benchmarks.md).
+#: torque limit for over 10 ms while touching in 5 and 4 of 100 runs (seeds 0, 1); capped:
+#: in 0 and 1, tracking in contact at most 10.0 and 10.4 mm against 20.9 and 21.3, rods on
+#: the cube in 1 run of each against 3 and 2, 95/100 and 96/100 reached against 95 and 94.
+#: At nominal physics the arm's pushes stay under 40 N (33.5 N at most over the 72
+#: single-finger transitions): the same records; the CPU ratio over them 2.86-2.97x
+#: against 2.77-2.80x (docs/benchmarks.md).
 ROBOT_FORCE_CAP = 40.0
 
 #: Several fingertips' (a pinch's) contact tracking correction: gain (1/s) and bound (m) of
