@@ -1525,17 +1525,8 @@ class RobotArms:
         over = n > self.give_bound
         if over.any():
             off[over] *= (self.give_bound / n[over])[:, None]
-        log = self.log
-        i = log.n - 1  # the row just recorded (record)
-        log._give[i] = off
-        log._force[i] = np.sqrt((f * f).sum(axis=1))
-        if not off.any():
-            return row
-        if self._pinv_c is None:
-            self._pinv_c = self._tip_pinv()
-        out = np.array(row)
-        out[self.scene.pos_act] += self._pinv_c @ off.ravel()
-        return out
+        self.log._force[self.log.n - 1] = np.sqrt((f * f).sum(axis=1))
+        return self._given(row, bool(off.any()))
 
     def _cap(self, row: FloatArray) -> FloatArray:
         """Row ``row`` with each fingertip's give under the stiff arm's force cap
@@ -1581,9 +1572,14 @@ class RobotArms:
             g[i] = (gx, gy, gz)
             on = on or ng > 0.0
         self._cap_on = on
-        log = self.log
-        i = log.n - 1  # the row just recorded (record)
-        log._give[i] = g
+        return self._given(row, on)
+
+    def _given(self, row: FloatArray, on: bool) -> FloatArray:
+        """Row ``row`` with the give (``self._offset``) logged on the row just recorded and,
+        where ``on`` (any give), put on the position servos' set points as the joint offset
+        ``J^+ g`` (``J``: the tip sites' position Jacobian at the last solve)."""
+        g = self._offset
+        self.log._give[self.log.n - 1] = g  # the row just recorded (record)
         if not on:
             return row
         if self._pinv_c is None:
