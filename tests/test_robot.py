@@ -565,13 +565,17 @@ def _press_table(compliance: bool, stiffness: float, force_limit: float | None,
     sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
                          scale=SCALE, params=params, force_limit=force_limit,
                          compliance=compliance, force_cap=None if compliance else force_cap)
-    drv = sim.robot_driver
     x0 = np.array([[0.0, 0.0, 0.03]])
     x1 = np.array([[0.0, 0.0, -depth]])
-    n = 1500
     targets = np.concatenate([x0 + (x1 - x0) * np.linspace(0.0, 1.0, 500)[:, None, None],
-                              np.repeat(x1[None], n - 500, axis=0)])
-    d, m = sim.data, sim.model
+                              np.repeat(x1[None], 1000, axis=0)])
+    return _over_table(sim, targets), sim.robot_driver
+
+
+def _over_table(sim: RobotSimulator, targets: np.ndarray) -> np.ndarray:
+    """Drive the fingertip along ``targets`` (shape (n, 1, 3), one per physics step) with
+    the cube far away: the contact forces on the fingertip at every step (N)."""
+    drv, d, m = sim.robot_driver, sim.data, sim.model
     mujoco.mj_resetData(m, d)
     d.qpos[sim.judge.qadr:sim.judge.qadr + 3] = [2.0, 2.0, 0.5]  # the cube far away
     drv.reset()
@@ -579,11 +583,11 @@ def _press_table(compliance: bool, stiffness: float, force_limit: float | None,
     ctl = drv.controls(targets)
     tip = m.geom("finger1").id
     forces = []
-    for i in range(n):
+    for i in range(len(targets)):
         d.ctrl[:] = ctl[i]
         mujoco.mj_step(m, d)
         forces.append(_table_force(m, d, tip))
-    return np.array(forces), drv
+    return np.array(forces)
 
 
 def test_compliant_fingertip_presses_like_the_free_fingertip() -> None:
@@ -646,7 +650,29 @@ def test_the_stiff_arms_force_cap_holds_its_force_at_the_cap() -> None:
     assert f_light[-1] == pytest.approx(f_plain[-1], rel=0.02)
 
 
-@pytest.mark.parametrize("bad", [0.0, -5.0, math.inf, math.nan, True, "40", "off"])
+def test_the_force_caps_give_comes_back_after_the_contact() -> None:
+    """Pressed 2 cm into the table, then the target lifted 3 cm above it: once the fingertip
+    is off the table the give keeps coming back, at most ``give_speed`` a step, to none (not
+    dropped off the set points at once, nor left on the command), and the command is the
+    target again. Truth: the logged give against the driver's bound, MuJoCo's contact forces."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))], scale=SCALE)
+    drv = sim.robot_driver
+    down, up = np.array([[0.0, 0.0, -0.02]]), np.array([[0.0, 0.0, 0.03]])
+    targets = np.concatenate([up + (down - up) * np.linspace(0.0, 1.0, 500)[:, None, None],
+                              np.repeat(down[None], 700, axis=0),
+                              down + (up - down) * np.linspace(0.0, 1.0, 300)[:, None, None],
+                              np.repeat(up[None], 700, axis=0)])
+    forces = _over_table(sim, targets)
+    g = np.linalg.norm(drv.log.give[:, 0], axis=1)
+    assert g[1150] > 0.005  # pressing: the give holds the cap
+    free = int(np.flatnonzero(forces > 0.0).max()) + 1  # off the table from here
+    assert g[free] > 0.0  # a give left when the contact ends ...
+    assert np.abs(np.diff(g[free:])).max() <= drv.give_speed * drv.dt * (1 + 1e-9)
+    assert g[-1] == 0.0 and not drv._cap_on  # ... comes back to none
+
+
+@pytest.mark.parametrize("bad", [0.0, -5.0, math.inf, math.nan, True, "40", "off",
+                                 np.array([40.0, 50.0])])
 def test_the_force_cap_is_checked(bad: object) -> None:
     with pytest.raises(InputError, match="force_cap is a force"):
         RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],

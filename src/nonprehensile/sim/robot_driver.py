@@ -127,7 +127,8 @@ class RobotMetrics:
         Over the whole run (transits and jumps between steps included).
     reference_error_contact_max_m : float or None
         As ``tracking_error_contact_max_m``, against the executor's target itself (the
-        planner's reference, without the compliance's give and the noise).
+        planner's reference, without the give, the force-limited command's or the force
+        cap's, and the noise).
     contact_force_max_n : float or None
         The largest contact force on a fingertip (norm, N; the force sensor's reading at the
         solves) while a fingertip touches the object.
@@ -230,7 +231,7 @@ class RobotLog:
         self._tips = np.zeros((capacity, nf, 3))
         self._target = np.zeros((capacity, nf, 3))
         self._noise = np.zeros((capacity, nf, 3))  # the fingertip noise on the set points
-        self._give = np.zeros((capacity, nf, 3))  # the compliance's give (RobotArms._comply)
+        self._give = np.zeros((capacity, nf, 3))  # the give (RobotArms._comply, _cap)
         self._tool = np.zeros((capacity, nf, 3))  # the tip radius offset (RobotArms._tool)
         self._force = np.full((capacity, nf), math.nan)  # measured contact force at solves
         self._touch = np.zeros(capacity, dtype=bool)
@@ -285,8 +286,9 @@ class RobotLog:
     def error(self) -> FloatArray:
         """The largest fingertip tracking error of each row (tip centre to its command: the
         executor's target, plus the fingertip radius offset along the object's normal
-        (:meth:`RobotArms._tool`), plus the compliance's give along the measured contact
-        force (:meth:`RobotArms._comply`), plus the fingertip noise put on the set points:
+        (:meth:`RobotArms._tool`), plus the give along the contact force (the force-limited
+        command's, :meth:`RobotArms._comply`, or the force cap's, :meth:`RobotArms._cap`),
+        plus the fingertip noise put on the set points:
         what the IK and the servos were asked to reach), m."""
         e = (self._tips[:self.n] - self._target[:self.n] - self._tool[:self.n]
              - self._give[:self.n] - self._noise[:self.n])
@@ -307,8 +309,8 @@ class RobotLog:
 
     @property
     def give(self) -> FloatArray:
-        """The compliance's give of each row (command minus target, noise excluded), shape
-        (n, n_fingers, 3), m."""
+        """The give of each row (the force-limited command's or the force cap's: command
+        minus target, noise excluded), shape (n, n_fingers, 3), m."""
         return self._give[:self.n]
 
     @property
@@ -693,7 +695,7 @@ class RobotArms:
         self.cap_damping = COMPLIANCE_DAMPING
         self._cap_on = False  # the cap's give is not zero
         self._tip_contact = False  # a fingertip touches anything (_contacts)
-        self._offset = np.zeros((scene.n_fingers, 3))  # the compliance's give, m
+        self._offset = np.zeros((scene.n_fingers, 3))  # the give (_comply, _cap), m
         # the contact tracking correction (see _correct)
         self.tracking_gain = float(tracking_gain)
         self.tracking_bound = DEFAULT_TRACKING_BOUND

@@ -186,7 +186,7 @@ def resolve_force_cap(cap: float | str | None, n_fingers: int,
         A cap that is not a finite positive number, None or ``"auto"``; a number with
         ``compliance`` (whose force limit is ``force_limit``).
     """
-    if cap == "auto":
+    if isinstance(cap, str) and cap == "auto":
         return ROBOT_FORCE_CAP if n_fingers == 1 and not compliance else None
     if cap is None:
         return None
@@ -351,7 +351,9 @@ class RobotSimulator(Simulator):
         part).
     force_cap : float, None or "auto"
         The stiff arm's force cap, N: above it each fingertip's command gives way along the
-        contact force on it, every physics step, and comes back below it
+        contact force on it (every physics step while the fingertip touches, the contacts
+        read every 5 steps; at most 0.1 m/s, so an impact at speed passes the cap for a
+        tenth of a second or two), and comes back below it
         (:meth:`~nonprehensile.sim.robot_driver.RobotArms._cap`; the records' ``give``).
         ``"auto"`` (the default): :data:`ROBOT_FORCE_CAP` with one fingertip and the stiff
         arm, none with several or with ``compliance``; None: none.
@@ -499,9 +501,9 @@ class RobotSimulator(Simulator):
             # the correction along the object's surface only (True) or whole, and its bound
             "tracking_tangential": bool(drv.tracking_tangential),
             "tracking_bound_m": float(drv.tracking_bound),
-            # the bound of its part along the object's surface (None: none)
             # the stiff arm's force cap (None: none)
             "force_cap_n": drv.force_cap,
+            # the bound of its part along the object's surface (None: none)
             "tracking_surface_bound_m": (float(drv.tracking_surface_bound)
                                          if math.isfinite(drv.tracking_surface_bound)
                                          else None),
