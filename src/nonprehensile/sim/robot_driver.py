@@ -563,13 +563,8 @@ class _OnlineControls:
         i = self._i + 1
         seg = self.seg
         if seg is not None and seg.start <= i < seg.stop and self._row is not None:
-            drv = self.driver
-            drv.record(seg, i)
-            row: FloatArray = seg.rows[i - seg.start]
-            if drv.compliance:
-                row = drv._comply(seg, i, row)
-            elif drv.force_cap is not None and (drv._tip_contact or drv._cap_on):
-                row = drv._cap(row)
+            self.driver.record(seg, i)
+            row = self.driver._with_give(seg, i, seg.rows[i - seg.start])
         else:
             row = self.driver.row(self, i)
         self._i = i
@@ -737,8 +732,6 @@ class RobotArms:
         # being joint positions)
         self.accel_feedforward = True
         self._kp_joint = np.array([servo_stiffness(m, int(a)) for a in scene.pos_act])
-        # no joint's offset torque beyond what the joint can give at all (N m)
-        self._ff_torque_max = np.where(np.isfinite(scene.torque), scene.torque, np.inf)
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
         self._damping_list: list[float] = self._damping.tolist()
         self._lower_list: list[float] = np.asarray(scene.lower, dtype=np.float64).tolist()
@@ -891,11 +884,16 @@ class RobotArms:
         if seg is None or not seg.start <= j < seg.stop:
             seg = ctl.seg = self._segment(ctl, j)
         self.record(seg, j)
-        row: FloatArray = seg.rows[j - seg.start]
+        return self._with_give(seg, j, seg.rows[j - seg.start])
+
+    def _with_give(self, seg: _Segment, j: int, row: FloatArray) -> FloatArray:
+        """Row ``j`` of ``seg`` (``row``, just recorded) with the fingertips' give of this
+        physics step: the force-limited command's (:meth:`_comply`), or the stiff arm's force
+        cap's while a fingertip touches or a give is left (:meth:`_cap`)."""
         if self.compliance:
-            row = self._comply(seg, j, row)
-        elif self.force_cap is not None and (self._tip_contact or self._cap_on):
-            row = self._cap(row)
+            return self._comply(seg, j, row)
+        if self.force_cap is not None and (self._tip_contact or self._cap_on):
+            return self._cap(row)
         return row
 
     def _segment(self, ctl: _OnlineControls, j: int) -> _Segment:
@@ -1051,7 +1049,7 @@ class RobotArms:
         full = self._acc_full
         full[self._dsl] = acc
         mujoco.mj_mulM(m, d, self._ma_full, full)
-        lim = self._ff_torque_max
+        lim = self._torque_max  # (no joint's offset torque past its limit)
         need = np.clip(self._ma_full[self._dsl] + self._implicit * acc, -lim, lim)
         return np.asarray(need / self._kp_joint, dtype=np.float64)
 
@@ -1546,16 +1544,15 @@ class RobotArms:
         fingertip has a contact or a give: elsewhere a step costs nothing more."""
         cap = self.force_cap
         assert cap is not None  # (called only with a cap)
-        f = self._tip_forces()
+        fl = self._tip_forces().tolist()
         if not self._cap_on:  # no give: only a force past the cap starts one (most steps)
             c2 = cap * cap
-            if all(x * x + y * y + z * z <= c2 for x, y, z in f.tolist()):
+            if all(x * x + y * y + z * z <= c2 for x, y, z in fl):
                 return row
         h, b = self.dt, self.cap_damping
         v = self.give_speed * h
         g = self._offset
         on = False
-        fl = f.tolist()
         for i, gi in enumerate(g.tolist()):
             fx, fy, fz = fl[i]
             n = math.sqrt(fx * fx + fy * fy + fz * fz)

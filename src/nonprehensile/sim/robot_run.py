@@ -141,6 +141,11 @@ PINCH_PRESS_DEPTH = 0.002
 ROBOT_FOLLOW_DEPTH = 0.006
 
 
+def _real(x: object) -> bool:
+    """Whether ``x`` is a real number (numpy's too; a bool is not a number here)."""
+    return isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_))
+
+
 def resolve_tracking(n_fingers: int, gain: float | None = None,
                      tangential: bool | None = None,
                      bound: float | None = None) -> tuple[float, bool, float]:
@@ -156,14 +161,11 @@ def resolve_tracking(n_fingers: int, gain: float | None = None,
         A gain outside 0-1000 /s, a bound outside 0-0.05 m (NaN, a bool), a ``tangential``
         that is not True, False or None.
     """
-    def real(x: object) -> bool:  # numpy's numbers too; a bool is not a number here
-        return isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_))
-
-    if gain is not None and not (real(gain) and 0.0 <= float(gain) <= 1000.0):
+    if gain is not None and not (_real(gain) and 0.0 <= float(gain) <= 1000.0):
         raise InputError(f"tracking_gain is a rate from 0 to 1000 /s, got {gain!r}")
     if tangential is not None and not isinstance(tangential, bool):
         raise InputError(f"tracking_tangential is True or False, got {tangential!r}")
-    if bound is not None and not (real(bound) and 0.0 <= float(bound) <= 0.05):
+    if bound is not None and not (_real(bound) and 0.0 <= float(bound) <= 0.05):
         raise InputError(f"tracking_bound is a distance from 0 to 0.05 m, got {bound!r}")
     pinch = n_fingers > 1
     return (float(gain) if gain is not None
@@ -190,8 +192,7 @@ def resolve_force_cap(cap: float | str | None, n_fingers: int,
         return ROBOT_FORCE_CAP if n_fingers == 1 and not compliance else None
     if cap is None:
         return None
-    if not (isinstance(cap, numbers.Real) and not isinstance(cap, (bool, np.bool_))
-            and math.isfinite(float(cap)) and float(cap) > 0.0):
+    if not (_real(cap) and math.isfinite(float(cap)) and float(cap) > 0.0):
         raise InputError(f"force_cap is a force in N > 0, None for none or \"auto\", got "
                          f"{cap!r}")
     if compliance:
@@ -215,8 +216,7 @@ def resolve_surface_bound(n_fingers: int, bound: float | None = None,
     """
     if bound is None:
         return ROBOT_TRACKING_SURFACE_BOUND if n_fingers == 1 and not tangential else math.inf
-    if not (isinstance(bound, numbers.Real) and not isinstance(bound, (bool, np.bool_))
-            and (0.0 <= float(bound) <= 0.05 or float(bound) == math.inf)):
+    if not (_real(bound) and (0.0 <= float(bound) <= 0.05 or float(bound) == math.inf)):
         raise InputError(f"tracking_surface_bound is a distance from 0 to 0.05 m, or inf for "
                          f"none, got {bound!r}")
     return float(bound)
