@@ -34,7 +34,7 @@ from nonprehensile.sim import panda  # noqa: E402
 from nonprehensile.sim.ik import FingertipIK, IKConfig  # noqa: E402
 from nonprehensile.sim.placement import place_base  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
-from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY  # noqa: E402
+from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY, GIVE_ACCEL  # noqa: E402
 from nonprehensile.sim.robot_run import (  # noqa: E402
     PINCH_PRESS_DEPTH,
     ROBOT_FORCE_CAP,
@@ -671,6 +671,110 @@ def test_the_force_caps_give_comes_back_after_the_contact() -> None:
     assert g[-1] == 0.0 and not drv._cap_on  # ... comes back to none
 
 
+def _held_against(force: np.ndarray, feedforward: bool):
+    """The fingertip held on a target in free space for 1 s while a known force ``force``
+    (N, world) pushes it (MuJoCo's ``xfrc_applied`` on the tip's body, at the tip site),
+    the force sensor reading that force (the driver's contact reading replaced by it, the
+    contact gate held open): the fingertip's tracking error of each row, and the driver."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
+                         scale=SCALE, force_feedforward=feedforward)
+    drv, d, m = sim.robot_driver, sim.data, sim.model
+    drv._tip_forces = lambda: np.array([force], dtype=np.float64)  # type: ignore[method-assign]
+    drv._contacts = lambda data: (False, False, True)  # type: ignore[method-assign]
+    mujoco.mj_resetData(m, d)
+    d.qpos[sim.judge.qadr:sim.judge.qadr + 3] = [2.0, 2.0, 0.5]  # the cube far away
+    targets = np.repeat(np.array([[[0.0, 0.0, 0.12]]]), 1000, axis=0)
+    drv.reset()
+    drv.place(d, targets[0])
+    ctl = drv.controls(targets)
+    site = drv._tip_sites[0]
+    body = int(m.site_bodyid[site])
+    for i in range(len(targets)):
+        d.ctrl[:] = ctl[i]
+        mujoco.mj_forward(m, d)
+        # the force at the tip site: its moment about the body's centre of mass too
+        arm = d.site_xpos[site] - d.xipos[body]
+        d.xfrc_applied[body, :3] = force
+        d.xfrc_applied[body, 3:] = np.cross(arm, force)
+        mujoco.mj_step(m, d)
+    return drv.log.error, drv
+
+
+def test_the_contact_force_feedforward_holds_the_fingertip_on_its_command() -> None:
+    """``force_feedforward``: a known 36 N on the fingertip (under the cap; MuJoCo's own
+    dynamics, the force applied to the tip's body) deflects the stiff arm by millimetres
+    from its command; with the force fed forward to the servos (``-J^T F`` on their set
+    points, averaged over each control period) the fingertip holds its command within a
+    fraction of a millimetre. A force over the cap is fed forward as the cap's."""
+    f = np.array([20.0, -15.0, 25.0])
+    off, _ = _held_against(f, False)
+    on, drv = _held_against(f, True)
+    assert off[-200:].min() > 2e-3  # the servos give under 36 N: millimetres
+    assert on[-200:].max() < 0.2 * off[-200:].min() and on[-200:].max() < 3e-4
+    # a force over the cap is summed for the feed-forward as the cap's along it
+    drv._push_sum = [0.0, 0.0, 0.0]
+    drv._tip_forces = lambda: np.array([2.0 * f])  # type: ignore[method-assign]
+    drv._cap(np.zeros(drv.scene.model.nu))
+    np.testing.assert_allclose(drv._push_sum, f * (40.0 / np.linalg.norm(f)), rtol=1e-12)
+
+
+def test_the_force_caps_give_comes_back_as_a_motion_with_the_feedforward() -> None:
+    """With ``force_feedforward``, pressed 2 cm into the table and lifted: off the table the
+    cap's give comes back with its acceleration bounded (``give_accel``) and its velocity
+    fed forward, so the fingertip tracks its command within 2 mm as the give comes back
+    at up to 0.1 m/s, where without it the velocity servos held it back by 7-8 mm."""
+    errors = {}
+    for ff in (False, True):
+        sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
+                             scale=SCALE, force_feedforward=ff)
+        drv = sim.robot_driver
+        down, up = np.array([[0.0, 0.0, -0.02]]), np.array([[0.0, 0.0, 0.03]])
+        targets = np.concatenate([
+            up + (down - up) * np.linspace(0.0, 1.0, 500)[:, None, None],
+            np.repeat(down[None], 700, axis=0),
+            down + (up - down) * np.linspace(0.0, 1.0, 300)[:, None, None],
+            np.repeat(up[None], 700, axis=0)])
+        forces = _over_table(sim, targets)
+        g = np.linalg.norm(drv.log.give[:, 0], axis=1)
+        free = int(np.flatnonzero(forces > 0.0).max()) + 1  # off the table from here
+        end = int(np.flatnonzero(g > 0.0).max())  # the give's last step
+        assert g[free] > 0.01 and g[-1] == 0.0 and not drv._cap_on
+        errors[ff] = drv.log.error[free:end + 2].max()
+        if ff:  # started and stopped at give_accel, onto none
+            d2 = np.abs(np.diff(g[free - 1:end + 2], 2))
+            u = drv.give_accel * drv.dt ** 2
+            # (the last step, onto none, takes what is left: its change at most 9/8 of u)
+            assert d2[:-2].max() <= u * (1 + 1e-9) and d2.max() <= 1.125 * u * (1 + 1e-9)
+    assert errors[True] < 2e-3 < 5e-3 < errors[False]
+
+
+def test_the_force_feedforward_needs_the_force_cap() -> None:
+    """The switch is a bool, and goes with the stiff arm's force cap (the force fed forward
+    is clipped at it): with the compliance, several fingertips or no cap it is refused in
+    one line, never dropped; the JSON (the scene's and a sweep's) says whether it runs."""
+    one = [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))]
+    two = [*one, Arm(Robot.builtin(), BasePose(0.05, 0.55, -80.0))]
+    doc = RobotSimulator(CUBE, one, scale=SCALE).describe()["finger_command"]
+    assert doc["force_feedforward"] is False
+    doc = RobotSimulator(CUBE, one, scale=SCALE, force_feedforward=True).describe()[
+        "finger_command"]
+    assert doc["force_feedforward"] is True and doc["give_accel_m_per_s2"] == GIVE_ACCEL
+    for kw in ({"compliance": True}, {"force_cap": None}):
+        with pytest.raises(InputError, match="force_feedforward needs the stiff arm's"):
+            RobotSimulator(CUBE, one, scale=SCALE, force_feedforward=True, **kw)
+    with pytest.raises(InputError, match="force_feedforward needs the stiff arm's"):
+        RobotSimulator(CUBE, two, scale=SCALE, force_feedforward=True)
+    with pytest.raises(InputError, match="force_feedforward is True or False"):
+        RobotSimulator(CUBE, one, scale=SCALE, force_feedforward=1)  # type: ignore[arg-type]
+    assert SweepRobot(tuple(one), force_feedforward=True).to_dict()["force_feedforward"]
+    assert SweepRobot(tuple(one)).to_dict()["force_feedforward"] is False
+    for bad in ({"arms": tuple(two)}, {"arms": tuple(one), "force_cap": None}):
+        with pytest.raises(InputError, match="force_feedforward needs the stiff arm's"):
+            SweepRobot(force_feedforward=True, **bad)  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="force_feedforward is True or False"):
+        SweepRobot(tuple(one), force_feedforward="yes")  # type: ignore[arg-type]
+
+
 @pytest.mark.parametrize("bad", [0.0, -5.0, math.inf, math.nan, True, "40", "off",
                                  np.array([40.0, 50.0])])
 def test_the_force_cap_is_checked(bad: object) -> None:
@@ -886,6 +990,16 @@ def test_cli_simulate_plan_with_the_force_limited_command() -> None:
     assert doc["robot"]["ik_object_pose"].startswith("closed loop: each observation")
     bad = CliRunner().invoke(main, [*args, "--compliance"])
     assert bad.exit_code == 2 and "--compliance is a robot's" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1
+    # the contact force fed forward: with the force cap only, the JSON says it runs
+    res = CliRunner().invoke(main, [*args, "--robot", "panda", "--base", "0.53", "-0.51",
+                                    "112.5", "--force-feedforward"])
+    assert res.exit_code == 0, res.stderr
+    cmd = json.loads(res.stdout)["robot"]["finger_command"]
+    assert cmd["force_feedforward"] is True and cmd["force_cap_n"] == 40.0
+    bad = CliRunner().invoke(main, [*args, "--robot", "panda", "--base", "0.53", "-0.51",
+                                    "112.5", "--compliance", "--force-feedforward"])
+    assert bad.exit_code == 2 and "--force-feedforward goes with one" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
 
 

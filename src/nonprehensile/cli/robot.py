@@ -13,9 +13,9 @@ from nonprehensile.checks import Range
 from nonprehensile.cli.options import Number, count, number
 from nonprehensile.errors import InputError
 
-__all__ = ["compliance_option", "control_every", "direction_option", "load_robot",
-           "placement_doc", "press_option", "robot_arms", "robot_options", "robot_table",
-           "wants_robot"]
+__all__ = ["compliance_option", "control_every", "direction_option",
+           "force_feedforward_option", "load_robot", "placement_doc", "press_option",
+           "robot_arms", "robot_options", "robot_table", "wants_robot"]
 
 F = Callable[..., Any]
 
@@ -58,6 +58,17 @@ def robot_options(fn: F) -> F:
     ]):
         fn = opt(fn)
     return fn
+
+
+def force_feedforward_option(fn: F) -> F:
+    """Add ``--force-feedforward/--no-force-feedforward`` (keyword argument
+    ``force_feedforward``) to a command that simulates a robot."""
+    return click.option(
+        "--force-feedforward/--no-force-feedforward", "force_feedforward", default=False,
+        show_default=True,
+        help="Robot, one stiff arm: feed the measured contact force (clipped at the force "
+             "cap) forward to the joint servos, so the fingertip holds its command under "
+             "load (docs/robot.md); off by default.")(fn)
 
 
 def compliance_option(fn: F) -> F:
@@ -126,9 +137,15 @@ def wants_robot(kw: dict[str, Any]) -> bool:
     if kw.get("finger_direction", "lean") != "lean" and robot is None and xml is None:
         raise InputError("--finger-direction points a robot's finger tool: give --robot NAME "
                          "or --robot-xml FILE")
+    if kw.get("force_feedforward") and robot is None and xml is None:
+        raise InputError("--force-feedforward is a robot's finger command: give --robot NAME "
+                         "or --robot-xml FILE")
     if kw.get("compliance") and robot is None and xml is None:
         raise InputError("--compliance is a robot's finger command: give --robot NAME or "
                          "--robot-xml FILE")
+    if kw.get("force_feedforward") and (kw.get("compliance") or int(kw.get("n_arms", 1)) > 1):
+        raise InputError("--force-feedforward goes with one stiff arm's force cap: drop it, "
+                         "or --compliance, or --arms")
     return robot is not None or xml is not None
 
 
@@ -158,9 +175,12 @@ def load_robot(kw: dict[str, Any]) -> Any:
         raise InputError(f"robots need MuJoCo and mink: pip install 'nonprehensile[robot]' "
                          f"({exc})") from None
     import_mink()
-    if kw.get("robot") is not None:
-        return Robot.builtin(kw["robot"])
-    return Robot.from_file(kw["robot_xml"], kw["tip_sites"])
+    robot = (Robot.builtin(kw["robot"]) if kw.get("robot") is not None
+             else Robot.from_file(kw["robot_xml"], kw["tip_sites"]))
+    if kw.get("force_feedforward") and len(robot.tip_sites) > 1:  # a hand: no force cap
+        raise InputError(f"--force-feedforward goes with one stiff arm's force cap: the robot "
+                         f"has {len(robot.tip_sites)} fingertip sites; drop it")
+    return robot
 
 
 def robot_arms(kw: dict[str, Any], poly: Any, scale: float, plan: Any, fingers: Any,

@@ -30,6 +30,7 @@ from nonprehensile.cli.robot import (
     compliance_option,
     control_every,
     direction_option,
+    force_feedforward_option,
     load_robot,
     placement_doc,
     press_option,
@@ -112,6 +113,7 @@ def _pct(d: dict[str, Any]) -> str:
 @angle_tol_option
 @robot_options
 @compliance_option
+@force_feedforward_option
 @press_option
 @direction_option
 @json_option
@@ -277,7 +279,8 @@ def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds
         placement = found[0] if n_arms == 1 else found
     return rob.SweepRobot(tuple(arms), every, compliance=bool(kw.get("compliance")),
                           press_depth=kw.get("press_depth", "auto"),
-                          finger_direction=kw.get("finger_direction", "lean")), placement
+                          finger_direction=kw.get("finger_direction", "lean"),
+                          force_feedforward=bool(kw.get("force_feedforward"))), placement
 
 
 def _robot_summary(result: Any) -> dict[str, Any]:

@@ -43,6 +43,7 @@ from nonprehensile.cli.robot import (
     compliance_option,
     control_every,
     direction_option,
+    force_feedforward_option,
     load_robot,
     placement_doc,
     press_option,
@@ -367,6 +368,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @_perturbation_options
 @robot_options
 @compliance_option
+@force_feedforward_option
 @press_option
 @direction_option
 @json_option
@@ -383,7 +385,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     it (docs/robot.md)."""
     robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
                                        "control_rate", "n_arms", "compliance", "press_depth",
-                                       "finger_direction")}
+                                       "finger_direction", "force_feedforward")}
     use_robot = wants_robot(robot_kw)
     if loop == "open" and robot_kw.get("finger_direction") == "recorded":
         err.print("note: --finger-direction recorded changes nothing here: open loop, the "
@@ -444,7 +446,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                                    control_every=every,
                                    compliance=bool(robot_kw.get("compliance")),
                                    press_depth=robot_kw.get("press_depth", "auto"),
-                                   finger_direction=robot_kw.get("finger_direction", "lean"))
+                                   finger_direction=robot_kw.get("finger_direction", "lean"),
+                                   force_feedforward=bool(robot_kw.get("force_feedforward")))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")

@@ -35,8 +35,8 @@ from nonprehensile.sim.ik import FingertipIK, IKConfig
 from nonprehensile.sim.judge import CONTACT_EVERY, Judge
 from nonprehensile.sim.robot_scene import RobotScene
 
-__all__ = ["COMPLIANCE_DAMPING", "DEFAULT_CONTROL_EVERY", "LIMIT_BANDS", "RobotArms",
-           "RobotLog", "RobotMetrics", "check_press", "servo_stiffness"]
+__all__ = ["COMPLIANCE_DAMPING", "DEFAULT_CONTROL_EVERY", "GIVE_ACCEL", "LIMIT_BANDS",
+           "RobotArms", "RobotLog", "RobotMetrics", "check_press", "servo_stiffness"]
 
 FloatArray = NDArray[np.float64]
 
@@ -77,6 +77,14 @@ PRESS_ITERATIONS = 6
 
 #: The force-limited finger command's damping ``B`` (N s/m, :meth:`RobotArms._comply`).
 COMPLIANCE_DAMPING = 300.0
+
+#: With the contact force feed-forward (``RobotArms.force_feedforward``), the force cap's
+#: give, coming back at its full speed (the contact force at most ``cap - B give_speed``),
+#: accelerates and stops at most this much, m/s^2, and its velocity is fed forward to the
+#: servos, taken up at the same rate (:meth:`RobotArms._cap`). 1, 2 and 5 m/s^2 measured
+#: alike across the physics distribution (docs/benchmarks.md); 2 keeps the velocity
+#: servos' steps small (2 mm/s a physics step at the fingertip).
+GIVE_ACCEL = 2.0
 
 #: A joint is "at" a limit within these bands: position within 0.5 degrees of an end of its
 #: range, velocity and torque at or above 98 % of their limits.
@@ -689,6 +697,21 @@ class RobotArms:
         self.force_cap: float | None = None
         self.cap_damping = COMPLIANCE_DAMPING
         self._cap_on = False  # the cap's give is not zero
+        # the contact force fed forward to the servos, clipped at the cap (_cap)
+        self.force_feedforward = False
+        # the give's acceleration bound where it comes back at full speed, and the rate its
+        # velocity feed-forward is taken up at (m/s^2; _cap)
+        self.give_accel = GIVE_ACCEL
+        self._give_speed_now = [0.0] * scene.n_fingers  # the return's speed per step, m
+        self._give_fed = [False] * scene.n_fingers  # a return at full speed (fed forward)
+        self._give_last = np.zeros((scene.n_fingers, 3))  # the give one step before
+        self._give_vel = np.zeros((scene.n_fingers, 3))  # its velocity fed forward, m/s
+        self._jac_c: FloatArray | None = None  # the tips' Jacobian at the last solve
+        # the contact forces (clipped at the cap) summed over the steps since the last
+        # solve, and that solve's step count (_cap, _pushed)
+        self._push_sum = [0.0] * (3 * scene.n_fingers)
+        self._push_any = False
+        self._push_n0 = 0
         self._tip_contact = False  # a fingertip touches anything (_contacts)
         self._offset = np.zeros((scene.n_fingers, 3))  # the give (_comply, _cap), m
         # the contact tracking correction (see _correct)
@@ -733,6 +756,8 @@ class RobotArms:
         self.accel_feedforward = True
         self._kp_joint = np.array([servo_stiffness(m, int(a)) for a in scene.pos_act])
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
+        # the contact force feed-forward's offset within each joint's torque limit, rad
+        self._push_lim = self._torque_max / self._kp_joint
         self._damping_list: list[float] = self._damping.tolist()
         self._lower_list: list[float] = np.asarray(scene.lower, dtype=np.float64).tolist()
         self._upper_list: list[float] = np.asarray(scene.upper, dtype=np.float64).tolist()
@@ -849,6 +874,12 @@ class RobotArms:
         self._n = 0
         self._offset[:] = 0.0
         self._cap_on = False
+        self._give_last[:] = 0.0
+        self._give_vel[:] = 0.0
+        self._push_sum = [0.0] * len(self._push_sum)
+        self._push_any = False
+        self._push_n0 = 0
+        self._give_speed_now = [0.0] * len(self._give_speed_now)
         self._corr[:] = 0.0
         self._press_last[:] = 0.0
         self._state = None
@@ -1001,6 +1032,10 @@ class RobotArms:
                                    else qk + self._noise_offset(ctl.noise[idx]))
         if ff is not None:  # the torque the period's acceleration takes (_accel_offset)
             rows[:, self._pos_cols] += ff
+        if self.force_feedforward:  # the contact force's (_pushed)
+            push = self._pushed()
+            if push is not None:
+                rows[:, self._pos_cols] += push
         rows[:, self._vel_cols] = np.maximum(np.minimum(qdk, self._vel_max), self._vel_min)
         # the log's set points and targets of the period, written once (a period replaced
         # before its end is overwritten from where it stopped); the give, the force and the
@@ -1170,6 +1205,7 @@ class RobotArms:
             mujoco.mj_jacSite(m, d, self._jac, None, int(s))
             rows.append(self._jac[:, sc.dadr])
         jac = np.concatenate(rows)
+        self._jac_c = jac
         return np.asarray(jac.T @ np.linalg.inv(jac @ jac.T + 1e-6 * np.eye(len(jac))))
 
     def solve(self, targets: FloatArray, *, last: bool = False,
@@ -1531,7 +1567,8 @@ class RobotArms:
     def _cap(self, row: FloatArray) -> FloatArray:
         """Row ``row`` with each fingertip's give under the stiff arm's force cap
         (``force_cap``, N), updated over this physics step from the contact force on the
-        fingertip (object and table, MuJoCo's contact forces: a wrist F/T sensor's reading).
+        fingertip (object and table, MuJoCo's contact forces: a wrist F/T sensor's reading),
+        and with that force fed forward (``force_feedforward``, :meth:`_pushed`).
 
         Above the cap the give ``g`` (``self._offset``, part of the command) moves along the
         force, out of what the fingertip presses, as ``B dg/dt = |F| - cap``
@@ -1541,23 +1578,50 @@ class RobotArms:
         ``give_bound``). On the servos' set points as the force-limited command's give is
         (``J^+ g``, every physics step: read once per control period the force samples the
         impacts, and an arm pressed into the table hopped, 0 to 500 N). Only while a
-        fingertip has a contact or a give: elsewhere a step costs nothing more."""
+        fingertip has a contact or a give: elsewhere a step costs nothing more.
+
+        With ``force_feedforward``, where the give comes back at its full speed (``|F| <=
+        cap - B give_speed``, off the object or nearly: there its speed does not depend on
+        the force) it is a motion
+        of the command like the IK's: it starts and stops at most at ``give_accel``, and its
+        velocity goes on the velocity servos' set points (``J^+ dg/dt``, taken up and let go
+        at the same rate). Without that the velocity servos held it back: the fingertip
+        lagged a give coming back at 0.1 m/s by ``K_v / K_p`` times that, 7-10 mm, the
+        worst tracking error in contact of most runs across the physics distribution.
+        Elsewhere the give's velocity is not fed forward: the cap's loop then has no lag
+        but the contact's, and fed forward at every speed the arm pressed 100-200 N and 68
+        of 100 runs held a torque limit over 10 ms (docs/benchmarks.md)."""
         cap = self.force_cap
         assert cap is not None  # (called only with a cap)
         fl = self._tip_forces().tolist()
+        smooth = self.force_feedforward
+        if smooth:  # (summed for the next solve's offset: _pushed)
+            acc = self._push_sum
+            for i, (x, y, z) in enumerate(fl):
+                if x or y or z:
+                    n = math.sqrt(x * x + y * y + z * z)
+                    k = cap / n if n > cap else 1.0
+                    acc[3 * i] += x * k
+                    acc[3 * i + 1] += y * k
+                    acc[3 * i + 2] += z * k
+                    self._push_any = True
         if not self._cap_on:  # no give: only a force past the cap starts one (most steps)
             c2 = cap * cap
             if all(x * x + y * y + z * z <= c2 for x, y, z in fl):
                 return row
         h, b = self.dt, self.cap_damping
         v = self.give_speed * h
+        full = cap - b * self.give_speed  # (below this force the return runs at full speed)
+        a = self.give_accel
         g = self._offset
+        speeds, fed = self._give_speed_now, self._give_fed
         on = False
         for i, gi in enumerate(g.tolist()):
             fx, fy, fz = fl[i]
             n = math.sqrt(fx * fx + fy * fy + fz * fz)
             gx, gy, gz = gi
             ng = math.sqrt(gx * gx + gy * gy + gz * gz)
+            fed[i] = False
             if n > cap:
                 s_ = min(h * (n - cap) / b, v) / n
                 gx, gy, gz = gx + s_ * fx, gy + s_ * fy, gz + s_ * fz
@@ -1565,18 +1629,90 @@ class RobotArms:
                 if ng > self.give_bound:
                     k = self.give_bound / ng
                     gx, gy, gz, ng = gx * k, gy * k, gz * k, self.give_bound
+                speeds[i] = 0.0
             elif ng > 0.0:
-                k = max(0.0, ng - min(h * (cap - n) / b, v)) / ng
+                step = min(h * (cap - n) / b, v)
+                if smooth and n <= full:  # full speed: started and stopped at give_accel
+                    # (the step ``u m`` whose run down ``u m, u (m - 1), ..., u`` covers
+                    # the give: ``m (m + 1) / 2 = |g| / u``, ``u`` the speed a step gains)
+                    u = a * h * h
+                    step = min(step, speeds[i] + u, u * (math.sqrt(0.25 + 2.0 * ng / u) - 0.5))
+                    fed[i] = True
+                speeds[i] = step
+                k = max(0.0, ng - step) / ng
                 gx, gy, gz, ng = gx * k, gy * k, gz * k, ng * k
+            else:
+                speeds[i] = 0.0
             g[i] = (gx, gy, gz)
             on = on or ng > 0.0
         self._cap_on = on
-        return self._given(row, on)
+        vel = self._give_velocity(fed) if on and smooth else None
+        if not on:
+            self._give_vel[:] = 0.0  # (the return ended at rest: decelerated)
+        return self._given(row, on, vel)
 
-    def _given(self, row: FloatArray, on: bool) -> FloatArray:
+    def _give_velocity(self, fed: list[bool]) -> FloatArray | None:
+        """The give's velocity fed forward now (shape (n_fingers, 3), m/s; None: none):
+        each fingertip's ``dg/dt`` where its give comes back at full speed (``fed``), none
+        elsewhere, the feed-forward moving towards it at most ``give_accel`` (the velocity
+        servos see no step)."""
+        w, last, g = self._give_vel, self._give_last, self._offset
+        if any(fed) or w.any():
+            u = (g - last) * (1.0 / self.dt)
+            for i, f in enumerate(fed):
+                if not f:
+                    u[i] = 0.0
+            dw = u - w
+            nd = np.sqrt((dw * dw).sum(axis=1))
+            lim = self.give_accel * self.dt
+            big = nd > lim
+            if big.any():
+                dw[big] *= (lim / nd[big])[:, None]
+            w += dw
+        last[:] = g
+        return w if w.any() else None
+
+    def _pushed(self) -> FloatArray | None:
+        """The contact force feed-forward of the control period starting now: the offset of
+        the position set points (rad, shape (n_joints,); None: no force), ``K_p^-1 (-J^T
+        F)``, ``F`` each fingertip's contact force clipped at the force cap and averaged
+        over the physics steps since the last solve (:meth:`_cap` sums it every step while
+        a fingertip touches), ``J`` the tip sites' position Jacobian now; each joint's
+        torque within its limit, none for a servo that is not a plain one (as the
+        acceleration's torque, :meth:`_accel_offset`).
+
+        The servos held a contact force from their position error: at the Panda's gains the
+        fingertip stood ``C F`` from its command (``C``, the arm's compliance at the tip:
+        5-8 mm at the cap's 40 N, much of it across the force, along the face pushed, where
+        the contact tracking correction may move the command by 0.5 mm only). Clipped at
+        the cap: an impact's force (200-500 N for a few ms) is not pushed back against
+        (unclipped, across the physics distribution, the arm pressed up to 290 N and a
+        third of the runs held a torque limit over 10 ms). Per control period, averaged:
+        the offset steps at the period's boundary as the acceleration's does; every
+        physics step it cost 10 % more CPU over the 72 single-finger transitions
+        (docs/benchmarks.md)."""
+        steps = self._n - self._push_n0
+        self._push_n0 = self._n
+        if not self._push_any:
+            return None
+        acc = self._push_sum
+        f = np.array(acc) * (1.0 / max(steps, 1))
+        acc[:] = [0.0] * len(acc)
+        self._push_any = False
+        if self._pinv_c is None:
+            self._pinv_c = self._tip_pinv()
+        jac = self._jac_c
+        assert jac is not None
+        d = -(jac.T @ f) / self._kp_joint
+        lim = self._push_lim
+        return np.asarray(np.clip(d, -lim, lim), dtype=np.float64)
+
+    def _given(self, row: FloatArray, on: bool, vel: FloatArray | None = None) -> FloatArray:
         """Row ``row`` with the give (``self._offset``) logged on the row just recorded and,
         where ``on`` (any give), put on the position servos' set points as the joint offset
-        ``J^+ g`` (``J``: the tip sites' position Jacobian at the last solve)."""
+        ``J^+ g`` (``J``: the tip sites' position Jacobian at the last solve), and ``vel``
+        (the give's velocity fed forward, m/s, shape (n_fingers, 3); None: none) on the
+        velocity servos' as ``J^+ vel``, within the joints' velocity limits."""
         g = self._offset
         self.log._give[self.log.n - 1] = g  # the row just recorded (record)
         if not on:
@@ -1585,6 +1721,10 @@ class RobotArms:
             self._pinv_c = self._tip_pinv()
         out = np.array(row)
         out[self.scene.pos_act] += self._pinv_c @ g.ravel()
+        if vel is not None:
+            vc = self.scene.vel_act
+            out[vc] = np.maximum(np.minimum(out[vc] + self._pinv_c @ vel.ravel(),
+                                            self._vel_max), self._vel_min)
         return out
 
     def _correct(self, targets: FloatArray, now: FloatArray, steps: int,

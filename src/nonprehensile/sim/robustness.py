@@ -428,6 +428,9 @@ class SweepRobot:
         The stiff arm's force cap, N (``"auto"``, the default: 40 N with one fingertip,
         none with several or with the compliance; None: none;
         :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
+    force_feedforward : bool
+        With a force cap, the contact force fed forward to the servos (off by default;
+        :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
     """
 
     arms: tuple[Any, ...]
@@ -438,6 +441,7 @@ class SweepRobot:
     press_correction: bool = True
     finger_direction: str = "lean"
     force_cap: float | str | None = "auto"
+    force_feedforward: bool = False
 
     def __post_init__(self) -> None:
         if self.max_accel is None:
@@ -461,6 +465,13 @@ class SweepRobot:
         from nonprehensile.sim.robot_run import resolve_force_cap
 
         resolve_force_cap(self.force_cap, self.n_fingers, self.compliance is True)
+        if not isinstance(self.force_feedforward, bool):
+            raise InputError(f"force_feedforward is True or False, got "
+                             f"{self.force_feedforward!r}")
+        if self.force_feedforward and self.force_cap_n is None:
+            from nonprehensile.sim.robot_run import _NO_CAP_FF
+
+            raise InputError(_NO_CAP_FF)
 
     @property
     def n_fingers(self) -> int:
@@ -476,7 +487,8 @@ class SweepRobot:
                               compliance=self.compliance, press_depth=self.press_depth,
                               press_correction=self.press_correction,
                               finger_direction=self.finger_direction,
-                              force_cap=self.force_cap)
+                              force_cap=self.force_cap,
+                              force_feedforward=self.force_feedforward)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form: robots, bases, rates."""
@@ -490,6 +502,8 @@ class SweepRobot:
                 "finger_direction": self.finger_direction,
                 # the stiff arm's force cap that runs ("auto" resolved; None: none)
                 "force_cap_n": self.force_cap_n,
+                # whether the contact force is fed forward (with a cap only)
+                "force_feedforward": self.force_feedforward,
                 # the contact tracking correction that runs (robot_run.resolve_tracking)
                 **self.tracking()}
 
