@@ -41,7 +41,7 @@ force-limited finger command (each sample's stiffness and force limit, docs/robo
 ``sweep``, ``transitions`` and ``plan``. ``NP_ROBOT_FINGER_DIRECTION=recorded`` points the
 finger tools along the recorded fingers (docs/robot.md) in every part.
 ``NP_ROBOT_FORCE_FF=1`` feeds the contact force forward to one arm's servos
-(``RobotSimulator(force_feedforward=True)``, docs/robot.md) in every part.
+(``RobotSimulator(force_feedforward=True)``, docs/robot.md) in every part's one-arm runs.
 ``NP_ROBOT_REPEAT=R`` (default 1) executes the main
 plan ``R`` times by each driver in ``plan`` and prints the median CPU of each (the same plan
 from the same start: the records are those of the last execution; on a shared machine one
@@ -393,11 +393,13 @@ def transitions() -> None:
         print(f"  {n_arms}-finger transitions by {n_arms} Panda(s): {len(units)}; bases "
               f"{[f.to_dict()['base'] for f in found]} "
               f"({time.perf_counter() - t0:.0f} s search)")
+        # (the contact force feed-forward goes with one arm's force cap: not for two)
+        kw = {k: v for k, v in ROBOT_KW.items() if n_arms == 1 or k != "force_feedforward"}
         spec = SweepSpec(poly, ds.scale, tuple(units), nominal, SEED, 1, ("closed",),
                          dict(ds.fingers), expansion=exp, library=frozen_library(exp, motions),
-                         robot=SweepRobot(tuple(arms), compliance=COMPLIANCE, **ROBOT_KW))
+                         robot=SweepRobot(tuple(arms), compliance=COMPLIANCE, **kw))
         print(f"   force-limited finger command: {_compliance(n_arms)}; contact-consistent "
-              f"command: {ROBOT_KW or 'the default'}")
+              f"command: {kw or 'the default'}")
         _robot_report(run_sweep(spec, workers=WORKERS, chunk_size=1))
 
 

@@ -82,7 +82,8 @@ COMPLIANCE_DAMPING = 300.0
 #: give, coming back at its full speed (the contact force at most ``cap - B give_speed``),
 #: accelerates and stops at most this much, m/s^2, and its velocity is fed forward to the
 #: servos, taken up at the same rate (:meth:`RobotArms._cap`). 1, 2 and 5 m/s^2 measured
-#: alike across the physics distribution (docs/benchmarks.md); 2 keeps the velocity
+#: alike across the physics distribution with the force fed forward every physics step
+#: (docs/benchmarks.md; the landed per-period form was measured at 2); 2 keeps the velocity
 #: servos' steps small (2 mm/s a physics step at the fingertip).
 GIVE_ACCEL = 2.0
 
@@ -706,7 +707,8 @@ class RobotArms:
         self._give_fed = [False] * scene.n_fingers  # a return at full speed (fed forward)
         self._give_last = np.zeros((scene.n_fingers, 3))  # the give one step before
         self._give_vel = np.zeros((scene.n_fingers, 3))  # its velocity fed forward, m/s
-        self._jac_c: FloatArray | None = None  # the tips' Jacobian at the last solve
+        # the tips' Jacobian of the last _tip_pinv (the last solve's, or one within its period)
+        self._jac_c: FloatArray | None = None
         # the contact forces (clipped at the cap) summed over the steps since the last
         # solve, and that solve's step count (_cap, _pushed)
         self._push_sum = [0.0] * (3 * scene.n_fingers)
@@ -1585,12 +1587,13 @@ class RobotArms:
         the force) it is a motion
         of the command like the IK's: it starts and stops at most at ``give_accel``, and its
         velocity goes on the velocity servos' set points (``J^+ dg/dt``, taken up and let go
-        at the same rate). Without that the velocity servos held it back: the fingertip
-        lagged a give coming back at 0.1 m/s by ``K_v / K_p`` times that, 7-10 mm, the
-        worst tracking error in contact of most runs across the physics distribution.
-        Elsewhere the give's velocity is not fed forward: the cap's loop then has no lag
-        but the contact's, and fed forward at every speed the arm pressed 100-200 N and 68
-        of 100 runs held a torque limit over 10 ms (docs/benchmarks.md)."""
+        at the same rate; so for up to 50 ms after the give leaves its full-speed return the
+        velocity fed forward runs down behind it). Without that the velocity servos held it
+        back: the fingertip lagged a give coming back at 0.1 m/s by ``K_v / K_p`` times that,
+        7-10 mm, the worst tracking error in contact of about half the runs across the
+        physics distribution. Elsewhere the give's velocity is not fed forward: the cap's
+        loop then has no lag but the contact's, and fed forward at every speed 68 of 100
+        runs held a torque limit over 10 ms while touching (docs/benchmarks.md)."""
         cap = self.force_cap
         assert cap is not None  # (called only with a cap)
         fl = self._tip_forces().tolist()
@@ -1676,20 +1679,24 @@ class RobotArms:
         """The contact force feed-forward of the control period starting now: the offset of
         the position set points (rad, shape (n_joints,); None: no force), ``K_p^-1 (-J^T
         F)``, ``F`` each fingertip's contact force clipped at the force cap and averaged
-        over the physics steps since the last solve (:meth:`_cap` sums it every step while
-        a fingertip touches), ``J`` the tip sites' position Jacobian now; each joint's
-        torque within its limit, none for a servo that is not a plain one (as the
-        acceleration's torque, :meth:`_accel_offset`).
+        over the physics steps since the last solve (:meth:`_cap` sums it every physics
+        step while its gate is open: a fingertip's contact, read every ``CONTACT_EVERY``
+        steps, or a give), ``J`` the tip sites' position Jacobian (:meth:`_tip_pinv`'s, at
+        this solve's joints or within the period before); each joint's torque within its
+        limit on its own (the acceleration's offset is clipped on its own too, and the
+        torque budget, :meth:`_within_torque`, does not count this one), none for a servo
+        that is not a plain one (as the acceleration's torque, :meth:`_accel_offset`).
 
-        The servos held a contact force from their position error: at the Panda's gains the
-        fingertip stood ``C F`` from its command (``C``, the arm's compliance at the tip:
-        5-8 mm at the cap's 40 N, much of it across the force, along the face pushed, where
-        the contact tracking correction may move the command by 0.5 mm only). Clipped at
-        the cap: an impact's force (200-500 N for a few ms) is not pushed back against
-        (unclipped, across the physics distribution, the arm pressed up to 290 N and a
-        third of the runs held a torque limit over 10 ms). Per control period, averaged:
-        the offset steps at the period's boundary as the acceleration's does; every
-        physics step it cost 10 % more CPU over the 72 single-finger transitions
+        The servos held a contact force from their position error: the fingertip stood
+        ``C F`` from its command (``C``, the arm's compliance at the tip: 2.3 mm at 35 N in
+        the tests' pose near the base; 4-7 mm at 20-70 N in the physics distribution's
+        runs, much of it across the force, along the face pushed, where the contact
+        tracking correction may move the command by 0.5 mm only). Clipped at the cap: an
+        impact's force (200-500 N for a few ms) is not pushed back against (unclipped,
+        across the physics distribution, the arm pressed up to 290 N and a third of the runs
+        held a torque limit over 10 ms). Per control period, averaged: the offset follows
+        the force one period late and steps at the period's boundary as the acceleration's
+        does, with no numpy per physics step; fed every physics step it measured alike
         (docs/benchmarks.md)."""
         steps = self._n - self._push_n0
         self._push_n0 = self._n

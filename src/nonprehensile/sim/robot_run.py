@@ -43,7 +43,8 @@ from nonprehensile.transit import APPROACH_SPEED
 __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
            "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_FORCE_CAP", "ROBOT_MAX_ACCEL",
            "ROBOT_PUSH_APPROACH", "ROBOT_TRACKING_SURFACE_BOUND", "ROBOT_TRANSIT_ACCEL",
-           "RobotSimulator", "describe_robots", "resolve_force_cap", "resolve_press_depth",
+           "RobotSimulator", "check_force_feedforward", "describe_robots",
+           "resolve_force_cap", "resolve_press_depth",
            "resolve_surface_bound", "resolve_tracking",
            "robot_control"]
 
@@ -175,10 +176,16 @@ def resolve_tracking(n_fingers: int, gain: float | None = None,
             else PINCH_TRACKING_BOUND if pinch else DEFAULT_TRACKING_BOUND)
 
 
-# (the force fed forward is clipped at the cap, and its give's return is the cap's)
-_NO_CAP_FF = ("force_feedforward needs the stiff arm's force cap (one fingertip, "
-              "force_cap='auto' or a force in N): drop it with compliance, several "
-              "fingertips or force_cap=None")
+def check_force_feedforward(feedforward: object, cap: float | None) -> None:
+    """Refuse a contact force feed-forward switch that is not a bool, or one turned on
+    without a force cap ``cap`` (N; None: none): the force fed forward is clipped at the
+    cap, and the give it feeds forward is the cap's (one line saying what came)."""
+    if not isinstance(feedforward, bool):
+        raise InputError(f"force_feedforward is True or False, got {feedforward!r}")
+    if feedforward and cap is None:
+        raise InputError("force_feedforward needs the stiff arm's force cap (one fingertip, "
+                         "force_cap='auto' or a force in N): drop it with compliance, several "
+                         "fingertips or force_cap=None")
 
 
 def resolve_force_cap(cap: float | str | None, n_fingers: int,
@@ -370,14 +377,15 @@ class RobotSimulator(Simulator):
         (:meth:`~nonprehensile.sim.robot_driver.RobotArms._pushed`), and the cap's give
         coming back at full speed fed forward as a motion (its velocity on the velocity
         servos, its acceleration bounded: ``RobotArms._cap``). Off by default: the servos
-        hold the force from their position error (the fingertip 5-8 mm from its command at
-        the cap's 40 N). On, the fingertip tracks its command within 0.3 mm over the 72
-        single-finger transitions at nominal physics (2.8 mm off) and the median of the
-        worst tracking error in contact over 100 samples of the physics distribution falls
-        from 6.5 to 4.0 mm, but the arm then turns the cube further than the references
-        (recorded with a compliant fingertip) expect: more end-of-plan corrections, 5 %
-        more simulated time and 10 % more CPU at nominal, and no fewer runs with a limit
-        held or a rod touching across the distribution (docs/robot.md).
+        hold the force from their position error (the fingertip millimetres from its
+        command: 4-7 mm at 20-70 N across the distribution). On, the fingertip tracks its
+        command within 0.5 mm over the 72 single-finger transitions at nominal physics
+        (2.8 mm off) and the median of the worst tracking error in contact over 100 samples
+        of the physics distribution falls from 6.5-6.6 to 4.0-4.1 mm, but the arm then turns
+        the cube further than the references (recorded with a compliant fingertip) expect:
+        more end-of-plan corrections, 5 % more simulated time and 5-9 % more CPU at nominal;
+        across the distribution as many runs hold a limit and more put the rod on the cube
+        (2-3 against 1; docs/robot.md).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
@@ -395,8 +403,6 @@ class RobotSimulator(Simulator):
                  force_feedforward: bool = False) -> None:
         if not isinstance(accel_feedforward, bool):
             raise InputError(f"accel_feedforward is True or False, got {accel_feedforward!r}")
-        if not isinstance(force_feedforward, bool):
-            raise InputError(f"force_feedforward is True or False, got {force_feedforward!r}")
         if force_limit is not None and not compliance:
             # before the force-limited command, force_limit alone made the tip yield: a call
             # written then must not now run the stiff arm without a word
@@ -406,6 +412,7 @@ class RobotSimulator(Simulator):
         resolve_tracking(1, tracking_gain, tracking_tangential, tracking_bound)
         resolve_surface_bound(1, tracking_surface_bound)
         resolve_force_cap(force_cap, 1, compliance is True)
+        check_force_feedforward(force_feedforward, math.inf)  # (its type now, its cap below)
         check_finger_direction(finger_direction)
         self.poly = poly
         self.scale = float(scale) if scale is not None else default_scale(poly)
@@ -452,8 +459,7 @@ class RobotSimulator(Simulator):
         self.robot_driver.accel_feedforward = accel_feedforward
         self.robot_driver.force_cap = resolve_force_cap(force_cap, self.n_fingers,
                                                         compliance is True)
-        if force_feedforward and self.robot_driver.force_cap is None:
-            raise InputError(_NO_CAP_FF)
+        check_force_feedforward(force_feedforward, self.robot_driver.force_cap)
         self.robot_driver.force_feedforward = force_feedforward
         self._body = self.judge.body
         self._qadr = self.judge.qadr
@@ -532,7 +538,8 @@ class RobotSimulator(Simulator):
             # at it) is fed forward, and the acceleration of its give's full-speed return
             "force_cap_n": drv.force_cap,
             "force_feedforward": bool(drv.force_feedforward),
-            "give_accel_m_per_s2": (float(drv.give_accel) if drv.force_cap is not None
+            # (None: the give's return is not a fed-forward motion, the switch off)
+            "give_accel_m_per_s2": (float(drv.give_accel) if drv.force_feedforward
                                     else None),
             # the bound of its part along the object's surface (None: none)
             "tracking_surface_bound_m": (float(drv.tracking_surface_bound)

@@ -465,13 +465,9 @@ class SweepRobot:
         from nonprehensile.sim.robot_run import resolve_force_cap
 
         resolve_force_cap(self.force_cap, self.n_fingers, self.compliance is True)
-        if not isinstance(self.force_feedforward, bool):
-            raise InputError(f"force_feedforward is True or False, got "
-                             f"{self.force_feedforward!r}")
-        if self.force_feedforward and self.force_cap_n is None:
-            from nonprehensile.sim.robot_run import _NO_CAP_FF
+        from nonprehensile.sim.robot_run import check_force_feedforward
 
-            raise InputError(_NO_CAP_FF)
+        check_force_feedforward(self.force_feedforward, self.force_cap_n)
 
     @property
     def n_fingers(self) -> int:
