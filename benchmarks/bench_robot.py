@@ -41,7 +41,8 @@ force-limited finger command (each sample's stiffness and force limit, docs/robo
 ``sweep``, ``transitions`` and ``plan``. ``NP_ROBOT_FINGER_DIRECTION=recorded`` points the
 finger tools along the recorded fingers (docs/robot.md) in every part.
 ``NP_ROBOT_FORCE_FF=1`` feeds the contact force forward to one arm's servos
-(``RobotSimulator(force_feedforward=True)``, docs/robot.md) in every part's one-arm runs.
+(``RobotSimulator(force_feedforward=True)``, docs/robot.md) in the ``plan``, ``sweep``,
+``cost`` and one-arm ``transitions`` runs (not the ``wheel`` part's user robot).
 ``NP_ROBOT_REPEAT=R`` (default 1) executes the main
 plan ``R`` times by each driver in ``plan`` and prints the median CPU of each (the same plan
 from the same start: the records are those of the last execution; on a shared machine one
@@ -81,6 +82,9 @@ if "NP_ROBOT_FINGER_DIRECTION" in os.environ:
     ROBOT_KW["finger_direction"] = os.environ["NP_ROBOT_FINGER_DIRECTION"]
 # the stiff arm's contact force feed-forward (NP_ROBOT_FORCE_FF=1: on; off by default)
 if os.environ.get("NP_ROBOT_FORCE_FF") == "1":
+    if COMPLIANCE:
+        raise SystemExit("NP_ROBOT_FORCE_FF=1 goes with the stiff arm's force cap: drop it, "
+                         "or NP_ROBOT_COMPLIANCE=1")
     ROBOT_KW["force_feedforward"] = True
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 

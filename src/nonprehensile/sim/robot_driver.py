@@ -1590,7 +1590,7 @@ class RobotArms:
         at the same rate; so for up to 50 ms after the give leaves its full-speed return the
         velocity fed forward runs down behind it). Without that the velocity servos held it
         back: the fingertip lagged a give coming back at 0.1 m/s by ``K_v / K_p`` times that,
-        7-10 mm, the worst tracking error in contact of about half the runs across the
+        6-10 mm, the worst tracking error in contact of about half the runs across the
         physics distribution. Elsewhere the give's velocity is not fed forward: the cap's
         loop then has no lag but the contact's, and fed forward at every speed 68 of 100
         runs held a torque limit over 10 ms while touching (docs/benchmarks.md)."""
@@ -1658,7 +1658,9 @@ class RobotArms:
         """The give's velocity fed forward now (shape (n_fingers, 3), m/s; None: none):
         each fingertip's ``dg/dt`` where its give comes back at full speed (``fed``), none
         elsewhere, the feed-forward moving towards it at most ``give_accel`` (the velocity
-        servos see no step)."""
+        servos see no step but one: when the give reaches none the feed-forward stops, from
+        at most ``give_accel`` times a step (2 mm/s) after a full-speed return, from what
+        is left of its run-down after any other)."""
         w, last, g = self._give_vel, self._give_last, self._offset
         if any(fed) or w.any():
             u = (g - last) * (1.0 / self.dt)

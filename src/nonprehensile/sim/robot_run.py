@@ -176,15 +176,24 @@ def resolve_tracking(n_fingers: int, gain: float | None = None,
             else PINCH_TRACKING_BOUND if pinch else DEFAULT_TRACKING_BOUND)
 
 
-def check_force_feedforward(feedforward: object, cap: float | None) -> None:
+def check_force_feedforward(feedforward: object, cap: float | None,
+                            n_fingers: int = 1) -> None:
     """Refuse a contact force feed-forward switch that is not a bool, or one turned on
-    without a force cap ``cap`` (N; None: none): the force fed forward is clipped at the
-    cap, and the give it feeds forward is the cap's (one line saying what came)."""
+    without a force cap ``cap`` (N; None: none) or with several fingertips: the force fed
+    forward is clipped at the cap, the give it feeds forward is the cap's, and it was
+    measured for one arm pushing only (a pinch's squeeze fed forward would press harder).
+
+    Raises
+    ------
+    InputError
+        One line saying what came and what to drop.
+    """
     if not isinstance(feedforward, bool):
         raise InputError(f"force_feedforward is True or False, got {feedforward!r}")
-    if feedforward and cap is None:
-        raise InputError("force_feedforward needs the stiff arm's force cap (one fingertip, "
-                         "force_cap='auto' or a force in N): drop it with compliance, several "
+    if feedforward and (cap is None or n_fingers > 1):
+        raise InputError("force_feedforward needs the stiff arm's force cap and one "
+                         f"fingertip (force_cap='auto' or a force in N; got {n_fingers} "
+                         f"fingertip(s), force cap {cap}): drop it with compliance, several "
                          "fingertips or force_cap=None")
 
 
@@ -459,7 +468,8 @@ class RobotSimulator(Simulator):
         self.robot_driver.accel_feedforward = accel_feedforward
         self.robot_driver.force_cap = resolve_force_cap(force_cap, self.n_fingers,
                                                         compliance is True)
-        check_force_feedforward(force_feedforward, self.robot_driver.force_cap)
+        check_force_feedforward(force_feedforward, self.robot_driver.force_cap,
+                                self.n_fingers)
         self.robot_driver.force_feedforward = force_feedforward
         self._body = self.judge.body
         self._qadr = self.judge.qadr

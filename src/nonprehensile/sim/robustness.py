@@ -467,7 +467,7 @@ class SweepRobot:
         resolve_force_cap(self.force_cap, self.n_fingers, self.compliance is True)
         from nonprehensile.sim.robot_run import check_force_feedforward
 
-        check_force_feedforward(self.force_feedforward, self.force_cap_n)
+        check_force_feedforward(self.force_feedforward, self.force_cap_n, self.n_fingers)
 
     @property
     def n_fingers(self) -> int:
