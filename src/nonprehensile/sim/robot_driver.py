@@ -1584,11 +1584,11 @@ class RobotArms:
 
         With ``force_feedforward``, where the give comes back at its full speed (``|F| <=
         cap - B give_speed``, off the object or nearly: there its speed does not depend on
-        the force) it is a motion
-        of the command like the IK's: it starts and stops at most at ``give_accel``, and its
-        velocity goes on the velocity servos' set points (``J^+ dg/dt``, taken up and let go
-        at the same rate; so for up to 50 ms after the give leaves its full-speed return the
-        velocity fed forward runs down behind it). Without that the velocity servos held it
+        the force) it is a motion of the command like the IK's: it starts and stops at most
+        at ``give_accel``, and its velocity goes on the velocity servos' set points (``J^+
+        dg/dt``, taken up and let go at the same rate; so for up to 50 ms after the give
+        leaves its full-speed return the velocity fed forward runs down behind it, and it
+        stops with the give: :meth:`_give_velocity`). Without that the velocity servos held it
         back: the fingertip lagged a give coming back at 0.1 m/s by ``K_v / K_p`` times that,
         6-10 mm, the worst tracking error in contact of about half the runs across the
         physics distribution. Elsewhere the give's velocity is not fed forward: the cap's
