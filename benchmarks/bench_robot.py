@@ -40,9 +40,10 @@ fingertips, and a robot model from a PyPI wheel through ``--robot-xml``.
 force-limited finger command (each sample's stiffness and force limit, docs/robot.md) in
 ``sweep``, ``transitions`` and ``plan``. ``NP_ROBOT_FINGER_DIRECTION=recorded`` points the
 finger tools along the recorded fingers (docs/robot.md) in every part.
-``NP_ROBOT_FORCE_FF=1`` feeds the contact force forward to one arm's servos
-(``RobotSimulator(force_feedforward=True)``, docs/robot.md) in the ``plan``, ``sweep``,
-``cost`` and one-arm ``transitions`` runs (not the ``wheel`` part's user robot).
+The contact force is fed forward to one stiff arm's servos by default
+(``RobotSimulator(force_feedforward="auto")``, docs/robot.md); ``NP_ROBOT_FORCE_FF=0``
+turns it off (``=1`` asks for it) in the ``plan``, ``sweep``, ``cost`` and one-arm
+``transitions`` runs (the ``wheel`` part's user robot keeps the default).
 ``NP_ROBOT_REPEAT=R`` (default 1) executes the main
 plan ``R`` times by each driver in ``plan`` and prints the median CPU of each (the same plan
 from the same start: the records are those of the last execution; on a shared machine one
@@ -80,12 +81,15 @@ if "NP_ROBOT_PRESS_CORRECTION" in os.environ:
 # how the finger tools point in a step ("lean", the default, or "recorded": the knuckles)
 if "NP_ROBOT_FINGER_DIRECTION" in os.environ:
     ROBOT_KW["finger_direction"] = os.environ["NP_ROBOT_FINGER_DIRECTION"]
-# the stiff arm's contact force feed-forward (NP_ROBOT_FORCE_FF=1: on; off by default)
+# the stiff arm's contact force feed-forward (NP_ROBOT_FORCE_FF=1: on, 0: off; by default
+# "auto": on with one stiff arm's fingertip)
 if os.environ.get("NP_ROBOT_FORCE_FF") == "1":
     if COMPLIANCE:
         raise SystemExit("NP_ROBOT_FORCE_FF=1 goes with the stiff arm's force cap: drop it, "
                          "or NP_ROBOT_COMPLIANCE=1")
     ROBOT_KW["force_feedforward"] = True
+elif os.environ.get("NP_ROBOT_FORCE_FF") == "0":
+    ROBOT_KW["force_feedforward"] = False
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 

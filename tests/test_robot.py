@@ -558,14 +558,17 @@ def _table_force(m, d, tip: int) -> float:
 
 
 def _press_table(compliance: bool, stiffness: float, force_limit: float | None,
-                 force_cap: float | str | None = None, depth: float = 0.02):
+                 force_cap: float | str | None = None, depth: float = 0.02,
+                 force_feedforward: bool | str = False):
     """A target ``depth`` (2 cm) inside the table for 1.5 s (the fingertip's centre rests
     6 mm above it): the contact forces on the fingertip at every physics step, and the
-    driver. The stiff arm without its force cap unless ``force_cap`` is given."""
+    driver. The stiff arm without its force cap unless ``force_cap`` is given, and without
+    the contact force fed forward unless ``force_feedforward`` says so."""
     params = replace(DEFAULT_PARAMS, stiffness=stiffness)
     sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
                          scale=SCALE, params=params, force_limit=force_limit,
-                         compliance=compliance, force_cap=None if compliance else force_cap)
+                         compliance=compliance, force_cap=None if compliance else force_cap,
+                         force_feedforward=force_feedforward)
     x0 = np.array([[0.0, 0.0, 0.03]])
     x1 = np.array([[0.0, 0.0, -depth]])
     targets = np.concatenate([x0 + (x1 - x0) * np.linspace(0.0, 1.0, 500)[:, None, None],
@@ -629,7 +632,9 @@ def test_the_stiff_arms_force_cap_holds_its_force_at_the_cap() -> None:
     table, the fingertip's command gives way upwards until the force is the cap, and holds
     it there (truth: MuJoCo's contact forces, summed here, not the driver's reading); the
     arm without a cap presses several times harder. The tracking error is against the
-    command, the give included. A light press (under the cap) keeps no give."""
+    command, the give included. Without the force fed forward, a light press (under the
+    cap) keeps no give; with it (the default) the arm reaches the light press's depth, the
+    table's stiffness past the cap, and the give holds the cap there too."""
     f, drv = _press_table(False, 600.0, None, force_cap="auto")
     assert drv.force_cap == ROBOT_FORCE_CAP == 40.0
     steady = f[1000:]
@@ -649,6 +654,10 @@ def test_the_stiff_arms_force_cap_holds_its_force_at_the_cap() -> None:
     assert 1.0 < f_light[1000:].mean() < 0.9 * 40.0
     assert not drv.log.give[-500:].any()
     assert f_light[-1] == pytest.approx(f_plain[-1], rel=0.02)
+    f_fed, drv = _press_table(False, 600.0, None, force_cap="auto", depth=-0.0055,
+                              force_feedforward="auto")
+    assert drv.force_feedforward
+    assert abs(f_fed[1000:].mean() - 40.0) < 2.0 and drv.log.give[-1, 0, 2] > 0.0
 
 
 def test_the_force_caps_give_comes_back_after_the_contact() -> None:
@@ -812,32 +821,43 @@ def test_the_force_caps_give_comes_back_as_a_motion_with_the_feedforward() -> No
 
 
 def test_the_force_feedforward_needs_the_force_cap() -> None:
-    """The switch is a bool, and goes with the stiff arm's force cap (the force fed forward
-    is clipped at it): with the compliance, several fingertips or no cap it is refused in
-    one line, never dropped; the JSON (the scene's and a sweep's) says whether it runs."""
+    """The switch is a bool or ``"auto"`` (the default: on with the stiff arm's force cap
+    and one fingertip, off otherwise), and True goes with the force cap (the force fed
+    forward is clipped at it): with the compliance, several fingertips or no cap it is
+    refused in one line, never dropped; the JSON (the scene's and a sweep's) says whether
+    it runs."""
     one = [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))]
     two = [*one, Arm(Robot.builtin(), BasePose(0.05, 0.55, -80.0))]
     doc = RobotSimulator(CUBE, one, scale=SCALE).describe()["finger_command"]
-    assert doc["force_feedforward"] is False and doc["give_accel_m_per_s2"] is None
-    doc = RobotSimulator(CUBE, one, scale=SCALE, force_feedforward=True).describe()[
-        "finger_command"]
     assert doc["force_feedforward"] is True and doc["give_accel_m_per_s2"] == GIVE_ACCEL
+    doc = RobotSimulator(CUBE, one, scale=SCALE, force_feedforward=False).describe()[
+        "finger_command"]
+    assert doc["force_feedforward"] is False and doc["give_accel_m_per_s2"] is None
+    for kw in ({"compliance": True}, {"force_cap": None}):  # "auto": off there
+        assert RobotSimulator(CUBE, one, scale=SCALE, **kw).describe()["finger_command"][
+            "force_feedforward"] is False
+    assert RobotSimulator(CUBE, two, scale=SCALE).describe()["finger_command"][
+        "force_feedforward"] is False
     for kw in ({"compliance": True}, {"force_cap": None}):
         with pytest.raises(InputError, match="force_feedforward needs the stiff arm's"):
             RobotSimulator(CUBE, one, scale=SCALE, force_feedforward=True, **kw)
     for cap in ("auto", 40.0):  # several fingertips: refused, a cap given or not
         with pytest.raises(InputError, match="force_feedforward needs the stiff arm's"):
             RobotSimulator(CUBE, two, scale=SCALE, force_cap=cap, force_feedforward=True)
-    with pytest.raises(InputError, match="force_feedforward is True or False"):
+    with pytest.raises(InputError, match="force_feedforward is True, False or 'auto'"):
         RobotSimulator(CUBE, one, scale=SCALE, force_feedforward=1)  # type: ignore[arg-type]
     assert SweepRobot(tuple(one), force_feedforward=True).to_dict()["force_feedforward"]
-    assert SweepRobot(tuple(one)).to_dict()["force_feedforward"] is False
+    assert SweepRobot(tuple(one)).to_dict()["force_feedforward"] is True
+    assert SweepRobot(tuple(one), force_feedforward=False).to_dict()[
+        "force_feedforward"] is False
+    assert SweepRobot(tuple(two)).to_dict()["force_feedforward"] is False
+    assert SweepRobot(tuple(one), force_cap=None).to_dict()["force_feedforward"] is False
     for bad in ({"arms": tuple(two)}, {"arms": tuple(two), "force_cap": 40.0},
                 {"arms": tuple(one), "force_cap": None}):
         with pytest.raises(InputError, match="force_feedforward needs the stiff arm's"):
             SweepRobot(force_feedforward=True, **bad)  # type: ignore[arg-type]
-    with pytest.raises(InputError, match="force_feedforward is True or False"):
-        SweepRobot(tuple(one), force_feedforward="yes")  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="force_feedforward is True, False or 'auto'"):
+        SweepRobot(tuple(one), force_feedforward="yes")
 
 
 @pytest.mark.parametrize("bad", [0.0, -5.0, math.inf, math.nan, True, "40", "off",
@@ -1046,19 +1066,22 @@ def test_cli_simulate_plan_with_the_force_limited_command() -> None:
     args = ["simulate", "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to",
             "a:290", "--step", "90", "--dataset", "cube", "--json"]
     res = CliRunner().invoke(main, [*args, "--robot", "panda", "--base", "0.53", "-0.51",
-                                    "112.5", "--compliance", "--press-depth", "3"])
+                                    "112.5", "--compliance", "--press-depth", "3",
+                                    "--no-force-feedforward"])
     assert res.exit_code == 0, res.stderr
     doc = json.loads(res.stdout)
     cmd = doc["robot"]["finger_command"]
     assert cmd["compliance"] is True and cmd["stiffness_n_per_m"] == DEFAULT_PARAMS.stiffness
+    assert cmd["force_feedforward"] is False
     assert cmd["press_depth_m"] == pytest.approx(0.003)  # --press-depth is in millimetres
     assert doc["robot"]["ik_object_pose"].startswith("closed loop: each observation")
     bad = CliRunner().invoke(main, [*args, "--compliance"])
     assert bad.exit_code == 2 and "--compliance is a robot's" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
-    # the contact force fed forward: with the force cap only, the JSON says it runs
+    # the contact force fed forward: by default with one stiff arm's force cap; the JSON
+    # says it runs
     res = CliRunner().invoke(main, [*args, "--robot", "panda", "--base", "0.53", "-0.51",
-                                    "112.5", "--force-feedforward"])
+                                    "112.5"])
     assert res.exit_code == 0, res.stderr
     cmd = json.loads(res.stdout)["robot"]["finger_command"]
     assert cmd["force_feedforward"] is True and cmd["force_cap_n"] == 40.0

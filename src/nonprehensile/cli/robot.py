@@ -14,8 +14,8 @@ from nonprehensile.cli.options import Number, count, number
 from nonprehensile.errors import InputError
 
 __all__ = ["compliance_option", "control_every", "direction_option",
-           "force_feedforward_option", "load_robot", "placement_doc", "press_option",
-           "robot_arms", "robot_options", "robot_table", "wants_robot"]
+           "feedforward_of", "force_feedforward_option", "load_robot", "placement_doc",
+           "press_option", "robot_arms", "robot_options", "robot_table", "wants_robot"]
 
 F = Callable[..., Any]
 
@@ -64,11 +64,17 @@ def force_feedforward_option(fn: F) -> F:
     """Add ``--force-feedforward/--no-force-feedforward`` (keyword argument
     ``force_feedforward``) to a command that simulates a robot."""
     return click.option(
-        "--force-feedforward/--no-force-feedforward", "force_feedforward", default=False,
-        show_default=True,
+        "--force-feedforward/--no-force-feedforward", "force_feedforward", default=None,
         help="Robot, one stiff arm: feed the measured contact force (clipped at the force "
              "cap) forward to the joint servos, so the fingertip holds its command under "
-             "load (docs/robot.md); off by default.")(fn)
+             "load (docs/robot.md). Default: on with one stiff arm's fingertip, off with "
+             "--compliance, --arms 2 or a hand.")(fn)
+
+
+def feedforward_of(kw: dict[str, Any]) -> bool | str:
+    """The ``force_feedforward`` the options ask for: ``"auto"`` unless one was given."""
+    given = kw.get("force_feedforward")
+    return "auto" if given is None else bool(given)
 
 
 def compliance_option(fn: F) -> F:

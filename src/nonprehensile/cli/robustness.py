@@ -30,6 +30,7 @@ from nonprehensile.cli.robot import (
     compliance_option,
     control_every,
     direction_option,
+    feedforward_of,
     force_feedforward_option,
     load_robot,
     placement_doc,
@@ -280,7 +281,7 @@ def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds
     return rob.SweepRobot(tuple(arms), every, compliance=bool(kw.get("compliance")),
                           press_depth=kw.get("press_depth", "auto"),
                           finger_direction=kw.get("finger_direction", "lean"),
-                          force_feedforward=bool(kw.get("force_feedforward"))), placement
+                          force_feedforward=feedforward_of(kw)), placement
 
 
 def _robot_summary(result: Any) -> dict[str, Any]:

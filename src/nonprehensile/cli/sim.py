@@ -43,6 +43,7 @@ from nonprehensile.cli.robot import (
     compliance_option,
     control_every,
     direction_option,
+    feedforward_of,
     force_feedforward_option,
     load_robot,
     placement_doc,
@@ -447,7 +448,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                                    compliance=bool(robot_kw.get("compliance")),
                                    press_depth=robot_kw.get("press_depth", "auto"),
                                    finger_direction=robot_kw.get("finger_direction", "lean"),
-                                   force_feedforward=bool(robot_kw.get("force_feedforward")))
+                                   force_feedforward=feedforward_of(robot_kw))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")

@@ -44,7 +44,7 @@ __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
            "PINCH_TRACKING_GAIN", "ROBOT_FOLLOW_DEPTH", "ROBOT_FORCE_CAP", "ROBOT_MAX_ACCEL",
            "ROBOT_PUSH_APPROACH", "ROBOT_TRACKING_SURFACE_BOUND", "ROBOT_TRANSIT_ACCEL",
            "RobotSimulator", "check_force_feedforward", "describe_robots",
-           "resolve_force_cap", "resolve_press_depth",
+           "resolve_force_cap", "resolve_force_feedforward", "resolve_press_depth",
            "resolve_surface_bound", "resolve_tracking",
            "robot_control"]
 
@@ -176,10 +176,11 @@ def resolve_tracking(n_fingers: int, gain: float | None = None,
             else PINCH_TRACKING_BOUND if pinch else DEFAULT_TRACKING_BOUND)
 
 
-def check_force_feedforward(feedforward: object, cap: float | None,
-                            n_fingers: int = 1) -> None:
-    """Refuse a contact force feed-forward switch that is not a bool, or one turned on
-    without a force cap ``cap`` (N; None: none) or with several fingertips: the force fed
+def resolve_force_feedforward(feedforward: object, cap: float | None,
+                              n_fingers: int = 1) -> bool:
+    """Whether the contact force is fed forward: ``"auto"`` (the default) with a force cap
+    ``cap`` (N; None: none) and one fingertip, not otherwise; True or False as given. Refuse
+    anything else, and True without a force cap or with several fingertips: the force fed
     forward is clipped at the cap, the give it feeds forward is the cap's, and it was
     measured for one arm pushing only (a pinch's squeeze fed forward would press harder).
 
@@ -188,13 +189,28 @@ def check_force_feedforward(feedforward: object, cap: float | None,
     InputError
         One line saying what came and what to drop.
     """
+    if isinstance(feedforward, str) and feedforward == "auto":
+        return cap is not None and n_fingers == 1
     if not isinstance(feedforward, bool):
-        raise InputError(f"force_feedforward is True or False, got {feedforward!r}")
+        raise InputError(f"force_feedforward is True, False or 'auto', got {feedforward!r}")
     if feedforward and (cap is None or n_fingers > 1):
         raise InputError("force_feedforward needs the stiff arm's force cap and one "
                          f"fingertip (force_cap='auto' or a force in N; got {n_fingers} "
-                         f"fingertip(s), force cap {cap}): drop it with compliance, several "
-                         "fingertips or force_cap=None")
+                         f"fingertip(s), force cap {cap}): drop it (or 'auto') with "
+                         "compliance, several fingertips or force_cap=None")
+    return feedforward
+
+
+def check_force_feedforward(feedforward: object, cap: float | None,
+                            n_fingers: int = 1) -> None:
+    """Refuse a contact force feed-forward switch :func:`resolve_force_feedforward` refuses.
+
+    Raises
+    ------
+    InputError
+        One line saying what came and what to drop.
+    """
+    resolve_force_feedforward(feedforward, cap, n_fingers)
 
 
 def resolve_force_cap(cap: float | str | None, n_fingers: int,
@@ -379,22 +395,21 @@ class RobotSimulator(Simulator):
         (:meth:`~nonprehensile.sim.robot_driver.RobotArms._cap`; the records' ``give``).
         ``"auto"`` (the default): :data:`ROBOT_FORCE_CAP` with one fingertip and the stiff
         arm, none with several or with ``compliance``; None: none.
-    force_feedforward : bool
+    force_feedforward : bool or "auto"
         With a force cap: the contact force on each fingertip (the force sensor's reading,
         clipped at the cap, averaged over each control period) fed forward to the servos,
         ``K_p^-1 (-J^T F)`` on their position set points
         (:meth:`~nonprehensile.sim.robot_driver.RobotArms._pushed`), and the cap's give
         coming back at full speed fed forward as a motion (its velocity on the velocity
-        servos, its acceleration bounded: ``RobotArms._cap``). Off by default: the servos
-        hold the force from their position error (the fingertip millimetres from its
-        command: 4-7 mm at 20-70 N across the distribution). On, the fingertip tracks its
-        command within 0.5 mm over the 72 single-finger transitions at nominal physics
-        (2.8 mm off) and the median of the worst tracking error in contact over 100 samples
-        of the physics distribution falls from 6.5-6.6 to 4.0-4.1 mm, but the arm then turns
-        the cube further than the references (recorded with a compliant fingertip) expect:
-        more end-of-plan corrections, 5 % more simulated time and 5-9 % more CPU at nominal;
-        across the distribution as many runs hold a limit and more put the rod on the cube
-        (2-3 against 1; docs/robot.md).
+        servos, its acceleration bounded: ``RobotArms._cap``). ``"auto"`` (the default): on
+        with a force cap and one fingertip, off otherwise (True there is refused). Without
+        it the servos hold the force from their position error: the fingertip stood 4-7 mm
+        from its command at 20-70 N across the physics distribution, and 6 of 100 runs kept
+        within 3 mm in contact against 72-77 with it (100 samples of seeds 0 and 1; at
+        nominal physics 0.5 mm over the 72 single-finger transitions against 2.8 mm). The
+        arm that follows its command turns the cube further than the references (recorded
+        with a compliant fingertip) expect: at nominal physics 5 % more simulated time and
+        7 % more CPU (docs/robot.md).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
@@ -409,7 +424,7 @@ class RobotSimulator(Simulator):
                  accel_feedforward: bool = True,
                  tracking_surface_bound: float | None = None,
                  force_cap: float | str | None = "auto",
-                 force_feedforward: bool = False) -> None:
+                 force_feedforward: bool | str = "auto") -> None:
         if not isinstance(accel_feedforward, bool):
             raise InputError(f"accel_feedforward is True or False, got {accel_feedforward!r}")
         if force_limit is not None and not compliance:
@@ -468,9 +483,8 @@ class RobotSimulator(Simulator):
         self.robot_driver.accel_feedforward = accel_feedforward
         self.robot_driver.force_cap = resolve_force_cap(force_cap, self.n_fingers,
                                                         compliance is True)
-        check_force_feedforward(force_feedforward, self.robot_driver.force_cap,
-                                self.n_fingers)
-        self.robot_driver.force_feedforward = force_feedforward
+        self.robot_driver.force_feedforward = resolve_force_feedforward(
+            force_feedforward, self.robot_driver.force_cap, self.n_fingers)
         self._body = self.judge.body
         self._qadr = self.judge.qadr
         self._dadr = self.judge.dadr

@@ -428,8 +428,9 @@ class SweepRobot:
         The stiff arm's force cap, N (``"auto"``, the default: 40 N with one fingertip,
         none with several or with the compliance; None: none;
         :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
-    force_feedforward : bool
-        With a force cap, the contact force fed forward to the servos (off by default;
+    force_feedforward : bool or "auto"
+        With a force cap, the contact force fed forward to the servos (``"auto"``, the
+        default: with a force cap and one fingertip;
         :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
     """
 
@@ -441,7 +442,7 @@ class SweepRobot:
     press_correction: bool = True
     finger_direction: str = "lean"
     force_cap: float | str | None = "auto"
-    force_feedforward: bool = False
+    force_feedforward: bool | str = "auto"
 
     def __post_init__(self) -> None:
         if self.max_accel is None:
@@ -498,10 +499,19 @@ class SweepRobot:
                 "finger_direction": self.finger_direction,
                 # the stiff arm's force cap that runs ("auto" resolved; None: none)
                 "force_cap_n": self.force_cap_n,
-                # whether the contact force is fed forward (with a cap only)
-                "force_feedforward": self.force_feedforward,
+                # whether the contact force is fed forward ("auto" resolved; a cap only)
+                "force_feedforward": self.force_feedforward_on,
                 # the contact tracking correction that runs (robot_run.resolve_tracking)
                 **self.tracking()}
+
+    @property
+    def force_feedforward_on(self) -> bool:
+        """Whether the contact force is fed forward (``"auto"`` resolved as
+        :class:`~nonprehensile.sim.robot_run.RobotSimulator` resolves it)."""
+        from nonprehensile.sim.robot_run import resolve_force_feedforward
+
+        return resolve_force_feedforward(self.force_feedforward, self.force_cap_n,
+                                         self.n_fingers)
 
     @property
     def force_cap_n(self) -> float | None:
