@@ -404,7 +404,7 @@ class RobotSimulator(Simulator):
         servos, its acceleration bounded: ``RobotArms._cap``). ``"auto"`` (the default): on
         with a force cap and one fingertip, off otherwise (True there is refused). Without
         it the servos hold the force from their position error: the fingertip stood 4-7 mm
-        from its command at 20-70 N across the physics distribution, and 6 of 100 runs kept
+        from its command at 20-70 N across the physics distribution, and 3-6 of 100 runs kept
         within 3 mm in contact against 72-77 with it (100 samples of seeds 0 and 1; at
         nominal physics 0.5 mm over the 72 single-finger transitions against 2.8 mm). The
         arm that follows its command turns the cube further than the references (recorded
