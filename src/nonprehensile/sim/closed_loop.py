@@ -196,6 +196,12 @@ class Execution:
         }
 
 
+#: Time constants of the smoothed fingertip noise computed past a segment's end (its rows'
+#: tail, :meth:`_Runner._noisy`): after 8 the two low-passes' velocity is 0.3 % of where
+#: it started (``8 e^-8``), and a hold longer than that ends on the tail's last row.
+NOISE_TAIL = 8.0
+
+
 @functools.lru_cache(maxsize=16)
 def _smoothing_gain(dt: float, tau: float) -> float:
     """The gain that gives the fingertip noise smoothed at ``tau`` (two first-order
@@ -267,7 +273,11 @@ class _Runner:
         asks for it smoothed (``noise_smoothing``, s > 0), it gets the process through two
         first-order low-passes of that time constant in series (critically damped) and the
         result's velocity, for its velocity servos: the process has no derivative, and an
-        arm's fingertip follows a command only as far as its velocity is fed forward."""
+        arm's fingertip follows a command only as far as its velocity is fed forward. Those
+        rows run ``NOISE_TAIL`` time constants past the segment's end, the raw error held
+        there (as the targets are): a hold comes to rest smoothly, its velocity never cut in
+        one step (a cut held joints at their torque limits for a step or two at every hold's
+        start and end)."""
         if self.finger_noise <= 0:
             return seg
         n = len(seg)
@@ -283,7 +293,9 @@ class _Runner:
             # (scaled so that the smoothed process keeps the noise's standard deviation)
             c = math.exp(-self.dt / tau)
             g = 1.0 - c
-            y1, _ = lfilter([g * _smoothing_gain(self.dt, tau)], [1.0, -c], out, axis=0,
+            held = np.concatenate([out, np.repeat(out[-1:], math.ceil(
+                NOISE_TAIL * tau / self.dt), axis=0)])
+            y1, _ = lfilter([g * _smoothing_gain(self.dt, tau)], [1.0, -c], held, axis=0,
                             zi=(c * self._noise_state[1])[None])
             y2, _ = lfilter([g], [1.0, -c], y1, axis=0, zi=(c * self._noise_state[2])[None])
             rows = (out, y1, y2)
@@ -308,9 +320,10 @@ class _Runner:
             return
         if i < 1:
             self._noise_state = self._noise_from
-        else:
-            k = min(i, len(rows[0])) - 1
-            self._noise_state = tuple(r[k] for r in rows) + self._noise_state[len(rows):]
+        else:  # (past the end: the raw error held, the smoothed rows' tail, then its last)
+            self._noise_state = (tuple(r[min(i, len(r)) - 1] for r in rows)
+                                 + self._noise_state[len(rows):])
+        self._noise_rows = None  # (cut once: the next segment's rows come with it)
 
     # -------------------------------------------------------------------------- loop
     def drive(
@@ -441,6 +454,7 @@ class _Runner:
             elif i >= n_ctrl + n_extra:
                 self.t, self.n = t, n
                 self.command = seg[-1]
+                self._cut_noise(i)
                 return None
 
     def _stop(self, seg: FloatArray, i: int) -> None:

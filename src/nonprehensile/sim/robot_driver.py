@@ -360,12 +360,14 @@ class RobotLog:
 
     @property
     def q_ref(self) -> FloatArray:
-        """Joint position set points, shape (n, n_joints)."""
+        """Joint position set points, shape (n, n_joints): the IK's spline, without the
+        offsets the servos get on top (the fingertip noise's, the give's, the feed-forwards')."""
         return self._q_ref[:self.n]
 
     @property
     def qd_ref(self) -> FloatArray:
-        """Joint velocity set points (feed-forward), shape (n, n_joints)."""
+        """Joint velocity set points (feed-forward), shape (n, n_joints): the IK's spline,
+        without the fingertip noise's velocity (as ``q_ref`` is without its offset)."""
         return self._qd_ref[:self.n]
 
     @property
@@ -821,11 +823,13 @@ class RobotArms:
         by the IK when the step loop reads it (a sequence of rows, shape (model.nu,))."""
         arr = np.asarray(targets, dtype=np.float64)
         noise, self._noise_next = self._noise_next, None
-        if noise is not None and noise.shape != arr.shape:
+        vel, self._noise_vel_next = self._noise_vel_next, None
+        # (the noise may run past the targets' end: with_noise)
+        if noise is not None and (noise.shape[1:] != arr.shape[1:] or len(noise) < len(arr)):
             noise = None
-        self._controls = _OnlineControls(self, arr, noise,
-                                         self._noise_vel_next if noise is not None else None)
-        self._noise_vel_next = None
+        if noise is None or (vel is not None and vel.shape != noise.shape):
+            vel = None
+        self._controls = _OnlineControls(self, arr, noise, vel)
         return self._controls
 
     def hold_row(self) -> FloatArray:
@@ -846,8 +850,10 @@ class RobotArms:
         The free fingertips get the error added to their targets; an arm gets it on its
         servos' set points only, never through the IK: as a joint offset ``J^+ noise`` on the
         position servos and ``J^+ velocity`` on the velocity servos (``J``: the tip sites'
-        position Jacobian at the last solve; past the targets' end the error is held, with
-        no velocity). The executor smooths the process first where the driver asks for it
+        position Jacobian at the last solve). ``noise`` may be longer than the targets: its
+        rows past their end are those of the holds that follow (the smoothed error coming to
+        rest); past its own end its last row is held, with no velocity. The executor smooths
+        the process first where the driver asks for it
         (``noise_smoothing``, :data:`NOISE_SMOOTHING`): the raw process has no derivative
         (its 1 kHz differences are 0.2 m/s for a 1 mm, 50 ms process), and a feed-forward of
         them held the Panda's joints at their torque limits for seconds (measured: 2.7 s,
@@ -991,13 +997,20 @@ class RobotArms:
         idx = slice(j, j + kk) if j + kk <= n else np.minimum(np.arange(j, j + kk), last)
         ahead = targets[min(j + kk + kk // 2, last)]  # the knot's (every > 1)
         rows_t = targets[idx]  # (once: the radius offset's and the log's)
+        # the noise's rows (with_noise: it may run past the targets' end, then is held)
+        noise = ctl.noise
+        nn = 0 if noise is None else len(noise)
+        nidx = (idx if noise is None or j + kk <= nn
+                else np.minimum(np.arange(j, j + kk), nn - 1))
+        if noise is not None and j + kk <= nn:
+            nidx = slice(j, j + kk)
         tool = self._tool(rows_t, ahead)
         now = targets[min(j, last)]  # past the end (hold): the last target, held
         if tool is not None:  # the commands: the targets plus the tip radius offset
             now = now + tool[0]
             ahead = ahead + tool[-1]
         t0 = self.log.n
-        noise_j = None if ctl.noise is None else ctl.noise[min(j, last)]
+        noise_j = None if noise is None else noise[min(j, nn - 1)]
         solved = True
         ff: FloatArray | None = None  # the acceleration feed-forward (with the spline only)
         if self.every == 1:
@@ -1060,20 +1073,21 @@ class RobotArms:
         # from ``ctrl`` then)
         rows = (np.empty((k, len(self._ctrl))) if self._servos_only
                 else np.repeat(self._ctrl[None, :], k, axis=0))
-        rows[:, self._pos_cols] = (qk if ctl.noise is None
-                                   else qk + self._noise_offset(ctl.noise[idx]))
+        rows[:, self._pos_cols] = (qk if noise is None
+                                   else qk + self._noise_offset(noise[nidx]))
         if ff is not None:  # the torque the period's acceleration takes (_accel_offset)
             rows[:, self._pos_cols] += ff
         if self.force_feedforward:  # the contact force's (_pushed)
             push = self._pushed()
             if push is not None:
                 rows[:, self._pos_cols] += push
-        if ctl.noise_velocity is not None:  # the noise's velocity (with_noise)
-            nv = ctl.noise_velocity[idx]
-            if j + kk > n:  # past the end the error is held: no velocity
-                nv = np.where((np.arange(j, j + kk) >= n)[:, None, None], 0.0, nv)
-            qdk = qdk + self._noise_offset(nv)
-        rows[:, self._vel_cols] = np.maximum(np.minimum(qdk, self._vel_max), self._vel_min)
+        qdc = qdk  # (the velocity set points: the spline's, plus the noise's velocity)
+        if ctl.noise_velocity is not None:  # (with_noise)
+            nv = ctl.noise_velocity[nidx]
+            if j + kk > nn:  # past the noise's end it is held: no velocity
+                nv = np.where((np.arange(j, j + kk) >= nn)[:, None, None], 0.0, nv)
+            qdc = qdk + self._noise_offset(nv)
+        rows[:, self._vel_cols] = np.maximum(np.minimum(qdc, self._vel_max), self._vel_min)
         # the log's set points and targets of the period, written once (a period replaced
         # before its end is overwritten from where it stopped); the give, the force and the
         # IK time are left as the log made them (0, NaN, NaN) past the period's first row:
@@ -1085,7 +1099,7 @@ class RobotArms:
         log._qd_ref[t0:t0 + k] = qdk
         log._target[t0:t0 + k] = rows_t
         log._tool[t0:t0 + k] = 0.0 if tool is None else tool[:k]
-        log._noise[t0:t0 + k] = 0.0 if ctl.noise is None else ctl.noise[idx]
+        log._noise[t0:t0 + k] = 0.0 if noise is None else noise[nidx]
         if not self.compliance:  # the stiff arm's force, read at the solve (_yield)
             log._force[t0] = self._force_now
         log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times and solved else math.nan
