@@ -96,7 +96,8 @@ GIVE_ACCEL = 2.0
 #: velocity servos held the arm back and most of the noise counted as tracking error (3-4
 #: mm in contact: the worst row of most runs with the force fed forward; 4 times the error
 #: of the smoothed noise fed forward in free space, the tests). Across the distribution
-#: (100 samples, seed 0, force fed forward) at 20, 30 and 40 ms: 75, 72 and 73 runs within
+#: (100 samples, seed 0, force fed forward; measured before the smoothed rows ran on past
+#: a segment's end) at 20, 30 and 40 ms: 75, 72 and 73 runs within
 #: 3 mm in contact, and 11, 2 and 4 runs over 10 ms at a torque limit (the faster the
 #: smoothing, the more the velocity fed forward shakes the wrist); unscaled at 20 ms (78 %
 #: of the deviation): 81 and 3.

@@ -404,12 +404,12 @@ class RobotSimulator(Simulator):
         servos, its acceleration bounded: ``RobotArms._cap``). ``"auto"`` (the default): on
         with a force cap and one fingertip, off otherwise (True there is refused). Without
         it the servos hold the force from their position error: the fingertip stood 4-7 mm
-        from its command at 20-70 N across the physics distribution, and 3-6 of 100 runs kept
-        within 3 mm in contact against 72-77 with it (100 samples of seeds 0 and 1; at
+        from its command at 20-70 N across the physics distribution, and 2-5 of 100 runs kept
+        within 3 mm in contact against 75-76 with it (100 samples of seeds 0 and 1; at
         nominal physics 0.5 mm over the 72 single-finger transitions against 2.8 mm). The
         arm that follows its command turns the cube further than the references (recorded
         with a compliant fingertip) expect: at nominal physics 5 % more simulated time and
-        7 % more CPU (docs/robot.md).
+        8-10 % more CPU (docs/robot.md).
     """
 
     def __init__(self, poly: Polyhedron, arms: Sequence[Arm], *, scale: float | None = None,
