@@ -180,16 +180,32 @@ def test_the_executor_gives_the_arm_one_smooth_noise_process() -> None:
     physics step is under 0.2 mm (0.06 mm here; 4.9 mm when each new segment restarted from
     the end of the previous segment's rows) and its second difference under 10 um, an
     acceleration of 10 m/s^2 (3.8 um here; 41 um when the noise's velocity was cut to none
-    at a segment's end)."""
+    at a segment's end); and the velocity set points the servos get never step by more
+    than 0.05 rad/s from one physics step to the next (0.031 here, the spline's own; 0.095
+    when the noise's velocity was cut at the targets' end, a review's mutant)."""
     from nonprehensile.sim.closed_loop import execute_plan
     from nonprehensile.sim.distribution import Perturbation
 
     poly, ds, unit = _roll_arc_unit()
     sim = RobotSimulator(poly, [Arm(Robot.builtin(), SWEEP_BASE)], scale=ds.scale)
-    ex = execute_plan(sim, unit.plan, fingers=ds.fingers, loop="closed",
-                      config=robot_control(n_fingers=sim.n_fingers),
-                      perturbation=Perturbation(finger_noise=0.001, noise_seed=3))
+    vel_cols = sim.robot_driver._vel_cols
+    sent: list[np.ndarray] = []
+    step = mujoco.mj_step
+
+    def stepped(m: object, d: object) -> None:  # the velocity set points each step gets
+        sent.append(np.array(d.ctrl[vel_cols]))  # type: ignore[attr-defined]
+        step(m, d)
+
+    mujoco.mj_step = stepped  # (the executor binds it at each drive's start)
+    try:
+        ex = execute_plan(sim, unit.plan, fingers=ds.fingers, loop="closed",
+                          config=robot_control(n_fingers=sim.n_fingers),
+                          perturbation=Perturbation(finger_noise=0.001, noise_seed=3))
+    finally:
+        mujoco.mj_step = step
     assert ex.success, ex.reason
+    jumps = np.abs(np.diff(np.array(sent), axis=0)).max()
+    assert jumps < 0.05, jumps
     log = sim.robot_log
     noise = np.asarray(log._noise[:log.n, 0])
     assert float(np.sqrt((noise ** 2).sum(axis=1)).max()) > 0.001  # the noise is there
@@ -197,6 +213,43 @@ def test_the_executor_gives_the_arm_one_smooth_noise_process() -> None:
     bend = np.sqrt((np.diff(noise, 2, axis=0) ** 2).sum(axis=1))
     assert step.max() < 0.0002, step.max()
     assert bend.max() < 1e-5, bend.max()
+
+
+@pytest.mark.parametrize("every", [10, 1])
+def test_the_noise_past_the_targets_end_goes_on_the_servos_as_given(every: int) -> None:
+    """Noise longer than the targets (the smoothed noise's tail) with its velocity, held
+    past its own end: the position servos get ``J^+ noise[min(j, len - 1)]`` and the
+    velocity servos ``J^+ velocity[j]``, none past the noise's end, at 100 Hz and 1 kHz
+    (truth: the rows handed in, read back from what the driver puts on its servos), and
+    the log's noise is what went on the position servos."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
+                         scale=SCALE, control_every=every)
+    drv, d, m = sim.robot_driver, sim.data, sim.model
+    mujoco.mj_resetData(m, d)
+    d.qpos[sim.judge.qadr:sim.judge.qadr + 3] = [2.0, 2.0, 0.5]  # the cube far away
+    n, tail, held = 53, 240, 300
+    targets = np.repeat(np.array([[[0.0, 0.0, 0.10]]]), n, axis=0)
+    noise = np.cumsum(np.random.default_rng(1).normal(size=(n + tail, 1, 3)) * 1e-5, axis=0)
+    vel = np.diff(noise, axis=0, prepend=np.zeros((1, 1, 3))) / m.opt.timestep
+    drv.reset()
+    drv.place(d, targets[0])
+    calls: list[np.ndarray] = []
+    offset = drv._noise_offset
+    drv._noise_offset = lambda a: (calls.append(np.array(a)), offset(a))[1]  # type: ignore
+    ctl = drv.controls(drv.with_noise(targets, noise, vel))
+    t0 = drv.log.n
+    for i in range(n + tail + held):
+        d.ctrl[:] = ctl[i] if i < len(ctl) else ctl.hold()
+        mujoco.mj_step(m, d)
+    pos, v = np.concatenate(calls[0::2]), np.concatenate(calls[1::2])  # (per period)
+    rows = np.arange(len(pos))
+    np.testing.assert_array_equal(pos, noise[np.minimum(rows, n + tail - 1)])
+    want = np.where((rows >= n + tail)[:, None, None], 0.0,
+                    vel[np.minimum(rows, n + tail - 1)])
+    np.testing.assert_array_equal(v, want)
+    logged = np.asarray(drv.log._noise[t0:drv.log.n])
+    np.testing.assert_array_equal(logged, pos[:len(logged)])
+    assert len(pos) >= n + tail + held - every
 
 
 def test_the_arms_ik_avoids_the_object_where_it_is_observed_not_where_it_is() -> None:

@@ -197,8 +197,10 @@ class Execution:
 
 
 #: Time constants of the smoothed fingertip noise computed past a segment's end (its rows'
-#: tail, :meth:`_Runner._noisy`): after 8 the two low-passes' velocity is 0.3 % of where
-#: it started (``8 e^-8``), and a hold longer than that ends on the tail's last row.
+#: tail, :meth:`_Runner._noisy`): the two low-passes' state decays there as ``(1 + t/tau)
+#: e^(-t/tau)``, 0.3 % at 8, and the velocity left when a longer hold holds the tail's last
+#: row is under 0.3 mm/s for the distribution's 1 mm noise (up to 2.4 % of its value at the
+#: segment's end, a review's 300 segments).
 NOISE_TAIL = 8.0
 
 
