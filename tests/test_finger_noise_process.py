@@ -14,7 +14,7 @@ from hypothesis import given, settings, strategies as st
 
 pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not installed")
 
-from nonprehensile.sim.closed_loop import _Runner
+from nonprehensile.sim.closed_loop import FingerNoise, _Runner
 from nonprehensile.sim.distribution import FINGER_NOISE_TIME
 
 DT = 0.001
@@ -34,17 +34,17 @@ class _Arm:
         return targets
 
 
+def _noise(seed: int) -> FingerNoise:
+    """One fingertip's noise at 1 kHz, 1 mm, on the generator seeded ``seed``."""
+    return FingerNoise(np.random.default_rng(seed), SIGMA, DT, 1)
+
+
 def _runner(seed: int, driver: Any = None) -> _Runner:
-    """A runner with only what its noise reads (no scene: the process is plain arithmetic)."""
+    """A runner with only what :meth:`_Runner._noisy` reads: its driver and its noise (no
+    scene: the process is plain arithmetic)."""
     r = _Runner.__new__(_Runner)
     r.sim = SimpleNamespace(driver=driver if driver is not None else object())
-    r.dt = DT
-    r.rng = np.random.default_rng(seed)
-    r.finger_noise = SIGMA
-    z = np.zeros((1, 3))
-    r._noise_state = (z, z, z)
-    r._noise_from = r._noise_state
-    r._noise_rows = None
+    r.noise = _noise(seed)
     return r
 
 
@@ -61,7 +61,7 @@ def test_a_replaced_segment_continues_the_process_from_the_last_row_applied(
     cut = min(cut, n1)
     r = _runner(seed)
     seg1 = r._noisy(np.zeros((n1, 1, 3)))
-    r._cut_noise(cut)
+    r.noise.cut(cut)
     seg2 = r._noisy(np.zeros((n2, 1, 3)))
     applied = np.concatenate([seg1[:cut], seg2])
 
@@ -81,8 +81,8 @@ def test_a_drive_that_ran_to_its_end_continues_from_its_last_row() -> None:
     """A segment that ran whole (or past its end, held) hands on its last row."""
     r = _runner(3)
     seg1 = r._noisy(np.zeros((50, 1, 3)))
-    r._cut_noise(80)  # held 30 steps past the end
-    np.testing.assert_array_equal(r._noise_state[0], seg1[-1])
+    r.noise.cut(80)  # held 30 steps past the end
+    np.testing.assert_array_equal(r.noise.state[0], seg1[-1])
 
 
 def test_an_arm_gets_the_noise_smoothed_with_its_velocity() -> None:
@@ -107,8 +107,8 @@ def test_an_arm_gets_the_noise_smoothed_with_its_velocity() -> None:
     assert vel is not None and vel.shape == noise.shape
     tail = math.ceil(NOISE_TAIL * NOISE_SMOOTHING / DT)
     assert len(noise) == n + tail
-    raw = r._noise_rows[0] if r._noise_rows is not None else None
-    assert raw is not None and len(raw) == n
+    raw, smooth, _ = _noise(11).rows(n)  # (the same draws, not smoothed)
+    assert smooth is None and len(raw) == n
     ratio = noise[2000:n].std() / raw[2000:].std()
     assert 0.9 < ratio < 1.1, ratio
     x, y = raw[2000:, 0, 0], noise[2000:n, 0, 0]
@@ -124,8 +124,9 @@ def test_an_arm_gets_the_noise_smoothed_with_its_velocity() -> None:
 
     free = _runner(11)
     out = free._noisy(np.zeros((100, 1, 3)))
-    assert free._noise_rows is not None and len(free._noise_rows) == 1
-    np.testing.assert_array_equal(out, free._noise_rows[0])
+    raw, smooth, vel = _noise(11).rows(100)
+    assert smooth is None and vel is None
+    np.testing.assert_array_equal(out, raw)
 
 
 @settings(max_examples=20, deadline=None)
@@ -143,19 +144,13 @@ def test_the_smoothed_noise_is_one_process_across_a_cut(seed: int, n1: int, cut:
     from nonprehensile.sim.closed_loop import _smoothing_gain
 
     tau = 0.03
-    arm = _Arm(tau)
-    r = _runner(seed, arm)
-    r._noisy(np.zeros((n1, 1, 3)))
-    raw1 = r._noise_rows[0] if r._noise_rows is not None else None
-    assert raw1 is not None
-    y1 = arm.got[-1][0]
+    f = _noise(seed)
+    raw1, y1, _ = f.rows(n1, tau)
+    assert y1 is not None
     cut = min(cut, len(y1))
-    r._cut_noise(cut)
-    r._noisy(np.zeros((n2, 1, 3)))
-    raw2 = r._noise_rows[0] if r._noise_rows is not None else None
-    assert raw2 is not None
-    y2, v2 = arm.got[-1]
-    assert v2 is not None
+    f.cut(cut)
+    raw2, y2, v2 = f.rows(n2, tau)
+    assert y2 is not None and v2 is not None
     applied_raw = np.concatenate([raw1[:cut], np.repeat(raw1[-1:], max(0, cut - n1), axis=0),
                                   raw2])
     c = math.exp(-DT / tau)

@@ -132,9 +132,7 @@ def test_the_arm_follows_the_smoothed_noise_with_its_velocity_fed_forward(every:
     distance to the noise-free target has the noise's spread within 10 %. On the position
     set points alone, the same noise leaves the fingertip 3 times as far off its command
     (4 here) and realises a quarter less of it."""
-    from types import SimpleNamespace
-
-    from nonprehensile.sim.closed_loop import _Runner
+    from nonprehensile.sim.closed_loop import FingerNoise
 
     sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
                          scale=SCALE, control_every=every)
@@ -142,17 +140,10 @@ def test_the_arm_follows_the_smoothed_noise_with_its_velocity_fed_forward(every:
     d, m = sim.data, sim.model
     x = np.array([[0.0, 0.0, 0.10]])
     targets = np.repeat(x[None], 3000, axis=0)
-    r = _Runner.__new__(_Runner)
-    r.sim = SimpleNamespace(driver=drv)
-    r.dt, r.rng, r.finger_noise = m.opt.timestep, np.random.default_rng(4), 0.001
-    z = np.zeros((1, 3))
-    r._noise_state = r._noise_from = (z, z, z)
-    r._noise_rows = None
     assert drv.noise_smoothing > 0.0
-    r._noisy(targets)
-    noise = r._noise_rows[2] if r._noise_rows is not None else None
-    assert noise is not None and drv._noise_vel_next is not None
-    velocity = drv._noise_vel_next
+    _, noise, velocity = FingerNoise(np.random.default_rng(4), 0.001, m.opt.timestep,
+                                     1).rows(len(targets), drv.noise_smoothing)
+    assert noise is not None and velocity is not None
     worst, realised = {}, {}
     spread = float(np.sqrt((noise[500:3000] ** 2).sum(axis=2).mean()))
     for fed in (True, False):

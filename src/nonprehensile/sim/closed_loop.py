@@ -197,7 +197,7 @@ class Execution:
 
 
 #: Time constants of the smoothed fingertip noise computed past a segment's end (its rows'
-#: tail, :meth:`_Runner._noisy`): the two low-passes' state decays there as ``(1 + t/tau)
+#: tail, :meth:`FingerNoise.rows`): the two low-passes' state decays there as ``(1 + t/tau)
 #: e^(-t/tau)``, 0.3 % at 8, and the velocity left when a longer hold holds the tail's last
 #: row is under 0.3 mm/s for the distribution's 1 mm noise (up to 2.4 % of its value at the
 #: segment's end, a review's 300 segments).
@@ -207,7 +207,7 @@ NOISE_TAIL = 8.0
 @functools.lru_cache(maxsize=16)
 def _smoothing_gain(dt: float, tau: float) -> float:
     """The gain that gives the fingertip noise smoothed at ``tau`` (two first-order
-    low-passes in series, :meth:`_Runner._noisy`) the raw process's standard deviation: one
+    low-passes in series, :meth:`FingerNoise.rows`) the raw process's standard deviation: one
     over the square root of the smoothed stationary variance per unit of the raw one, summed
     over the chain's impulse response (the stationary Gauss-Markov process of time constant
     ``FINGER_NOISE_TIME`` is ``sqrt(1 - a^2)`` times white noise through ``1 / (1 - a z^-1)``).
@@ -223,6 +223,89 @@ def _smoothing_gain(dt: float, tau: float) -> float:
     return 1.0 / math.sqrt((1.0 - a * a) * float(np.dot(h, h)))
 
 
+class FingerNoise:
+    """The fingertip position error of one execution (the physics distribution's
+    ``finger_noise``): one Gauss-Markov process per axis and fingertip, time constant
+    :data:`~nonprehensile.sim.distribution.FINGER_NOISE_TIME`, drawn segment by segment
+    and continued from the last row applied (:meth:`cut`).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The execution's finger stream.
+    sigma : float
+        Standard deviation, m.
+    dt : float
+        Physics step, s.
+    n_fingers : int
+    """
+
+    def __init__(self, rng: np.random.Generator, sigma: float, dt: float,
+                 n_fingers: int) -> None:
+        self.rng = rng
+        self.sigma = sigma
+        self.dt = dt
+        # the state: the error and, smoothed (rows), its two low-passes; the running
+        # segment's rows of each, and the state they continued from
+        z: FloatArray = np.zeros((n_fingers, 3))
+        self.state: tuple[FloatArray, ...] = (z, z, z)
+        self._from: tuple[FloatArray, ...] = self.state
+        self._rows: tuple[FloatArray, ...] | None = None
+
+    def rows(self, n: int, smoothing: float = 0.0
+             ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+        """The next segment's ``n`` rows of the error, shape (n, n_fingers, 3), and, with
+        ``smoothing`` (s > 0), the error smoothed and its velocity (else None, None).
+
+        The smoothed error is the process through two first-order low-passes of time
+        constant ``smoothing`` in series (critically damped), scaled to keep the process's
+        standard deviation (:func:`_smoothing_gain`), and its velocity each row's difference
+        from the row before over the step: the raw process has no derivative, and an arm's
+        fingertip follows a command only as far as its velocity is fed forward. Those rows
+        run ``NOISE_TAIL`` time constants past the segment's end, the raw error held there
+        (as the targets are): a hold comes to rest smoothly, its velocity never cut in one
+        step (a cut held joints at their torque limits for a step or two at every hold's
+        start and end)."""
+        dt = self.dt
+        a = math.exp(-dt / FINGER_NOISE_TIME)
+        x0, z1, z2 = self.state
+        w = self.rng.standard_normal((n, *x0.shape)) * self.sigma * math.sqrt(1.0 - a * a)
+        out, _ = lfilter([1.0], [1.0, -a], w, axis=0, zi=(a * x0)[None])
+        rows: tuple[FloatArray, ...] = (out,)
+        smooth = vel = None
+        if smoothing > 0.0:
+            c = math.exp(-dt / smoothing)
+            g = 1.0 - c
+            held = np.concatenate([out, np.repeat(out[-1:], math.ceil(
+                NOISE_TAIL * smoothing / dt), axis=0)])
+            y1, _ = lfilter([g * _smoothing_gain(dt, smoothing)], [1.0, -c], held, axis=0,
+                            zi=(c * z1)[None])
+            smooth, _ = lfilter([g], [1.0, -c], y1, axis=0, zi=(c * z2)[None])
+            vel = np.diff(smooth, axis=0, prepend=z2[None]) / dt
+            rows = (out, y1, smooth)
+        self._from = self.state
+        self._rows = rows
+        self.state = tuple(r[-1] for r in rows) + self.state[len(rows):]
+        return out, smooth, vel
+
+    def cut(self, i: int) -> None:
+        """The running segment stops after ``i`` rows (replaced, or its drive ended there):
+        the next segment's rows continue the process from the last row applied, not from the
+        end of rows never run. (Continued from their end, as it was, the error jumped at
+        every replacement, by about ``sqrt(2)`` times ``sigma`` per axis from one physics
+        step to the next: a step of millimetres in the command, the worst tracking error of
+        half the robot's runs across the physics distribution.) A second cut before the next
+        rows changes nothing."""
+        rows = self._rows
+        if rows is None:
+            return
+        if i < 1:
+            self.state = self._from
+        else:  # (past the end: the raw error held, the smoothed rows' tail, then its last)
+            self.state = tuple(r[min(i, len(r)) - 1] for r in rows) + self.state[len(rows):]
+        self._rows = None
+
+
 class _Runner:
     """The MuJoCo side of one execution: the step loop, the observer and the records."""
 
@@ -234,15 +317,7 @@ class _Runner:
         self.m, self.d = sim.model, sim.data
         self.dt = sim.params.timestep
         self.observer = SimObserver(sim, observation, tracker_rng)
-        self.rng = finger_rng
-        self.finger_noise = finger_noise
-        # the Gauss-Markov process's state: the error and, for an arm that smooths it (see
-        # _noisy), its two low-passes; the running segment's rows of each, and the state they
-        # continued from (where a segment replaced before it ran is cut, _cut_noise)
-        z: FloatArray = np.zeros((sim.n_fingers, 3))
-        self._noise_state: tuple[FloatArray, ...] = (z, z, z)
-        self._noise_from: tuple[FloatArray, ...] = self._noise_state
-        self._noise_rows: tuple[FloatArray, ...] | None = None
+        self.noise = FingerNoise(finger_rng, finger_noise, self.dt, sim.n_fingers)
         self.t = 0.0
         self.n = 0
         self.log = EventLog(sim.judge)
@@ -267,65 +342,21 @@ class _Runner:
 
     # ------------------------------------------------------------------------- noise
     def _noisy(self, seg: FloatArray) -> FloatArray:
-        """Commanded targets plus the fingertip's position error (Gauss-Markov, time constant
-        :data:`~nonprehensile.sim.distribution.FINGER_NOISE_TIME`), continued from the last
-        row applied (:meth:`_cut_noise`).
+        """Commanded targets plus the fingertip's position error (:class:`FingerNoise`).
 
-        A robot's driver (``with_noise``) puts the error on its servos' set points. Where it
-        asks for it smoothed (``noise_smoothing``, s > 0), it gets the process through two
-        first-order low-passes of that time constant in series (critically damped) and the
-        result's velocity, for its velocity servos: the process has no derivative, and an
-        arm's fingertip follows a command only as far as its velocity is fed forward. Those
-        rows run ``NOISE_TAIL`` time constants past the segment's end, the raw error held
-        there (as the targets are): a hold comes to rest smoothly, its velocity never cut in
-        one step (a cut held joints at their torque limits for a step or two at every hold's
-        start and end)."""
-        if self.finger_noise <= 0:
+        A robot's driver (``with_noise``) puts the error on its servos' set points, smoothed
+        with its velocity where it asks for it (``noise_smoothing``, s > 0:
+        :meth:`FingerNoise.rows`); the free fingertips get the raw error on their targets."""
+        if self.noise.sigma <= 0:
             return seg
-        n = len(seg)
-        a = math.exp(-self.dt / FINGER_NOISE_TIME)
-        w = self.rng.standard_normal((n, *seg.shape[1:])) * self.finger_noise * math.sqrt(
-            1.0 - a * a)
-        x0, _, s0 = self._noise_state
-        out, _ = lfilter([1.0], [1.0, -a], w, axis=0, zi=(a * x0)[None])
-        rows: tuple[FloatArray, ...] = (out,)
         split = getattr(self.sim.driver, "with_noise", None)
         tau = float(getattr(self.sim.driver, "noise_smoothing", 0.0)) if split else 0.0
-        if tau > 0.0:
-            # (scaled so that the smoothed process keeps the noise's standard deviation)
-            c = math.exp(-self.dt / tau)
-            g = 1.0 - c
-            held = np.concatenate([out, np.repeat(out[-1:], math.ceil(
-                NOISE_TAIL * tau / self.dt), axis=0)])
-            y1, _ = lfilter([g * _smoothing_gain(self.dt, tau)], [1.0, -c], held, axis=0,
-                            zi=(c * self._noise_state[1])[None])
-            y2, _ = lfilter([g], [1.0, -c], y1, axis=0, zi=(c * self._noise_state[2])[None])
-            rows = (out, y1, y2)
-        self._noise_from = self._noise_state
-        self._noise_rows = rows
-        self._noise_state = tuple(r[-1] for r in rows) + self._noise_state[len(rows):]
+        raw, smooth, vel = self.noise.rows(len(seg), tau)
         if split is None:
-            return np.asarray(seg + out)
-        if tau > 0.0:  # (the velocity: each row's difference from the row before)
-            return np.asarray(split(seg, y2, np.diff(y2, axis=0, prepend=s0[None]) / self.dt))
-        return np.asarray(split(seg, out))
-
-    def _cut_noise(self, i: int) -> None:
-        """The running segment stops after ``i`` rows (replaced, or its drive ended there):
-        the next segment's noise continues the process from the last row applied, not from
-        the end of rows never run. (Continued from their end, as it was, the error jumped at
-        every replacement, by about ``sqrt(2)`` times ``finger_noise`` per axis from one
-        physics step to the next: a step of millimetres in the command, the worst tracking
-        error of half the robot's runs across the physics distribution.)"""
-        rows = self._noise_rows
-        if rows is None:
-            return
-        if i < 1:
-            self._noise_state = self._noise_from
-        else:  # (past the end: the raw error held, the smoothed rows' tail, then its last)
-            self._noise_state = (tuple(r[min(i, len(r)) - 1] for r in rows)
-                                 + self._noise_state[len(rows):])
-        self._noise_rows = None  # (cut once: the next segment's rows come with it)
+            return np.asarray(seg + raw)
+        if smooth is None:
+            return np.asarray(split(seg, raw))
+        return np.asarray(split(seg, smooth, vel))
 
     # -------------------------------------------------------------------------- loop
     def drive(
@@ -438,7 +469,7 @@ class _Runner:
                                           dt, self.max_speed)
                         self.commanded[-1] = seg[:i]
                         self.commanded.append(new)
-                        self._cut_noise(i)
+                        self.noise.cut(i)
                         seg, i = new, 0
                         ctrl = sim.driver.controls(self._noisy(seg))
                         n_ctrl = len(ctrl)
@@ -456,12 +487,12 @@ class _Runner:
             elif i >= n_ctrl + n_extra:
                 self.t, self.n = t, n
                 self.command = seg[-1]
-                self._cut_noise(i)
+                self.noise.cut(i)
                 return None
 
     def _stop(self, seg: FloatArray, i: int) -> None:
         """End a drive at sample ``i`` of ``seg``; the next drive fades out of its rest."""
-        self._cut_noise(i)
+        self.noise.cut(i)
         self.commanded[-1] = seg[:i]
         j = min(i, len(seg) - 1)
         self.command = seg[j]
