@@ -507,6 +507,42 @@ def test_two_arms_one_finger_each() -> None:
     assert ik.converge(path[0]) < 1e-3
 
 
+def test_the_smallest_fingertip_presses_a_side_face_clear_of_the_tool() -> None:
+    """The physics distribution's smallest fingertip (5 mm) on the bundled tool, pointing
+    straight down beside the cube, pressed 0.9 mm into a side face: the IK puts it there with
+    its collision limit on, the tool standing off the cube by at least the limit's margin.
+    Truth: MuJoCo's own distance between each tool geom and the cube at the converged joints.
+    An 8 mm rod down to the tip stood 1 mm from the face before any press, and the limit held
+    the fingertip 0.6 mm short of such a target (1 mm margin; 0.9 mm at 1.5 mm)."""
+    params = replace(DEFAULT_PARAMS, finger_radius=0.005)
+    # the base to the side of the pushed (+x) face: no lean towards it (cos_b = 0)
+    sc = build_robot_scene(CUBE, scale=SCALE, params=params, mocap_object=True,
+                           arms=[Arm(Robot.builtin(), BasePose(0.3, 0.75, -90.0))])
+    cfg = IKConfig(side_tilt_deg=0.0)
+    ik = FingertipIK(sc, 0.001, cfg)
+    v = np.asarray(CUBE.vertices, dtype=float) * SCALE
+    c = v.mean(axis=0)
+    ik.set_object(np.array([0.3 - c[0], 0.1 - c[1], -v[:, 2].min()]),
+                  np.array([1.0, 0.0, 0.0, 0.0]))
+    face = 0.3 + SCALE / 2
+    target = np.array([[face + 0.005 - 0.0009, 0.1, 0.035]])
+    # from straight above the target, as an approach comes
+    assert ik.converge(target + np.array([0.0, 0.0, 0.03]), iterations=1000) < 1e-3
+    assert ik.converge(target, iterations=1000) < 1e-4
+    m, d = sc.model, mujoco.MjData(sc.model)
+    d.qpos[sc.qadr] = ik.q
+    d.mocap_pos[:] = ik.configuration.data.mocap_pos
+    d.mocap_quat[:] = ik.configuration.data.mocap_quat
+    mujoco.mj_kinematics(m, d)
+    z = d.site_xmat[sc.tip_sites[0]].reshape(3, 3)[:, 2]
+    assert z[2] < -0.99  # straight down
+    obj = m.geom("object").id
+    tool = [m.geom(n).id for n in ("arm0/rod", "arm0/pin")]
+    fromto = np.zeros(6)
+    gaps = [mujoco.mj_geomDistance(m, d, g, obj, 0.05, fromto) for g in tool]
+    assert min(gaps) >= cfg.collision_margin - 1e-4
+
+
 def test_finger_leans_back_beside_the_object_and_arms_stand_on_their_side() -> None:
     """Beside the cube (target below its top) the finger leans towards its own base, by the
     configured angle, so the rod above the tip stands off the face; over the cube it points
@@ -774,9 +810,12 @@ def test_the_force_caps_give_comes_back_as_a_motion_with_the_feedforward() -> No
     """With ``force_feedforward``, pressed 2 cm into the table and lifted: off the table the
     cap's give comes back with its acceleration bounded (``give_accel``) and its velocity
     fed forward (taken up at that rate too), so the fingertip tracks its command within
-    1 mm as the give comes back at up to 0.1 m/s, where without it the velocity servos
-    held it back by 7-8 mm. The same run again on the same simulator gives the same rows
-    (nothing of the feed-forward carried over)."""
+    2.5 mm as the give comes back at up to 0.1 m/s, where without it the velocity servos
+    held it back by 7-8 mm. (2.3 mm measured with the bundled tool's pin; 1.0 mm with the
+    8 mm rod down to the tip, whose IK, held 1 mm higher by its collision margin against the
+    table, asked for a smaller give; 2.45 mm with either tool and the IK's collisions off.)
+    The same run again on the same simulator gives the same rows (nothing of the
+    feed-forward carried over)."""
     errors = {}
     for ff in (False, True):
         sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
@@ -817,7 +856,7 @@ def test_the_force_caps_give_comes_back_as_a_motion_with_the_feedforward() -> No
                         or any(drv._give_speed_now)) and drv._push_n0 == 0
             _press_and_lift(sim)
             np.testing.assert_array_equal(drv.log.error, first)
-    assert errors[True] < 1.2e-3 < 5e-3 < errors[False]
+    assert errors[True] < 2.5e-3 < 5e-3 < errors[False]
 
 
 def test_the_force_feedforward_needs_the_force_cap() -> None:
