@@ -44,6 +44,9 @@ The contact force is fed forward to one stiff arm's servos by default
 (``RobotSimulator(force_feedforward="auto")``, docs/robot.md); ``NP_ROBOT_FORCE_FF=0``
 turns it off (``=1`` asks for it) in the ``plan``, ``sweep``, ``cost`` and one-arm
 ``transitions`` runs (the ``wheel`` part's user robot keeps the default).
+``NP_ROBOT_RADIUS_OFFSET=0`` turns the fingertip radius offset (on with one fingertip by
+default, ``RobotSimulator(radius_offset="auto")``) off, ``=1`` on, in every part but
+``wheel``.
 ``NP_ROBOT_REPEAT=R`` (default 1) executes the main
 plan ``R`` times by each driver in ``plan`` and prints the median CPU of each (the same plan
 from the same start: the records are those of the last execution; on a shared machine one
@@ -90,6 +93,10 @@ if os.environ.get("NP_ROBOT_FORCE_FF") == "1":
     ROBOT_KW["force_feedforward"] = True
 elif os.environ.get("NP_ROBOT_FORCE_FF") == "0":
     ROBOT_KW["force_feedforward"] = False
+# the fingertip radius offset (NP_ROBOT_RADIUS_OFFSET=1: on, 0: off; by default "auto": on
+# with one fingertip)
+if os.environ.get("NP_ROBOT_RADIUS_OFFSET") in ("0", "1"):
+    ROBOT_KW["radius_offset"] = os.environ["NP_ROBOT_RADIUS_OFFSET"] == "1"
 MAIN = ["--from", "b:200", "--at", "0.3", "0.1", "--step", "90", "--dataset", "cube"]
 
 

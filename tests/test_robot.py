@@ -1128,6 +1128,44 @@ def test_cli_simulate_plan_with_the_force_limited_command() -> None:
                                     "112.5", "--compliance", "--force-feedforward"])
     assert bad.exit_code == 2 and "--force-feedforward goes with one" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1
+    # the fingertip radius offset: on by default with one arm (above), off when asked; a
+    # robot's option only
+    assert cmd["radius_offset"] is True
+    res = CliRunner().invoke(main, [*args, "--robot", "panda", "--base", "0.53", "-0.51",
+                                    "112.5", "--no-radius-offset"])
+    assert res.exit_code == 0, res.stderr
+    assert json.loads(res.stdout)["robot"]["finger_command"]["radius_offset"] is False
+    for flag in ("--radius-offset", "--no-radius-offset"):
+        bad = CliRunner().invoke(main, [*args, flag])
+        assert bad.exit_code == 2 and "--radius-offset/--no-radius-offset is a robot's" in \
+            bad.stderr
+        assert len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_the_radius_offset_runs_with_one_fingertip_and_a_sweep_says_which() -> None:
+    """``radius_offset="auto"`` (the default) is on with one fingertip and off with several,
+    as the simulator's driver, its JSON and a sweep's robot say; an explicit choice wins;
+    anything but True, False or "auto" is refused in one line naming it."""
+    one = [Arm(Robot.builtin(), BasePose(0.5, 0.0, 180.0))]
+    two = [*one, Arm(Robot.builtin(), BasePose(-0.5, 0.0, 0.0))]
+    for arms, want in ((one, True), (two, False)):
+        sim = RobotSimulator(CUBE, arms, scale=SCALE)
+        assert sim.robot_driver.radius_offset is want
+        assert sim.describe()["finger_command"]["radius_offset"] is want
+        assert SweepRobot(tuple(arms)).to_dict()["radius_offset"] is want
+        for chosen in (True, False):
+            assert RobotSimulator(CUBE, arms, scale=SCALE, radius_offset=chosen
+                                  ).robot_driver.radius_offset is chosen
+            assert SweepRobot(tuple(arms), radius_offset=chosen).to_dict()[
+                "radius_offset"] is chosen
+    # the sweep's simulator gets the switch
+    sim = SweepRobot(tuple(one), radius_offset=False).simulator(CUBE, SCALE, DEFAULT_PARAMS)
+    assert sim.robot_driver.radius_offset is False  # type: ignore[attr-defined]
+    for bad in (1, "yes", None):
+        with pytest.raises(InputError, match="radius_offset is True, False or 'auto'"):
+            RobotSimulator(CUBE, one, scale=SCALE, radius_offset=bad)  # type: ignore[arg-type]
+        with pytest.raises(InputError, match="radius_offset is True, False or 'auto'"):
+            SweepRobot(tuple(one), radius_offset=bad)  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize(("kw", "what"), [

@@ -724,9 +724,8 @@ def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> Non
     drv.finger_radius = REFERENCE_RADIUS
     assert drv._tool(rows, edge[None]) is None
     drv.finger_radius = 0.012
-    drv.radius_offset = False  # the default
+    drv.radius_offset = False  # (RobotSimulator's default is on for one fingertip)
     assert drv._tool(rows, edge[None]) is None
-    assert _sim().robot_driver.radius_offset is False
 
 
 def test_the_offset_is_part_of_the_command_and_the_reference_error_keeps_the_target() -> None:

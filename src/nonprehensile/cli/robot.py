@@ -13,9 +13,22 @@ from nonprehensile.checks import Range
 from nonprehensile.cli.options import Number, count, number
 from nonprehensile.errors import InputError
 
-__all__ = ["compliance_option", "control_every", "direction_option",
-           "feedforward_of", "force_feedforward_option", "load_robot", "placement_doc",
-           "press_option", "robot_arms", "robot_options", "robot_table", "wants_robot"]
+__all__ = [
+    "compliance_option",
+    "control_every",
+    "direction_option",
+    "feedforward_of",
+    "force_feedforward_option",
+    "load_robot",
+    "placement_doc",
+    "press_option",
+    "radius_offset_of",
+    "radius_offset_option",
+    "robot_arms",
+    "robot_options",
+    "robot_table",
+    "wants_robot",
+]
 
 F = Callable[..., Any]
 
@@ -74,6 +87,23 @@ def force_feedforward_option(fn: F) -> F:
 def feedforward_of(kw: dict[str, Any]) -> bool | str:
     """The ``force_feedforward`` the options ask for: ``"auto"`` unless one was given."""
     given = kw.get("force_feedforward")
+    return "auto" if given is None else bool(given)
+
+
+def radius_offset_option(fn: F) -> F:
+    """Add ``--radius-offset/--no-radius-offset`` (keyword argument ``radius_offset``) to a
+    command that simulates a robot."""
+    return click.option(
+        "--radius-offset/--no-radius-offset", "radius_offset", default=None,
+        help="Robot: move each target near the object out along its normal by the robot's "
+             "fingertip radius minus the references' 6 mm (a tool radius compensation, "
+             "docs/robot.md). Default: on with one fingertip, off with --arms 2 or a "
+             "hand.")(fn)
+
+
+def radius_offset_of(kw: dict[str, Any]) -> bool | str:
+    """The ``radius_offset`` the options ask for: ``"auto"`` unless one was given."""
+    given = kw.get("radius_offset")
     return "auto" if given is None else bool(given)
 
 
@@ -146,6 +176,9 @@ def wants_robot(kw: dict[str, Any]) -> bool:
     if kw.get("force_feedforward") and robot is None and xml is None:
         raise InputError("--force-feedforward is a robot's finger command: give --robot NAME "
                          "or --robot-xml FILE")
+    if kw.get("radius_offset") is not None and robot is None and xml is None:
+        raise InputError("--radius-offset/--no-radius-offset is a robot's finger command: "
+                         "give --robot NAME or --robot-xml FILE")
     if kw.get("compliance") and robot is None and xml is None:
         raise InputError("--compliance is a robot's finger command: give --robot NAME or "
                          "--robot-xml FILE")

@@ -35,6 +35,8 @@ from nonprehensile.cli.robot import (
     load_robot,
     placement_doc,
     press_option,
+    radius_offset_of,
+    radius_offset_option,
     robot_options,
     wants_robot,
 )
@@ -115,6 +117,7 @@ def _pct(d: dict[str, Any]) -> str:
 @robot_options
 @compliance_option
 @force_feedforward_option
+@radius_offset_option
 @press_option
 @direction_option
 @json_option
@@ -281,7 +284,8 @@ def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds
     return rob.SweepRobot(tuple(arms), every, compliance=bool(kw.get("compliance")),
                           press_depth=kw.get("press_depth", "auto"),
                           finger_direction=kw.get("finger_direction", "lean"),
-                          force_feedforward=feedforward_of(kw)), placement
+                          force_feedforward=feedforward_of(kw),
+                          radius_offset=radius_offset_of(kw)), placement
 
 
 def _robot_summary(result: Any) -> dict[str, Any]:

@@ -48,6 +48,8 @@ from nonprehensile.cli.robot import (
     load_robot,
     placement_doc,
     press_option,
+    radius_offset_of,
+    radius_offset_option,
     robot_arms,
     robot_options,
     robot_table,
@@ -370,6 +372,7 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
 @robot_options
 @compliance_option
 @force_feedforward_option
+@radius_offset_option
 @press_option
 @direction_option
 @json_option
@@ -386,7 +389,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     it (docs/robot.md)."""
     robot_kw = {k: kw.pop(k) for k in ("robot", "robot_xml", "tip_sites", "base",
                                        "control_rate", "n_arms", "compliance", "press_depth",
-                                       "finger_direction", "force_feedforward")}
+                                       "finger_direction", "force_feedforward",
+                                       "radius_offset")}
     use_robot = wants_robot(robot_kw)
     if loop == "open" and robot_kw.get("finger_direction") == "recorded":
         err.print("note: --finger-direction recorded changes nothing here: open loop, the "
@@ -448,7 +452,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                                    compliance=bool(robot_kw.get("compliance")),
                                    press_depth=robot_kw.get("press_depth", "auto"),
                                    finger_direction=robot_kw.get("finger_direction", "lean"),
-                                   force_feedforward=feedforward_of(robot_kw))
+                                   force_feedforward=feedforward_of(robot_kw),
+                                   radius_offset=radius_offset_of(robot_kw))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")

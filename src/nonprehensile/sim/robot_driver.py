@@ -1348,11 +1348,13 @@ class RobotArms:
         (``tool_blend`` m), so that it turns smoothly round an edge. The object is where the
         IK believes it (:meth:`see`).
 
-        Off by default (``radius_offset``): across the main plan's 100 samples it brought
-        the tracking error in contact from 8.2 to 5.1 mm (median of the maxima; worst 46
-        to 18 mm) and the largest contact force from 338 to 241 N, but lost three of the
-        slippery-table pushes with large fingertips (91/100 against 94/100), where the
-        pressing arm had tipped the cube (docs/benchmarks.md, arm22)."""
+        ``radius_offset`` switches it (off on this driver;
+        :class:`~nonprehensile.sim.robot_run.RobotSimulator`'s ``"auto"``, its default,
+        turns it on with one fingertip). Across the main plan's 100 samples (seeds 0 and 1,
+        the stiff arm's force cap and feed-forward, the tool's pin) runs within 3 mm in
+        contact went from 82 and 78 to 91 and 91, and success from 96 and 93 to 97 and 94;
+        when it was first tried, before the force cap, it lost three slippery-table pushes
+        with large fingertips (91/100 against 94/100; docs/benchmarks.md, arm22)."""
         delta = self.finger_radius - self.reference_radius
         offset = self.radius_offset and delta != 0.0
         press = self.press_depth

@@ -45,6 +45,7 @@ __all__ = ["DEFAULT_TRACKING_GAIN", "PINCH_PRESS_DEPTH", "PINCH_TRACKING_BOUND",
            "ROBOT_PUSH_APPROACH", "ROBOT_TRACKING_SURFACE_BOUND", "ROBOT_TRANSIT_ACCEL",
            "RobotSimulator", "check_force_feedforward", "describe_robots",
            "resolve_force_cap", "resolve_force_feedforward", "resolve_press_depth",
+           "resolve_radius_offset",
            "resolve_surface_bound", "resolve_tracking",
            "robot_control"]
 
@@ -201,6 +202,25 @@ def resolve_force_feedforward(feedforward: object, cap: float | None,
     return feedforward
 
 
+def resolve_radius_offset(offset: object, n_fingers: int = 1) -> bool:
+    """Whether the arm's commands get the fingertip radius offset
+    (:meth:`~nonprehensile.sim.robot_driver.RobotArms._tool`): ``"auto"`` (the default) with
+    one fingertip, not with several (a pinch's depth is the contact-consistent command's
+    bound, ``press_depth``, and the offset was measured for one arm pushing only); True or
+    False as given.
+
+    Raises
+    ------
+    InputError
+        One line saying what came.
+    """
+    if isinstance(offset, str) and offset == "auto":
+        return n_fingers == 1
+    if not isinstance(offset, bool):
+        raise InputError(f"radius_offset is True, False or 'auto', got {offset!r}")
+    return offset
+
+
 def check_force_feedforward(feedforward: object, cap: float | None,
                             n_fingers: int = 1) -> None:
     """Refuse a contact force feed-forward switch :func:`resolve_force_feedforward` refuses.
@@ -349,10 +369,12 @@ class RobotSimulator(Simulator):
     tracking_bound : float, optional
         The correction's bound, m. Default: the driver's 4 mm with one fingertip,
         :data:`PINCH_TRACKING_BOUND` with several.
-    radius_offset : bool
+    radius_offset : bool or "auto"
         Move each target near the object out along its normal by the arm's fingertip
         radius minus the references' (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
-        _tool`; off by default: docs/robot.md gives the measured figures).
+        _tool`: a tool radius compensation). ``"auto"``, the default: on with one fingertip,
+        off with several (:func:`resolve_radius_offset`; docs/robot.md gives the measured
+        figures).
     press_depth : float, None or "auto"
         The contact-consistent command (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
         _press_push`): the deepest, in m, that a fingertip's command (the centre of the
@@ -418,7 +440,7 @@ class RobotSimulator(Simulator):
                  force_limit: float | None = None, tracking_gain: float | None = None,
                  tracking_tangential: bool | None = None,
                  tracking_bound: float | None = None,
-                 compliance: bool = False, radius_offset: bool = False,
+                 compliance: bool = False, radius_offset: bool | str = "auto",
                  press_depth: float | str | None = "auto",
                  press_correction: bool = True, finger_direction: str = "lean",
                  accel_feedforward: bool = True,
@@ -467,9 +489,7 @@ class RobotSimulator(Simulator):
         offsets = np.array([poly.normals[f] @ poly.vertices[poly.faces[f][0]]
                             for f in poly.face_ids])
         self.robot_driver.set_shape(normals, offsets, self.scale)
-        if not isinstance(radius_offset, bool):
-            raise InputError(f"radius_offset is True or False, got {radius_offset!r}")
-        self.robot_driver.radius_offset = radius_offset
+        self.robot_driver.radius_offset = resolve_radius_offset(radius_offset, self.n_fingers)
         check_press(press_depth, press_correction)
         # one arm pushes: none; several pinch: the bound
         self.robot_driver.press_depth = resolve_press_depth(press_depth, self.n_fingers)
@@ -569,6 +589,9 @@ class RobotSimulator(Simulator):
             "tracking_surface_bound_m": (float(drv.tracking_surface_bound)
                                          if math.isfinite(drv.tracking_surface_bound)
                                          else None),
+            # whether targets near the object move out by the fingertip radius minus the
+            # references' (RobotArms._tool)
+            "radius_offset": bool(drv.radius_offset),
             # the contact-consistent command's bound (None: the references as they are)
             "press_depth_m": drv.press_depth,
             "press_correction": bool(drv.press_correction),

@@ -432,6 +432,10 @@ class SweepRobot:
         With a force cap, the contact force fed forward to the servos (``"auto"``, the
         default: with a force cap and one fingertip;
         :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
+    radius_offset : bool or "auto"
+        The fingertip radius offset of the arms' commands, each sample's fingertip radius
+        against the references' (``"auto"``, the default: with one fingertip;
+        :class:`~nonprehensile.sim.robot_run.RobotSimulator`).
     """
 
     arms: tuple[Any, ...]
@@ -443,6 +447,7 @@ class SweepRobot:
     finger_direction: str = "lean"
     force_cap: float | str | None = "auto"
     force_feedforward: bool | str = "auto"
+    radius_offset: bool | str = "auto"
 
     def __post_init__(self) -> None:
         if self.max_accel is None:
@@ -469,6 +474,9 @@ class SweepRobot:
         from nonprehensile.sim.robot_run import check_force_feedforward
 
         check_force_feedforward(self.force_feedforward, self.force_cap_n, self.n_fingers)
+        from nonprehensile.sim.robot_run import resolve_radius_offset
+
+        resolve_radius_offset(self.radius_offset, self.n_fingers)
 
     @property
     def n_fingers(self) -> int:
@@ -485,7 +493,8 @@ class SweepRobot:
                               press_correction=self.press_correction,
                               finger_direction=self.finger_direction,
                               force_cap=self.force_cap,
-                              force_feedforward=self.force_feedforward)
+                              force_feedforward=self.force_feedforward,
+                              radius_offset=self.radius_offset)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON form: robots, bases, rates."""
@@ -501,8 +510,18 @@ class SweepRobot:
                 "force_cap_n": self.force_cap_n,
                 # whether the contact force is fed forward ("auto" resolved; a cap only)
                 "force_feedforward": self.force_feedforward_on,
+                # whether the commands get the fingertip radius offset ("auto" resolved)
+                "radius_offset": self.radius_offset_on,
                 # the contact tracking correction that runs (robot_run.resolve_tracking)
                 **self.tracking()}
+
+    @property
+    def radius_offset_on(self) -> bool:
+        """Whether the commands get the fingertip radius offset (``"auto"`` resolved as
+        :class:`~nonprehensile.sim.robot_run.RobotSimulator` resolves it)."""
+        from nonprehensile.sim.robot_run import resolve_radius_offset
+
+        return resolve_radius_offset(self.radius_offset, self.n_fingers)
 
     @property
     def force_feedforward_on(self) -> bool:
