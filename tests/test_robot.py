@@ -80,6 +80,33 @@ def test_panda_kinematics_match_franka_dh_table(u: list[float]) -> None:
                                atol=1e-9)
 
 
+@pytest.mark.parametrize("length", [0.02, 0.066 + 1e-7, 0.0665, 0.12, 0.5])
+def test_the_finger_tool_is_a_rod_and_a_pin_at_every_length(length: float) -> None:
+    """Every tool length :meth:`Robot.builtin` takes compiles: the pin is the tool's last
+    ``PIN_LENGTH`` above the fingertip (the whole tool when the rod left would be under
+    1 mm), the rod the rest; together they run from the flange to 16 mm above the tip site.
+    Truth: the compiled capsules' end points along the flange axis."""
+    m = mujoco.MjModel.from_xml_string(Robot.builtin(rod_length=length).xml)
+    rod_body = m.body("rod").id
+    geoms = {m.geom(g).name: g for g in range(m.ngeom) if m.geom_bodyid[g] == rod_body}
+    pin = geoms["pin"]
+    assert m.geom_size[pin][0] == panda.PIN_RADIUS
+    ends = {}
+    for name, g in geoms.items():  # a capsule's segment: its frame's z axis, +- half length
+        c, half = m.geom_pos[g][2], m.geom_size[g][1]
+        ends[name] = (c - half, c + half)
+    assert ends["pin"][1] == pytest.approx(length - 0.016, abs=1e-9)
+    if "rod" in geoms:
+        assert m.geom_size[geoms["rod"]][0] == panda.ROD_RADIUS
+        assert ends["rod"][0] == pytest.approx(0.0, abs=1e-9)
+        assert ends["rod"][1] == pytest.approx(ends["pin"][0], abs=1e-9)
+        assert ends["rod"][1] >= 0.001 - 1e-9
+        assert ends["pin"][1] - ends["pin"][0] == pytest.approx(panda.PIN_LENGTH, abs=1e-9)
+    else:
+        assert length - 0.016 < panda.PIN_LENGTH + 0.001
+        assert ends["pin"][0] == pytest.approx(0.0, abs=1e-9)
+
+
 def test_panda_limits_masses_and_gravity_compensation() -> None:
     r = Robot.builtin("panda")
     np.testing.assert_array_equal(r.lower, panda.Q_MIN)
@@ -571,6 +598,8 @@ def test_finger_leans_back_beside_the_object_and_arms_stand_on_their_side() -> N
             assert z[0] < -0.4
             rod = d.geom_xpos[m.geom("arm0/rod").id]
             assert rod[0] > x[0, 0] + 0.005
+            pin = d.geom_xpos[m.geom("arm0/pin").id]  # (the tool's part nearest the face)
+            assert pin[0] > x[0, 0] + 0.005
     # two fingers pinching along x: each arm stands on its own finger's side
     path = np.tile(np.array([[[0.27, 0.1, 0.03], [0.33, 0.1, 0.03]]]), (10, 1, 1))
     for finger, sign in ((0, -1.0), (1, 1.0)):
@@ -1101,7 +1130,9 @@ def test_force_limit_without_the_compliance_is_refused() -> None:
 def test_cli_simulate_plan_with_the_force_limited_command() -> None:
     """``simulate plan --robot panda --compliance``: the first step runs with the
     force-limited finger command, and the JSON says so with its virtual finger (the
-    distribution's nominal spring); without a robot the flag is refused in one line."""
+    distribution's nominal spring); without a robot the flag is refused in one line. The
+    contact force feed-forward and the fingertip radius offset: on by default with one arm,
+    off when asked, the JSON saying which ran; robot options only."""
     args = ["simulate", "plan", SKILLS, "--from", "b:200", "--at", "0.3", "0.1", "--to",
             "a:290", "--step", "90", "--dataset", "cube", "--json"]
     res = CliRunner().invoke(main, [*args, "--robot", "panda", "--base", "0.53", "-0.51",

@@ -694,7 +694,8 @@ def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> Non
     """A 12 mm fingertip following references recorded with a 6 mm one: a target on or in
     the cube's face is moved out by the 6 mm difference along the face's normal; beyond
     the recorded radius plus the band nothing moves; over an edge, the offset points along
-    the edge's bisector; at the references' own radius there is no offset at all.
+    the edge's bisector; at the references' own radius, or a smaller one, there is no offset
+    at all.
     Truth: the cube's faces posed by hand (a yaw of 30 degrees about its centre)."""
     sim = _sim(radius_offset=True, finger_radius=0.012)
     drv = sim.robot_driver
@@ -722,6 +723,9 @@ def test_fingertip_radius_offset_moves_the_command_out_along_the_normal() -> Non
     bisector = (nx + np.array([0.0, 0.0, 1.0])) / math.sqrt(2.0)
     np.testing.assert_allclose(got[2, 0], 0.006 * bisector, atol=1e-9)
     drv.finger_radius = REFERENCE_RADIUS
+    assert drv._tool(rows, edge[None]) is None
+    # out only: a tip smaller than the recorded pad is not sent deeper
+    drv.finger_radius = 0.005
     assert drv._tool(rows, edge[None]) is None
     drv.finger_radius = 0.012
     drv.radius_offset = False  # (RobotSimulator's default is on for one fingertip)

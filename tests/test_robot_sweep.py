@@ -116,6 +116,10 @@ def test_cli_robustness_bad_robot_options_one_line(tmp_path: Path) -> None:
                         (["--robot", "panda", "--arms", "2", "--force-feedforward"],
                          "--force-feedforward goes with one stiff arm's force cap"),
                         (["--press-depth", "3"], "--press-depth is a robot's finger command"),
+                        (["--radius-offset"],
+                         "--radius-offset/--no-radius-offset is a robot's finger command"),
+                        (["--no-radius-offset"],
+                         "--radius-offset/--no-radius-offset is a robot's finger command"),
                         (["--robot", "panda", "--press-depth", "nan"], "--press-depth"),
                         (["--robot", "panda", "--press-depth", "0"], "above 0"),
                         (["--robot", "panda", "--press-depth", "25"], "at most 20 (mm)")):
@@ -149,6 +153,7 @@ def test_cli_robustness_by_the_panda_equals_the_robot_simulator() -> None:
     doc = json.loads(res.stdout)
     assert doc["robot"]["robots"][0]["base"] == BASE.to_dict()
     assert doc["robot"]["control_every"] == 8 and doc["placement"] is None
+    assert doc["robot"]["radius_offset"] is True  # ("auto": one fingertip)
     (rec,) = doc["records"]
     assert rec["robot"]["ik_solves"] > 0 and doc["robot_metrics"]["executions"] == 1
     # the same execution by hand: a robot scene compiled with the sample's parameters
@@ -248,3 +253,16 @@ def test_robot_contact_flags_match_a_plain_reading() -> None:
         seen.add((touch, other))
     assert (True, False) in seen or (True, True) in seen
     assert any(o for _, o in seen)
+
+
+def test_cli_robustness_turns_the_radius_offset_off_and_says_so() -> None:
+    """``simulate robustness --robot panda --no-radius-offset``: the sweep's JSON says the
+    offset did not run."""
+    res = CliRunner().invoke(main, [
+        "simulate", "robustness", SKILLS, *STEP1, "--samples", "1", "--seed", "3",
+        "--loop", "closed", "--workers", "1", "--robot", "panda", "--base", str(BASE.x),
+        str(BASE.y), str(BASE.yaw), "--no-radius-offset", "--json"])
+    assert res.exit_code == 0, res.stderr
+    doc = json.loads(res.stdout)
+    assert doc["robot"]["radius_offset"] is False
+    assert doc["robot_metrics"]["executions"] == 1

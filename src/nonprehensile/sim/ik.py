@@ -9,9 +9,9 @@ to where the simulation says the object is before each solve) and mink's tasks a
   where the target lies below the object's top (a push or a pinch on a side face) the
   finger leans inwards by ``side_tilt_deg``, so that the rod above the fingertip stands
   clear of the face instead of grazing it (a vertical 8 mm rod above a 6 mm tip sphere
-  touching a face has 2 mm of clearance, less than the contact's own penetration and
-  the collision limit's detection distance: the limit then fights the position task and
-  the arm chatters against the object);
+  touching a face had 2 mm of clearance, less than the contact's own penetration and
+  the collision limit's detection distance: the limit then fought the position task and
+  the arm chattered against the object; the bundled tool now ends in a 5 mm pin);
 * posture regularisation towards the robot's home configuration;
 * limits: joint positions, joint velocities (the datasheet's, or the user's), and collision
   avoidance of every link and the rod against the object and the table (the base against the

@@ -113,8 +113,10 @@ ROD_MASS = 0.08
 #: radius of 5-12 mm: an 8 mm rod straight down over a 5 mm sphere pushing a side face stood
 #: 1 mm from it, the IK's collision margin held the fingertip at its first touch while its
 #: command moved on, and 6 of the 18 runs with a 5-6 mm tip of the main plan's 100 samples
-#: tracked worse than 3 mm (none with the pin). A 5 mm steel pin 50 mm long bends 0.3 mm
-#: under 40 N at its end (``F L^3 / 3 E I``): rigid beside the contact's own give.
+#: tracked worse than 3 mm (none with the pin, before the radius offset). Under 40 N at the
+#: fingertip, 66 mm below the pin's top, a 5 mm steel pin bends about 0.6 mm (``F L^3 / 3 E
+#: I``; the 8 mm aluminium rod over the same length: 0.3 mm); the simulation keeps the tool
+#: rigid, as it kept the rod.
 PIN_RADIUS = 0.0025
 PIN_LENGTH = 0.05
 JOINT_NAMES = tuple(f"joint{i}" for i in range(1, 8))
@@ -210,9 +212,12 @@ def panda_xml(*, rod_length: float = ROD_LENGTH, prefix: str = "") -> str:
     fa, fd, _ = DH[7]
     rod_r = ROD_RADIUS
     # the tool's capsules stop short of the tip so that only the fingertip sphere touches;
-    # the pin is its last PIN_LENGTH (all of a shorter tool)
+    # the pin is its last PIN_LENGTH, and all of a tool whose rod would be under 1 mm (MuJoCo
+    # refuses a capsule whose ends nearly coincide)
     rod_end = rod_length - 0.016
-    pin_top = max(rod_end - PIN_LENGTH, 0.0)
+    pin_top = rod_end - PIN_LENGTH
+    if pin_top < 0.001:
+        pin_top = 0.0
     i_rod = ROD_MASS * rod_length**2 / 12.0
     rod = (f'<body name="{prefix}rod" pos="{fa:g} 0 {fd:g}" gravcomp="1">'
            f'<inertial pos="0 0 {rod_length / 2:.6g}" mass="{ROD_MASS:g}" '

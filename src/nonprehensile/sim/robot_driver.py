@@ -794,8 +794,8 @@ class RobotArms:
         self._bias_views = ((data.qfrc_bias[self._dsl], data.qvel[self._dsl])
                             if isinstance(self._dsl, slice) else None)
         self._controls: _OnlineControls | None = None  # the trajectory read now (hold_row)
-        # the fingertip radius offset (_tool; off by default, docs/robot.md says why), and
-        # the object's shape it needs
+        # the fingertip radius offset (_tool; off on this driver, RobotSimulator's "auto"
+        # turns it on for one fingertip), and the object's shape it needs
         self.radius_offset = False
         # how the finger tools point in a step: "recorded" (the knuckle markers, where the
         # references carry them) or "lean" (the IK's rule only): point()
@@ -1331,7 +1331,7 @@ class RobotArms:
         and ``ahead`` (shape (n_fingers, 3)), plus the contact-consistent command's push
         where ``press_depth`` is set (:meth:`_press_push`, rate-limited by
         :meth:`_press_limited`), shape (k + 1, n_fingers, 3); None where there is neither
-        (the arm's fingertip as large as the references' or the offset off, and nothing
+        (the arm's fingertip no larger than the references' or the offset off, and nothing
         pushed; or no object shape).
 
         The references are fingertip-centre paths recorded with a fingertip of radius
@@ -1348,15 +1348,21 @@ class RobotArms:
         (``tool_blend`` m), so that it turns smoothly round an edge. The object is where the
         IK believes it (:meth:`see`).
 
+        The offset only moves out: a tip smaller than the recorded pad keeps the targets
+        (moved 1 mm deeper, a 5 mm tip's pin came within the IK's collision margin of the
+        face, and the IK held the fingertip short of its command: 16 and 8 of the 18 and 10
+        runs with a 5-6 mm tip within 3 mm in contact, against 18 and 10 without).
+
         ``radius_offset`` switches it (off on this driver;
         :class:`~nonprehensile.sim.robot_run.RobotSimulator`'s ``"auto"``, its default,
         turns it on with one fingertip). Across the main plan's 100 samples (seeds 0 and 1,
         the stiff arm's force cap and feed-forward, the tool's pin) runs within 3 mm in
-        contact went from 82 and 78 to 91 and 91, and success from 96 and 93 to 97 and 94;
+        contact went from 82 and 78 to 93 and 93, and success from 96 and 93 to 97 and 94;
         when it was first tried, before the force cap, it lost three slippery-table pushes
         with large fingertips (91/100 against 94/100; docs/benchmarks.md, arm22)."""
-        delta = self.finger_radius - self.reference_radius
-        offset = self.radius_offset and delta != 0.0
+        # out only: a tip smaller than the recorded pad is not sent deeper (below)
+        delta = max(self.finger_radius - self.reference_radius, 0.0)
+        offset = self.radius_offset and delta > 0.0
         press = self.press_depth
         if self._planes is None or (not offset and press is None):
             return None
