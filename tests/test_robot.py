@@ -80,7 +80,7 @@ def test_panda_kinematics_match_franka_dh_table(u: list[float]) -> None:
                                atol=1e-9)
 
 
-@pytest.mark.parametrize("length", [0.02, 0.066 + 1e-7, 0.0665, 0.12, 0.5])
+@pytest.mark.parametrize("length", [0.02, 0.066 + 1e-7, 0.0665, 0.0675, 0.12, 0.5])
 def test_the_finger_tool_is_a_rod_and_a_pin_at_every_length(length: float) -> None:
     """Every tool length :meth:`Robot.builtin` takes compiles: the pin is the tool's last
     ``PIN_LENGTH`` above the fingertip (the whole tool when the rod left would be under
@@ -536,8 +536,10 @@ def test_two_arms_one_finger_each() -> None:
 
 def test_the_smallest_fingertip_presses_a_side_face_clear_of_the_tool() -> None:
     """The physics distribution's smallest fingertip (5 mm) on the bundled tool, pointing
-    straight down beside the cube, pressed 0.9 mm into a side face: the IK puts it there with
-    its collision limit on, the tool standing off the cube by at least the limit's margin.
+    straight down beside the cube, pressed 0.9 mm into a side face 15 mm below its top (the
+    tool's lower end level with the face's top edge, where a push-roll pushes): the IK puts
+    it there with its collision limit on, the tool standing off the cube by at least the
+    limit's margin.
     Truth: MuJoCo's own distance between each tool geom and the cube at the converged joints.
     An 8 mm rod down to the tip stood 1 mm from the face before any press, and the limit held
     the fingertip 0.6 mm short of such a target (1 mm margin; 0.9 mm at 1.5 mm)."""

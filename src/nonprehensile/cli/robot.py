@@ -96,9 +96,9 @@ def radius_offset_option(fn: F) -> F:
     return click.option(
         "--radius-offset/--no-radius-offset", "radius_offset", default=None,
         help="Robot: move each target near the object out along its normal by the robot's "
-             "fingertip radius minus the references' 6 mm (a tool radius compensation, "
-             "docs/robot.md). Default: on with one fingertip, off with --arms 2 or a "
-             "hand.")(fn)
+             "fingertip radius minus the references' 6 mm (a tool radius compensation for a "
+             "larger fingertip; a smaller one is not moved; docs/robot.md). Default: on "
+             "with one fingertip, off with --arms 2 or a hand.")(fn)
 
 
 def radius_offset_of(kw: dict[str, Any]) -> bool | str:

@@ -178,8 +178,10 @@ def panda_xml(*, rod_length: float = ROD_LENGTH, prefix: str = "") -> str:
     Returns
     -------
     str
-        Bodies ``link0 .. link7``, ``rod``; joints ``joint1 .. joint7``; site ``tip``;
-        actuators ``joint{i}`` (position) and ``joint{i}_v`` (velocity feed-forward).
+        Bodies ``link0 .. link7``, ``rod`` (the tool: geoms ``rod`` and ``pin``, or ``pin``
+        alone for a tool whose rod would be under 1 mm); joints ``joint1 .. joint7``; site
+        ``tip``; actuators ``joint{i}`` (position) and ``joint{i}_v`` (velocity
+        feed-forward).
     """
     frames = _frames_at_zero()
     geoms: dict[int, list[str]] = {i: [] for i in range(8)}

@@ -147,7 +147,10 @@ class Robot:
     # ------------------------------------------------------------------ constructors
     @classmethod
     def builtin(cls, name: str = "panda", *, rod_length: float = panda.ROD_LENGTH) -> Robot:
-        """A bundled robot: ``"panda"``, the Franka Panda with a finger rod."""
+        """A bundled robot: ``"panda"``, the Franka Panda with a finger tool ``rod_length``
+        long (m, flange to tip site): an 8 mm rod (geom ``rod``) ending in a 5 mm pin (geom
+        ``pin``, its last 50 mm above the fingertip; all of a tool under 67 mm, which then has
+        no ``rod`` geom: :mod:`~nonprehensile.sim.panda`)."""
         if name != "panda":
             raise InputError(f"unknown robot {name!r}: the bundled robots are "
                              f"{list(BUILTIN_ROBOTS)} (or give --robot-xml FILE --tip-site S)")

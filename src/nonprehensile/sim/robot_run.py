@@ -372,7 +372,8 @@ class RobotSimulator(Simulator):
     radius_offset : bool or "auto"
         Move each target near the object out along its normal by the arm's fingertip
         radius minus the references' (:meth:`~nonprehensile.sim.robot_driver.RobotArms.
-        _tool`: a tool radius compensation). ``"auto"``, the default: on with one fingertip,
+        _tool`: a tool radius compensation; a fingertip no larger than the references' is
+        not moved). ``"auto"``, the default: on with one fingertip,
         off with several (:func:`resolve_radius_offset`; docs/robot.md gives the measured
         figures).
     press_depth : float, None or "auto"
