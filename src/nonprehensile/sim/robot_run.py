@@ -206,8 +206,9 @@ def resolve_radius_offset(offset: object, n_fingers: int = 1) -> bool:
     """Whether the arm's commands get the fingertip radius offset
     (:meth:`~nonprehensile.sim.robot_driver.RobotArms._tool`): ``"auto"`` (the default) with
     one fingertip, not with several (a pinch's depth is the contact-consistent command's
-    bound, ``press_depth``, and the offset was measured for one arm pushing only); True or
-    False as given.
+    bound, ``press_depth``; across the physics distribution two arms with the offset held
+    fewer torque limits but lost three goals in one of two seeds: docs/benchmarks.md); True
+    or False as given.
 
     Raises
     ------
