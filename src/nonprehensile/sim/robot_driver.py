@@ -1350,8 +1350,8 @@ class RobotArms:
 
         The offset only moves out: a tip smaller than the recorded pad keeps the targets
         (moved 1 mm deeper, a 5 mm tip's pin came within the IK's collision margin of the
-        face, and the IK held the fingertip short of its command: 16 and 8 of the 18 and 10
-        runs with a 5-6 mm tip within 3 mm in contact, against 18 and 10 without).
+        face, and the IK held the fingertip short of its command: 18 and 10 of the 20 and 12
+        runs with a 5-6 mm tip within 3 mm in contact, against 20 and 12 without).
 
         ``radius_offset`` switches it (off on this driver;
         :class:`~nonprehensile.sim.robot_run.RobotSimulator`'s ``"auto"``, its default,
