@@ -14,15 +14,14 @@ from nonprehensile.cli.options import Number, count, number
 from nonprehensile.errors import InputError
 
 __all__ = [
+    "auto_switch_of",
     "compliance_option",
     "control_every",
     "direction_option",
-    "feedforward_of",
     "force_feedforward_option",
     "load_robot",
     "placement_doc",
     "press_option",
-    "radius_offset_of",
     "radius_offset_option",
     "robot_arms",
     "robot_options",
@@ -73,37 +72,36 @@ def robot_options(fn: F) -> F:
     return fn
 
 
-def force_feedforward_option(fn: F) -> F:
-    """Add ``--force-feedforward/--no-force-feedforward`` (keyword argument
-    ``force_feedforward``) to a command that simulates a robot."""
-    return click.option(
-        "--force-feedforward/--no-force-feedforward", "force_feedforward", default=None,
-        help="Robot, one stiff arm: feed the measured contact force (clipped at the force "
-             "cap) forward to the joint servos, so the fingertip holds its command under "
-             "load (docs/robot.md). Default: on with one stiff arm's fingertip, off with "
-             "--compliance, --arms 2 or a hand.")(fn)
+def _auto_switch(flag: str, key: str, help_: str) -> Callable[[F], F]:
+    """A ``--flag/--no-flag`` option (keyword argument ``key``) whose default, None, leaves
+    the choice to the library (``"auto"``: :func:`auto_switch_of`)."""
+
+    def add(fn: F) -> F:
+        return click.option(f"--{flag}/--no-{flag}", key, default=None, help=help_)(fn)
+
+    return add
 
 
-def feedforward_of(kw: dict[str, Any]) -> bool | str:
-    """The ``force_feedforward`` the options ask for: ``"auto"`` unless one was given."""
-    given = kw.get("force_feedforward")
-    return "auto" if given is None else bool(given)
+#: ``--force-feedforward/--no-force-feedforward`` (keyword ``force_feedforward``).
+force_feedforward_option = _auto_switch(
+    "force-feedforward", "force_feedforward",
+    "Robot, one stiff arm: feed the measured contact force (clipped at the force cap) "
+    "forward to the joint servos, so the fingertip holds its command under load "
+    "(docs/robot.md). Default: on with one stiff arm's fingertip, off with --compliance, "
+    "--arms 2 or a hand.")
+
+#: ``--radius-offset/--no-radius-offset`` (keyword ``radius_offset``).
+radius_offset_option = _auto_switch(
+    "radius-offset", "radius_offset",
+    "Robot: move each target near the object out along its normal by the robot's fingertip "
+    "radius minus the references' 6 mm (a tool radius compensation for a larger fingertip; "
+    "a smaller one is not moved; docs/robot.md). Default: on with one fingertip, off with "
+    "--arms 2 or a hand.")
 
 
-def radius_offset_option(fn: F) -> F:
-    """Add ``--radius-offset/--no-radius-offset`` (keyword argument ``radius_offset``) to a
-    command that simulates a robot."""
-    return click.option(
-        "--radius-offset/--no-radius-offset", "radius_offset", default=None,
-        help="Robot: move each target near the object out along its normal by the robot's "
-             "fingertip radius minus the references' 6 mm (a tool radius compensation for a "
-             "larger fingertip; a smaller one is not moved; docs/robot.md). Default: on "
-             "with one fingertip, off with --arms 2 or a hand.")(fn)
-
-
-def radius_offset_of(kw: dict[str, Any]) -> bool | str:
-    """The ``radius_offset`` the options ask for: ``"auto"`` unless one was given."""
-    given = kw.get("radius_offset")
+def auto_switch_of(kw: dict[str, Any], key: str) -> bool | str:
+    """The switch ``key`` the options ask for: ``"auto"`` unless one was given."""
+    given = kw.get(key)
     return "auto" if given is None else bool(given)
 
 

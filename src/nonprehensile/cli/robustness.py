@@ -27,15 +27,14 @@ from nonprehensile.cli.options import (
     step_option,
 )
 from nonprehensile.cli.robot import (
+    auto_switch_of,
     compliance_option,
     control_every,
     direction_option,
-    feedforward_of,
     force_feedforward_option,
     load_robot,
     placement_doc,
     press_option,
-    radius_offset_of,
     radius_offset_option,
     robot_options,
     wants_robot,
@@ -284,8 +283,8 @@ def _sweep_robot(kw: dict[str, Any], robot: Any, units: list[Any], poly: Any, ds
     return rob.SweepRobot(tuple(arms), every, compliance=bool(kw.get("compliance")),
                           press_depth=kw.get("press_depth", "auto"),
                           finger_direction=kw.get("finger_direction", "lean"),
-                          force_feedforward=feedforward_of(kw),
-                          radius_offset=radius_offset_of(kw)), placement
+                          force_feedforward=auto_switch_of(kw, "force_feedforward"),
+                          radius_offset=auto_switch_of(kw, "radius_offset")), placement
 
 
 def _robot_summary(result: Any) -> dict[str, Any]:

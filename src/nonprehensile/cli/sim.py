@@ -40,15 +40,14 @@ from nonprehensile.cli.options import (
     step_option,
 )
 from nonprehensile.cli.robot import (
+    auto_switch_of,
     compliance_option,
     control_every,
     direction_option,
-    feedforward_of,
     force_feedforward_option,
     load_robot,
     placement_doc,
     press_option,
-    radius_offset_of,
     radius_offset_option,
     robot_arms,
     robot_options,
@@ -452,8 +451,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                                    compliance=bool(robot_kw.get("compliance")),
                                    press_depth=robot_kw.get("press_depth", "auto"),
                                    finger_direction=robot_kw.get("finger_direction", "lean"),
-                                   force_feedforward=feedforward_of(robot_kw),
-                                   radius_offset=radius_offset_of(robot_kw))
+                                   force_feedforward=auto_switch_of(robot_kw, "force_feedforward"),
+                                   radius_offset=auto_switch_of(robot_kw, "radius_offset"))
         if simulator.n_fingers < scene_fingers(result, exp):
             raise InputError(f"the plan needs {scene_fingers(result, exp)} fingers; the robot "
                              f"has {simulator.n_fingers} fingertip site(s)")

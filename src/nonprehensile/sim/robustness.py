@@ -468,14 +468,15 @@ class SweepRobot:
 
         check_press(self.press_depth, self.press_correction)
         check_finger_direction(self.finger_direction)
-        from nonprehensile.sim.robot_run import resolve_force_cap
+        from nonprehensile.sim.robot_run import (
+            check_force_feedforward,
+            resolve_force_cap,
+            resolve_radius_offset,
+        )
 
+        # (each refuses a bad setting in one line now, not at the first worker's scene)
         resolve_force_cap(self.force_cap, self.n_fingers, self.compliance is True)
-        from nonprehensile.sim.robot_run import check_force_feedforward
-
         check_force_feedforward(self.force_feedforward, self.force_cap_n, self.n_fingers)
-        from nonprehensile.sim.robot_run import resolve_radius_offset
-
         resolve_radius_offset(self.radius_offset, self.n_fingers)
 
     @property
