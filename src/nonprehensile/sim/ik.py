@@ -255,75 +255,88 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             self.prev = np.zeros(len(self.dadr))
             self.identity = bool(len(self.dadr) == n and np.array_equal(self.dadr, np.arange(n))
                                  and np.array_equal(self.qadr, np.arange(n)))
-            # both ends as the rows of one (2, n) array (bounds): the room to each end is
-            # ``sign q + edge`` (``upper - q`` and ``q - lower``, the same numbers: a
-            # product by 1 or -1 is exact, and ``a - b`` is ``a + (-b)``), the acceleration
-            # bounds ``sign_acc prev + a dt`` (``prev + a dt`` and ``a dt - prev``)
-            self._sign = np.array([[-1.0], [1.0]])
-            self._sign_acc = np.array([[1.0], [-1.0]])
-            self._edge = np.vstack([self.upper, -self.lower])
-            self._velocity2 = np.vstack([self.velocity, self.velocity])
             self._dt = math.nan  # the period of the products below (bounds)
-            self._velocity2_dt = self._velocity2
             self._back_dt = 0.0
-            self._stop = np.empty((2, len(self.qadr)))
+            self._vdt: list[float] = []
+            # the joints' numbers as lists (bounds: plain Python per joint)
+            self._upper_list = self.upper.tolist()
+            self._lower_list = self.lower.tolist()
             # the room past which the stopping bound ``sqrt(2 a room)`` exceeds the velocity
-            # bound (bounds), with a relative margin far above the rounding of either
-            self._free_room = (self._velocity2 * self._velocity2 / two_a * (1.0 + 1e-9)
+            # bound (bounds), with a relative margin far above the rounding of either; no
+            # acceleration bound: never (-inf), a bound of 0: always (+inf)
+            self._free_list = ((self.velocity * self.velocity / two_a * (1.0 + 1e-9)).tolist()
                                if math.isfinite(accel) and accel > 0.0
-                               else np.full_like(self._velocity2, math.inf))
+                               else [-math.inf if not math.isfinite(accel) else math.inf]
+                               * len(self.qadr))
 
         def bounds(self, qpos: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
             """``(upper, lower)`` bounds on the step ``dq``, shape (nv,) each."""
-            q = qpos if self.identity else qpos[self.qadr]
-            finite = math.isfinite(accel)
-            # the up (row 0) and down (row 1) bounds at once, on one (2, n) array: fewer
-            # numpy calls than on two (n,) arrays (this runs every solve). A joint outside
-            # its range may only move back in, as with mink's own limit; inside the margin
-            # (negative room), back out at ``back_speed`` at most
+            q = (qpos if self.identity else qpos[self.qadr]).tolist()
             if dt != self._dt:  # the products with dt, once per control period
                 self._dt = dt
-                self._velocity2_dt = self._velocity2 * dt
                 self._back_dt = -self.back * dt
-            room = np.multiply(self._sign, q)
-            room += self._edge
-            # no faster towards an end than the acceleration bound can stop in the room
-            # left, sqrt(2 a room): the gain alone let the wrist come to its margin at
-            # 1.5 rad/s, then brake at 100 rad/s^2 at its torque limit. Where every room is
-            # past ``v^2 / 2a`` that bound is above the velocity bound, which then decides
-            # alone (the same numbers: rounding is monotone and the threshold has a margin),
-            # so it is computed only near a range end
-            near_end = finite and not _MIN(room - self._free_room, axis=None) >= 0.0
-            if near_end:
-                # (in place in one buffer, the same operations in the same order as
-                # ``np.sqrt(2 a max(room, 0)) dt``)
-                stop = np.maximum(room, 0.0, out=self._stop)
-                stop *= two_a
-                np.sqrt(stop, out=stop)
-                stop *= dt
-            room *= gain
-            if near_end:
-                np.minimum(room, stop, out=room)
-            # ``min(v dt, max(room, -back dt))`` in one call (``-back dt`` <= 0 <= ``v dt``:
-            # the same numbers)
-            _CLIP(room, self._back_dt, self._velocity2_dt, out=room)
+                self._vdt = (self.velocity * dt).tolist()
+            # per joint in plain Python (this runs every solve, on a handful of joints:
+            # numpy calls on 7 numbers cost more than the arithmetic, a sixth of a solve),
+            # the same IEEE operations in the same order as on arrays, so the same numbers.
+            # Each joint's up bound, then its down bound (as a positive step down): the room
+            # to its end (``hi - q``, ``q - lo``; a joint outside its range may only move
+            # back in, as with mink's own limit), times the gain; no faster towards the end
+            # than the acceleration bound can stop in the room left, sqrt(2 a room) (the
+            # gain alone let the wrist come to its margin at 1.5 rad/s, then brake at
+            # 100 rad/s^2 at its torque limit): computed only within ``free_room`` of the end,
+            # past which it is above the velocity bound, which then decides alone (rounding
+            # is monotone and the threshold has a margin); then within ``[-back dt, v dt]``
+            # (inside the margin, negative room: back out at ``back_speed`` at most)
+            back, gain_ = self._back_dt, gain
+            finite = math.isfinite(accel)
+            adt = accel * dt
+            up: list[float] = []
+            down: list[float] = []
+            # (the acceleration bounds below; a no-bound's rows are never read)
+            au: list[float] = []
+            ad: list[float] = []
+            squeezed = False
+            for x, hi, lo, vdt, free, p in zip(q, self._upper_list, self._lower_list,
+                                               self._vdt, self._free_list, self.prev.tolist(),
+                                               strict=True):
+                u = hi - x
+                if not u - free >= 0.0:  # near the end (NaN included)
+                    u = min(u * gain_, math.sqrt(max(u, 0.0) * two_a) * dt)
+                else:
+                    u = u * gain_
+                u = vdt if u > vdt else back if u < back else u
+                w = x - lo
+                if not w - free >= 0.0:
+                    w = min(w * gain_, math.sqrt(max(w, 0.0) * two_a) * dt)
+                else:
+                    w = w * gain_
+                w = vdt if w > vdt else back if w < back else w
+                up.append(u)
+                down.append(w)
+                if finite:
+                    # the acceleration bounds ``(prev + a dt) dt`` up and ``(a dt - prev)
+                    # dt`` down
+                    a = min(u, (p + adt) * dt)
+                    b = min(w, (-p + adt) * dt)
+                    au.append(a)
+                    ad.append(b)
+                    squeezed = squeezed or not a + b >= 0.0
             if finite:
-                adt = accel * dt
-                acc = np.multiply(self._sign_acc, self.prev)
-                acc += adt
-                acc *= dt
-                np.minimum(room, acc, out=acc)
-                # the acceleration bounds give way where they leave no room (both rows'
-                # sum, as ``acc[0] + acc[1]``, checked in two calls in the usual case)
-                total = _SUM(acc, axis=0)
-                room = acc if _MIN(total) >= 0.0 else np.where(total >= 0.0, acc, room)
-            up, down = room[0], room[1]
+                # they give way to the others where together they leave no room (their sum
+                # negative, NaN included), on the joints where they do if any does
+                if not squeezed:
+                    up, down = au, ad
+                else:
+                    for i, (a, b) in enumerate(zip(au, ad, strict=True)):
+                        if a + b >= 0.0:
+                            up[i], down[i] = a, b
             if self.identity:  # the IK scene's joints are its degrees of freedom, in order
-                return up, -down
+                return np.array(up), -np.array(down)
             upper = np.empty(self.n)
             lower = np.empty(self.n)
             upper[self.dadr] = up
-            lower[self.dadr] = -down
+            lower[self.dadr] = -np.array(down)
             return upper, lower
 
         def compute_qp_inequalities(self, configuration: Any, dt: float) -> Any:
