@@ -38,6 +38,7 @@ CORE_RANKS: dict[str, int] = {
     "step_paths": 10,    # a plan step's reference finger paths as a controller tracks them
     "observation": 10,   # what a controller observes (sensor model, contacts from geometry)
     "control": 11,       # the controller's decisions while a plan executes
+    "finger_budget": 11,  # the skills and plans a number of fingertips allows
     "transit": 11,       # collision-free, bounded fingertip motions between steps
     "references": 11,    # the edge joining motion clusters, demonstrations and the planner
 }

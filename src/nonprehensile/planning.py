@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from nonprehensile.checks import DRIFT_DEG
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import Expansion, InferredTransition
@@ -56,6 +57,7 @@ __all__ = [
     "PlanStep",
     "ReferenceMotion",
     "RobustnessCosts",
+    "SearchLimitError",
     "find_offset",
     "plan",
     "step_for",
@@ -169,6 +171,24 @@ class NoPlanError(InputError):
     def __init__(self, message: str, reachable: Sequence[State]) -> None:
         super().__init__(message)
         self.reachable = list(reachable)
+
+
+class SearchLimitError(InputError):
+    """The plan search expanded :data:`MAX_SEARCH_NODES` states without reaching the goal
+    (an object whose transitions turn it by angles that never repeat has no end of world
+    states: a goal out of reach is then not proven so, only not found).
+
+    Attributes
+    ----------
+    drift : float or None
+        The smallest angle (degrees) between two distinct states of one face in the
+        expansion, where it is below :data:`DRIFT_DEG` (the transitions land off the state
+        set by their rounding, and each step splits a state again); None otherwise.
+    """
+
+    def __init__(self, message: str, drift: float | None = None) -> None:
+        super().__init__(message)
+        self.drift = drift
 
 
 @dataclass(frozen=True)
@@ -551,6 +571,8 @@ def plan(
     NoPlanError
         If the goal cannot be reached; it lists the reachable states (and, with
         ``robustness``, the avoided transitions a route would need).
+    SearchLimitError
+        If the search expanded :data:`MAX_SEARCH_NODES` states without reaching the goal.
     """
     scale = float(scale)
     if not (math.isfinite(scale) and scale > 0):
@@ -574,10 +596,14 @@ def plan(
         moves = _search(graph, start, goal, costs, default_cost, relocation_cost, angle_tol,
                         robustness)
     except NoPlanError as exc:
+        _explain_drift(exc, graph, angle_tol)
         if robustness is None:
             raise
         _explain_avoided(exc, graph, start, goal, costs, default_cost, relocation_cost,
                          angle_tol, robustness)
+        raise
+    except SearchLimitError as exc:
+        _explain_drift(exc, graph, angle_tol)
         raise
     steps: list[PlanStep] = []
     agent = offset
@@ -662,6 +688,39 @@ def _explain_avoided(
         f"{names}; lower --robustness-threshold to allow them", exc.reachable) from None
 
 
+def _closest(pairs: Any) -> float:
+    """The smallest angle (degrees) between two distinct ``(face, theta)`` of one face."""
+    by_face: dict[str, list[float]] = {}
+    for face, theta in pairs:
+        by_face.setdefault(face, []).append(theta)
+    gap = math.inf
+    for thetas in by_face.values():
+        t = np.unique(np.asarray(thetas, dtype=np.float64) % 360.0)
+        if len(t) < 2:
+            continue
+        d = np.diff(np.append(t, t[0] + 360.0))  # (round the circle)
+        gap = min(gap, float(d.min()))
+    return gap
+
+
+def _explain_drift(exc: NoPlanError | SearchLimitError, graph: nx.MultiDiGraph,
+                   angle_tol: float) -> None:
+    """When the model's states drift, raise ``exc`` again saying so: two states of one face
+    closer than :data:`DRIFT_DEG` are one state the transitions' rounding split (a model from
+    a mesh carries its file's: a float32 STL's rolls land 1e-5 degrees off the state set,
+    where the angle tolerance is 1e-6), and a skill that starts from one of the two does not
+    start from the other, nor does a plan end on it."""
+    gap = _closest((s.face, s.theta) for s in graph.nodes)
+    if gap >= DRIFT_DEG:
+        return
+    hint = (f"; the transitions land {gap:.2g} degrees off the state set, more than the "
+            f"angle tolerance {angle_tol:g} degrees (a model from a mesh carries its "
+            f"file's rounding): raise it (--angle-tol, e.g. 1e-3)")
+    if isinstance(exc, NoPlanError):
+        raise NoPlanError(f"{exc}{hint}", exc.reachable) from None
+    raise SearchLimitError(f"{exc}{hint}", gap) from None
+
+
 def _norm(theta: float) -> float:
     """An angle in [0, 360), rounded so that equal angles are equal keys."""
     a = round(theta % 360.0, 6)
@@ -715,8 +774,9 @@ def _search(
             end = node
             break
         if len(done) > MAX_SEARCH_NODES:
-            raise InputError(f"the plan search passed {MAX_SEARCH_NODES} states without reaching "
-                             f"{goal}; use a coarser state set (--step or --states)")
+            raise SearchLimitError(f"the plan search passed {MAX_SEARCH_NODES} states without "
+                                   f"reaching {goal}; use a coarser state set (--step or "
+                                   f"--states)")
         for u, v, skill, ec in by_face.get(face, ()):
             phi_e = _norm(theta - u.theta)
             if phi is None:  # the first placement: free, but the least turning wins ties

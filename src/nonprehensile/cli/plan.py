@@ -39,9 +39,11 @@ from nonprehensile.cli.robot import (
     placement_doc,
     robot_arms,
     robot_options,
+    robot_skills,
     wants_robot,
 )
 from nonprehensile.errors import InputError
+from nonprehensile.finger_budget import plan_with_fingers
 from nonprehensile.geometry.units import metres_per_unit
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
@@ -50,7 +52,6 @@ from nonprehensile.planning import (
     DEFAULT_RELOCATION_COST,
     DEFAULT_ROBUSTNESS_THRESHOLD,
     RobustnessCosts,
-    plan,
 )
 from nonprehensile.states import State
 
@@ -226,7 +227,12 @@ def plan_cmd(
         from nonprehensile.sim.scene import DEFAULT_PARAMS
 
         control_every(robot_kw, DEFAULT_PARAMS.timestep)
-    poly, skills = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
+    poly, every_skill = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
+    # a robot plans with the skills it has fingertips for (as `simulate plan --robot`)
+    skills, n_tips = robot_skills(robot, robot_kw, every_skill)
+    if costs and len(skills) < len(every_skill):  # a set-aside skill's cost weighs nothing
+        aside = {s.name for s in every_skill} - {s.name for s in skills}
+        costs = {k: v for k, v in costs.items() if k not in aside} or None
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
     if out_dir is not None and dataset is None:
@@ -255,9 +261,10 @@ def plan_cmd(
                                                progress=bars)
         scale = ds.scale
         markers = list(ds.fingers.values())
-    result = plan(poly, exp, start, goal, position=position, costs=costs, motions=motions,
-                  angle_tol=angle_tol, scale=scale, relocation_cost=relocation_cost,
-                  robustness=robustness)
+    result = plan_with_fingers(poly, exp, start, goal, n_fingers=n_tips, skills=every_skill,
+                               states=states, position=position, costs=costs,
+                               motions=motions, angle_tol=angle_tol, scale=scale,
+                               relocation_cost=relocation_cost, robustness=robustness)
     doc = result.to_dict()
     if out_dir is not None:
         written = write_plan_motions(result, out_dir)

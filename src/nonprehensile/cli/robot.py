@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import click
@@ -218,6 +218,19 @@ def load_robot(kw: dict[str, Any]) -> Any:
         raise InputError(f"--force-feedforward goes with one stiff arm's force cap: the robot "
                          f"has {len(robot.tip_sites)} fingertip sites; drop it")
     return robot
+
+
+def robot_skills(robot: Any, kw: dict[str, Any], skills: Sequence[Any]
+                 ) -> tuple[list[Any], int]:
+    """The skills the robot has fingertips for (its tip sites times ``--arms``), and that
+    count; without a robot, every skill and the most fingertips any takes. A robot plans and
+    re-plans with those skills only (:mod:`nonprehensile.finger_budget`)."""
+    from nonprehensile.finger_budget import fingers_needed, skills_within
+
+    if robot is None:
+        return list(skills), max((fingers_needed(s) for s in skills), default=1)
+    n_tips = len(robot.tip_sites) * int(kw["n_arms"])
+    return skills_within(skills, n_tips), n_tips
 
 
 def robot_arms(kw: dict[str, Any], poly: Any, scale: float, plan: Any, fingers: Any,

@@ -37,6 +37,7 @@ from nonprehensile.cli.robot import (
     press_option,
     radius_offset_option,
     robot_options,
+    robot_skills,
     wants_robot,
 )
 from nonprehensile.errors import InputError
@@ -167,10 +168,10 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
     except ImportError as exc:
         raise InputError(f"simulation needs MuJoCo: pip install 'nonprehensile[sim]' ({exc})"
                          ) from None
+    from nonprehensile.finger_budget import plan_with_fingers
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
     from nonprehensile.pipeline import motions_from_dataset
-    from nonprehensile.planning import plan
     from nonprehensile.sim.distribution import DEFAULT_DISTRIBUTION
 
     # the physics rate is the distribution's (it does not vary the timestep)
@@ -182,21 +183,17 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
         from nonprehensile.viz._figures import require_matplotlib
 
         require_matplotlib()
-    poly, skills = read_skills(skills_file, angle_tol=angle_tol)
-    if robot is not None:  # sweep (and re-plan) only skills the robot has fingers for
-        from nonprehensile.sim.execute import fingers_of
-
-        n_tips = len(robot.tip_sites) * robot_kw["n_arms"]
-        skills = [s for s in skills if max(fingers_of(s), default=1) <= n_tips]
-        if not skills:
-            raise InputError(f"every skill needs more than the robot's {n_tips} fingertip(s)")
+    poly, every_skill = read_skills(skills_file, angle_tol=angle_tol)
+    # sweep (and re-plan) only skills the robot has fingers for
+    skills, n_tips = robot_skills(robot, robot_kw, every_skill)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
         if start is not None and goal is not None:
-            p = plan(poly, exp, start, goal, position=position, motions=motions,
-                     angle_tol=angle_tol, scale=ds.scale)
+            p = plan_with_fingers(poly, exp, start, goal, n_fingers=n_tips, skills=every_skill,
+                                  states=states, position=position, motions=motions,
+                                  angle_tol=angle_tol, scale=ds.scale)
             if not p.steps:
                 raise InputError(f"{start} is already the goal {goal}: nothing to execute")
             units = [rob.plan_unit(p)]

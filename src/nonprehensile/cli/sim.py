@@ -51,6 +51,7 @@ from nonprehensile.cli.robot import (
     radius_offset_option,
     robot_arms,
     robot_options,
+    robot_skills,
     robot_table,
     wants_robot,
 )
@@ -406,11 +407,11 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     sim = _sim()
     _check_record(record)
     from nonprehensile.control import ControlConfig, replanner
+    from nonprehensile.finger_budget import plan_with_fingers
     from nonprehensile.inference import expand
     from nonprehensile.io import read_skills
     from nonprehensile.observation import ObservationModel
     from nonprehensile.pipeline import motions_from_dataset
-    from nonprehensile.planning import plan
     from nonprehensile.sim.closed_loop import execute_plan, scene_fingers
 
     # bad settings are refused before any work (one line naming the option, exit 2)
@@ -424,20 +425,15 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     except InputError as exc:
         named = next((o for k, o in options.items() if k in str(exc)), None)
         raise InputError(f"{named}: {exc}" if named else str(exc)) from None
-    poly, skills = read_skills(skills_file, angle_tol=angle_tol)
-    if robot is not None:  # plan (and re-plan) only with skills the robot has fingers for
-        from nonprehensile.sim.execute import fingers_of
-
-        n_tips = len(robot.tip_sites) * robot_kw["n_arms"]
-        skills = [s for s in skills if max(fingers_of(s), default=1) <= n_tips]
-        if not skills:
-            raise InputError(f"every skill needs more than the robot's {n_tips} fingertip(s)")
+    poly, every_skill = read_skills(skills_file, angle_tol=angle_tol)
+    skills, n_tips = robot_skills(robot, robot_kw, every_skill)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
-    result = plan(poly, exp, start, goal, position=position, motions=motions,
-                  angle_tol=angle_tol, scale=ds.scale)
+    result = plan_with_fingers(poly, exp, start, goal, n_fingers=n_tips, skills=every_skill,
+                               states=states, position=position, motions=motions,
+                               angle_tol=angle_tol, scale=ds.scale)
     if not result.steps:
         raise InputError(f"the object already rests in {goal}: nothing to execute")
     extra: dict[str, Any] = {}

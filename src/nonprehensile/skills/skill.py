@@ -17,6 +17,7 @@ from typing import Any
 
 import networkx as nx
 
+from nonprehensile.checks import DRIFT_DEG
 from nonprehensile.equivalence import apply_to_state
 from nonprehensile.errors import ContactError, ManeuverError, SkillError
 from nonprehensile.geometry.polyhedron import Polyhedron
@@ -34,7 +35,7 @@ from nonprehensile.skills.contacts import (
     map_event,
     parse_event,
 )
-from nonprehensile.states import DEFAULT_ANGLE_TOL, State
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State, angle_diff
 
 __all__ = [
     "Motion",
@@ -234,20 +235,29 @@ def check_skill(
         raise SkillError(
             f"skill {skill.name!r} says its maneuver is {skill.maneuver}, but the geometry of "
             f"{skill.initial} -> {skill.final} makes it {kind}; "
-            + _right_finals(poly, skill.initial, skill.final.face, skill.maneuver, angle_tol)
+            + _right_finals(poly, skill.initial, skill.final, skill.maneuver, angle_tol)
         )
 
 
-def _right_finals(poly: Polyhedron, initial: State, face: str, kind: str | None,
+def _right_finals(poly: Polyhedron, initial: State, final: State, kind: str | None,
                   angle_tol: float) -> str:
-    """Which final states the maneuvers from ``initial`` onto ``face`` really reach (of type
-    ``kind`` when given), for a skill whose final state is wrong."""
+    """Which final states the maneuvers from ``initial`` onto ``final``'s face really reach
+    (of type ``kind`` when given), for a skill whose final state is wrong; where one lies
+    within :data:`DRIFT_DEG` of ``final``, the model's rounding is the likelier fault (a
+    model from a mesh), and the angle tolerance its fix."""
+    face = final.face
     opts = [o for o in maneuvers_from(poly, initial, angle_tol=angle_tol)
             if kind is None or o.maneuver.kind == kind]
     onto = [o for o in opts if o.maneuver.end.face == face]
     if onto:
         listed = ", ".join(f"{o.maneuver.end} ({o.maneuver.kind} over {o.element})"
                            for o in onto[:6])
+        off = min(abs(angle_diff(o.maneuver.end.theta, final.theta)) for o in onto)
+        if off < DRIFT_DEG:
+            return (f"{kind or 'a maneuver'} from {initial} onto face {face!r} ends in "
+                    f"{listed}, {off:.2g} degrees from {final}: more than the angle "
+                    f"tolerance {angle_tol:g} degrees, the model's rounding (a model from a "
+                    f"mesh carries its file's): raise the tolerance (--angle-tol, e.g. 1e-3)")
         return (f"{kind or 'a maneuver'} from {initial} onto face {face!r} ends in {listed}: "
                 f"write that final state (`nonprehensile maneuvers MODEL --from {initial}` "
                 "lists them all)")
@@ -262,7 +272,7 @@ def _geometric_kind(skill: Skill, poly: Polyhedron, angle_tol: float) -> Maneuve
     except ManeuverError as exc:
         raise SkillError(
             f"skill {skill.name!r}: {exc}; "
-            + _right_finals(poly, skill.initial, skill.final.face, skill.maneuver, angle_tol)
+            + _right_finals(poly, skill.initial, skill.final, skill.maneuver, angle_tol)
         ) from None
 
 
@@ -331,7 +341,7 @@ def skill_from_dict(
             maneuver = classify(poly, initial, final, angle_tol=angle_tol).kind
         except ManeuverError as exc:
             raise SkillError(f"skill {name!r}: {exc}; "
-                             + _right_finals(poly, initial, final.face, None, angle_tol)
+                             + _right_finals(poly, initial, final, None, angle_tol)
                              ) from None
     skill = Skill(name, initial, final, tuple(events), tuple(motions), maneuver, invertible)
     check_skill(skill, poly, angle_tol=angle_tol)
