@@ -16,7 +16,8 @@ the command line, as a user runs it:
 4. the same object in m and in mm: the same skills kept, and the recorded marker positions
    equal within 1e-6 of the object's size;
 5. box and prism: ``plan`` then ``simulate plan`` (``--loop open`` and ``--loop closed``,
-   and closed loop by the bundled Panda, ``--robot panda``) with the recorded dataset's
+   and closed loop by the bundled Panda, ``--robot panda``, or by as many Pandas as a plan
+   needs fingertips, ``--arms N``, where one has no plan) with the recorded dataset's
    skills and motions, to the farthest state the recorded skills reach (at most 3 steps)
    from ``a:0``; the real meshes the same way, with ``--angle-tol 1e-3`` (their float32
    rounding puts their states 1e-5 degrees apart, past the default 1e-6).
@@ -32,6 +33,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -155,7 +157,8 @@ def plan_and_simulate(skills: Path, rec: Path, recorded: list[str], tmp: Path,
     """Plan from ``start`` to the states the recorded skills reach (at most 3 steps away,
     the farthest first, ``n_goals`` of them), then execute each plan in physics, open and
     closed loop, and closed loop by the bundled Panda (``robot``: one arm, so the plans of
-    ``simulate plan --robot`` use its one-fingertip skills). ``angle_tol``: the
+    ``simulate plan --robot`` use its one-fingertip skills; where they have none, by as many
+    arms as the command says the plan needs). ``angle_tol``: the
     ``--angle-tol`` a model from a float32 mesh needs (its states drift by its rounding)."""
     import networkx as nx
 
@@ -187,7 +190,12 @@ def plan_and_simulate(skills: Path, rec: Path, recorded: list[str], tmp: Path,
         for name, extra in runs:
             loop = "open" if name == "open" else "closed"
             s = cli("simulate", "plan", *common, "--loop", loop, *extra, "--json", check=False)
-            if s.returncode == 2:  # (a robot's one fingertip: no plan, one line saying why)
+            more = re.search(r"give (\d+) arms \(--arms", s.stderr) if s.returncode == 2 else None
+            if more is not None:  # one arm's fingertip has no plan: as many arms as it says
+                name = f"{more.group(1)} pandas"
+                runs.append((name, [*extra, "--arms", more.group(1)]))  # (run next)
+                continue
+            if s.returncode == 2:
                 row[name] = f"refused: {s.stderr.strip().removeprefix('error: ')}"
                 continue
             res = json.loads(s.stdout)["execution"]
