@@ -189,7 +189,13 @@ def plan_and_simulate(skills: Path, rec: Path, recorded: list[str], tmp: Path,
                                                  if robot else [])
         for name, extra in runs:
             loop = "open" if name == "open" else "closed"
-            s = cli("simulate", "plan", *common, "--loop", loop, *extra, "--json", check=False)
+            # exit 1: the execution failed (its JSON says how); 2: refused, which only a
+            # robot's run may be (one line saying why); anything else is the benchmark's fault
+            s = cli("simulate", "plan", *common, "--loop", loop, *extra, "--json",
+                    check=not extra)
+            if s.returncode not in (0, 1, 2):
+                raise RuntimeError(f"simulate plan {name}: exit {s.returncode}: "
+                                   f"{s.stderr.strip()}")
             more = re.search(r"give (\d+) arms \(--arms", s.stderr) if s.returncode == 2 else None
             if more is not None:  # one arm's fingertip has no plan: as many arms as it says
                 name = f"{more.group(1)} pandas"

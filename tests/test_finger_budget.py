@@ -11,11 +11,16 @@ from click.testing import CliRunner
 
 from nonprehensile.cli import main
 from nonprehensile.errors import InputError
-from nonprehensile.finger_budget import fingers_needed, plan_with_fingers, skills_within
+from nonprehensile.finger_budget import (
+    fingers_needed,
+    more_fingertips,
+    plan_with_fingers,
+    skills_within,
+)
 from nonprehensile.inference import expand
 from nonprehensile.io import read_skills
-from nonprehensile.planning import NoPlanError
-from nonprehensile.states import State
+from nonprehensile.planning import NoPlanError, SearchLimitError
+from nonprehensile.states import State, states_by_step
 
 SKILLS = Path(__file__).resolve().parents[1] / "src" / "nonprehensile" / "data" / \
     "cube_skills.json"
@@ -65,6 +70,29 @@ def test_a_plan_out_of_one_fingertips_reach_names_the_steps_that_need_two() -> N
     with pytest.raises(NoPlanError, match=r"^no sequence of known skills takes a:0 to a:90"):
         plan_with_fingers(poly, exp, State("a", 0.0), State("a", 90.0), n_fingers=1,
                           skills=one, states=FEW_STATES)
+
+
+def test_a_search_that_gives_up_with_one_fingertip_says_what_every_skill_plans(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The search's limit (monkeypatched down to 10 nodes) stops the one-fingertip search of
+    a:0 -> a:90 (three rolls); the twist's one step, every skill's plan, fits in it: the
+    error stays the search's give-up (not a proof of no plan) and says what every skill
+    needs; a hand of 2 tip sites per arm needs 1 arm."""
+    import nonprehensile.planning as planning
+
+    monkeypatch.setattr(planning, "MAX_SEARCH_NODES", 10)
+    _, skills = read_skills(SKILLS)
+    states = states_by_step(read_skills(SKILLS)[0], 90.0)
+    poly = read_skills(SKILLS)[0]
+    exp = expand(poly, skills_within(skills, 1), states)
+    with pytest.raises(SearchLimitError, match=r"passed 10 states without reaching a:90.*it "
+                                               r"searched the skills the robot's 1 fingertip"
+                                               r".*step 1 twist \(2 fingertips\): give 2 "
+                                               r"arms \(--arms 2"):
+        plan_with_fingers(poly, exp, State("a", 0.0), State("a", 90.0), n_fingers=1,
+                          skills=skills, states=states)
+    assert "--arms 1, 2 fingertip(s) each" in more_fingertips(2, per_arm=2)
+    assert "--arms 2, 2 fingertip(s) each" in more_fingertips(3, per_arm=2)
 
 
 def test_plan_with_a_robot_plans_with_its_fingertips(tmp_path: Path) -> None:

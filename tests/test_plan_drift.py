@@ -14,11 +14,17 @@ import pytest
 from click.testing import CliRunner
 
 import nonprehensile.planning as planning
+from nonprehensile.checks import DRIFT_DEG
 from nonprehensile.cli import main
 from nonprehensile.finger_budget import plan_with_fingers
 from nonprehensile.inference import expand
 from nonprehensile.io import model_to_dict, read_skills
-from nonprehensile.planning import DRIFT_DEG, NoPlanError, SearchLimitError, plan
+from nonprehensile.planning import (
+    NoPlanError,
+    SearchLimitError,
+    landing_drift,
+    plan,
+)
 from nonprehensile.states import State, states_by_step
 
 SKILLS = Path(__file__).resolve().parents[1] / "src" / "nonprehensile" / "data" / \
@@ -41,13 +47,27 @@ def test_the_exact_cube_has_no_drift_and_plans_in_one_step() -> None:
 def test_a_rounded_model_says_its_states_drift_and_plans_with_a_wider_tolerance() -> None:
     states = states_by_step(ROUGH, 90.0)
     exp = expand(ROUGH, ALL_SKILLS, states)
-    with pytest.raises(NoPlanError, match=r"land \S+ degrees off the state set.*--angle-tol"
-                       ) as got:
+    with pytest.raises(NoPlanError, match=r"land \S+ degrees off the state set.*"
+                                          r"--angle-tol, e.g. 0.001") as got:
         plan(ROUGH, exp, State("a", 0.0), State("b", 0.0))
     assert "\n" not in str(got.value) and got.value.reachable  # still lists what it reached
     wide = expand(ROUGH, ALL_SKILLS, states, angle_tol=1e-3)
     p = plan(ROUGH, wide, State("a", 0.0), State("b", 0.0), angle_tol=1e-3)
     assert len(p.steps) == 1
+
+
+def test_landing_drift_is_the_rounding_past_the_tolerance_only() -> None:
+    """The drift measured where transitions land against the state set: on the rough
+    cube about 1e-5 degrees at the default tolerance, none once the tolerance takes it in
+    (1e-3: no hint then, whatever else fails), none on the exact cube at a 90- or 1-degree
+    step (its transitions land on its own states)."""
+    states = states_by_step(ROUGH, 90.0)
+    drift = landing_drift(expand(ROUGH, ALL_SKILLS, states), 1e-6)
+    assert drift is not None and 1e-6 < drift < 1e-4
+    assert landing_drift(expand(ROUGH, ALL_SKILLS, states, angle_tol=1e-3), 1e-3) is None
+    for step in (90.0, 1.0):
+        exact = expand(POLY, ALL_SKILLS, states_by_step(POLY, step))
+        assert landing_drift(exact, 1e-6) is None
 
 
 def test_a_search_that_gives_up_on_drifting_states_says_so(monkeypatch: pytest.MonkeyPatch

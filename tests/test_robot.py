@@ -1024,12 +1024,14 @@ def test_ik_keeps_the_joints_a_margin_inside_their_ranges() -> None:
     assert ik0._box.bounds(q, dt)[0][j] == pytest.approx(0.95 * math.radians(0.3), abs=1e-9)
 
 
-@functools.lru_cache(maxsize=1)
-def _ik_scene() -> Any:
-    """The bundled Panda's kinematic scene beside the cube (built once)."""
+@functools.lru_cache(maxsize=2)
+def _ik_scene(mocap: bool = True) -> Any:
+    """The bundled Panda's scene beside the cube (built once): kinematic (``mocap``: its
+    joints are its degrees of freedom, in order) or the physical one (the object's free
+    joint first: the box's joints sit at an offset, the scatter path)."""
     return build_robot_scene(CUBE, scale=SCALE, arms=[Arm(Robot.builtin(),
                                                           BasePose(0.0, 0.0, 0.0))],
-                             mocap_object=True)
+                             mocap_object=mocap)
 
 
 def _box_bounds_on_arrays(box: Any, q: np.ndarray, dt: float, gain: float, accel: float
@@ -1037,7 +1039,8 @@ def _box_bounds_on_arrays(box: Any, q: np.ndarray, dt: float, gain: float, accel
     """The joint box of :func:`nonprehensile.sim.ik._joint_box_limit` written from its
     docstring on whole arrays (the form the per-joint code replaced): ``min(v dt, gain
     (hi - q), sqrt(2 a (hi - q)) dt)`` up and the same down, within ``[-back dt, v dt]``, then
-    the acceleration bounds ``(prev +- a dt) dt`` where they leave room."""
+    the acceleration bounds ``(prev +- a dt) dt`` where they leave room; scattered onto the
+    scene's degrees of freedom."""
     room = np.vstack([box.upper - q, q - box.lower])
     vdt = np.vstack([box.velocity, box.velocity]) * dt
     step = room * gain
@@ -1049,33 +1052,45 @@ def _box_bounds_on_arrays(box: Any, q: np.ndarray, dt: float, gain: float, accel
         acc = np.vstack([(box.prev + accel * dt) * dt, (-box.prev + accel * dt) * dt])
         acc = np.minimum(step, acc)
         step = np.where(acc.sum(axis=0) >= 0.0, acc, step)
-    return step[0], -step[1]
+    upper = np.zeros(box.n)
+    lower = np.zeros(box.n)
+    upper[box.dadr] = step[0]
+    lower[box.dadr] = -step[1]
+    return upper, lower
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**31 - 1), accel=st.sampled_from([30.0, 5.0, math.inf]),
-       margin=st.sampled_from([0.0, 1.0]), dt=st.sampled_from([0.001, 0.004, 0.01]))
+@given(seed=st.integers(0, 2**31 - 1), accel=st.sampled_from([30.0, 5.0, 0.0, math.inf]),
+       margin=st.sampled_from([0.0, 1.0]), mocap=st.booleans())
 def test_ik_joint_box_per_joint_equals_the_array_form(seed: int, accel: float, margin: float,
-                                                       dt: float) -> None:
+                                                       mocap: bool) -> None:
     """The IK's joint box, computed joint by joint in plain Python (a sixth of a solve's time
     on arrays), gives the same numbers, bit for bit, as the whole-array form of its
     docstring, inside the ranges, near their ends, inside the margin and past the ends, with
-    and without an acceleration bound, and where the acceleration bounds give way (a joint
-    moving fast towards the end it is near)."""
+    and without an acceleration bound (0 included), where the acceleration bounds give way (a
+    joint moving fast towards the end it is near), at three periods on one box, on the IK's
+    scene and on one whose joints sit after the object's (the scatter onto its degrees of
+    freedom)."""
     import mink
 
     from nonprehensile.sim.ik import _joint_box_limit
 
-    sc = _ik_scene()
+    sc = _ik_scene(mocap)
     box = _joint_box_limit(mink, sc, 0.95, 1.0, accel, math.radians(margin), 0.2)
+    assert box.identity == mocap
     rng = np.random.default_rng(seed)
     span = sc.upper - sc.lower
-    for _ in range(20):
+    for k in range(24):
+        dt = (0.001, 0.004, 0.01)[k % 3]
         q = sc.lower + span * rng.uniform(-0.02, 1.02, size=len(span))
         j = int(rng.integers(len(span)))  # one joint within a few degrees of an end
         q[j] = (sc.upper[j] if rng.random() < 0.5 else sc.lower[j]) + rng.normal(0.0, 0.03)
         box.prev = rng.normal(0.0, 2.0, size=len(span))
-        up, down = box.bounds(q, dt)
+        qpos = q
+        if not mocap:  # the scene's qpos: the object's free joint, then the joints
+            qpos = np.zeros(sc.model.nq)
+            qpos[sc.qadr] = q
+        up, down = box.bounds(qpos, dt)
         up_ref, down_ref = _box_bounds_on_arrays(box, q, dt, 0.95, accel)
         assert np.array_equal(up, up_ref) and np.array_equal(down, down_ref)
 

@@ -30,6 +30,7 @@ __all__ = [
     "Range",
     "check_number",
     "check_tolerance",
+    "suggest_angle_tol",
 ]
 
 # Defined here, in a module that imports no numpy, so that the command line's options can
@@ -44,6 +45,13 @@ DEFAULT_ANGLE_TOL = 1e-6
 #: STL's rolls land about 1e-5 degrees off a state set): the planner and the skill checks
 #: then name the angle tolerance as the fix.
 DRIFT_DEG = 1e-2
+
+
+def suggest_angle_tol(miss: float) -> float:
+    """An angle tolerance (degrees) that takes in a miss of ``miss`` degrees by a model's
+    rounding with room for a few steps of it: ten times it, rounded up to a power of ten,
+    at least 1e-3."""
+    return max(1e-3, 10.0 ** math.ceil(math.log10(10.0 * miss)))
 #: Largest relative length tolerance: at a tenth of the object's size, faces a tenth apart
 #: would be one plane; measured models need 1e-3 at most.
 MAX_RTOL = 0.1

@@ -20,7 +20,7 @@ from nonprehensile.skills.skill import Skill
 from nonprehensile.states import State
 from nonprehensile.step_paths import fingers_of
 
-__all__ = ["fingers_needed", "plan_with_fingers", "skills_within"]
+__all__ = ["fingers_needed", "more_fingertips", "plan_with_fingers", "skills_within"]
 
 
 def fingers_needed(skill: Skill) -> int:
@@ -28,8 +28,17 @@ def fingers_needed(skill: Skill) -> int:
     return max(fingers_of(skill), default=1)
 
 
-def skills_within(skills: Sequence[Skill], n_fingers: int) -> list[Skill]:
-    """The skills an agent with ``n_fingers`` fingertips can run, in their order.
+def more_fingertips(need: int, per_arm: int = 1) -> str:
+    """How to get ``need`` fingertips with arms of ``per_arm`` tip sites each (the fix a
+    message names)."""
+    arms = -(-need // per_arm)
+    return (f"give {arms} arms (--arms {arms}, {per_arm} fingertip(s) each) or a robot with "
+            f"{need} tip sites")
+
+
+def skills_within(skills: Sequence[Skill], n_fingers: int, per_arm: int = 1) -> list[Skill]:
+    """The skills an agent with ``n_fingers`` fingertips (arms of ``per_arm`` tip sites
+    each) can run, in their order.
 
     Raises
     ------
@@ -40,14 +49,14 @@ def skills_within(skills: Sequence[Skill], n_fingers: int) -> list[Skill]:
     if not kept and skills:
         fewest = min(fingers_needed(s) for s in skills)
         raise InputError(f"every skill needs more than the robot's {n_fingers} fingertip(s) "
-                         f"(the fewest any needs: {fewest}): give {fewest} arms (--arms "
-                         f"{fewest}, one fingertip each) or a hand with {fewest} tip sites")
+                         f"(the fewest any needs: {fewest}): "
+                         f"{more_fingertips(fewest, per_arm)}")
     return kept
 
 
 def plan_with_fingers(poly: Polyhedron, expansion: Expansion, start: State, goal: State, *,
                       n_fingers: int, skills: Sequence[Skill], states: Sequence[State],
-                      **plan_kw: Any) -> Plan:
+                      per_arm: int = 1, atol: float | None = None, **plan_kw: Any) -> Plan:
     """:func:`~nonprehensile.planning.plan` over ``expansion`` (built from the skills an
     agent with ``n_fingers`` fingertips runs, :func:`skills_within`), saying, when it finds
     no plan, whether the other skills would have made one.
@@ -62,6 +71,10 @@ def plan_with_fingers(poly: Polyhedron, expansion: Expansion, start: State, goal
         Every skill, those it cannot run included (only read when no plan is found).
     states : sequence of State
         The state set ``expansion`` was built on (the same for the other skills').
+    per_arm : int
+        Tip sites per arm (the fix the message names: how many arms).
+    atol : float, optional
+        The length tolerance ``expansion`` was built with (the other skills' too).
     **plan_kw
         :func:`~nonprehensile.planning.plan`'s keywords (``position``, ``angle_tol``,
         ``motions``, ``scale``, ...).
@@ -71,20 +84,20 @@ def plan_with_fingers(poly: Polyhedron, expansion: Expansion, start: State, goal
     NoPlanError
         No plan with the agent's skills; where every skill makes one, the message names its
         steps that need more fingertips and how many there must be (the search over every
-        skill is made only then, without reference motions).
+        skill is made only then, without reference motions or measured rates).
     SearchLimitError
-        The search gave up, and every skill makes no plan either (or the agent runs them all).
+        The search gave up; where every skill makes a plan, the message says so as above
+        (the agent's search is not proven empty, only given up). Where the model's states
+        drift (``drift``: its rounding), that error as it came: the angle tolerance first.
     """
     try:
         return plan(poly, expansion, start, goal, **plan_kw)
     except (NoPlanError, SearchLimitError) as exc:
-        if all(fingers_needed(s) <= n_fingers for s in skills):
+        if exc.drift is not None or all(fingers_needed(s) <= n_fingers for s in skills):
             raise
-        if isinstance(exc, SearchLimitError) and exc.drift is not None:
-            raise  # (the angle tolerance first: every skill's search would drift as well)
-        angle_tol = plan_kw.get("angle_tol")
-        extra = {} if angle_tol is None else {"angle_tol": angle_tol}
-        # (the route only: no reference motions, no measured rates)
+        extra: dict[str, Any] = {"atol": atol}
+        if "angle_tol" in plan_kw:
+            extra["angle_tol"] = plan_kw["angle_tol"]
         keep = {k: v for k, v in plan_kw.items()
                 if k in ("position", "angle_tol", "costs", "default_cost", "relocation_cost")}
         try:
@@ -99,9 +112,10 @@ def plan_with_fingers(poly: Polyhedron, expansion: Expansion, start: State, goal
             raise exc from None
         need = max(n for _, _, n in over)
         steps = ", ".join(f"step {k} {name} ({n} fingertips)" for k, name, n in over)
-        raise NoPlanError(
-            f"no plan from {start} to {goal} with the skills the robot's {n_fingers} "
-            f"fingertip(s) can run; with every skill the plan takes {len(full.steps)} "
-            f"step(s), {steps}: give {need} arms (--arms {need}, one fingertip each) or a "
-            f"hand with {need} tip sites",
-            exc.reachable if isinstance(exc, NoPlanError) else []) from None
+        with_every = (f"with every skill the plan takes {len(full.steps)} step(s), {steps}: "
+                      f"{more_fingertips(need, per_arm)}")
+        mine = f"the skills the robot's {n_fingers} fingertip(s) can run"
+        if isinstance(exc, SearchLimitError):
+            raise SearchLimitError(f"{exc}: it searched {mine}, and {with_every}") from None
+        raise NoPlanError(f"no plan from {start} to {goal} with {mine}; {with_every}",
+                          exc.reachable) from None

@@ -338,11 +338,15 @@ class Expansion:
         In order: skill by skill, then by initial state.
     method : str
         The inference method used.
+    state_set : tuple of State
+        The state set it was expanded over (empty when not given: an expansion made by
+        hand).
     """
 
     graph: TransitionGraph
     transitions: list[InferredTransition]
     method: Method
+    state_set: tuple[State, ...] = ()
     _by_arc: dict[tuple[State, State, str], InferredTransition] = field(
         default_factory=dict, repr=False
     )
@@ -422,7 +426,7 @@ def expand(
                                angle_tol=angle_tol, index=index))
         for t in found:
             graph.add(t.transition())
-        return Expansion(graph, found, method)
+        return Expansion(graph, found, method, tuple(states))
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from nonprehensile.checks import DRIFT_DEG
+from nonprehensile.checks import DRIFT_DEG, suggest_angle_tol
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import Expansion, InferredTransition
@@ -59,6 +59,7 @@ __all__ = [
     "RobustnessCosts",
     "SearchLimitError",
     "find_offset",
+    "landing_drift",
     "plan",
     "step_for",
 ]
@@ -166,11 +167,14 @@ class NoPlanError(InputError):
     ----------
     reachable : list of State
         The states that can be reached (in the frame after the offset).
+    drift : float or None
+        As :class:`SearchLimitError`'s.
     """
 
     def __init__(self, message: str, reachable: Sequence[State]) -> None:
         super().__init__(message)
         self.reachable = list(reachable)
+        self.drift: float | None = None  # (see SearchLimitError)
 
 
 class SearchLimitError(InputError):
@@ -181,9 +185,9 @@ class SearchLimitError(InputError):
     Attributes
     ----------
     drift : float or None
-        The smallest angle (degrees) between two distinct states of one face in the
-        expansion, where it is below :data:`DRIFT_DEG` (the transitions land off the state
-        set by their rounding, and each step splits a state again); None otherwise.
+        How far (degrees) the expansion's transitions land from its state set, where that is
+        past the angle tolerance but below :data:`DRIFT_DEG` (:func:`landing_drift`: the
+        model's rounding); None otherwise.
     """
 
     def __init__(self, message: str, drift: float | None = None) -> None:
@@ -596,15 +600,16 @@ def plan(
         moves = _search(graph, start, goal, costs, default_cost, relocation_cost, angle_tol,
                         robustness)
     except NoPlanError as exc:
-        _explain_drift(exc, graph, angle_tol)
-        if robustness is None:
-            raise
-        _explain_avoided(exc, graph, start, goal, costs, default_cost, relocation_cost,
-                         angle_tol, robustness)
-        raise
+        err = exc
+        if robustness is not None:
+            try:
+                _explain_avoided(exc, graph, start, goal, costs, default_cost,
+                                 relocation_cost, angle_tol, robustness)
+            except NoPlanError as avoided:
+                err = avoided
+        raise _with_drift(err, expansion, angle_tol) from None
     except SearchLimitError as exc:
-        _explain_drift(exc, graph, angle_tol)
-        raise
+        raise _with_drift(exc, expansion, angle_tol) from None
     steps: list[PlanStep] = []
     agent = offset
     here = offset.translate  # where the object's centre of mass is on the table
@@ -688,37 +693,51 @@ def _explain_avoided(
         f"{names}; lower --robustness-threshold to allow them", exc.reachable) from None
 
 
-def _closest(pairs: Any) -> float:
-    """The smallest angle (degrees) between two distinct ``(face, theta)`` of one face."""
-    by_face: dict[str, list[float]] = {}
-    for face, theta in pairs:
-        by_face.setdefault(face, []).append(theta)
-    gap = math.inf
-    for thetas in by_face.values():
-        t = np.unique(np.asarray(thetas, dtype=np.float64) % 360.0)
-        if len(t) < 2:
+def landing_drift(expansion: Expansion, angle_tol: float) -> float | None:
+    """How far (degrees) the transitions of an expansion land from its state set, where
+    that is more than ``angle_tol`` and less than :data:`DRIFT_DEG`: the smallest such miss,
+    or None (none such, or no state set recorded).
+
+    A transition that lands that near a state of the set, but not within the tolerance, is
+    one the model's rounding split from it (a model from a mesh carries its file's: a
+    float32 STL's rolls land 1e-5 degrees off the 90-degree states, the tolerance being
+    1e-6): no skill goes on from where it lands, and a goal there is never matched. A state
+    set finer than :data:`DRIFT_DEG` is no drift: its transitions land on its own states.
+    """
+    table: dict[str, NDArray[np.float64]] = {}
+    for f in {s.face for s in expansion.state_set}:
+        table[f] = np.unique(np.asarray([s.theta % 360.0 for s in expansion.state_set
+                                         if s.face == f], dtype=np.float64))
+    worst: float | None = None
+    for t in expansion.transitions:
+        v = t.end
+        thetas = table.get(v.face)
+        if thetas is None:
             continue
-        d = np.diff(np.append(t, t[0] + 360.0))  # (round the circle)
-        gap = min(gap, float(d.min()))
-    return gap
+        d = np.abs((thetas - v.theta % 360.0 + 180.0) % 360.0 - 180.0)  # (round the circle)
+        miss = float(d.min())
+        if angle_tol < miss < DRIFT_DEG and (worst is None or miss < worst):
+            worst = miss
+    return worst
 
 
-def _explain_drift(exc: NoPlanError | SearchLimitError, graph: nx.MultiDiGraph,
-                   angle_tol: float) -> None:
-    """When the model's states drift, raise ``exc`` again saying so: two states of one face
-    closer than :data:`DRIFT_DEG` are one state the transitions' rounding split (a model from
-    a mesh carries its file's: a float32 STL's rolls land 1e-5 degrees off the state set,
-    where the angle tolerance is 1e-6), and a skill that starts from one of the two does not
-    start from the other, nor does a plan end on it."""
-    gap = _closest((s.face, s.theta) for s in graph.nodes)
-    if gap >= DRIFT_DEG:
-        return
-    hint = (f"; the transitions land {gap:.2g} degrees off the state set, more than the "
-            f"angle tolerance {angle_tol:g} degrees (a model from a mesh carries its "
-            f"file's rounding): raise it (--angle-tol, e.g. 1e-3)")
+def _with_drift(exc: NoPlanError | SearchLimitError, expansion: Expansion,
+                angle_tol: float) -> NoPlanError | SearchLimitError:
+    """``exc``, saying so when the model's states drift (:func:`landing_drift`), with a
+    tolerance that would join them; ``exc`` itself when they do not."""
+    drift = landing_drift(expansion, angle_tol)
+    if drift is None:
+        return exc
+    hint = (f"; the transitions land {drift:.2g} degrees off the state set, "
+            f"more than the angle tolerance {angle_tol:g} degrees (a model from a mesh "
+            f"carries its file's rounding): raise it (--angle-tol, e.g. "
+            f"{suggest_angle_tol(drift):g})")
     if isinstance(exc, NoPlanError):
-        raise NoPlanError(f"{exc}{hint}", exc.reachable) from None
-    raise SearchLimitError(f"{exc}{hint}", gap) from None
+        out: NoPlanError | SearchLimitError = NoPlanError(f"{exc}{hint}", exc.reachable)
+    else:
+        out = SearchLimitError(f"{exc}{hint}")
+    out.drift = drift
+    return out
 
 
 def _norm(theta: float) -> float:

@@ -229,7 +229,7 @@ def plan_cmd(
         control_every(robot_kw, DEFAULT_PARAMS.timestep)
     poly, every_skill = read_skills(skills_file, rtol=rtol, angle_tol=angle_tol)
     # a robot plans with the skills it has fingertips for (as `simulate plan --robot`)
-    skills, n_tips = robot_skills(robot, robot_kw, every_skill)
+    skills, tips = robot_skills(robot, robot_kw, every_skill)
     if costs and len(skills) < len(every_skill):  # a set-aside skill's cost weighs nothing
         aside = {s.name for s in every_skill} - {s.name for s in skills}
         costs = {k: v for k, v in costs.items() if k not in aside} or None
@@ -261,8 +261,8 @@ def plan_cmd(
                                                progress=bars)
         scale = ds.scale
         markers = list(ds.fingers.values())
-    result = plan_with_fingers(poly, exp, start, goal, n_fingers=n_tips, skills=every_skill,
-                               states=states, position=position, costs=costs,
+    result = plan_with_fingers(poly, exp, start, goal, **tips, skills=every_skill,
+                               states=states, atol=atol, position=position, costs=costs,
                                motions=motions, angle_tol=angle_tol, scale=scale,
                                relocation_cost=relocation_cost, robustness=robustness)
     doc = result.to_dict()

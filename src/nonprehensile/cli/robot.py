@@ -221,16 +221,19 @@ def load_robot(kw: dict[str, Any]) -> Any:
 
 
 def robot_skills(robot: Any, kw: dict[str, Any], skills: Sequence[Any]
-                 ) -> tuple[list[Any], int]:
-    """The skills the robot has fingertips for (its tip sites times ``--arms``), and that
-    count; without a robot, every skill and the most fingertips any takes. A robot plans and
-    re-plans with those skills only (:mod:`nonprehensile.finger_budget`)."""
+                 ) -> tuple[list[Any], dict[str, int]]:
+    """The skills the robot has fingertips for (its tip sites times ``--arms``), and the
+    keywords of :func:`~nonprehensile.finger_budget.plan_with_fingers` that say how many
+    (``n_fingers``, ``per_arm``); without a robot, every skill and the most fingertips any
+    takes. A robot plans and re-plans with those skills only."""
     from nonprehensile.finger_budget import fingers_needed, skills_within
 
     if robot is None:
-        return list(skills), max((fingers_needed(s) for s in skills), default=1)
-    n_tips = len(robot.tip_sites) * int(kw["n_arms"])
-    return skills_within(skills, n_tips), n_tips
+        return list(skills), {"n_fingers": max((fingers_needed(s) for s in skills),
+                                               default=1), "per_arm": 1}
+    per_arm = len(robot.tip_sites)
+    n_tips = per_arm * int(kw["n_arms"])
+    return skills_within(skills, n_tips, per_arm), {"n_fingers": n_tips, "per_arm": per_arm}
 
 
 def robot_arms(kw: dict[str, Any], poly: Any, scale: float, plan: Any, fingers: Any,

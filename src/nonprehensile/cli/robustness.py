@@ -185,13 +185,13 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
         require_matplotlib()
     poly, every_skill = read_skills(skills_file, angle_tol=angle_tol)
     # sweep (and re-plan) only skills the robot has fingers for
-    skills, n_tips = robot_skills(robot, robot_kw, every_skill)
+    skills, tips = robot_skills(robot, robot_kw, every_skill)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
         if start is not None and goal is not None:
-            p = plan_with_fingers(poly, exp, start, goal, n_fingers=n_tips, skills=every_skill,
+            p = plan_with_fingers(poly, exp, start, goal, **tips, skills=every_skill,
                                   states=states, position=position, motions=motions,
                                   angle_tol=angle_tol, scale=ds.scale)
             if not p.steps:

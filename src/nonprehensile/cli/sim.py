@@ -426,12 +426,12 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         named = next((o for k, o in options.items() if k in str(exc)), None)
         raise InputError(f"{named}: {exc}" if named else str(exc)) from None
     poly, every_skill = read_skills(skills_file, angle_tol=angle_tol)
-    skills, n_tips = robot_skills(robot, robot_kw, every_skill)
+    skills, tips = robot_skills(robot, robot_kw, every_skill)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     with stage_bars(as_json) as bars:
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
-    result = plan_with_fingers(poly, exp, start, goal, n_fingers=n_tips, skills=every_skill,
+    result = plan_with_fingers(poly, exp, start, goal, **tips, skills=every_skill,
                                states=states, position=position, motions=motions,
                                angle_tol=angle_tol, scale=ds.scale)
     if not result.steps:

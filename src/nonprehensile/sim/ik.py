@@ -47,23 +47,9 @@ _FEED_SPEED = 1.0
 _CROSS_ROWS = np.array([1, 2, 0, 2, 0, 1])
 _CROSS_Z = np.array([8, 2, 5, 5, 8, 2])
 
-#: The reductions ``ndarray.sum``, ``min`` and ``max`` call (the same numbers), without the
-#: Python wrappers around them: the solve's hot path makes a few each time.
-_SUM, _MIN, _MAX = np.add.reduce, np.minimum.reduce, np.maximum.reduce
-
-
-def _clip_ufunc() -> Any:
-    """numpy's ``clip`` ufunc, without ``np.clip``'s Python wrapper (``numpy._core`` from
-    numpy 2, ``numpy.core`` before)."""
-    import importlib
-
-    try:
-        return importlib.import_module("numpy._core.umath").clip
-    except (ImportError, AttributeError):  # numpy 1.x
-        return importlib.import_module("numpy.core.umath").clip
-
-
-_CLIP = _clip_ufunc()
+#: The reductions ``ndarray.sum`` and ``max`` call (the same numbers), without the Python
+#: wrappers around them: the solve's hot path makes a few each time.
+_SUM, _MAX = np.add.reduce, np.maximum.reduce
 
 
 def import_mink() -> Any:
@@ -284,7 +270,7 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
             # back in, as with mink's own limit), times the gain; no faster towards the end
             # than the acceleration bound can stop in the room left, sqrt(2 a room) (the
             # gain alone let the wrist come to its margin at 1.5 rad/s, then brake at
-            # 100 rad/s^2 at its torque limit): computed only within ``free_room`` of the end,
+            # 100 rad/s^2 at its torque limit): computed only within the free room of the end,
             # past which it is above the velocity bound, which then decides alone (rounding
             # is monotone and the threshold has a margin); then within ``[-back dt, v dt]``
             # (inside the margin, negative room: back out at ``back_speed`` at most)
@@ -333,8 +319,10 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                             up[i], down[i] = a, b
             if self.identity:  # the IK scene's joints are its degrees of freedom, in order
                 return np.array(up), -np.array(down)
-            upper = np.empty(self.n)
-            lower = np.empty(self.n)
+            # (a degree of freedom that is not one of the robot's joints, a user robot's
+            # gripper finger, does not move: before, np.empty left whatever memory held)
+            upper = np.zeros(self.n)
+            lower = np.zeros(self.n)
             upper[self.dadr] = up
             lower[self.dadr] = -np.array(down)
             return upper, lower

@@ -17,7 +17,7 @@ from typing import Any
 
 import networkx as nx
 
-from nonprehensile.checks import DRIFT_DEG
+from nonprehensile.checks import DRIFT_DEG, suggest_angle_tol
 from nonprehensile.equivalence import apply_to_state
 from nonprehensile.errors import ContactError, ManeuverError, SkillError
 from nonprehensile.geometry.polyhedron import Polyhedron
@@ -253,11 +253,12 @@ def _right_finals(poly: Polyhedron, initial: State, final: State, kind: str | No
         listed = ", ".join(f"{o.maneuver.end} ({o.maneuver.kind} over {o.element})"
                            for o in onto[:6])
         off = min(abs(angle_diff(o.maneuver.end.theta, final.theta)) for o in onto)
-        if off < DRIFT_DEG:
+        if angle_tol < off < DRIFT_DEG:
             return (f"{kind or 'a maneuver'} from {initial} onto face {face!r} ends in "
                     f"{listed}, {off:.2g} degrees from {final}: more than the angle "
                     f"tolerance {angle_tol:g} degrees, the model's rounding (a model from a "
-                    f"mesh carries its file's): raise the tolerance (--angle-tol, e.g. 1e-3)")
+                    f"mesh carries its file's): raise the tolerance (--angle-tol, e.g. "
+                    f"{suggest_angle_tol(off):g})")
         return (f"{kind or 'a maneuver'} from {initial} onto face {face!r} ends in {listed}: "
                 f"write that final state (`nonprehensile maneuvers MODEL --from {initial}` "
                 "lists them all)")
