@@ -24,6 +24,7 @@ __all__ = [
     "DRIFT_DEG",
     "LENGTH_RANGE",
     "MARGIN_RANGE",
+    "MAX_ARMS",
     "MAX_RTOL",
     "RTOL_RANGE",
     "STEP_RANGE",
@@ -40,11 +41,19 @@ __all__ = [
 DEFAULT_RTOL = 1e-7
 #: Default tolerance on angles, in degrees, for exact models (the spec's default).
 DEFAULT_ANGLE_TOL = 1e-6
-#: Two states of one face closer than this (degrees), but not within the angle tolerance,
-#: are one state a model's rounding split (a model from a mesh carries its file's: a float32
-#: STL's rolls land about 1e-5 degrees off a state set): the planner and the skill checks
-#: then name the angle tolerance as the fix.
-DRIFT_DEG = 1e-2
+#: A transition that lands closer than this (degrees) to a state of the set, but not within
+#: the angle tolerance, is one a model's rounding split from it (a model from a mesh carries
+#: its file's: a float32 STL's rolls land about 1e-5 degrees off a state set): the planner
+#: and the skill checks then name the angle tolerance as the fix. Small, so that a
+#: transition landing near a state of a fine set by chance is rarely taken for it (1 in
+#: 1,000 of a 1-degree set's).
+DRIFT_DEG = 1e-3
+
+#: Largest relative length tolerance: at a tenth of the object's size, faces a tenth apart
+#: would be one plane; measured models need 1e-3 at most.
+MAX_RTOL = 0.1
+#: The most arms a robot scene takes (``--arms``): copies of one robot around the object.
+MAX_ARMS = 4
 
 
 def suggest_angle_tol(miss: float) -> float:
@@ -52,9 +61,6 @@ def suggest_angle_tol(miss: float) -> float:
     rounding with room for a few steps of it: ten times it, rounded up to a power of ten,
     at least 1e-3."""
     return max(1e-3, 10.0 ** math.ceil(math.log10(10.0 * miss)))
-#: Largest relative length tolerance: at a tenth of the object's size, faces a tenth apart
-#: would be one plane; measured models need 1e-3 at most.
-MAX_RTOL = 0.1
 
 
 @dataclass(frozen=True)

@@ -1455,8 +1455,11 @@ class Replanner:
         start = snap_state(observed, self.frame, self.angle_tol)
         c = dict(self.costs or {})
         c.update(dict.fromkeys(avoid, AVOID_COST))
+        # (states matched as the expansion matched them: a model from a mesh needs its
+        # wider tolerance in every re-plan too)
         return plan(self.poly, self.expansion, start, self.goal, position=position,
-                    motions=self.motions, scale=self.scale, costs=c or None)
+                    motions=self.motions, scale=self.scale, costs=c or None,
+                    angle_tol=self.expansion.angle_tol)
 
 
 def replanner(poly: Polyhedron, expansion: Expansion, goal: State, *,

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+from nonprehensile.checks import MAX_ARMS
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.inference import Expansion, expand
@@ -32,6 +33,8 @@ def more_fingertips(need: int, per_arm: int = 1) -> str:
     """How to get ``need`` fingertips with arms of ``per_arm`` tip sites each (the fix a
     message names)."""
     arms = -(-need // per_arm)
+    if arms > MAX_ARMS:
+        return f"give a robot with {need} tip sites (--arms takes at most {MAX_ARMS})"
     return (f"give {arms} arms (--arms {arms}, {per_arm} fingertip(s) each) or a robot with "
             f"{need} tip sites")
 
@@ -112,10 +115,10 @@ def plan_with_fingers(poly: Polyhedron, expansion: Expansion, start: State, goal
             raise exc from None
         need = max(n for _, _, n in over)
         steps = ", ".join(f"step {k} {name} ({n} fingertips)" for k, name, n in over)
-        with_every = (f"with every skill the plan takes {len(full.steps)} step(s), {steps}: "
-                      f"{more_fingertips(need, per_arm)}")
-        mine = f"the skills the robot's {n_fingers} fingertip(s) can run"
+        # (the search's own message first: it may say more, the measured rates it avoided)
+        why = (f"{exc}: it searched the skills the robot's {n_fingers} fingertip(s) can run, "
+               f"and with every skill the plan takes {len(full.steps)} step(s), {steps}: "
+               f"{more_fingertips(need, per_arm)}")
         if isinstance(exc, SearchLimitError):
-            raise SearchLimitError(f"{exc}: it searched {mine}, and {with_every}") from None
-        raise NoPlanError(f"no plan from {start} to {goal} with {mine}; {with_every}",
-                          exc.reachable) from None
+            raise SearchLimitError(why) from None
+        raise NoPlanError(why, exc.reachable) from None

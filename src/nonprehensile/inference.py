@@ -341,12 +341,16 @@ class Expansion:
     state_set : tuple of State
         The state set it was expanded over (empty when not given: an expansion made by
         hand).
+    angle_tol : float
+        The angle tolerance it was expanded with, degrees: a re-plan over it matches states
+        as the expansion did.
     """
 
     graph: TransitionGraph
     transitions: list[InferredTransition]
     method: Method
     state_set: tuple[State, ...] = ()
+    angle_tol: float = DEFAULT_ANGLE_TOL
     _by_arc: dict[tuple[State, State, str], InferredTransition] = field(
         default_factory=dict, repr=False
     )
@@ -426,7 +430,7 @@ def expand(
                                angle_tol=angle_tol, index=index))
         for t in found:
             graph.add(t.transition())
-        return Expansion(graph, found, method, tuple(states))
+        return Expansion(graph, found, method, tuple(states), angle_tol)
 
 
 @dataclass(frozen=True)

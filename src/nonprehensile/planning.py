@@ -607,6 +607,8 @@ def plan(
                                  relocation_cost, angle_tol, robustness)
             except NoPlanError as avoided:
                 err = avoided
+            except SearchLimitError:
+                pass  # (the search without the rates gave up: nothing more to say of them)
         raise _with_drift(err, expansion, angle_tol) from None
     except SearchLimitError as exc:
         raise _with_drift(exc, expansion, angle_tol) from None
@@ -701,13 +703,15 @@ def landing_drift(expansion: Expansion, angle_tol: float) -> float | None:
     A transition that lands that near a state of the set, but not within the tolerance, is
     one the model's rounding split from it (a model from a mesh carries its file's: a
     float32 STL's rolls land 1e-5 degrees off the 90-degree states, the tolerance being
-    1e-6): no skill goes on from where it lands, and a goal there is never matched. A state
-    set finer than :data:`DRIFT_DEG` is no drift: its transitions land on its own states.
+    1e-6): no skill goes on from where it lands, and a goal there is never matched. An
+    exact model's transitions land on the states of its set, however fine; a transition of
+    a set that lands near one of its states by chance is taken for drift (1 in 1,000 of a
+    1-degree set's).
     """
-    table: dict[str, NDArray[np.float64]] = {}
-    for f in {s.face for s in expansion.state_set}:
-        table[f] = np.unique(np.asarray([s.theta % 360.0 for s in expansion.state_set
-                                         if s.face == f], dtype=np.float64))
+    by_face: dict[str, list[float]] = {}
+    for s in expansion.state_set:
+        by_face.setdefault(s.face, []).append(s.theta % 360.0)
+    table = {f: np.unique(np.asarray(t, dtype=np.float64)) for f, t in by_face.items()}
     worst: float | None = None
     for t in expansion.transitions:
         v = t.end

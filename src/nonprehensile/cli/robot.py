@@ -9,7 +9,7 @@ from typing import Any
 import click
 from rich.table import Table
 
-from nonprehensile.checks import Range
+from nonprehensile.checks import MAX_ARMS, Range
 from nonprehensile.cli.options import Number, count, number
 from nonprehensile.errors import InputError
 
@@ -58,7 +58,7 @@ def robot_options(fn: F) -> F:
                      show_default=True, metavar="HZ",
                      help="Robot: how often the IK runs (a divisor of the 1 kHz physics "
                           "rate); the joint servos get interpolated set points every step."),
-        click.option("--arms", "n_arms", type=count(1, 4), default=1,
+        click.option("--arms", "n_arms", type=count(1, MAX_ARMS), default=1,
                      show_default=True,
                      help="How many copies of the robot (two-finger skills by two one-finger "
                           "arms); their tip sites are fingers R1, R2, ... arm by arm."),

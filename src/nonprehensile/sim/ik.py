@@ -319,8 +319,9 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                             up[i], down[i] = a, b
             if self.identity:  # the IK scene's joints are its degrees of freedom, in order
                 return np.array(up), -np.array(down)
-            # (a degree of freedom that is not one of the robot's joints, a user robot's
-            # gripper finger, does not move: before, np.empty left whatever memory held)
+            # (a degree of freedom that is not one of the robot's joints, the object's free
+            # joint in the physical scene, does not move: before, np.empty left whatever
+            # memory held; the IK's own scene has none such)
             upper = np.zeros(self.n)
             lower = np.zeros(self.n)
             upper[self.dadr] = up
