@@ -103,3 +103,19 @@ def test_the_plan_command_names_the_tolerance_and_plans_with_it(tmp_path: Path) 
     res = CliRunner().invoke(main, [*args, "--angle-tol", "1e-3", "--json"])
     assert res.exit_code == 0, res.output
     assert len(json.loads(res.stdout)["steps"]) == 1
+
+
+def test_a_replan_matches_states_with_the_expansions_tolerance() -> None:
+    """The closed loop's re-planner plans over the expansion with the angle tolerance it was
+    made with: on the rough cube expanded at 1e-3, a:0 -> f:0 is one step (the truth: the
+    exact cube's plan, one step); at the default 1e-6 over the same expansion the rounding
+    splits the states its steps land on, and the plan took 3 steps."""
+    from nonprehensile.control import replanner
+
+    exact = expand(POLY, ALL_SKILLS, states_by_step(POLY, 90.0))
+    assert len(plan(POLY, exact, State("a", 0.0), State("f", 0.0)).steps) == 1
+    wide = expand(ROUGH, ALL_SKILLS, states_by_step(ROUGH, 90.0), angle_tol=1e-3)
+    assert wide.angle_tol == 1e-3
+    replan = replanner(ROUGH, wide, State("f", 0.0), motions=None, scale=0.05)
+    p = replan(State("a", 0.0), (0.0, 0.0), frozenset())
+    assert len(p.steps) == 1
