@@ -103,6 +103,23 @@ def test_the_plan_command_names_the_tolerance_and_plans_with_it(tmp_path: Path) 
     res = CliRunner().invoke(main, [*args, "--angle-tol", "1e-3", "--json"])
     assert res.exit_code == 0, res.output
     assert len(json.loads(res.stdout)["steps"]) == 1
+    assert "note: the transitions land" not in res.output  # (taken in: no note)
+
+
+def test_the_commands_note_a_drifting_expansion_before_they_search(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """`plan`, `simulate plan` and `simulate robustness` print one note when the expansion
+    drifts (before a search that may run to its limit), none when it does not."""
+    from nonprehensile.cli.options import note_drift
+
+    states = states_by_step(ROUGH, 90.0)
+    note_drift(expand(ROUGH, ALL_SKILLS, states), 1e-6)
+    got = capsys.readouterr().err
+    assert got.startswith("note: the transitions land") and "--angle-tol 0.001" in got
+    assert got.count("\n") == 1
+    note_drift(expand(ROUGH, ALL_SKILLS, states, angle_tol=1e-3), 1e-3)
+    note_drift(expand(POLY, ALL_SKILLS, states_by_step(POLY, 90.0)), 1e-6)
+    assert capsys.readouterr().err == ""
 
 
 def test_a_replan_matches_states_with_the_expansions_tolerance() -> None:

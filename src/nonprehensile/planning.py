@@ -708,21 +708,27 @@ def landing_drift(expansion: Expansion, angle_tol: float) -> float | None:
     a set that lands near one of its states by chance is taken for drift (1 in 1,000 of a
     1-degree set's).
     """
-    by_face: dict[str, list[float]] = {}
+    sets: dict[str, list[float]] = {}
     for s in expansion.state_set:
-        by_face.setdefault(s.face, []).append(s.theta % 360.0)
-    table = {f: np.unique(np.asarray(t, dtype=np.float64)) for f, t in by_face.items()}
-    worst: float | None = None
+        sets.setdefault(s.face, []).append(s.theta % 360.0)
+    ends: dict[str, list[float]] = {}
     for t in expansion.transitions:
         v = t.end
-        thetas = table.get(v.face)
-        if thetas is None:
+        ends.setdefault(v.face, []).append(v.theta % 360.0)
+    worst = math.inf
+    for face, landed in ends.items():
+        if face not in sets:
             continue
-        d = np.abs((thetas - v.theta % 360.0 + 180.0) % 360.0 - 180.0)  # (round the circle)
-        miss = float(d.min())
-        if angle_tol < miss < DRIFT_DEG and (worst is None or miss < worst):
-            worst = miss
-    return worst
+        table = np.unique(np.asarray(sets[face], dtype=np.float64))
+        e = np.asarray(landed, dtype=np.float64)
+        # the set's nearest state round the circle: one of the two the end falls between
+        i = np.searchsorted(table, e)
+        near = np.stack([table[i % len(table)], table[(i - 1) % len(table)]])
+        miss = np.abs((near - e + 180.0) % 360.0 - 180.0).min(axis=0)
+        miss = miss[(miss > angle_tol) & (miss < DRIFT_DEG)]
+        if len(miss):
+            worst = min(worst, float(miss.min()))
+    return None if worst == math.inf else worst
 
 
 def _with_drift(exc: NoPlanError | SearchLimitError, expansion: Expansion,

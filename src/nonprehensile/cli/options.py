@@ -46,6 +46,7 @@ __all__ = [
     "count",
     "json_option",
     "load_cli_model",
+    "note_drift",
     "number",
     "parse_state",
     "rtol_option",
@@ -164,6 +165,22 @@ atol_option = click.option(
     "--atol", type=LENGTH, default=None,
     help="Length tolerance of the symmetry group (default: the model's own, rtol x diameter).",
 )
+
+
+def note_drift(expansion: Any, angle_tol: float) -> None:
+    """One note on stderr when the expansion's transitions land off its state set by a
+    model's rounding (:func:`~nonprehensile.planning.landing_drift`): its plans may be
+    missed, and a search for them run to its limit, until ``--angle-tol`` takes it in."""
+    from nonprehensile.checks import suggest_angle_tol
+    from nonprehensile.cli.common import err
+    from nonprehensile.planning import landing_drift
+
+    drift = landing_drift(expansion, angle_tol)
+    if drift is not None:
+        err.print(f"note: the transitions land {drift:.2g} degrees off the state set, more "
+                  f"than --angle-tol {angle_tol:g} (a model from a mesh carries its file's "
+                  f"rounding): plans may be missed, or searched long; --angle-tol "
+                  f"{suggest_angle_tol(drift):g} takes it in")
 
 
 def state_set(

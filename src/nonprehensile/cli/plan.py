@@ -25,6 +25,7 @@ from nonprehensile.cli.options import (
     angle_tol_option,
     atol_option,
     json_option,
+    note_drift,
     number,
     parse_state,
     rtol_option,
@@ -235,6 +236,7 @@ def plan_cmd(
         costs = {k: v for k, v in costs.items() if k not in aside} or None
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, atol=atol, angle_tol=angle_tol)
+    note_drift(exp, angle_tol)
     if out_dir is not None and dataset is None:
         raise InputError("--out writes reference trajectories: give --dataset too")
     if html_out is not None and not html_out.lower().endswith((".html", ".htm")):

@@ -21,6 +21,7 @@ from nonprehensile.cli.options import (
     COORDINATE,
     angle_tol_option,
     json_option,
+    note_drift,
     parse_state,
     state_set,
     states_option,
@@ -188,6 +189,7 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
     skills, tips = robot_skills(robot, robot_kw, every_skill)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
+    note_drift(exp, angle_tol)
     with stage_bars(as_json) as bars:
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
         if start is not None and goal is not None:

@@ -33,6 +33,7 @@ from nonprehensile.cli.options import (
     angle_tol_option,
     count,
     json_option,
+    note_drift,
     number,
     parse_state,
     state_set,
@@ -429,6 +430,7 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     skills, tips = robot_skills(robot, robot_kw, every_skill)
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
+    note_drift(exp, angle_tol)
     with stage_bars(as_json) as bars:
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
     result = plan_with_fingers(poly, exp, start, goal, **tips, skills=every_skill,
