@@ -89,6 +89,11 @@ def test_a_search_that_gives_up_on_drifting_states_says_so(monkeypatch: pytest.M
     with pytest.raises(SearchLimitError) as plain:
         plan(POLY, exact, State("a", 0.0), State("a", 180.0))
     assert plain.value.drift is None and "--angle-tol" not in str(plain.value)
+    # a limit given to the call is the call's: 3 nodes stop it, the default finds the plan
+    monkeypatch.undo()
+    with pytest.raises(SearchLimitError, match="passed 3 states"):
+        plan(POLY, exact, State("a", 0.0), State("a", 180.0), max_nodes=3)
+    assert plan(POLY, exact, State("a", 0.0), State("a", 180.0)).steps
 
 
 def test_the_plan_command_names_the_tolerance_and_plans_with_it(tmp_path: Path) -> None:

@@ -24,6 +24,11 @@ from nonprehensile.step_paths import fingers_of
 __all__ = ["fingers_needed", "more_fingertips", "plan_with_fingers", "skills_within"]
 
 
+#: The most search nodes of the plan with every skill that explains a robot's missing plan
+#: (a tenth of the planner's own limit: the explanation adds seconds, not half a minute).
+EXPLAIN_NODES = 200_000
+
+
 def fingers_needed(skill: Skill) -> int:
     """The fingertips a skill takes: its highest finger number (``R2``: 2; none named: 1)."""
     return max(fingers_of(skill), default=1)
@@ -104,8 +109,10 @@ def plan_with_fingers(poly: Polyhedron, expansion: Expansion, start: State, goal
         keep = {k: v for k, v in plan_kw.items()
                 if k in ("position", "angle_tol", "costs", "default_cost", "relocation_cost")}
         try:
+            # (a bounded search: it only explains an error, whose own search may already
+            # have run to the limit)
             full = plan(poly, expand(poly, list(skills), list(states), **extra), start, goal,
-                        **keep)
+                        max_nodes=EXPLAIN_NODES, **keep)
         except (NoPlanError, SearchLimitError):
             raise exc from None
         over = [(k, s.transition.skill.name, fingers_needed(s.transition.skill))

@@ -533,6 +533,7 @@ def plan(
     scale: float = 1.0,
     relocation_cost: float = DEFAULT_RELOCATION_COST,
     robustness: RobustnessCosts | None = None,
+    max_nodes: int | None = None,
 ) -> Plan:
     """Plan the transitions, contact events and finger motions from ``start`` to ``goal``.
 
@@ -565,6 +566,8 @@ def plan(
         threshold are avoided. The plan's ``robustness`` then lists the avoided transitions
         with their rates, each step carries its own rate, and, when the rates changed the
         route, ``without_rates`` names the steps the plan would have taken without them.
+    max_nodes : int, optional
+        The most search nodes expanded before giving up (default :data:`MAX_SEARCH_NODES`).
 
     Returns
     -------
@@ -576,7 +579,8 @@ def plan(
         If the goal cannot be reached; it lists the reachable states (and, with
         ``robustness``, the avoided transitions a route would need).
     SearchLimitError
-        If the search expanded :data:`MAX_SEARCH_NODES` states without reaching the goal.
+        If the search expanded ``max_nodes`` states (default :data:`MAX_SEARCH_NODES`)
+        without reaching the goal.
     """
     scale = float(scale)
     if not (math.isfinite(scale) and scale > 0):
@@ -598,7 +602,7 @@ def plan(
         return Plan(start, goal, offset, (), _robustness_doc(robustness, graph, [], None))
     try:
         moves = _search(graph, start, goal, costs, default_cost, relocation_cost, angle_tol,
-                        robustness)
+                        robustness, max_nodes=max_nodes)
     except NoPlanError as exc:
         err = exc
         if robustness is not None:
@@ -765,14 +769,18 @@ def _search(
     relocation_cost: float,
     angle_tol: float,
     robustness: RobustnessCosts | None = None,
+    *,
+    max_nodes: int | None = None,
 ) -> list[tuple[State, State, str, float, float, bool]]:
     """Dijkstra over (world state, agent rotation): a transition of the expanded graph is a
     move from any world state that the agent, turned by ``phi``, sees as its start; turning
-    the agent between steps is a move of its own cost.
+    the agent between steps is a move of its own cost; at most ``max_nodes`` nodes (default
+    :data:`MAX_SEARCH_NODES`, read at the call).
 
     Returns, per step: the model arc ``(u, v)``, its skill and cost, the agent's rotation and
     whether it relocated before the step. Ties are broken by the agent's total turning.
     """
+    limit = MAX_SEARCH_NODES if max_nodes is None else int(max_nodes)
     by_face: dict[str, list[tuple[State, State, str, float]]] = {}
     for u, v in set(graph.edges()):
         if u == v:
@@ -802,8 +810,8 @@ def _search(
         if face == goal.face and abs(angle_diff(theta, goal.theta)) <= angle_tol:
             end = node
             break
-        if len(done) > MAX_SEARCH_NODES:
-            raise SearchLimitError(f"the plan search passed {MAX_SEARCH_NODES} states without "
+        if len(done) > limit:
+            raise SearchLimitError(f"the plan search passed {limit} states without "
                                    f"reaching {goal}; use a coarser state set (--step or "
                                    f"--states)")
         for u, v, skill, ec in by_face.get(face, ()):
