@@ -190,9 +190,9 @@ class SearchLimitError(InputError):
         model's rounding); None otherwise.
     """
 
-    def __init__(self, message: str, drift: float | None = None) -> None:
+    def __init__(self, message: str) -> None:
         super().__init__(message)
-        self.drift = drift
+        self.drift: float | None = None  # (set where the states drift: _with_drift)
 
 
 @dataclass(frozen=True)
