@@ -310,3 +310,30 @@ def test_skill_events_within_a_longer_chain() -> None:
     assert _embed([a, b, c, d], [x, a, b, c, d], False) is None  # must start at the start
     assert _embed([a, b, c, d], [a, b, c, d, x], False) is None  # and end at the end
     assert _embed([a, b, c, d], [a, c, b, d], False) is None  # in order
+
+
+def test_annotating_again_over_the_input_loses_no_recording(tmp_path: Path) -> None:
+    """The documented loop: a recording fits no skill, is left out of annotations.json (its
+    entry kept in annotations.recordings.json), the user adds the skill and runs the same
+    command again. The second run wrote the first run's output over the kept list, so the
+    left-out recording was in neither file and never annotated."""
+    takes = tmp_path / "takes"
+    synthesize(takes, seed=5, n_per_skill=1, mentors=1, trajectory_format="csv",
+               track_object=True)
+    _recordings_only(takes)
+    skills_doc = load_document(takes / "skills.json")
+    without = {**skills_doc, "skills": [s for s in skills_doc["skills"] if s["name"] != "twist"]}
+    save_document(without, takes / "skills.json")
+    runner = CliRunner()
+    args = ["dataset", "annotate", str(takes), "-o", str(takes / "annotations.json"), "--json"]
+    res = runner.invoke(main, args)
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["n_unmatched"] == 1
+    save_document(skills_doc, takes / "skills.json")  # the user adds the missing skill
+    res = runner.invoke(main, args)  # ... and runs the same command again
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["n_annotated"] == 6 and doc["n_unmatched"] == 0
+    kept = load_document(takes / "annotations.recordings.json")
+    assert len(kept["demonstrations"]) == 6  # every recording the user listed
+    assert "twist" in {d.skill.name for d in load_dataset(takes).demonstrations}

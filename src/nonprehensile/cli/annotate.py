@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
+from typing import Any
 
 import click
 from rich.table import Table
@@ -24,6 +25,19 @@ __all__ = ["annotate_cmd"]
 
 #: A distance threshold, mm.
 _MM = number(0.0, 1000.0, low_open=True, unit="mm")
+
+
+def _with_kept_recordings(data: Any, kept: Any) -> Any:
+    """The annotations ``data`` (an earlier run's output) with the recordings of the kept
+    list ``kept`` that it does not name added back; ``data`` itself when either is not an
+    annotations document (the annotator then says what is wrong with it)."""
+    if not (isinstance(data, dict) and isinstance(data.get("demonstrations"), list)
+            and isinstance(kept, dict) and isinstance(kept.get("demonstrations"), list)):
+        return data
+    named = {d.get("file") for d in data["demonstrations"] if isinstance(d, dict)}
+    extra = [d for d in kept["demonstrations"]
+             if isinstance(d, dict) and d.get("file") not in named]
+    return {**data, "demonstrations": [*data["demonstrations"], *extra]}
 
 
 @click.command("annotate")
@@ -89,14 +103,25 @@ def annotate_cmd(
 
         with progress_bar("motion library", as_json) as update:
             namer = MotionNamer(load_dataset(dataset_path(motions), progress=update))
+    over_input = source is not None and dest.resolve() == source.resolve()
+    keep = source.with_name(f"{source.stem}.recordings{source.suffix}") if source else None
+    recordings = None
+    if over_input and source is not None and keep is not None and keep.is_file():
+        # an earlier run wrote over the input and kept the recordings list beside it: the
+        # recordings that run left out (they fit no skill then) are annotated again, and the
+        # kept list is never replaced by one that lacks them
+        recordings = _with_kept_recordings(load_document(source), load_document(keep))
     with progress_bar("annotating", as_json) as update:
         report = annotate_dataset(root, relative_to=dest.parent, params=params,
                                   progress=update, namer=namer,
-                                  namer_from=None if namer is not None else MotionNamer)
-    if source is not None and dest.resolve() == source.resolve():
+                                  namer_from=None if namer is not None else MotionNamer,
+                                  annotations=recordings)
+    if over_input and keep is not None and source is not None:
         # the input lists recordings the output may leave out: keep it beside
-        keep = source.with_name(f"{source.stem}.recordings{source.suffix}")
-        shutil.copyfile(source, keep)
+        if recordings is None:
+            shutil.copyfile(source, keep)
+        else:
+            save_document(recordings, keep)
         err.print(f"kept the recordings list as {keep}")
     if dest.name not in ANNOTATION_FILES:
         err.print(f"note: `dataset show` looks for {ANNOTATION_FILES[0]}; {dest.name} is "

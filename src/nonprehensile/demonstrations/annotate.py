@@ -1051,6 +1051,7 @@ def annotate_dataset(
     progress: Callable[[int, int], None] | None = None,
     namer: SkillNamer | None = None,
     namer_from: Callable[[Dataset], SkillNamer] | None = None,
+    annotations: Mapping[str, Any] | None = None,
 ) -> AnnotationReport:
     """Annotate a folder whose annotations list only the recordings and the set-up.
 
@@ -1080,6 +1081,9 @@ def annotate_dataset(
         Without ``namer``: made from the folder's own named recordings (those whose entry
         names its skill, with the events found), when some recording's tie is left, and
         asked as ``namer`` is.
+    annotations : mapping, optional
+        The recordings list to read instead of the folder's annotations file (which must
+        still be there: messages name it, and paths are relative to the folder).
 
     Raises
     ------
@@ -1104,7 +1108,7 @@ def annotate_dataset(
             f"{root}: no annotations file listing the recordings (expected one of "
             "annotations.json / .yaml / .yml in the folder)"
         )
-    data = load_document(ann)
+    data = load_document(ann) if annotations is None else annotations
     if not isinstance(data, Mapping) or not isinstance(data.get("demonstrations"), list):
         raise DemonstrationError(f"{ann}: the annotations must be an object with a "
                                  "'demonstrations' list of {\"file\", \"mentor\"}")
