@@ -141,3 +141,28 @@ def test_a_replan_matches_states_with_the_expansions_tolerance() -> None:
     replan = replanner(ROUGH, wide, State("f", 0.0), motions=None, scale=0.05)
     p = replan(State("a", 0.0), (0.0, 0.0), frozenset())
     assert len(p.steps) == 1
+
+
+def test_plan_with_a_dataset_reads_its_skills_at_the_given_tolerance(tmp_path: Path) -> None:
+    """`plan SKILLS --dataset DIR --angle-tol 1e-3`, the documented chain for a model from a
+    mesh: the skills file was read at 1e-3 but the dataset's (the same file) at the default
+    1e-6, which refused it and asked for the --angle-tol the command had been given."""
+    from nonprehensile.demonstrations.synth import synthesize
+
+    takes = tmp_path / "takes"
+    synthesize(takes, seed=3, n_per_skill=2, mentors=1)
+    doc = json.loads((takes / "skills.json").read_text())
+    doc["object"] = model_to_dict(ROUGH)
+    (takes / "skills.json").write_text(json.dumps(doc))
+    ann = json.loads((takes / "annotations.json").read_text())
+    for demo in ann["demonstrations"]:  # as recorded from that model: its rounding's states
+        demo["final"] = {**demo["final"], "theta": demo["final"]["theta"] + 2e-5}
+    (takes / "annotations.json").write_text(json.dumps(ann))
+    with pytest.raises(Exception, match="angle tolerance"):
+        read_skills(takes / "skills.json")  # the rounded model drifts past the default
+    args = ["plan", str(takes / "skills.json"), "--from", "a:0", "--to", "d:0", "--step", "90",
+            "--dataset", str(takes), "--angle-tol", "1e-3", "--json"]
+    res = CliRunner().invoke(main, args)
+    assert res.exit_code == 0, res.output
+    (step,) = json.loads(res.stdout)["steps"]
+    assert step["motions"]  # the dataset's reference motions are attached

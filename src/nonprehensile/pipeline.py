@@ -39,7 +39,7 @@ from nonprehensile.motion.microcluster import one_thread
 from nonprehensile.planning import Plan, plan
 from nonprehensile.references import ClusteredMotions, flatten_segments
 from nonprehensile.skills.skill import Skill
-from nonprehensile.states import State, stable_faces, states_by_step
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State, stable_faces, states_by_step
 
 __all__ = [
     "DemoResult",
@@ -211,6 +211,7 @@ def motions_from_dataset(
     seed: int = 0,
     progress: StageProgress = _quiet,
     cache: str | Path | bool | None = True,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> tuple[Dataset, ClusteredMotions]:
     """Load a dataset, segment it and cluster its motions: the planner's reference motions.
 
@@ -236,7 +237,8 @@ def motions_from_dataset(
         progress("loading", 1, 1)
         _check_same_model(dataset, ds, skills, poly)
         return ds, motions
-    ds = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n))
+    ds = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n),
+                      angle_tol=angle_tol)
     _check_same_model(dataset, ds, skills, poly)
     _, segments = segment_dataset(ds)
     with one_thread():

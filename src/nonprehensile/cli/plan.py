@@ -260,7 +260,7 @@ def plan_cmd(
     if dataset is not None:
         with stage_bars(as_json) as bars:
             ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly,
-                                               progress=bars)
+                                               progress=bars, angle_tol=angle_tol)
         scale = ds.scale
         markers = list(ds.fingers.values())
     result = plan_with_fingers(poly, exp, start, goal, **tips, skills=every_skill,

@@ -191,7 +191,8 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     note_drift(exp, angle_tol)
     with stage_bars(as_json) as bars:
-        ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
+        ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars,
+                                           angle_tol=angle_tol)
         if start is not None and goal is not None:
             p = plan_with_fingers(poly, exp, start, goal, **tips, skills=every_skill,
                                   states=states, position=position, motions=motions,

@@ -299,13 +299,14 @@ def simulate_infer(skills_file: str, dataset: str, reference: str, position_tol:
         motions: Any
         if reference == "cluster":
             ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly,
-                                               progress=bars)
+                                               progress=bars, angle_tol=angle_tol)
         else:
             from nonprehensile.demonstrations.dataset import load_dataset
             from nonprehensile.demonstrations.segment import segment_dataset
             from nonprehensile.sim.execute import DemonstrationLibrary
 
-            ds = load_dataset(dataset, progress=lambda d, n: bars("loading", d, n))
+            ds = load_dataset(dataset, progress=lambda d, n: bars("loading", d, n),
+                              angle_tol=angle_tol)
             if dict(ds.poly.faces) != dict(poly.faces):
                 raise InputError(f"{dataset}: its demonstrations are of object "
                                  f"{ds.poly.name!r}, not of the skills file's {poly.name!r}")
@@ -432,7 +433,8 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     note_drift(exp, angle_tol)
     with stage_bars(as_json) as bars:
-        ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars)
+        ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars,
+                                           angle_tol=angle_tol)
     result = plan_with_fingers(poly, exp, start, goal, **tips, skills=every_skill,
                                states=states, position=position, motions=motions,
                                angle_tol=angle_tol, scale=ds.scale)

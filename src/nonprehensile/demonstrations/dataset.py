@@ -48,7 +48,7 @@ from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.io import load_document, read_skills, save_document, skills_to_dict
 from nonprehensile.skills.contacts import Finger
 from nonprehensile.skills.skill import Skill
-from nonprehensile.states import State, state_pose
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State, state_pose
 
 __all__ = [
     "ANNOTATION_FILES",
@@ -347,7 +347,8 @@ class _Settings:
 
 
 def _top_level(data: Any, ann: Path, root: Path, out: _Collector,
-               known: KnownSkills | None = None) -> _Settings:
+               known: KnownSkills | None = None,
+               angle_tol: float = DEFAULT_ANGLE_TOL) -> _Settings:
     """Read the dataset-wide keys; what cannot be read is reported and replaced by a default
     (the skills file from ``known`` when it is the file named)."""
     name = ann.name
@@ -368,7 +369,7 @@ def _top_level(data: Any, ann: Path, root: Path, out: _Collector,
             if known is not None and _same_file(root / skills_ref, known[0]):
                 poly, skills = known[1], list(known[2])
             else:
-                poly, skills = read_skills(root / skills_ref)
+                poly, skills = read_skills(root / skills_ref, angle_tol=angle_tol)
         except InputError as exc:
             out.add(skills_ref, None, f"cannot use the skills file: {exc}")
     scale = _number(data.get("scale", 1.0))
@@ -455,7 +456,8 @@ def _object_markers(
 
 
 def _states(
-    item: Mapping[str, Any], skill: Skill | None, where: tuple[str, int], out: _Collector
+    item: Mapping[str, Any], skill: Skill | None, where: tuple[str, int], out: _Collector,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> tuple[State, State] | None:
     states: list[State] = []
     for key in ("initial", "final"):
@@ -469,7 +471,7 @@ def _states(
         except InputError as exc:
             out.add(*where, f"'{key}': {exc}")
             continue
-        if skill is not None and ref is not None and not s.isclose(ref):
+        if skill is not None and ref is not None and not s.isclose(ref, angle_tol):
             out.add(*where, f"the {key} state {s} is not the {key} state {ref} of skill "
                             f"{skill.name!r}; fix the state or the skill")
             continue
@@ -662,6 +664,7 @@ def _same_file(a: Path, b: Path) -> bool:
 def check_dataset(
     path: str | Path, *, progress: Progress | None = None,
     known_skills: KnownSkills | None = None,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> tuple[Dataset | None, list[Problem]]:
     """Read and check a dataset folder, collecting every problem.
 
@@ -674,6 +677,9 @@ def check_dataset(
     known_skills : (Path, Polyhedron, sequence of Skill), optional
         A skills file already read, used when the annotations name that file instead of
         reading it again (the service checks every upload against its own, read once).
+    angle_tol : float
+        Degrees within which the skills file's states must match the model's geometry
+        (``read_skills``): a model from a mesh carries its file's rounding.
 
     Returns
     -------
@@ -700,7 +706,7 @@ def check_dataset(
         out.add(ann.name, None, "the annotations must be an object with a 'demonstrations' list "
                                 "(see docs/dataset.md)")
         return None, out.problems
-    settings = _top_level(data, ann, root, out, known_skills)
+    settings = _top_level(data, ann, root, out, known_skills, angle_tol)
     poly, skills, fingers = settings.poly, settings.skills, settings.fingers
     by_name = {s.name: s for s in skills}
     ignored: dict[str, None] = {}
@@ -728,7 +734,7 @@ def check_dataset(
         mentor = item.get("mentor")
         if not isinstance(mentor, str) or not mentor.strip():
             out.add(*where, f"'mentor' must be a non-empty name, got {mentor!r}")
-        states = _states(item, skill, where, out)
+        states = _states(item, skill, where, out, angle_tol)
         events = _events(item, skill, where, out)
         traj: MarkerTrajectory | None = None
         if not isinstance(file, str) or not file:
@@ -870,7 +876,8 @@ def _select(traj: MarkerTrajectory, names: Sequence[str]) -> MarkerTrajectory:
                             traj.rate, traj.units, traj.rigid_bodies)
 
 
-def load_dataset(path: str | Path, *, progress: Progress | None = None) -> Dataset:
+def load_dataset(path: str | Path, *, progress: Progress | None = None,
+                 angle_tol: float = DEFAULT_ANGLE_TOL) -> Dataset:
     """Load a dataset folder, all or nothing.
 
     Parameters
@@ -879,6 +886,8 @@ def load_dataset(path: str | Path, *, progress: Progress | None = None) -> Datas
         The dataset folder (see ``docs/dataset.md``), or a bundled dataset's name (``"cube"``).
     progress : callable (done, total) -> None, optional
         Called after each trajectory file is read.
+    angle_tol : float
+        As :func:`check_dataset`'s.
 
     Returns
     -------
@@ -890,7 +899,7 @@ def load_dataset(path: str | Path, *, progress: Progress | None = None) -> Datas
         Listing every problem found (one per line, by file and demonstration); nothing is
         returned half-loaded. :func:`check_dataset` gives the problems as values.
     """
-    dataset, problems = check_dataset(path, progress=progress)
+    dataset, problems = check_dataset(path, progress=progress, angle_tol=angle_tol)
     if dataset is None and len(problems) == 1:  # one line naming the culprit
         raise DemonstrationError(f"{path}: {problems[0]}; nothing was loaded")
     if dataset is None:
