@@ -25,7 +25,7 @@ from nonprehensile.planning import (
     landing_drift,
     plan,
 )
-from nonprehensile.states import State, states_by_step
+from nonprehensile.states import State, angle_diff, states_by_step
 
 SKILLS = Path(__file__).resolve().parents[1] / "src" / "nonprehensile" / "data" / \
     "cube_skills.json"
@@ -166,3 +166,55 @@ def test_plan_with_a_dataset_reads_its_skills_at_the_given_tolerance(tmp_path: P
     assert res.exit_code == 0, res.output
     (step,) = json.loads(res.stdout)["steps"]
     assert step["motions"]  # the dataset's reference motions are attached
+
+
+def test_a_skills_final_state_off_by_the_rounding_is_fixed_by_the_state_the_error_names(
+        tmp_path: Path) -> None:
+    """A skills file for a rounded model whose final states are written as the exact cube's
+    (`b:0` where the model's roll lands on `b:359.99999...`): the error names the state as the
+    model has it, in full (not `str`'s six digits, which print it as the state written), and
+    writing that state is read at the default tolerance, by any command: `simulate record`
+    and `dataset show` take no --angle-tol."""
+    import re
+
+    doc = json.loads(SKILLS.read_text())
+    doc["object"] = model_to_dict(ROUGH)
+    path = tmp_path / "skills.json"
+    fixed = 0
+    for _ in range(len(doc["skills"]) + 1):
+        path.write_text(json.dumps(doc))
+        try:
+            read_skills(path)
+            break
+        except Exception as exc:  # the first skill whose final state drifts
+            msg = str(exc)
+            assert "write the final state as the model has it" in msg and "\n" not in msg
+            name = re.search(r"skill '([^']+)'", msg).group(1)  # type: ignore[union-attr]
+            face, theta_text = re.search(r"as the model has it, (\w+):([\d.]+),",
+                                         msg).groups()  # type: ignore[union-attr]
+            theta = float(theta_text)
+            skill = next(s for s in doc["skills"] if s["name"] == name)
+            assert face == skill["final"]["face"]
+            assert abs(angle_diff(theta, skill["final"]["theta"])) < DRIFT_DEG
+            skill["final"] = {"face": face, "theta": theta}
+            fixed += 1
+    else:
+        pytest.fail("the named states did not make the skills file readable")
+    assert fixed  # the rounding did drift some final states
+
+
+def test_the_maneuvers_table_prints_final_states_as_the_model_has_them(tmp_path: Path) -> None:
+    """The table's "final state" (what to write in a skill) reads back within 1e-9 degrees
+    of the JSON's, for a rounded model too (`str` printed `b:0` for 359.99999...)."""
+    model = tmp_path / "rough.json"
+    model.write_text(json.dumps(model_to_dict(ROUGH)))
+    runner = CliRunner()
+    res = runner.invoke(main, ["maneuvers", str(model), "--from", "a:0", "--json"])
+    assert res.exit_code == 0, res.output
+    ends = [State.from_dict(m["to"]) for m in json.loads(res.stdout)["maneuvers"]]
+    res = runner.invoke(main, ["maneuvers", str(model), "--from", "a:0"],
+                        env={"COLUMNS": "400"})
+    assert res.exit_code == 0, res.output
+    for end in ends:
+        assert end.exact() in res.stdout
+    assert any(end.exact() != str(end) for end in ends)  # the case that printed wrong

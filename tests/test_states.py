@@ -124,3 +124,24 @@ def test_theta_convention_edge_k_points_along_theta_plus_delta() -> None:
             assert abs(d[2]) < 1e-12
             ang = math.degrees(math.atan2(d[1], d[0]))
             assert angle_diff(ang, 30.0 + p.delta[f][k - 1]) == pytest.approx(0, abs=1e-9)
+
+
+@given(st.sampled_from("abcdef"), st.floats(-1e4, 1e4, allow_nan=False))
+def test_a_states_exact_text_reads_back_within_a_billionth_of_a_degree(face: str,
+                                                                      theta: float) -> None:
+    """`State.exact` (the maneuvers table's final state, the skills file's advice): read back
+    within 1e-9 degrees of the angle, where ``str``'s six digits are not (359.99998997 prints
+    as "0"); ``str`` itself where that is exact enough."""
+    s = State(face, theta)
+    back = State.parse(s.exact())
+    assert back.face == face and abs(angle_diff(back.theta, s.theta)) <= 1e-9
+    if abs(angle_diff(State.parse(str(s)).theta, s.theta)) <= 1e-9:
+        assert s.exact() == str(s)
+
+
+def test_exact_text_examples() -> None:
+    assert State("a", 90.0).exact() == "a:90"
+    assert str(State("b", 359.999989973)) == "b:0"
+    assert State("b", 359.999989973).exact() == "b:359.999989973"
+    assert State("a", 100.0 / 3.0).exact() == "a:33.333333333"
+    assert State("c", 359.9999999999).exact() == "c:0"  # within 1e-9 of 0: str's "0"

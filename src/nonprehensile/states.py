@@ -109,6 +109,18 @@ class State:
         text = f"{self.theta:g}"
         return f"{self.face}:{'0' if text == '360' else text}"  # 359.9999997 is not "360"
 
+    def exact(self) -> str:
+        """``FACE:THETA`` with as many digits as the angle needs to be read back within
+        1e-9 degrees: ``str``'s six significant digits where they do (``a:90``), nine
+        decimals where they do not (a model from a mesh: ``b:359.999989973``, which ``str``
+        prints as ``b:0``; a prism's ``a:33.333333333``), never in exponent notation. The
+        form to write in a file that is checked at the default angle tolerance."""
+        short = str(self)
+        if "e" not in short and angles_close(State.parse(short).theta, self.theta, 1e-9):
+            return short
+        text = f"{self.theta:.9f}".rstrip("0").rstrip(".")
+        return f"{self.face}:{'0' if text == '360' else text}"
+
     @classmethod
     def parse(cls, text: str) -> State:
         """Parse the command-line form ``FACE:THETA`` (e.g. ``a:0``, ``d:90``).

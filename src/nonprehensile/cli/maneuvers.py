@@ -68,5 +68,5 @@ def maneuvers_cmd(model: str, start: State, step: float, rtol: float | None, ang
                  f"vertex {o.vertex}" if o.vertex is not None else "face")
         t.add_row(m.kind, o.element, where,
                   "-" if o.direction is None else fmt_num(round(o.direction, 4) % 360.0),
-                  fmt_num(round(m.angle, 4)), str(m.end), "yes" if o.stable else "no")
+                  fmt_num(round(m.angle, 4)), m.end.exact(), "yes" if o.stable else "no")
     out.print(t)

@@ -472,7 +472,8 @@ def _states(
             out.add(*where, f"'{key}': {exc}")
             continue
         if skill is not None and ref is not None and not s.isclose(ref, angle_tol):
-            out.add(*where, f"the {key} state {s} is not the {key} state {ref} of skill "
+            out.add(*where, f"the {key} state {s.exact()} is not the {key} state "
+                            f"{ref.exact()} of skill "
                             f"{skill.name!r}; fix the state or the skill")
             continue
         states.append(s)

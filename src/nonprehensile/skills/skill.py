@@ -244,21 +244,27 @@ def _right_finals(poly: Polyhedron, initial: State, final: State, kind: str | No
     """Which final states the maneuvers from ``initial`` onto ``final``'s face really reach
     (of type ``kind`` when given), for a skill whose final state is wrong; where one lies
     within :data:`DRIFT_DEG` of ``final``, the model's rounding is the likelier fault (a
-    model from a mesh), and the angle tolerance its fix."""
+    model from a mesh), and the state as the model has it, or the angle tolerance, its fix."""
     face = final.face
     opts = [o for o in maneuvers_from(poly, initial, angle_tol=angle_tol)
             if kind is None or o.maneuver.kind == kind]
     onto = [o for o in opts if o.maneuver.end.face == face]
     if onto:
-        listed = ", ".join(f"{o.maneuver.end} ({o.maneuver.kind} over {o.element})"
+        # (the exact angles: a mesh's ``b:359.999989973`` prints as ``b:0``)
+        listed = ", ".join(f"{o.maneuver.end.exact()} ({o.maneuver.kind} over {o.element})"
                            for o in onto[:6])
-        off = min(abs(angle_diff(o.maneuver.end.theta, final.theta)) for o in onto)
+        near = min(onto, key=lambda o: abs(angle_diff(o.maneuver.end.theta, final.theta)))
+        off = abs(angle_diff(near.maneuver.end.theta, final.theta))
         if angle_tol < off < DRIFT_DEG:
+            # not every command that reads a skills file takes --angle-tol (simulate
+            # record, dataset show): the exact state is the fix that works with all
             return (f"{kind or 'a maneuver'} from {initial} onto face {face!r} ends in "
-                    f"{listed}, {off:.2g} degrees from {final}: more than the angle "
+                    f"{listed}, {off:.2g} degrees from {final.exact()}: more than the angle "
                     f"tolerance {angle_tol:g} degrees, the model's rounding (a model from a "
-                    f"mesh carries its file's): raise the tolerance (--angle-tol, e.g. "
-                    f"{suggest_angle_tol(off):g})")
+                    f"mesh carries its file's): write the final state as the model has it, "
+                    f"{near.maneuver.end.exact()}, or raise the tolerance where the command "
+                    f"takes one "
+                    f"(--angle-tol, e.g. {suggest_angle_tol(off):g})")
         return (f"{kind or 'a maneuver'} from {initial} onto face {face!r} ends in {listed}: "
                 f"write that final state (`nonprehensile maneuvers MODEL --from {initial}` "
                 "lists them all)")
