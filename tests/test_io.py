@@ -67,6 +67,27 @@ def test_states_file(tmp_path: Path) -> None:
         read_states(write(tmp_path, '[{"face": "a", "theta": 90}, {"face": "b"}]'))
 
 
+def test_the_states_commands_json_is_a_states_file(tmp_path: Path) -> None:
+    """What `nonprehensile states MODEL --json` prints is read as a states file (its entries'
+    other keys, `class`, ignored): the same states as the command's own set."""
+    from click.testing import CliRunner
+
+    from nonprehensile.cli import main
+    from nonprehensile.states import states_by_step
+
+    res = CliRunner().invoke(main, ["states", "cube", "--step", "90", "--json"])
+    assert res.exit_code == 0, res.output
+    path = tmp_path / "s.json"
+    path.write_text(res.stdout)
+    assert read_states(path) == states_by_step(cube(), 90.0)
+    skills = Path(__file__).resolve().parents[1] / "src" / "nonprehensile" / "data" / \
+        "cube_skills.json"
+    res = CliRunner().invoke(main, ["infer", str(skills), "--states", str(path), "--json"])
+    assert res.exit_code == 0 and len(json.loads(res.stdout)["transitions"]) == 168, res.output
+    with pytest.raises(InputError, match='"states" list'):
+        read_states(write(tmp_path, '{"states": 3}'))
+
+
 def test_json_files_are_read_without_pyyaml() -> None:
     """PyYAML is imported for YAML files only (10-15 ms of every command: issue 16)."""
     import subprocess

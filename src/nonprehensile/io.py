@@ -330,7 +330,9 @@ def model_json(poly: Polyhedron) -> str:
 
 
 def read_states(path: str | Path) -> list[State]:
-    """Read a state list file: a JSON/YAML list of ``{"face": ..., "theta": ...}``.
+    """Read a state list file: a JSON/YAML list of ``{"face": ..., "theta": ...}``, or a
+    document whose ``states`` key holds one (what ``nonprehensile states --json`` prints;
+    other keys of its entries, such as ``class``, are ignored).
 
     Raises
     ------
@@ -338,8 +340,12 @@ def read_states(path: str | Path) -> list[State]:
         Not a list, or an entry that is not a state (naming its position).
     """
     data = load_document(path)
+    if isinstance(data, dict) and isinstance(data.get("states"), list):
+        data = data["states"]
     if not isinstance(data, list):
-        raise StateError(f'{path}: expected a list of {{"face": ..., "theta": ...}}')
+        raise StateError(f'{path}: expected a list of {{"face": ..., "theta": ...}} (or the '
+                         f'document `nonprehensile states --json` writes, with its "states" '
+                         f"list), got {type(data).__name__}")
     out = []
     for i, item in enumerate(data):
         try:

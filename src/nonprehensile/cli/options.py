@@ -202,7 +202,8 @@ def state_set(
 step_option = click.option("--step", type=STEP, default=None,
                            help="Orientation step in degrees (e.g. 90).")
 states_option = click.option("--states", "states_file", type=click.Path(dir_okay=False),
-                             default=None, help="JSON list of {face, theta} states.")
+                             default=None, help="JSON list of {face, theta} states (or what "
+                             "`states --json` prints).")
 
 
 def parse_state(ctx: click.Context, param: click.Parameter, value: str) -> State:
