@@ -165,6 +165,10 @@ def wants_robot(kw: dict[str, Any]) -> bool:
                          "finger)")
     if base and robot is None and xml is None:
         raise InputError("--base places a robot: give --robot NAME or --robot-xml FILE")
+    n_arms = int(kw.get("n_arms", 1))
+    if base and len(base) != n_arms:  # refused now, before planning writes anything
+        raise InputError(f"--base given {len(base)} time(s) for {n_arms} arm(s): give one "
+                         "X Y YAW per arm, or none to search them")
     if kw.get("press_depth", "auto") != "auto" and robot is None and xml is None:
         raise InputError("--press-depth is a robot's finger command: give --robot NAME or "
                          "--robot-xml FILE")

@@ -1,0 +1,44 @@
+"""Robot inputs refused as the project refuses bad input (one line on stderr naming the
+culprit, exit 2, nothing written), and what the robot commands tell a person (docs/robot.md):
+regressions found by reading docs/robot.md and trying it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+mujoco = pytest.importorskip("mujoco", reason="the sim extra (mujoco) is not installed")
+pytest.importorskip("mink", reason="the robot extra (mink) is not installed: "
+                                   "pip install 'nonprehensile[robot]'")
+
+from click.testing import CliRunner  # noqa: E402
+
+from nonprehensile.cli import main  # noqa: E402
+
+SKILLS = str(Path(__file__).resolve().parents[1] / "src/nonprehensile/data/cube_skills.json")
+
+
+def _one_line_exit_2(res: object, culprit: str) -> None:
+    stderr = res.stderr  # type: ignore[attr-defined]
+    assert res.exit_code == 2, (res.exit_code, stderr)  # type: ignore[attr-defined]
+    assert culprit in stderr and "Traceback" not in stderr
+    assert len(stderr.strip().splitlines()) == 1, stderr
+
+
+def test_plan_refuses_a_base_count_before_writing_anything(tmp_path: Path) -> None:
+    # two arms, one --base: refused before the plan's reference files are written (they were
+    # written, then the joint trajectories refused, leaving a half-written folder)
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, [
+        "plan", SKILLS, "--from", "a:0", "--at", "0.3", "0.1", "--to", "a:90", "--step", "90",
+        "--dataset", "cube", "--robot", "panda", "--arms", "2", "--base", "0.5", "0", "0",
+        "--out", str(out)])
+    _one_line_exit_2(res, "--base")
+    assert not out.exists()
+    # the same in simulate plan and simulate robustness: at once, before any planning
+    for cmd in (["simulate", "plan", SKILLS, "--from", "a:0", "--to", "a:90"],
+                ["simulate", "robustness", SKILLS, "--samples", "1"]):
+        res = CliRunner().invoke(main, [*cmd, "--step", "90", "--robot", "panda", "--arms",
+                                        "2", "--base", "0.5", "0", "0"])
+        _one_line_exit_2(res, "--base given 1 time(s) for 2 arm(s)")
