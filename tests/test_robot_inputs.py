@@ -42,3 +42,25 @@ def test_plan_refuses_a_base_count_before_writing_anything(tmp_path: Path) -> No
         res = CliRunner().invoke(main, [*cmd, "--step", "90", "--robot", "panda", "--arms",
                                         "2", "--base", "0.5", "0", "0"])
         _one_line_exit_2(res, "--base given 1 time(s) for 2 arm(s)")
+
+
+def _arm(tmp_path: Path, name: str, joint: str) -> Path:
+    p = tmp_path / name
+    p.write_text(f"""<mujoco><worldbody><body name="base"><geom type="sphere" size="0.05"/>
+      <body name="l1" pos="0 0 0.3">{joint}<geom size="0.02"/><site name="tip"/></body>
+      </body></worldbody><actuator><position joint="j1" kp="100"/></actuator></mujoco>""")
+    return p
+
+
+def test_an_unreadable_robot_file_says_why(tmp_path: Path) -> None:
+    # MuJoCo's first line alone was "XML parse error 13:": the reason and line follow it
+    empty = tmp_path / "empty.xml"
+    empty.write_text("\n")
+    broken = tmp_path / "broken.xml"
+    broken.write_text("<mujoco><worldbody>\n")
+    for path, why in ((empty, "XML_ERROR_EMPTY_DOCUMENT"), (broken, "Line number=")):
+        res = CliRunner().invoke(main, ["simulate", "plan", SKILLS, "--from", "b:200", "--to",
+                                        "a:290", "--step", "90", "--robot-xml", str(path),
+                                        "--tip-site", "tip"])
+        _one_line_exit_2(res, "not a MuJoCo model file")
+        assert why in res.stderr

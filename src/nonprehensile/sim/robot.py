@@ -33,6 +33,13 @@ BUILTIN_ROBOTS = ("panda",)
 DEFAULT_VELOCITY_LIMIT = 2.0
 
 
+def _one_line(exc: BaseException) -> str:
+    """MuJoCo's message of a file it cannot read or compile, on one line (its first line
+    alone said only ``XML parse error 13:``: the reason and the line number follow it)."""
+    lines = [" ".join(ln.split()).rstrip(":") for ln in str(exc).splitlines() if ln.strip()]
+    return "; ".join(lines) if lines else repr(exc)
+
+
 @dataclass(frozen=True)
 class BasePose:
     """Where a robot's base frame stands on the table: ``(x, y)`` metres, heading ``yaw``
@@ -125,7 +132,7 @@ class Robot:
             model = spec.compile()
         except ValueError as exc:
             raise InputError(f"{self._where}: MuJoCo cannot compile the robot: "
-                             f"{str(exc).splitlines()[0]}") from None
+                             f"{_one_line(exc)}") from None
         self._joints = self._check(model, velocity_limit)
         self.joint_names = tuple(j.name for j in self._joints)
         self.lower = np.array([j.lower for j in self._joints])
@@ -179,7 +186,7 @@ class Robot:
                 spec = mujoco.MjSpec.from_string(self.xml)
         except (ValueError, OSError) as exc:
             raise InputError(f"{self._where}: not a MuJoCo model file: "
-                             f"{str(exc).splitlines()[0] if str(exc) else exc!r}") from None
+                             f"{_one_line(exc)}") from None
         # unnamed joints and actuators get names, so a scene can find them after attaching
         for i, j in enumerate(spec.joints):
             if not j.name:
