@@ -64,3 +64,18 @@ def test_an_unreadable_robot_file_says_why(tmp_path: Path) -> None:
                                         "--tip-site", "tip"])
         _one_line_exit_2(res, "not a MuJoCo model file")
         assert why in res.stderr
+
+
+def test_an_empty_joint_range_is_named_as_such(tmp_path: Path) -> None:
+    # range="1 -1" compiles as a joint without limits: it was refused as "has no limits"
+    bad = _arm(tmp_path, "inverted.xml", '<joint name="j1" range="1 -1"/>')
+    res = CliRunner().invoke(main, ["simulate", "plan", SKILLS, "--from", "b:200", "--to",
+                                    "a:290", "--step", "90", "--robot-xml", str(bad),
+                                    "--tip-site", "tip"])
+    _one_line_exit_2(res, "joint 'j1' has an empty range")
+    # a joint without any range still says so
+    free = _arm(tmp_path, "unlimited.xml", '<joint name="j1"/>')
+    res = CliRunner().invoke(main, ["simulate", "plan", SKILLS, "--from", "b:200", "--to",
+                                    "a:290", "--step", "90", "--robot-xml", str(free),
+                                    "--tip-site", "tip"])
+    _one_line_exit_2(res, "joint 'j1' has no limits")

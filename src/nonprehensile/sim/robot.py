@@ -264,6 +264,12 @@ class Robot:
                                  f"{'free' if t == int(mujoco.mjtJoint.mjJNT_FREE) else 'ball'} "
                                  "joint; a robot's joints are hinges or slides with limits "
                                  "(fix the base: remove its freejoint)")
+            lo_hi = (float(m.jnt_range[j, 0]), float(m.jnt_range[j, 1]))
+            if lo_hi != (0.0, 0.0) and lo_hi[0] >= lo_hi[1]:
+                # (MuJoCo compiles it as a joint without limits: "has no limits" misled)
+                raise InputError(f"{where}: joint {jname!r} has an empty range (lower "
+                                 f"{lo_hi[0]:g} >= upper {lo_hi[1]:g} as compiled); give it "
+                                 "range=\"lo hi\" with lo < hi")
             if not m.jnt_limited[j]:
                 raise InputError(f"{where}: joint {jname!r} has no limits; give it range=\"lo "
                                  "hi\" (the IK keeps every joint within its range)")
