@@ -4,6 +4,7 @@ regressions found by reading docs/robot.md and trying it."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -79,3 +80,38 @@ def test_an_empty_joint_range_is_named_as_such(tmp_path: Path) -> None:
                                     "a:290", "--step", "90", "--robot-xml", str(free),
                                     "--tip-site", "tip"])
     _one_line_exit_2(res, "joint 'j1' has no limits")
+
+
+def test_a_base_search_that_reaches_nothing_says_so(tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+    # a one-joint arm 0.3 m tall reaches no fingertip target: the search keeps its least bad
+    # base and the arm ran from there with only "(searched)" printed (feasible: false in the
+    # JSON alone)
+    import functools
+
+    import nonprehensile.sim.placement as placement_module
+
+    monkeypatch.setattr(placement_module, "place_base", functools.partial(
+        placement_module.place_base, radii=(0.5,), n_directions=4))
+    arm = _arm(tmp_path, "short.xml", '<joint name="j1" range="-1 1"/>')
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, [
+        "plan", SKILLS, "--from", "b:200", "--to", "a:290", "--step", "90", "--dataset",
+        "cube", "--robot-xml", str(arm), "--tip-site", "tip", "--out", str(out), "--json"])
+    assert res.exit_code == 0, res.stderr
+    assert "no base searched reaches the whole plan" in res.stderr
+    assert "best of 4 candidates" in res.stderr
+    assert (out / "joints_plan.csv").exists()
+    placement = json.loads(res.stdout)["robot"]["placement"]
+    assert placement["feasible"] is False
+    # the robot table says it too; a reaching base and given bases say nothing
+    from nonprehensile.cli.robot import placement_note, robot_table
+
+    extra = {"robot": {"robots": [{"robot": {"name": "short"},
+                                   "base": {"x": 0.0, "y": 0.5, "yaw_deg": -90.0}}]},
+             "placement": placement}
+    assert "out of reach" in str(robot_table([], extra).title)
+    assert placement_note(None) is None
+    assert placement_note([{**placement, "feasible": True}]) is None
+    two = placement_note([{**placement, "feasible": True}, placement])
+    assert two is not None and "arm 2: " in two and "arm 1" not in two

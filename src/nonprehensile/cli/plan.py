@@ -38,6 +38,7 @@ from nonprehensile.cli.robot import (
     direction_option,
     load_robot,
     placement_doc,
+    placement_note,
     robot_arms,
     robot_options,
     robot_skills,
@@ -139,6 +140,9 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
                     "(controller.acceleration_feedforward) is the executing controller's own, "
                     "computed from its model as it runs, not written here")
     doc["robot"] = meta
+    note = placement_note(meta["placement"])
+    if note is not None:
+        err.print(note, markup=False, highlight=False)
     written = list(write_joint_trajectories(trajectories, out_dir, meta))
     if placement is not None:  # searched: the reachability map of each arm's search
         from pathlib import Path

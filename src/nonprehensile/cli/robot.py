@@ -21,6 +21,7 @@ __all__ = [
     "force_feedforward_option",
     "load_robot",
     "placement_doc",
+    "placement_note",
     "press_option",
     "radius_offset_option",
     "robot_arms",
@@ -281,7 +282,9 @@ def robot_table(records: list[dict[str, Any]], extra: dict[str, Any]) -> Table:
                       f"{r['base']['yaw_deg']:.1f} deg" for r in robots)
     t = Table(title=f"robot {robots[0]['robot']['name']}"
                     + (f" x{len(robots)}" if len(robots) > 1 else "") + f" at {where}"
-                    + (" (searched)" if extra.get("placement") else ""))
+                    + ((" (searched, out of reach: see the note)"
+                        if placement_note(extra["placement"]) else " (searched)")
+                       if extra.get("placement") else ""))
     for c in ("step", "tracking in contact (max)", "tracking (max)", "longest at a limit",
               "link/rod contact", "joint margin", "IK median"):
         t.add_column(c)
@@ -306,3 +309,22 @@ def placement_doc(placement: Any) -> Any:
     if isinstance(placement, list):
         return [p.to_dict() for p in placement]
     return placement.to_dict()
+
+
+def placement_note(doc: Any) -> str | None:
+    """A line saying that the searched base(s) do not reach the whole plan (``doc``:
+    :func:`placement_doc`'s form), or None when every one does (or the bases were given).
+    The search then keeps the base with the least reach error, and the arm runs from there:
+    its records say what failed, the person is told why."""
+    if doc is None:
+        return None
+    found = doc if isinstance(doc, list) else [doc]
+    off = [(i, p) for i, p in enumerate(found) if not p.get("feasible", True)]
+    if not off:
+        return None
+    which = ", ".join((f"arm {i + 1}: " if len(found) > 1 else "")
+                      + f"{1000 * p['reach_error_m']:.1f} mm" for i, p in off)
+    return (f"note: no base searched reaches the whole plan (the best of "
+            f"{off[0][1]['candidates']} candidates leaves the fingertip {which} from its "
+            "targets; reaching is within 5 mm); the arm runs from that base: give --base X Y "
+            "YAW, or a robot that reaches")

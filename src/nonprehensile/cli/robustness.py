@@ -35,6 +35,7 @@ from nonprehensile.cli.robot import (
     force_feedforward_option,
     load_robot,
     placement_doc,
+    placement_note,
     press_option,
     radius_offset_option,
     robot_options,
@@ -225,6 +226,9 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
         if robot is not None:
             sweep_robot, placement = _sweep_robot(robot_kw, robot, units, poly, ds, dist,
                                                   every)
+            note = placement_note(placement_doc(placement))
+            if note is not None:  # said before the sweep runs from there
+                err.print(note, markup=False, highlight=False)
         spec = rob.SweepSpec(poly, ds.scale, tuple(units), dist, seed, samples,
                              tuple(loops), dict(ds.fingers), tol_deg, position_tol, **replan,
                              record_fps=record_fps if record else None, robot=sweep_robot)

@@ -48,6 +48,7 @@ from nonprehensile.cli.robot import (
     force_feedforward_option,
     load_robot,
     placement_doc,
+    placement_note,
     press_option,
     radius_offset_option,
     robot_arms,
@@ -458,6 +459,9 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
                              f"has {simulator.n_fingers} fingertip site(s)")
         extra["robot"] = simulator.describe()
         extra["placement"] = placement_doc(placement)
+        note = placement_note(extra["placement"])
+        if note is not None:
+            err.print(note, markup=False, highlight=False)
         # an arm's fingertip accelerates less than a free 20 g sphere
         cfg = robot_control(cfg, n_fingers=simulator.n_fingers)
     else:
