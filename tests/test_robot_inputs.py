@@ -115,3 +115,16 @@ def test_a_base_search_that_reaches_nothing_says_so(tmp_path: Path,
     assert placement_note([{**placement, "feasible": True}]) is None
     two = placement_note([{**placement, "feasible": True}, placement])
     assert two is not None and "arm 2: " in two and "arm 1" not in two
+
+
+def test_a_swept_skill_the_robot_has_no_fingertips_for_says_how_many(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # one arm, --skill twist (two fingertips): it was refused as a skill of no transition,
+    # listing the one-finger skills, without saying why or that --arms 2 runs it
+    res = CliRunner().invoke(main, ["simulate", "robustness", SKILLS, "--step", "90",
+                                    "--robot", "panda", "--samples", "1", "--skill", "twist"])
+    _one_line_exit_2(res, "--skill ['twist']: needs 2 fingertips and the robot has 1")
+    assert "--arms 2" in res.stderr
+    res = CliRunner().invoke(main, ["simulate", "robustness", SKILLS, "--step", "90",
+                                    "--robot", "panda", "--samples", "1", "--skill", "nosuch"])
+    _one_line_exit_2(res, "no transition of that skill")

@@ -191,6 +191,25 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
     states = state_set(poly, step, states_file, angle_tol)
     exp = expand(poly, skills, states, angle_tol=angle_tol)
     note_drift(exp, angle_tol)
+    if skill_names and start is None and not demonstrations:  # before loading the data
+        known = sorted({t.source.name for t in exp.transitions})
+        unknown = sorted(set(skill_names) - set(known))
+        set_aside = {s.name: s for s in every_skill} if robot is not None else {}
+        for k in (s.name for s in skills):
+            set_aside.pop(k, None)
+        too_few = [n for n in unknown if n.removesuffix(":reverse") in set_aside]
+        if too_few:  # a skill the robot has no fingertips for is not swept
+            from nonprehensile.finger_budget import fingers_needed, more_fingertips
+
+            need = max(fingers_needed(set_aside[n.removesuffix(":reverse")])
+                       for n in too_few)
+            raise InputError(f"--skill {too_few}: needs {need} fingertips and the "
+                             f"robot has {tips['n_fingers']} (only the skills it has "
+                             "fingertips for are swept): "
+                             f"{more_fingertips(need, tips['per_arm'])}")
+        if unknown:
+            raise InputError(f"--skill {unknown}: no transition of that skill; the "
+                             f"transitions' skills are {known}")
     with stage_bars(as_json) as bars:
         ds, motions = motions_from_dataset(dataset, skills=skills, poly=poly, progress=bars,
                                            angle_tol=angle_tol)
@@ -209,12 +228,6 @@ def robustness_cmd(skills_file: str, dataset: str, step: float | None,
             units = rob.demonstration_units(ds, exp, angle_tol=angle_tol,
                                             skills=list(skill_names) or None)
         else:
-            if skill_names:
-                known = sorted({t.source.name for t in exp.transitions})
-                unknown = sorted(set(skill_names) - set(known))
-                if unknown:
-                    raise InputError(f"--skill {unknown}: no transition of that skill; the "
-                                     f"transitions' skills are {known}")
             units = rob.transition_units(poly, exp, motions, scale=ds.scale,
                                          angle_tol=angle_tol,
                                          sources=list(skill_names) or None)
