@@ -128,3 +128,11 @@ def test_a_swept_skill_the_robot_has_no_fingertips_for_says_how_many(
     res = CliRunner().invoke(main, ["simulate", "robustness", SKILLS, "--step", "90",
                                     "--robot", "panda", "--samples", "1", "--skill", "nosuch"])
     _one_line_exit_2(res, "no transition of that skill")
+
+
+def test_robot_from_file_names_a_directory(tmp_path: Path) -> None:
+    from nonprehensile.errors import InputError
+    from nonprehensile.sim.robot import Robot
+
+    with pytest.raises(InputError, match="is a directory"):  # it said "does not exist"
+        Robot.from_file(tmp_path, ["tip"])

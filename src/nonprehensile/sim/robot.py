@@ -172,6 +172,8 @@ class Robot:
                   velocity_limit: float | Sequence[float] | None = None) -> Robot:
         """A user's MJCF robot by path, one site per finger."""
         p = Path(path)
+        if p.is_dir():
+            raise InputError(f"robot file {str(p)!r} is a directory: give the MJCF file in it")
         if not p.is_file():
             raise InputError(f"robot file {str(p)!r} does not exist")
         return cls(p.stem, path=p, tip_sites=tip_sites, velocity_limit=velocity_limit)
