@@ -130,9 +130,12 @@ def test_a_swept_skill_the_robot_has_no_fingertips_for_says_how_many(
     _one_line_exit_2(res, "no transition of that skill")
 
 
-def test_robot_from_file_names_a_directory(tmp_path: Path) -> None:
+def test_robot_from_file_names_a_directory_and_takes_one_site_name(tmp_path: Path) -> None:
     from nonprehensile.errors import InputError
     from nonprehensile.sim.robot import Robot
 
     with pytest.raises(InputError, match="is a directory"):  # it said "does not exist"
         Robot.from_file(tmp_path, ["tip"])
+    arm = _arm(tmp_path, "arm.xml", '<joint name="j1" range="-1 1"/>')
+    # a str is one site (it was split into its letters: "no site 't'")
+    assert Robot.from_file(arm, "tip").tip_sites == ("tip",)

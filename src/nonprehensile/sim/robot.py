@@ -121,7 +121,8 @@ class Robot:
         self.name = name
         self.xml = xml
         self.path = Path(path) if path is not None else None
-        self.tip_sites = tuple(tip_sites)
+        # one site's name is one site, not its letters ("tip": sites 't', 'i', 'p')
+        self.tip_sites = (tip_sites,) if isinstance(tip_sites, str) else tuple(tip_sites)
         if not self.tip_sites:
             raise InputError("a robot needs at least one fingertip site (--tip-site NAME)")
         if len(set(self.tip_sites)) != len(self.tip_sites):
