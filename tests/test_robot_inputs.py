@@ -139,3 +139,17 @@ def test_robot_from_file_names_a_directory_and_takes_one_site_name(tmp_path: Pat
     arm = _arm(tmp_path, "arm.xml", '<joint name="j1" range="-1 1"/>')
     # a str is one site (it was split into its letters: "no site 't'")
     assert Robot.from_file(arm, "tip").tip_sites == ("tip",)
+
+
+def test_a_one_sided_torque_limit_is_refused(tmp_path: Path) -> None:
+    # actuatorfrcrange="0 87" made a torque limit of 0: the run crashed with a
+    # ZeroDivisionError traceback in the robot's log (torque margins)
+    for name, joint, servo in (
+            ("joint.xml", '<joint name="j1" range="-1 1" actuatorfrcrange="0 87"/>', ""),
+            ("servo.xml", '<joint name="j1" range="-1 1"/>', ' forcerange="-10 0"')):
+        p = _arm(tmp_path, name, joint)
+        p.write_text(p.read_text().replace('kp="100"/>', f'kp="100"{servo}/>'))
+        res = CliRunner().invoke(main, ["simulate", "plan", SKILLS, "--from", "b:200", "--to",
+                                        "a:290", "--step", "90", "--robot-xml", str(p),
+                                        "--tip-site", "tip"])
+        _one_line_exit_2(res, "does not drive it both ways")

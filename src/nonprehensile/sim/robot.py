@@ -283,10 +283,17 @@ class Robot:
             lo, hi = (float(v) for v in m.jnt_range[j])
             torque = None
             if m.jnt_actfrclimited[j]:
-                torque = float(min(abs(m.jnt_actfrcrange[j, 0]), abs(m.jnt_actfrcrange[j, 1])))
+                fr, attr = m.jnt_actfrcrange[j], "the joint's actuatorfrcrange"
             elif m.actuator_forcelimited[pos_act[j]]:
-                fr = m.actuator_forcerange[pos_act[j]]
+                fr, attr = m.actuator_forcerange[pos_act[j]], "its servo's forcerange"
+            else:
+                fr = None
+            if fr is not None:
                 torque = float(min(abs(fr[0]), abs(fr[1])))
+                if not (fr[0] < 0 < fr[1]):  # a torque limit of 0 one way: no servo holds it
+                    raise InputError(f"{where}: joint {jname!r}: {attr} \"{fr[0]:g} "
+                                     f"{fr[1]:g}\" does not drive it both ways; give "
+                                     "\"-limit limit\" (lower < 0 < upper)")
             pa = pos_act[j]
             va = vel_act.get(j)
             joints.append(_Joint(
