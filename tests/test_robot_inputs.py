@@ -153,3 +153,14 @@ def test_a_one_sided_torque_limit_is_refused(tmp_path: Path) -> None:
                                         "a:290", "--step", "90", "--robot-xml", str(p),
                                         "--tip-site", "tip"])
         _one_line_exit_2(res, "does not drive it both ways")
+
+
+def test_a_geared_servo_is_refused(tmp_path: Path) -> None:
+    # the set points are joint positions: a position servo with gear="2" held the joint at
+    # half of them, and the arm missed every contact of the plan without a word
+    p = _arm(tmp_path, "geared.xml", '<joint name="j1" range="-1 1"/>')
+    p.write_text(p.read_text().replace('kp="100"/>', 'kp="100" gear="2"/>'))
+    res = CliRunner().invoke(main, ["simulate", "plan", SKILLS, "--from", "b:200", "--to",
+                                    "a:290", "--step", "90", "--robot-xml", str(p),
+                                    "--tip-site", "tip", "--base", "0.5", "0", "180"])
+    _one_line_exit_2(res, "has gear \"2\"")

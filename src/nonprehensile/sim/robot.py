@@ -296,6 +296,15 @@ class Robot:
                                      "\"-limit limit\" (lower < 0 < upper)")
             pa = pos_act[j]
             va = vel_act.get(j)
+            for act in (pa, va):
+                # the set points are joint positions and velocities: a servo with a gear
+                # holds the joint at ctrl / gear (the arm missed the plan by centimetres)
+                if act is not None and float(m.actuator_gear[act, 0]) != 1.0:
+                    raise InputError(f"{where}: joint {jname!r}: its servo "
+                                     f"{m.actuator(act).name!r} has gear "
+                                     f"\"{float(m.actuator_gear[act, 0]):g}\"; the set points "
+                                     "are joint positions and velocities: give gear=\"1\" "
+                                     "(scale kp and kv instead)")
             joints.append(_Joint(
                 jname, lo, hi, vlims[j], torque, m.actuator(pa).name,
                 None if va is None else m.actuator(va).name,
