@@ -1314,3 +1314,54 @@ def test_metrics_give_the_longest_time_at_each_limit_while_touching() -> None:
     assert m.longest_at_limit_contact_s == pytest.approx(15 * dt)  # the union's longest
     doc = m.to_dict()["longest_at_limit_contact_by_kind_s"]
     assert doc == {"position": 0.0, "velocity": round(5 * dt, 4), "torque": round(15 * dt, 4)}
+
+
+def test_the_plans_joint_trajectory_runs_the_transits_between_steps() -> None:
+    """`plan --robot --out`'s joint trajectory of the main plan (two steps): the fingertips go
+    from step 1's end to step 2's start by the executor's transit, clear of the cube, and
+    the joints move continuously. Without the transit step 2's IK started 61 mm from its
+    first target (its fingertip error 60 mm, the joints at 1.5 rad/s on the jump). The
+    fingertips are checked by MuJoCo's forward kinematics of the written joints, not the
+    IK's own tips."""
+    from nonprehensile.cli.options import state_set
+    from nonprehensile.inference import expand
+    from nonprehensile.io import read_skills
+    from nonprehensile.observation import hull_distance
+    from nonprehensile.pipeline import motions_from_dataset
+    from nonprehensile.planning import plan
+    from nonprehensile.sim.placement import joint_trajectory
+    from nonprehensile.states import State
+
+    poly, skills = read_skills(SKILLS)
+    exp = expand(poly, skills, state_set(poly, 90.0, None, 1e-6))
+    ds, motions = motions_from_dataset("cube", skills=skills, poly=poly)
+    p = plan(poly, exp, State("b", 200), State("e", 110), position=(0.3, 0.1),
+             motions=motions, scale=ds.scale)
+    assert len(p.steps) == 2
+    arms = [Arm(Robot.builtin(), BasePose(0.53, -0.51, 112.5))]
+    got = {t.name: t for t in joint_trajectory(arms, poly, ds.scale, p, ds.fingers)}
+    assert list(got) == ["step1", "transit2", "step2", "plan"]
+    dt = 0.001 * DEFAULT_CONTROL_EVERY
+    whole = got["plan"]
+    assert np.allclose(np.diff(whole.time), dt)  # one clock, no gap, no overlap
+    assert np.array_equal(whole.positions, np.concatenate(
+        [got[k].positions for k in ("step1", "transit2", "step2")]))
+    step = np.abs(np.diff(whole.positions, axis=0))
+    assert np.all(step <= np.array(panda.DQ_MAX) * dt + 1e-9)  # no jump between rows
+    for name in ("step1", "transit2", "step2"):
+        assert got[name].tip_error_m < 0.005, name  # step 2: 0.060 without the transit
+        assert np.all(got[name].velocities[-1] == 0.0)
+        assert np.abs(got[name].positions[-1] - got[name].positions[-2]).max() < 1e-3 * dt
+    # the transit's fingertips, by forward kinematics: clear of the cube posed at step 2's
+    # start until the approach, and never inside it
+    scene = build_robot_scene(poly, scale=ds.scale, arms=arms, mocap_object=True)
+    m, d = scene.model, mujoco.MjData(scene.model)
+    tips = []
+    for q in got["transit2"].positions:
+        d.qpos[scene.qadr] = q
+        mujoco.mj_kinematics(m, d)
+        tips.append(np.array(d.site_xpos[int(scene.tip_sites[0])]))
+    clear = hull_distance(poly, p.steps[1].start_pose, np.array(tips))
+    radius = DEFAULT_PARAMS.finger_radius
+    assert clear.min() > radius - 0.002  # (the approach ends on the reference's start)
+    assert clear.max() > radius + 0.01  # it went round, not through

@@ -134,6 +134,8 @@ def _write_joints(robot_kw: dict[str, Any], robot: Any, poly: Any, ds: Any, resu
     meta["placement"] = placement_doc(placement)
     meta["finger_direction"] = direction
     meta["note"] = ("kinematic: the IK along the plan's fingertip reference at the control rate, "
+                    "each step and each transit between steps (transitK: to step K's first "
+                    "target, clear of the object) ending at rest, "
                     "the object at each step's planned start pose; `simulate plan --robot` "
                     "executes it in physics. The CSV holds the IK's joint positions and "
                     "velocities; the controller's acceleration feed-forward "

@@ -29,9 +29,10 @@ import mujoco
 import numpy as np
 from numpy.typing import NDArray
 
+from nonprehensile.control import ControlConfig
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
-from nonprehensile.planning import Plan
+from nonprehensile.planning import ObjectPose, Plan
 from nonprehensile.sim.ik import FingertipIK, IKConfig
 from nonprehensile.sim.robot import BasePose, Robot
 from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY
@@ -42,6 +43,10 @@ __all__ = ["JointTrajectory", "Placement", "joint_trajectory", "place_base", "pl
            "transit_path", "write_joint_trajectories"]
 
 FloatArray = NDArray[np.float64]
+
+#: Longest hold (s) on a step's last target in :func:`joint_trajectory` for the joints to come
+#: to rest before the transit to the next step.
+SETTLE_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -257,7 +262,8 @@ class JointTrajectory:
     Attributes
     ----------
     name : str
-        ``step1``, ``step2``, ... or ``plan``.
+        ``step1``, ``transit2``, ``step2``, ... (``transitK``: the transit before step
+        ``K``) or ``plan``.
     time : ndarray, shape (n,)
         Seconds from the start of the plan.
     positions, velocities : ndarray, shape (n, n_joints)
@@ -278,31 +284,84 @@ def joint_trajectory(
     arms: Sequence[Arm], poly: Polyhedron, scale: float, plan: Plan,
     fingers: Mapping[str, str], *, params: SimParams = DEFAULT_PARAMS,
     ik_config: IKConfig | None = None, control_every: int = DEFAULT_CONTROL_EVERY,
-    finger_direction: str = "lean",
+    finger_direction: str = "lean", config: ControlConfig | None = None,
+    settle_s: float = SETTLE_S,
 ) -> list[JointTrajectory]:
-    """The IK's joint trajectory along the plan's reference motion, per step, one row per
-    control step (``control_every`` physics steps; kinematic: the object stands at each
-    step's planned start pose for collision avoidance). ``finger_direction="recorded"``
-    points each finger tool along its recorded finger (knuckle to tip,
-    :func:`~nonprehensile.step_paths.step_directions`) where the references carry knuckle
-    markers; ``"lean"`` (the default), the IK's rule."""
-    from nonprehensile.sim.robot_driver import check_finger_direction
+    """The IK's joint trajectory along the plan's reference motion, one row per control step
+    (``control_every`` physics steps; kinematic: the object stands at each step's planned
+    start pose for collision avoidance), per step, per transit between steps, and for the
+    whole plan (``step1``, ``transit2``, ``step2``, ..., ``plan``).
+
+    After each step's reference (and each transit) the IK holds its last target until the
+    joints come to rest (every joint slower than ``REST_SPEED``, at most ``settle_s`` seconds;
+    the last row has velocity 0); the fingertips then move to the next step's first target by the
+    executor's transit (:func:`~nonprehensile.transit.transit`: retreat, clear of the object
+    posed at the next step's start by ``config.clearance``, approach along the face's normal;
+    rest to rest within ``config.max_speed`` and its transit acceleration bound;
+    ``config``: :func:`~nonprehensile.sim.robot_run.robot_control`'s, as ``simulate plan
+    --robot`` executes). So the plan's trajectory is continuous: without the transits the
+    next step's IK started 61 mm from its first target in the main plan and moved the joints
+    at up to 1.5 rad/s on that jump. ``finger_direction="recorded"`` points each finger tool
+    along its recorded finger (knuckle to tip, :func:`~nonprehensile.step_paths.
+    step_directions`) where the references carry knuckle markers; ``"lean"`` (the default),
+    the IK's rule."""
+    from nonprehensile.sim.robot_driver import REST_SPEED, check_finger_direction
+    from nonprehensile.sim.robot_run import robot_control
     from nonprehensile.step_paths import step_directions
+    from nonprehensile.transit import transit
 
     check_finger_direction(finger_direction)
     scene = build_robot_scene(poly, scale=scale, arms=arms, params=params, mocap_object=True)
     dt = params.timestep * control_every
+    cfg = robot_control(config, n_fingers=scene.n_fingers)
     ik = FingertipIK(scene, dt, ik_config)
     paths = plan_targets(plan, fingers, scene.n_fingers)
-    out = []
+    out: list[JointTrajectory] = []
     t0 = 0.0
     placed = False
-    for i, ((arr, rate), step) in enumerate(zip(paths, plan.steps, strict=True)):
-        pose = step.start_pose
+
+    def run(name: str, x: FloatArray, dirs: FloatArray | None) -> None:
+        """The IK along targets ``x`` (shape (n, n_fingers, 3)), then on the last one until
+        the joints rest; appended to ``out`` as ``name``."""
+        nonlocal t0
+        qs, vs, err = [], [], 0.0
+        for j, xi in enumerate(x):
+            ik.set_pointing(None if dirs is None else dirs[j])
+            q, v = ik.step(xi)
+            qs.append(q)
+            vs.append(v)
+            err = max(err, float(np.linalg.norm(ik.tips() - xi, axis=1).max()))
+        for _ in range(round(settle_s / dt)):
+            if float(np.abs(vs[-1]).max()) < REST_SPEED:
+                break
+            q, v = ik.step(x[-1])
+            qs.append(q)
+            vs.append(v)
+        vs[-1] = np.zeros_like(vs[-1])  # (at rest: the next leg starts from rest)
+        tt = t0 + np.arange(len(qs)) * dt
+        out.append(JointTrajectory(name, np.asarray(tt, dtype=np.float64), np.array(qs),
+                                   np.array(vs), scene.joint_names, err))
+        t0 = float(tt[-1]) + dt
+
+    def see(pose: ObjectPose | None) -> None:
         if pose is not None:
             quat = np.empty(4)
             mujoco.mju_mat2Quat(quat, np.ascontiguousarray(pose.rotation).ravel())
             ik.set_object(np.asarray(pose.translation, dtype=float), quat)
+
+    last: FloatArray | None = None
+    for i, ((arr, rate), step) in enumerate(zip(paths, plan.steps, strict=True)):
+        pose = step.start_pose
+        see(pose)
+        if last is not None and pose is not None:
+            # from the last step's end to this one's first target, clear of the object
+            # where this step finds it (rest to rest: the rows' ends are at rest)
+            way = transit(poly, pose, last, arr[0],
+                          dt=dt, clearance=cfg.clearance, finger_radius=params.finger_radius,
+                          max_speed=cfg.max_speed, max_accel=cfg.transit_bound,
+                          moving=np.linalg.norm(arr[0] - last, axis=1) > 1e-9)
+            ik.set_pointing(None)
+            run(f"transit{i + 1}", way, None)
         n = max(2, round((len(arr) - 1) / rate / dt) + 1)
         tt = np.arange(n) * dt
         tr = np.arange(len(arr)) / rate
@@ -323,18 +382,8 @@ def joint_trajectory(
             ik.set_pointing(None if dirs is None else dirs[0])
             ik.converge(x[0])
             placed = True
-        qs, vs, err = [], [], 0.0
-        for j, xi in enumerate(x):
-            ik.set_pointing(None if dirs is None else dirs[j])
-            q, v = ik.step(xi)
-            qs.append(q)
-            vs.append(v)
-            err = max(err, float(np.linalg.norm(ik.tips() - xi, axis=1).max()))
-        vs[-1] = np.zeros_like(vs[-1])
-        out.append(JointTrajectory(f"step{i + 1}", np.asarray(t0 + tt, dtype=np.float64),
-                                   np.array(qs), np.array(vs),
-                                   scene.joint_names, err))
-        t0 += n * dt
+        run(f"step{i + 1}", x, dirs)
+        last = arr[-1]
     if out:
         out.append(JointTrajectory(
             "plan", np.concatenate([j.time for j in out]),
