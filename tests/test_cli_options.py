@@ -138,3 +138,26 @@ def test_issue_25_options(argv: list[str], dataset: Path, tmp_path: Path) -> Non
     line = r.stderr.strip()
     assert line.startswith(f"error: {argv[-2]}: expected ") and "\n" not in line \
         and line.endswith(f"got {argv[-1]!r}"), r.stderr
+
+
+@pytest.mark.parametrize("args", [
+    ["plan", "cube_skills.json", "--from", "a:0", "--to", "zz", "--step", "90"],  # a callback's
+    ["plan", "--no-such-option"],
+    ["no-such-command"],
+    ["--no-such-option"],
+    ["object", "show"],  # a missing argument
+])
+def test_usage_errors_are_one_line(args: list[str]) -> None:
+    """click's usage errors (an unknown option or command, a value a callback refuses, a
+    missing argument) are one line naming the culprit and the command's --help, exit 2, as
+    every other bad input: click's usage text and hint around them made four lines."""
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), r.stderr
+    assert "--help)" in lines[0] and "Traceback" not in r.stderr
+
+
+def test_a_group_without_a_command_still_shows_its_help() -> None:
+    r = CliRunner().invoke(main, ["simulate"])
+    assert "Usage:" in r.output and "robustness" in r.output

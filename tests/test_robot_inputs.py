@@ -164,3 +164,33 @@ def test_a_geared_servo_is_refused(tmp_path: Path) -> None:
                                     "a:290", "--step", "90", "--robot-xml", str(p),
                                     "--tip-site", "tip", "--base", "0.5", "0", "180"])
     _one_line_exit_2(res, "has gear \"2\"")
+
+
+@pytest.mark.parametrize("value", ["abc", True, object(), [1.0] * 6 + ["x"], float("nan"), 0.0])
+def test_a_bad_velocity_limit_is_named(value: object) -> None:
+    # text, a bool or an object raised a bare ValueError or TypeError from float()
+    from nonprehensile.errors import InputError
+    from nonprehensile.sim import panda
+    from nonprehensile.sim.robot import Robot
+
+    with pytest.raises(InputError, match="velocity"):
+        Robot("p", xml=panda.panda_xml(), tip_sites=["tip"], velocity_limit=value)  # type: ignore[arg-type]
+
+
+def test_a_velocity_limit_may_be_any_real_numbers() -> None:
+    import numpy as np
+
+    from nonprehensile.sim import panda
+    from nonprehensile.sim.robot import Robot
+
+    for value in (np.float32(2.0), np.asarray(panda.DQ_MAX), list(panda.DQ_MAX), 2):
+        r = Robot("p", xml=panda.panda_xml(), tip_sites=["tip"], velocity_limit=value)  # type: ignore[arg-type]
+        assert np.allclose(r.velocity, np.broadcast_to(np.asarray(value, dtype=float), 7))
+
+
+def test_a_robot_file_that_is_a_folder_is_one_line(tmp_path: Path) -> None:
+    # click's own check of the path (a folder): its usage text made four lines
+    res = CliRunner().invoke(main, [
+        "simulate", "plan", SKILLS, "--from", "b:200", "--to", "e:110", "--step", "90",
+        "--robot-xml", str(tmp_path), "--tip-site", "tip"])
+    _one_line_exit_2(res, "--robot-xml")

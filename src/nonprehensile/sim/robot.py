@@ -9,7 +9,9 @@ without limits, a joint that no position servo drives.
 
 from __future__ import annotations
 
+import contextlib
 import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -248,12 +250,23 @@ class Robot:
         joints = []
         hinge_slide = (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE))
         n = sum(1 for j in range(m.njnt) if int(m.jnt_type[j]) in hinge_slide)
-        if isinstance(velocity_limit, (int, float)) and not isinstance(velocity_limit, bool):
+        if isinstance(velocity_limit, numbers.Real) and not isinstance(velocity_limit,
+                                                                        (bool, np.bool_)):
             vlims = [float(velocity_limit)] * n
         elif velocity_limit is None:
             vlims = [DEFAULT_VELOCITY_LIMIT] * n
         else:
-            vlims = [float(v) for v in velocity_limit]  # type: ignore[union-attr]
+            # a number or one per joint: anything else (a bool, text, a bare object) is the
+            # caller's mistake, named, not a TypeError or ValueError from float()
+            items: list[Any] | None = None
+            if not isinstance(velocity_limit, (str, bytes)):
+                with contextlib.suppress(TypeError):
+                    items = list(velocity_limit)  # type: ignore[arg-type]
+            if items is None or any(isinstance(v, (bool, np.bool_))
+                                    or not isinstance(v, numbers.Real) for v in items):
+                raise InputError(f"{where}: velocity_limit must be a number of rad/s (m/s) or "
+                                 f"one per joint ({n}), got {velocity_limit!r}")
+            vlims = [float(v) for v in items]
             if len(vlims) != n:
                 raise InputError(f"{where}: {len(vlims)} velocity limits for {n} joints")
         if any(not math.isfinite(v) or v <= 0 for v in vlims):
