@@ -161,3 +161,13 @@ def test_usage_errors_are_one_line(args: list[str]) -> None:
 def test_a_group_without_a_command_still_shows_its_help() -> None:
     r = CliRunner().invoke(main, ["simulate"])
     assert "Usage:" in r.output and "robustness" in r.output
+
+
+@pytest.mark.parametrize("theta", ["1e300", "-1e7", "1000000"])
+def test_a_state_angle_past_a_million_degrees_is_refused(theta: str) -> None:
+    # reduced modulo 360, 1e300 degrees was read as a:0
+    r = CliRunner().invoke(main, ["maneuvers", "cube", "--from", f"a:{theta}"])
+    assert r.exit_code == 2, r.output
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1 and "--from" in line and theta in line, r.stderr
+    assert CliRunner().invoke(main, ["maneuvers", "cube", "--from", "a:-450"]).exit_code == 0

@@ -210,7 +210,19 @@ def parse_state(ctx: click.Context, param: click.Parameter, value: str) -> State
     from nonprehensile.states import State
 
     try:
-        return State.parse(value)
+        state = State.parse(value)
     except InputError as exc:
         raise click.BadParameter(str(exc)) from None
+    theta = float(value.rsplit(":", 1)[1])
+    if abs(theta) >= MAX_STATE_DEG:
+        # reduced modulo 360 such an angle has lost its digits (1e300 degrees read as 0)
+        raise click.BadParameter(f"expected a state's theta in degrees below "
+                                 f"{MAX_STATE_DEG:g} in magnitude (write it within one turn, "
+                                 f"0 to 360), got {value!r}")
+    return state
+
+
+#: Largest magnitude (degrees) of a state's theta on the command line: beyond it an angle
+#: reduced modulo 360 keeps fewer digits than the angle tolerance needs.
+MAX_STATE_DEG = 1e6
 
