@@ -20,6 +20,8 @@ from nonprehensile.io import load_document, save_document
 ROOT = Path(__file__).resolve().parents[1]
 MOTIVE = ROOT.parent / "shared" / "realdata" / "motive" / \
     "jessicaxtang_Take 2024-10-24 04.26.46 PM.csv"
+#: A real Motive export of a take with nothing selected: header rows, frames and times only
+EMPTY_MOTIVE = MOTIVE.with_name("ha5dzs_test_default.csv")
 
 
 def _problem_lines(output: str) -> list[str]:
@@ -100,3 +102,15 @@ def test_a_three_frame_take_is_too_short() -> None:
                               ds.object_setup.pose(demo.trajectory, ds.scale), ds.fingers,
                               ds.scale)
     assert full.skill is not None and np.isfinite(full.times).all()
+
+
+@pytest.mark.skipif(not EMPTY_MOTIVE.is_file(),
+                    reason=f"real Motive export not found at {EMPTY_MOTIVE} (shared/ beside the "
+                           "repo)")
+def test_a_motive_csv_with_no_data_column_says_so() -> None:
+    # it said "row 6: expected the row naming each column's data", true but not the fault
+    from nonprehensile.demonstrations.formats import read_motive_csv
+
+    with pytest.raises(DemonstrationError, match="no marker or rigid-body column") as got:
+        read_motive_csv(EMPTY_MOTIVE)
+    assert "\n" not in str(got.value) and "export it again" in str(got.value)

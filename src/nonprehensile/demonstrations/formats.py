@@ -403,6 +403,14 @@ def read_motive_csv(
             f"{path}: row {axis_r + 1}, {_col(1)}: expected 'Time (Seconds)', got "
             f"{_cell(axis_row, 1)!r}"
         )
+    if not any(c.strip() for c in axis_row[2:]):
+        # (Motive writes the header rows of a take exported with nothing selected: its
+        # frames and times, no data column)
+        raise DemonstrationError(
+            f"{path}: row {axis_r + 1}: no marker or rigid-body column after 'Frame' and "
+            "'Time (Seconds)': the take was exported without markers or rigid bodies; export "
+            "it again with them selected (Motive's CSV export: Markers, Rigid Bodies)"
+        )
     header = [r for r in range(1, axis_r) if any(c.strip() for c in rows[r])]
     if not header or _cell(rows[header[-1]], 1) != "":
         raise DemonstrationError(
