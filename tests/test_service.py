@@ -470,3 +470,23 @@ def test_serve_refuses_what_it_cannot_serve(tmp_path: Path) -> None:
     r = runner.invoke(main, ["serve", "token", "create", " ", "--store",
                              "postgresql://nobody@/nodb?host=/nonexistent-dir"])
     assert r.exit_code == 1 and "cannot connect" in r.output and "Traceback" not in r.output
+
+
+def test_serve_on_a_taken_port_or_unknown_host_is_bad_input(tmp_path: Path) -> None:
+    """An address in use (or not this machine's) is exit 2, one line naming --host/--port,
+    and the store is not created; it was uvicorn's own "ERROR: [Errno 98] ..." and exit 3."""
+    store = tmp_path / "svc.db"
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        r = CliRunner().invoke(main, ["serve", "--store", str(store), "--host", "127.0.0.1",
+                                      "--port", str(port)])
+    assert r.exit_code == 2, r.output
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1 and "--port" in line and str(port) in line, r.stderr
+    assert not store.exists()
+    r = CliRunner().invoke(main, ["serve", "--store", str(store), "--host", "999.1.1.1",
+                                  "--port", "0"])
+    assert r.exit_code == 2 and "--host" in r.stderr and "999.1.1.1" in r.stderr, r.output
+    assert len(r.stderr.strip().splitlines()) == 1 and not store.exists()

@@ -8,6 +8,7 @@ prints a new bearer token once (the database keeps only its hash). STORE is a
 
 from __future__ import annotations
 
+import socket
 from typing import Any
 
 import click
@@ -79,17 +80,52 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
     from nonprehensile.motion.stores import display_name
 
     template = load_template(dataset)
-    pool = make_pool(store, max_size=workers + 2)
+    # the listening socket first: an address in use or unknown is bad input (exit 2, one
+    # line naming the option), not uvicorn's own exit 3 after the store was opened
+    sock = _listen(host, port)
+    try:
+        pool = make_pool(store, max_size=workers + 2)
+    except BaseException:
+        sock.close()
+        raise
     config = ServiceConfig(display_name(store), max_bytes=max_bytes,
                            recalibrate_every=recalibrate_every)
     app = create_app(pool, template, config)
+    port = int(sock.getsockname()[1])  # --port 0: the port the system chose
     err.print(f"serving {display_name(store)} on http://{host}:{port} (OpenAPI at "
               f"/openapi.json, docs at /docs); Ctrl-C stops")
     try:
-        uvicorn.run(app, host=host, port=port, log_level="warning", workers=1,
-                    limit_concurrency=max(16, 4 * workers), timeout_keep_alive=30)
+        server = uvicorn.Server(uvicorn.Config(
+            app, host=host, port=port, log_level="warning", workers=1,
+            limit_concurrency=max(16, 4 * workers), timeout_keep_alive=30))
+        server.run(sockets=[sock])
     finally:
+        sock.close()
         pool.close()
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    """A socket listening on ``host:port``, or an :class:`InputError` naming them."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
+                                   flags=socket.AI_PASSIVE)
+    except (OSError, UnicodeError) as exc:
+        raise InputError(f"--host {host!r}: not an address of this machine "
+                         f"({getattr(exc, 'strerror', None) or exc}); give an IP address "
+                         "such as 127.0.0.1 or 0.0.0.0") from None
+    family, _, _, _, address = infos[0]
+    sock = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(address)
+        sock.listen(2048)
+        sock.set_inheritable(True)
+    except OSError as exc:
+        sock.close()
+        raise InputError(f"--host {host} --port {port}: cannot listen there "
+                         f"({exc.strerror or exc}); give a free --port (0: any free one) "
+                         "and an address of this machine") from None
+    return sock
 
 
 @serve_group.group("token")
