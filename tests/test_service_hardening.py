@@ -174,6 +174,25 @@ def test_state_from_dict_refuses_a_theta_beyond_floats() -> None:
         State.from_dict({"face": "a", "theta": 10**400})
 
 
+@pytest.mark.parametrize("theta", ["1e300", "-1e7", "1000000.0"])
+def test_a_theta_past_a_million_degrees_in_an_annotation_is_a_422(svc: dict[str, Any],
+                                                                 theta: str) -> None:
+    """1e300 degrees, reduced modulo 360, was read as a:0: the upload was stored (201) as a
+    demonstration from a:0 (and 1e6 as a:280); the CLI has refused them since 75f3b14."""
+    c, auth, e = svc["client"], svc["auth"]["ana"], _entry()
+    ann = json.dumps({k: v for k, v in e.items() if k not in ("file", "mentor")})
+    assert '"theta": 0.0' in ann
+    detail = _refused(_post_take(c, auth, e, ann.replace('"theta": 0.0', '"theta": ' + theta,
+                                                         1)), 422)
+    assert "theta" in detail and "360" in detail
+    assert c.get("/clusters").json()["arcs"] == []
+    from nonprehensile.states import State
+
+    with pytest.raises(InputError, match="within one turn"):
+        State.from_dict({"face": "a", "theta": float(theta)})
+    assert State.from_dict({"face": "a", "theta": -450}) == State("a", 270)
+
+
 # ------------------------------------------------------------------------ archive members
 def test_a_name_that_is_a_file_and_a_folder_is_a_400(svc: dict[str, Any]) -> None:
     files = _dataset_files()

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "DEFAULT_ANGLE_TOL",
+    "MAX_STATE_DEG",
     "State",
     "StateIndex",
     "angle_diff",
@@ -52,6 +53,11 @@ __all__ = [
 #: Largest state set built from an angle step (a finer step is almost surely a typo); sized so
 #: that the ``states`` command (classes included) stays within seconds and a few hundred MB.
 MAX_STATES = 500_000
+
+#: Largest magnitude (degrees) of a state's theta read from the command line or a file: beyond
+#: it an angle reduced modulo 360 keeps fewer digits than the angle tolerance needs (1e300
+#: degrees came out as 0).
+MAX_STATE_DEG = 1e6
 
 FloatArray = NDArray[np.float64]
 
@@ -160,7 +166,13 @@ class State:
         if isinstance(theta, bool) or not isinstance(theta, (int, float)):
             raise StateError(f"state {data!r}: theta must be a number of degrees")
         try:
-            return cls(str(data["face"]), float(theta))
+            degrees = float(theta)
+            if math.isfinite(degrees) and abs(degrees) >= MAX_STATE_DEG:
+                # reduced modulo 360 it has lost its digits: 1e300 was read as 0
+                raise StateError(f"state face {str(data['face'])[:20]!r}: theta {degrees:g} "
+                                 f"is not below {MAX_STATE_DEG:g} degrees in magnitude; write "
+                                 "it within one turn, 0 to 360")
+            return cls(str(data["face"]), degrees)
         except OverflowError:  # an integer beyond floats (10**400)
             raise StateError(f"state face {str(data['face'])[:20]!r}: theta "
                              f"{str(theta)[:12]}... is too large; give degrees as a float"

@@ -207,7 +207,7 @@ states_option = click.option("--states", "states_file", type=click.Path(dir_okay
 
 
 def parse_state(ctx: click.Context, param: click.Parameter, value: str) -> State:
-    from nonprehensile.states import State
+    from nonprehensile.states import MAX_STATE_DEG, State
 
     try:
         state = State.parse(value)
@@ -220,9 +220,3 @@ def parse_state(ctx: click.Context, param: click.Parameter, value: str) -> State
                                  f"{MAX_STATE_DEG:g} in magnitude (write it within one turn, "
                                  f"0 to 360), got {value!r}")
     return state
-
-
-#: Largest magnitude (degrees) of a state's theta on the command line: beyond it an angle
-#: reduced modulo 360 keeps fewer digits than the angle tolerance needs.
-MAX_STATE_DEG = 1e6
-
