@@ -255,7 +255,8 @@ def cluster_group() -> None:
               help="micro: ours (micro-cluster summary); runs: our earlier key runs; paper: "
                    "the paper's recipe.")
 @click.option("--n-clusters", type=count(1, 10**7), default=None,
-              help="Number of clusters (default: chosen by the silhouette).")
+              help="Number of clusters (default: chosen from the data: by BIC for micro, by "
+                   "the silhouette for runs and paper).")
 @click.option("--init-size", type=count(1, 10**9), default=None,
               help="Samples of the first batch (default: all given here).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Random seed.")
