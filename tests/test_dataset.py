@@ -412,3 +412,23 @@ def test_trajectory_figure_draws_one_line_per_demonstration(pristine: Path) -> N
         trajectory_figure(ds, marker="pinky")
     with pytest.raises(InputError, match="color_by"):
         trajectory_figure(ds, color_by="colour")
+
+
+def test_a_folder_without_annotations_is_named_once(tmp_path: Path) -> None:
+    """`dataset show EMPTY` said 'EMPTY: EMPTY: no annotations file' (and `dataset export`,
+    `cluster fit --dataset` through load_dataset, and a file: 'x: x: not a folder')."""
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "notes.txt").write_text("not a dataset")
+    for name, what in [("empty", "no annotations file"), ("notes.txt", "not a folder")]:
+        path = str(tmp_path / name)
+        res = CliRunner().invoke(dataset_group, ["show", path])
+        assert res.exit_code == 2, res.output
+        line = res.stderr.strip()
+        assert len(line.splitlines()) == 1 and what in line, line
+        assert line.count(path) == 1, line
+        with pytest.raises(DemonstrationError) as info:
+            load_dataset(path)
+        assert str(info.value).count(path) == 1 and what in str(info.value), info.value
+    res = CliRunner().invoke(dataset_group, ["export", str(tmp_path / "empty"),
+                                             str(tmp_path / "out")])
+    assert res.exit_code == 2 and res.stderr.count(str(tmp_path / "empty")) == 1, res.stderr

@@ -112,7 +112,9 @@ def _show_problems(problems: list[Any], as_json: bool, root: str) -> None:
     if as_json:
         emit_json({"root": root, "problems": [p.to_dict() for p in problems]})
     if len(problems) == 1:  # one line naming the culprit
-        raise DemonstrationError(f"{root}: {problems[0]}; nothing was loaded")
+        from nonprehensile.demonstrations.dataset import headed
+
+        raise DemonstrationError(f"{headed(root, problems[0])}; nothing was loaded")
     lines = "\n".join(f"  - {p}" for p in problems)
     raise DemonstrationError(
         f"{root}: {len(problems)} problem(s) in the dataset, nothing was loaded:\n{lines}"

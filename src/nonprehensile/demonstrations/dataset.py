@@ -902,7 +902,7 @@ def load_dataset(path: str | Path, *, progress: Progress | None = None,
     """
     dataset, problems = check_dataset(path, progress=progress, angle_tol=angle_tol)
     if dataset is None and len(problems) == 1:  # one line naming the culprit
-        raise DemonstrationError(f"{path}: {problems[0]}; nothing was loaded")
+        raise DemonstrationError(f"{headed(path, problems[0])}; nothing was loaded")
     if dataset is None:
         lines = "\n".join(f"  - {p}" for p in problems)
         raise DemonstrationError(
@@ -910,6 +910,13 @@ def load_dataset(path: str | Path, *, progress: Progress | None = None,
             f"all and load again:\n{lines}"
         )
     return dataset
+
+
+def headed(path: str | Path, problem: Problem) -> str:
+    """``PATH: problem``, without naming the path twice when the problem is the folder's own
+    (``my_takes: my_takes: no annotations file`` read as a stutter)."""
+    text = str(problem)
+    return text if text.startswith(f"{path}: ") else f"{path}: {text}"
 
 
 # -------------------------------------------------------------------------------- writing
