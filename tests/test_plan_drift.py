@@ -218,3 +218,39 @@ def test_the_maneuvers_table_prints_final_states_as_the_model_has_them(tmp_path:
     for end in ends:
         assert end.exact() in res.stdout
     assert any(end.exact() != str(end) for end in ends)  # the case that printed wrong
+
+
+def test_the_main_job_on_a_rounded_models_dataset_takes_the_tolerance(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`demo --dataset DIR` on the recordings of a model from a mesh: its error named
+    `--angle-tol`, which `demo` did not take (click's "No such option"), so the main job
+    could not run on such a dataset at all. With it, the job plans as `plan` does (one
+    step, as on the exact cube) with the dataset's reference motions attached."""
+    pytest.importorskip("matplotlib")
+    pytest.importorskip("sklearn")
+    import nonprehensile.pipeline as pipeline
+    from nonprehensile.demonstrations.synth import synthesize
+
+    takes = tmp_path / "takes"
+    synthesize(takes, seed=3, n_per_skill=2, mentors=1)
+    doc = json.loads((takes / "skills.json").read_text())
+    doc["object"] = model_to_dict(ROUGH)
+    (takes / "skills.json").write_text(json.dumps(doc))
+    ann = json.loads((takes / "annotations.json").read_text())
+    for demo in ann["demonstrations"]:  # as recorded from that model: its rounding's states
+        demo["final"] = {**demo["final"], "theta": demo["final"]["theta"] + 2e-5}
+    (takes / "annotations.json").write_text(json.dumps(ann))
+    # the physics sections are not what this checks (tests/test_demo.py runs them)
+    monkeypatch.setattr(pipeline, "_physics_runs", lambda *a, **k: {
+        "sweep": {"error": "not run here"}, "robot": {"error": "not run here"}})
+    runner = CliRunner(env={"NONPREHENSILE_CACHE": str(tmp_path / "cache")})
+    args = ["demo", "--dataset", str(takes), "--from", "a:0", "--to", "b:0", "--no-robot",
+            "--out", str(tmp_path / "report"), "--json"]
+    res = runner.invoke(main, args)
+    assert res.exit_code == 2 and "--angle-tol" in res.output
+    assert "Traceback" not in res.output
+    res = runner.invoke(main, [*args, "--angle-tol", "1e-3"])
+    assert res.exit_code == 0, res.output
+    (step,) = json.loads(res.stdout)["plan"]["steps"]
+    assert step["motions"] and all(m["reference"] for m in step["motions"])
+    assert (tmp_path / "report" / "index.html").is_file()

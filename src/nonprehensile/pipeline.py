@@ -420,7 +420,7 @@ def _physics_runs(ds: Dataset, exp: Any, result: Plan, motions: ClusteredMotions
 
         runs["robot"] = report_runs.robot_execution(
             ds.poly, result, motions, scale=ds.scale, fingers=ds.fingers,
-            skills=list(ds.skills), states=states, cache=folder)
+            skills=list(ds.skills), states=states, cache=folder, angle_tol=exp.angle_tol)
     except NonprehensileError as exc:
         runs["robot"] = {"error": str(exc)}
     except ImportError as exc:
@@ -446,6 +446,7 @@ def run_demo(
     sweep_samples: int | None = None,
     write_sweep: str | Path | None = None,
     robot: bool = True,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> DemoResult:
     """Run the whole pipeline on a dataset and write the report.
 
@@ -482,6 +483,10 @@ def run_demo(
     robot : bool
         Execute the plan by the bundled Panda for the report's robot section (False: the
         section says it was skipped; the rest of the job is the same).
+    angle_tol : float
+        Angle tolerance in degrees for matching states (``--angle-tol``): the dataset's
+        skills and states, the expansion, the plan and its re-plans. A model from a mesh
+        carries its file's rounding and needs more than the default (``docs/planning.md``).
 
     Returns
     -------
@@ -503,20 +508,21 @@ def run_demo(
         times[name] = round(now - t0, 3)
         t0 = now
 
-    ds: Dataset = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n))
+    ds: Dataset = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n),
+                               angle_tol=angle_tol)
     poly, skills = ds.poly, list(ds.skills)
     lap("load")
     states = states_by_step(poly, step)
-    classes = equivalence_classes(poly, states)
-    exp = expand(poly, skills, states)
-    disagreements = cross_check(poly, skills, states)
+    classes = equivalence_classes(poly, states, angle_tol=angle_tol)
+    exp = expand(poly, skills, states, angle_tol=angle_tol)
+    disagreements = cross_check(poly, skills, states, angle_tol=angle_tol)
     lap("inference")
     graphs, segments = segment_dataset(ds)
     lap("segmentation")
     motions, arcs = cluster_segments(segments, seed=seed, progress=progress)
     lap("clustering")
     result: Plan = plan(poly, exp, start, goal, position=position, motions=motions,
-                        scale=ds.scale)
+                        scale=ds.scale, angle_tol=angle_tol)
     lap("planning")
     folder = cache_dir() if cache is True else (Path(cache) if cache else None)
     runs = _physics_runs(ds, exp, result, motions, states, seed=seed, folder=folder,

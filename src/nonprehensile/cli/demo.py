@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 import click
 
 from nonprehensile.cli.common import emit_json, handle_errors, out, stage_bars
-from nonprehensile.cli.options import SEED, count, json_option, parse_state
+from nonprehensile.cli.options import SEED, angle_tol_option, count, json_option, parse_state
 
 if TYPE_CHECKING:
     from nonprehensile.states import State
@@ -58,11 +58,12 @@ def _command_line() -> str | None:
 @click.option("--no-robot", "no_robot", is_flag=True, default=False,
               help="Skip the report's robot section (the plan executed by the bundled Panda: "
                    "its base search and run take a few seconds).")
+@angle_tol_option
 @json_option
 @handle_errors
 def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
          sweep_samples: int | None, write_sweep: str | None, no_robot: bool,
-         as_json: bool) -> None:
+         angle_tol: float, as_json: bool) -> None:
     """The main job: the whole pipeline on a dataset, ending in an HTML report."""
     from nonprehensile.cli.plan import print_plan
     from nonprehensile.pipeline import run_demo
@@ -72,7 +73,7 @@ def demo(out_dir: str, dataset: str, start: State, goal: State, seed: int,
         result = run_demo(out_dir, dataset=dataset, start=start, goal=goal, seed=seed,
                           progress=bars, command=_command_line(),
                           sweep_samples=sweep_samples, write_sweep=write_sweep,
-                          robot=not no_robot)
+                          robot=not no_robot, angle_tol=angle_tol)
     elapsed = time.perf_counter() - t0
     summary = result.summary
     if as_json:

@@ -43,6 +43,7 @@ import numpy as np
 from nonprehensile.errors import InputError
 from nonprehensile.geometry.polyhedron import Polyhedron
 from nonprehensile.planning import Plan
+from nonprehensile.states import DEFAULT_ANGLE_TOL
 
 __all__ = [
     "DEMO_SWEEP_LOOPS",
@@ -431,24 +432,30 @@ ROBOT_FRAMES_PER_STEP = 3
 
 
 def robot_key(poly: Polyhedron, scale: float, plan: Plan, skills: Sequence[Any],
-              motions: Any) -> str:
+              motions: Any, angle_tol: float = DEFAULT_ANGLE_TOL) -> str:
     """What a robot execution is for: the object, plan, skills and motion clusters, the
-    bundled robot and this installation's executor code (a few seconds to redo)."""
+    bundled robot, the angle tolerance its re-plans match states with (named only when it
+    is not the default, so the default's keys stay as they were) and this installation's
+    executor code (a few seconds to redo)."""
     from nonprehensile import __version__
 
     labels = np.asarray(getattr(motions, "labels", ()), dtype=np.int64)
-    return _digest({
+    parts = {
         "format": _ROBOT_FORMAT, "robot": "panda", "version": __version__,
         "executor": executor_digest(robot=True),
         "object": [poly.name, _array_digest(poly.vertices)],
         "scale": round(float(scale), 9), "plan": _plan_identity(plan),
         "skills": [repr(s) for s in skills],
-        "clusters": hashlib.sha256(labels.tobytes()).hexdigest()})[:32]
+        "clusters": hashlib.sha256(labels.tobytes()).hexdigest()}
+    if angle_tol != DEFAULT_ANGLE_TOL:
+        parts["angle_tol"] = float(angle_tol)
+    return _digest(parts)[:32]
 
 
 def robot_execution(
     poly: Polyhedron, plan: Plan, motions: Any, *, scale: float, fingers: Mapping[str, str],
     skills: Sequence[Any], states: Sequence[Any], cache: Path | None = None,
+    angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> dict[str, Any]:
     """The plan executed closed loop by the bundled Panda, as ``simulate plan --robot
     panda`` runs it (base searched, one continuous simulation, transits included; re-plans
@@ -470,7 +477,7 @@ def robot_execution(
     InputError
         Without the ``robot`` extra (mink), saying how to install it.
     """
-    key = robot_key(poly, scale, plan, skills, motions)
+    key = robot_key(poly, scale, plan, skills, motions, angle_tol)
     path = cache / f"robot-{key}.pickle" if cache is not None else None
     if path is not None and path.is_file():
         try:
@@ -508,7 +515,7 @@ def robot_execution(
 
     # re-plans only with skills the arm has fingers for, as `simulate plan --robot` does
     exp = expand(poly, [s for s in skills if max(fingers_of(s), default=1) <= n_tips],
-                 list(states))
+                 list(states), angle_tol=angle_tol)
     cfg = robot_control(n_fingers=sim.n_fingers)
     ex = execute_plan(sim, plan, fingers=fingers, loop="closed",
                       replan=replanner(poly, exp, plan.goal, motions=motions, scale=scale),
