@@ -633,7 +633,11 @@ def simulate_record(skills_file: str, out_dir: str, n_per_skill: int, only: tupl
             line = (f"{name}: {st['kept']} kept of {st['tried']} takes "
                     f"({st['fragile']} fragile)")
             if st["reasons"] and name not in failures:
-                top = ", ".join(f"{n} x {k}" for k, n in list(st["reasons"].items())[:3])
+                reasons = list(st["reasons"].items())
+                top = ", ".join(f"{n} x {k}" for k, n in reasons[:3])
+                rest = sum(n for _, n in reasons[3:])
+                if rest:  # the counts shown add up to the takes that failed
+                    top += f", {rest} x other reasons (--json lists every reason)"
                 line += f"; failed takes: {top}"
             out.print(line)
         for line in failures.values():
