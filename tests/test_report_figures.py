@@ -141,3 +141,20 @@ def test_down_element_reads_face_edge_and_vertex() -> None:
     assert element.startswith("V(") and len(element.split(",")) == 3
     # within the tolerance of resting, the face itself
     assert down_element(poly, _rot_x(2.0)) == down
+
+
+def test_a_turn_between_steps_is_not_reported_at_the_end() -> None:
+    """The physics table said "at the end" for every correction push, but the closed loop
+    also turns the object back onto a step's predicted state between steps (an angle
+    block's roll landed 6.4 degrees short, was turned, then step 2 ran): each push follows
+    one transit (``turn`` or ``correction``), so the transits say when it ran. The
+    transits below are such an execution's, as `simulate plan --json` printed them."""
+    from nonprehensile.viz.physics import correction_times
+
+    transits = [{"before": "step 1"}, {"before": "turn"}, {"before": "step 2"},
+                {"before": "turn"}, {"before": "correction"}, {"before": "end"}]
+    corrections = [{"kind": "turn"}, {"kind": "turn"}, {"kind": "slide"}]
+    assert correction_times(transits, corrections) == [
+        "before step 2", "at the end", "at the end"]
+    # an execution whose transits do not pair with its pushes says nothing it cannot know
+    assert correction_times(transits[:1], corrections[:1]) == ["-"]

@@ -519,12 +519,21 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
         for rp in doc["replans"]:
             out.print(f"re-planned after step {rp['after_step']} ({rp['reason']}): "
                       + ("; ".join(rp.get("steps", [])) or rp.get("error", "")))
-        for c in doc["corrections"]:
+        # a turn before a later step is onto that step's predicted state (or the
+        # re-planner's frame), not onto the goal: each push follows one transit
+        labels = [t.get("before", "") for t in doc["transits"]]
+        before_step = [next((x for x in labels[i + 1:] if x.startswith("step ")), None)
+                       for i, x in enumerate(labels) if x in ("turn", "correction")]
+        if len(before_step) != len(doc["corrections"]):
+            before_step = [None] * len(doc["corrections"])
+        for c, nxt in zip(doc["corrections"], before_step, strict=True):
             if c["kind"] == "turn":
                 after = c["theta_error_after_deg"]
-                out.print(f"turned the object by pushing face {c['face']} off its centre: "
+                out.print(("" if nxt is None else f"before {nxt}: ")
+                          + f"turned the object by pushing face {c['face']} off its centre: "
                           f"theta {c['theta_error_before_deg']:+.1f} -> "
-                          + ("?" if after is None else f"{after:+.1f}") + " deg from the goal")
+                          + ("?" if after is None else f"{after:+.1f}")
+                          + (" deg from the goal" if nxt is None else " deg from its target"))
             else:
                 out.print(f"slid the object {1000 * c['moved_m']:.1f} mm by pushing face "
                           f"{c['face']}: {1000 * c['error_after_m']:.1f} mm from the goal "

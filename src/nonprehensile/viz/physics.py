@@ -201,6 +201,22 @@ def signals_figure(traces: Sequence[Any], *, n_fingers: int, motion_end: Sequenc
     return fig
 
 
+def correction_times(transits: Sequence[Mapping[str, Any]],
+                     corrections: Sequence[Any]) -> list[str]:
+    """When each correction push of an execution ran: ``"before step N"`` for a turn back
+    onto a step's predicted state (or onto the re-planner's frame) between steps, ``"at the
+    end"`` for the turns and slides onto the goal after the last step. Read from the
+    transits (each push is preceded by one, labelled ``turn`` or ``correction``, in the
+    order of ``corrections``); ``"-"`` for each when they do not pair up."""
+    labels = [str(t.get("before", "")) for t in transits]
+    when = []
+    for i, label in enumerate(labels):
+        if label in ("turn", "correction"):
+            nxt = next((x for x in labels[i + 1:] if x.startswith("step ")), None)
+            when.append(f"before {nxt}" if nxt else "at the end")
+    return when if len(when) == len(corrections) else ["-"] * len(corrections)
+
+
 def physics_section(
     poly: Polyhedron, plan: Plan, *, scale: float, fingers: Mapping[str, str],
     replan: Any = None,
@@ -307,13 +323,14 @@ def physics_section(
                       "retry" + (" (higher, slower)" if rp.get("higher") else "")
                       if rp.get("retry") else "re-plan", rp["reason"],
                       "; ".join(rp.get("steps", [])) or rp.get("error", "")])
-    for c in ex.corrections:
+    for c, when in zip(ex.corrections, correction_times(ex.transits, ex.corrections),
+                       strict=True):
         what = (f"theta {c['theta_error_before_deg']:+.1f} -> "
                 f"{c['theta_error_after_deg']:+.1f} deg" if c["kind"] == "turn"
                 and c["theta_error_after_deg"] is not None else
                 f"moved {1000 * c.get('moved_m', 0.0):.1f} mm, "
                 f"{1000 * c.get('error_after_m', 0.0):.1f} mm from the goal")
-        extra.append(["at the end", f"{c['kind']} push on face {c['face']}", what, ""])
+        extra.append([when, f"{c['kind']} push on face {c['face']}", what, ""])
     if extra:
         tables.append((["when", "what", "why / result", "new steps"], extra))
     section = Section(title, paras, [], tables)
