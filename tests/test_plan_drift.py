@@ -254,3 +254,7 @@ def test_the_main_job_on_a_rounded_models_dataset_takes_the_tolerance(
     (step,) = json.loads(res.stdout)["plan"]["steps"]
     assert step["motions"] and all(m["reference"] for m in step["motions"])
     assert (tmp_path / "report" / "index.html").is_file()
+    # the report is of the user's demonstrations, not "the bundled demonstrations"
+    page = (tmp_path / "report" / "index.html").read_text()
+    assert "on the demonstrations of takes:" in page
+    assert "the bundled demonstrations" not in page

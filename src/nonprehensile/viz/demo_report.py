@@ -116,11 +116,26 @@ def write_demo_report(
     return write_report(
         out, f"nonprehensile: {ds.poly.name}",
         "The whole pipeline of the paper (Integrated Object, Skill, and Motion Models for "
-        "Nonprehensile Manipulation) on the bundled demonstrations: the object model, the "
+        f"Nonprehensile Manipulation) on {_whose(ctx)}: the object model, the "
         "state-transition graph expanded by inference, the skill graphs, the clustered finger "
         "motions, and a plan between two states that were never demonstrated.",
         sections, meta=meta,
     )
+
+
+def _whose(ctx: ReportContext) -> str:
+    """Whose demonstrations the report is of: the bundled ones, or the dataset's folder."""
+    from importlib import resources
+
+    from nonprehensile.demonstrations.dataset import BUNDLED_DATASETS
+
+    root = ctx.ds.root
+    if root is None:
+        return "the bundled demonstrations"
+    data = Path(str(resources.files("nonprehensile").joinpath("data")))
+    bundled = {(data / f"{name}_demos").resolve() for name in BUNDLED_DATASETS}
+    return ("the bundled demonstrations" if Path(root).resolve() in bundled
+            else f"the demonstrations of {Path(root).name}")
 
 
 def physics_section(ctx: ReportContext) -> Section:
@@ -254,7 +269,9 @@ def motion_section(ctx: ReportContext) -> Section:
          "has it, it picks the number (the mentors' styles). Clusters are numbered from 1 on "
          "each arc, in the order of their first segment, here, in the histograms and in the "
          "plan."],
-        [(traj_png, "Fingertip trajectories of two skills with the same contact events"),
+        [(traj_png, "Fingertip trajectories of two skills with the same contact events"
+          if tumbling else "Fingertip trajectories (no two skills of this dataset share their "
+          "contact events)"),
          *[(png, f"Hilbert keys of {title}, coloured by cluster") for png, title in hists]],
         [(["arc", "skills", "motions", "segments", "clusters", ARI_HEADER], rows)],
         notes=[ARI_NOTE],
