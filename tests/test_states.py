@@ -146,3 +146,6 @@ def test_exact_text_examples() -> None:
     assert State("b", 359.999989973).exact() == "b:359.999989973"
     assert State("a", 100.0 / 3.0).exact() == "a:33.333333333"
     assert State("c", 359.9999999999).exact() == "c:0"  # within 1e-9 of 0: str's "0"
+    # never an exponent, in str either (robustness reasons read "instead of d:5.157e-06")
+    assert str(State("d", 5.157e-06)) == "d:0.000005157" == State("d", 5.157e-06).exact()
+    assert str(State("d", 1e-12)) == "d:0"

@@ -832,7 +832,9 @@ def _search(
                 seen_world.add((nxt[0], nxt[1]))
     if end is None:
         reachable = sorted(State(f, t) for f, t in seen_world)
-        shown = ", ".join(map(str, reachable[:40])) + (
+        # (in full: a rounded model's d:30.000005 is not the goal d:30, which six digits
+        # would print it as)
+        shown = ", ".join(s.exact() for s in reachable[:40]) + (
             f", ... ({len(reachable) - 40} more)" if len(reachable) > 40 else "")
         raise NoPlanError(
             f"no sequence of known skills takes {start} to {goal}, even relocating the agent "

@@ -113,6 +113,8 @@ class State:
 
     def __str__(self) -> str:
         text = f"{self.theta:g}"
+        if "e" in text:  # (a tiny angle: d:0.000005157, not d:5.157e-06)
+            text = f"{self.theta:.9f}".rstrip("0").rstrip(".")
         return f"{self.face}:{'0' if text == '360' else text}"  # 359.9999997 is not "360"
 
     def exact(self) -> str:
@@ -122,7 +124,7 @@ class State:
         prints as ``b:0``; a prism's ``a:33.333333333``), never in exponent notation. The
         form to write in a file that is checked at the default angle tolerance."""
         short = str(self)
-        if "e" not in short and angles_close(State.parse(short).theta, self.theta, 1e-9):
+        if angles_close(State.parse(short).theta, self.theta, 1e-9):
             return short
         text = f"{self.theta:.9f}".rstrip("0").rstrip(".")
         return f"{self.face}:{'0' if text == '360' else text}"
