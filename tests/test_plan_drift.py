@@ -143,10 +143,9 @@ def test_a_replan_matches_states_with_the_expansions_tolerance() -> None:
     assert len(p.steps) == 1
 
 
-def test_plan_with_a_dataset_reads_its_skills_at_the_given_tolerance(tmp_path: Path) -> None:
-    """`plan SKILLS --dataset DIR --angle-tol 1e-3`, the documented chain for a model from a
-    mesh: the skills file was read at 1e-3 but the dataset's (the same file) at the default
-    1e-6, which refused it and asked for the --angle-tol the command had been given."""
+def _rough_dataset(tmp_path: Path) -> Path:
+    """A synthetic dataset whose skills file holds the rounded model, and whose recordings end
+    on its rounding's states (as recorded from that model)."""
     from nonprehensile.demonstrations.synth import synthesize
 
     takes = tmp_path / "takes"
@@ -158,6 +157,14 @@ def test_plan_with_a_dataset_reads_its_skills_at_the_given_tolerance(tmp_path: P
     for demo in ann["demonstrations"]:  # as recorded from that model: its rounding's states
         demo["final"] = {**demo["final"], "theta": demo["final"]["theta"] + 2e-5}
     (takes / "annotations.json").write_text(json.dumps(ann))
+    return takes
+
+
+def test_plan_with_a_dataset_reads_its_skills_at_the_given_tolerance(tmp_path: Path) -> None:
+    """`plan SKILLS --dataset DIR --angle-tol 1e-3`, the documented chain for a model from a
+    mesh: the skills file was read at 1e-3 but the dataset's (the same file) at the default
+    1e-6, which refused it and asked for the --angle-tol the command had been given."""
+    takes = _rough_dataset(tmp_path)
     with pytest.raises(Exception, match="angle tolerance"):
         read_skills(takes / "skills.json")  # the rounded model drifts past the default
     args = ["plan", str(takes / "skills.json"), "--from", "a:0", "--to", "d:0", "--step", "90",
@@ -229,17 +236,7 @@ def test_the_main_job_on_a_rounded_models_dataset_takes_the_tolerance(
     pytest.importorskip("matplotlib")
     pytest.importorskip("sklearn")
     import nonprehensile.pipeline as pipeline
-    from nonprehensile.demonstrations.synth import synthesize
-
-    takes = tmp_path / "takes"
-    synthesize(takes, seed=3, n_per_skill=2, mentors=1)
-    doc = json.loads((takes / "skills.json").read_text())
-    doc["object"] = model_to_dict(ROUGH)
-    (takes / "skills.json").write_text(json.dumps(doc))
-    ann = json.loads((takes / "annotations.json").read_text())
-    for demo in ann["demonstrations"]:  # as recorded from that model: its rounding's states
-        demo["final"] = {**demo["final"], "theta": demo["final"]["theta"] + 2e-5}
-    (takes / "annotations.json").write_text(json.dumps(ann))
+    takes = _rough_dataset(tmp_path)
     # the physics sections are not what this checks (tests/test_demo.py runs them)
     monkeypatch.setattr(pipeline, "_physics_runs", lambda *a, **k: {
         "sweep": {"error": "not run here"}, "robot": {"error": "not run here"}})

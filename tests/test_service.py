@@ -392,6 +392,11 @@ def test_real_uvicorn_on_loopback(backend: str, request: pytest.FixtureRequest,
         stats = httpx.get(f"{url}/mentors/dana", timeout=30).json()
         assert stats["uploads"] == 2
         assert stats["segments"] == sum(len(r.json()["segments"]) for r in again)
+        # Ctrl-C, the documented stop: exit 0, no click "Aborted!" (the command's own
+        # listening socket once let uvicorn's re-raised interrupt reach click: exit 1)
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+        assert "Aborted" not in (proc.stderr.read().decode() if proc.stderr else "")
     finally:
         proc.send_signal(signal.SIGINT)
         try:

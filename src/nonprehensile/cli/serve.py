@@ -9,6 +9,7 @@ prints a new bearer token once (the database keeps only its hash). STORE is a
 from __future__ import annotations
 
 import socket
+import sys
 from typing import Any
 
 import click
@@ -83,25 +84,31 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
     # the listening socket first: an address in use or unknown is bad input (exit 2, one
     # line naming the option), not uvicorn's own exit 3 after the store was opened
     sock = _listen(host, port)
+    pool = None
     try:
         pool = make_pool(store, max_size=workers + 2)
-    except BaseException:
-        sock.close()
-        raise
-    config = ServiceConfig(display_name(store), max_bytes=max_bytes,
-                           recalibrate_every=recalibrate_every)
-    app = create_app(pool, template, config)
-    port = int(sock.getsockname()[1])  # --port 0: the port the system chose
-    err.print(f"serving {display_name(store)} on http://{host}:{port} (OpenAPI at "
-              f"/openapi.json, docs at /docs); Ctrl-C stops")
-    try:
+        config = ServiceConfig(display_name(store), max_bytes=max_bytes,
+                               recalibrate_every=recalibrate_every)
+        app = create_app(pool, template, config)
+        port = int(sock.getsockname()[1])  # --port 0: the port the system chose
+        err.print(f"serving {display_name(store)} on http://{host}:{port} (OpenAPI at "
+                  f"/openapi.json, docs at /docs); Ctrl-C stops")
         server = uvicorn.Server(uvicorn.Config(
             app, host=host, port=port, log_level="warning", workers=1,
             limit_concurrency=max(16, 4 * workers), timeout_keep_alive=30))
-        server.run(sockets=[sock])
+        try:
+            server.run(sockets=[sock])
+        except KeyboardInterrupt:
+            # Ctrl-C, the documented stop: uvicorn has shut down gracefully and re-raised
+            # the interrupt (``uvicorn.run`` catches it likewise); exit 0, not click's
+            # "Aborted!" and 1
+            return
+        if not server.started:  # (uvicorn.run's rule: a server that never started is 3)
+            sys.exit(3)
     finally:
         sock.close()
-        pool.close()
+        if pool is not None:
+            pool.close()
 
 
 def _listen(host: str, port: int) -> socket.socket:
