@@ -159,8 +159,20 @@ def test_usage_errors_are_one_line(args: list[str]) -> None:
 
 
 def test_a_group_without_a_command_still_shows_its_help() -> None:
+    # click's "no arguments: the help" shows itself, not as a one-line error
     r = CliRunner().invoke(main, ["simulate"])
-    assert "Usage:" in r.output and "robustness" in r.output
+    assert r.exit_code == 2 and r.stderr.startswith("Usage:") and "robustness" in r.stderr
+    assert "error:" not in r.stderr
+
+
+def test_a_usage_error_keeps_its_type_without_standalone_mode() -> None:
+    # a program running the command tree without click's standalone mode still catches
+    # click's own exception types (BadParameter, NoSuchOption)
+    with pytest.raises(click.BadParameter) as got:
+        main.main(["maneuvers", "cube", "--from", "zz"], standalone_mode=False)
+    assert got.value.param is not None and got.value.param.name == "start"
+    with pytest.raises(click.NoSuchOption):
+        main.main(["plan", "--no-such-option"], standalone_mode=False)
 
 
 @pytest.mark.parametrize("theta", ["1e300", "-1e7", "1000000"])

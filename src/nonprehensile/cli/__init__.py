@@ -30,6 +30,7 @@ existing group (``dataset annotate``) is added in that group's module as usual
 from __future__ import annotations
 
 import atexit
+import functools
 import importlib
 import inspect
 import os
@@ -41,8 +42,7 @@ from typing import Any, NoReturn
 
 import click
 
-__all__ = ["COMMANDS", "HelpGroup", "LazyGroup", "OneLineUsageError", "first_sentence",
-           "main", "one_line", "run"]
+__all__ = ["COMMANDS", "HelpGroup", "LazyGroup", "first_sentence", "main", "one_line", "run"]
 
 #: Command name -> ("module:attribute" of the click command, its one-line help).
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -146,29 +146,25 @@ class HelpGroup(click.Group):
 HelpGroup.group_class = type  # subgroups are HelpGroups too
 
 
-class OneLineUsageError(click.UsageError):
+def _show_one_line(exc: click.UsageError, file: Any = None) -> None:
     """click's usage error (an unknown option, a path option given a folder, a value a
     callback refuses) shown as the library's errors are: one line on stderr, ``error:
     Invalid value for '--to': expected a state written FACE:THETA (e.g. a:90), got 'zz'
     (nonprehensile plan --help)``, exit 2; click's usual usage text and hint around it made
     four lines."""
-
-    def __init__(self, exc: click.UsageError) -> None:
-        super().__init__(exc.format_message(), exc.ctx)  # (exit code 2, as click's)
-
-    def show(self, file: Any = None) -> None:
-        where = self.ctx.command_path if self.ctx is not None else "nonprehensile"
-        click.echo(click.style("error: ", fg="red", bold=True)
-                   + f"{self.format_message()} ({where} --help)", file=file, err=file is None)
+    where = exc.ctx.command_path if exc.ctx is not None else "nonprehensile"
+    click.echo(click.style("error: ", fg="red", bold=True)
+               + f"{exc.format_message()} ({where} --help)", file=file, err=file is None)
 
 
 def one_line(exc: click.UsageError) -> click.UsageError:
-    """``exc`` as a :class:`OneLineUsageError`; an error that shows itself its own way (an
-    option value's, ``OptionError``, already one line; click's "no arguments: the help") as
-    it is."""
-    if type(exc).show is not click.UsageError.show:
-        return exc
-    return OneLineUsageError(exc)
+    """``exc`` itself (its type, ``param`` and cause kept, for a caller that runs click
+    without its standalone mode), shown on one line (:func:`_show_one_line`); an error that
+    shows itself its own way (an option value's, ``OptionError``, already one line; click's
+    "no arguments: the help") as it was."""
+    if type(exc).show is click.UsageError.show:
+        exc.show = functools.partial(_show_one_line, exc)  # type: ignore[method-assign]
+    return exc
 
 
 class LazyGroup(HelpGroup):
@@ -176,7 +172,7 @@ class LazyGroup(HelpGroup):
 
     ``--help`` lists the commands with the one-line help of :data:`COMMANDS` and imports
     nothing; ``nonprehensile NAME ...`` imports NAME's module only. Usage errors anywhere in
-    the tree are one line (:class:`OneLineUsageError`).
+    the tree are one line (:func:`one_line`).
     """
 
     def make_context(self, info_name: str | None, args: list[str],
@@ -184,13 +180,15 @@ class LazyGroup(HelpGroup):
         try:
             return super().make_context(info_name, args, parent, **extra)
         except click.UsageError as exc:  # (this group's own options and arguments)
-            raise one_line(exc) from None
+            one_line(exc)
+            raise
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
             return super().invoke(ctx)
         except click.UsageError as exc:  # (a command's parsing, and what its callback raises)
-            raise one_line(exc) from None
+            one_line(exc)
+            raise
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return sorted({*COMMANDS, *super().list_commands(ctx)})
