@@ -429,6 +429,9 @@ def test_a_folder_without_annotations_is_named_once(tmp_path: Path) -> None:
         with pytest.raises(DemonstrationError) as info:
             load_dataset(path)
         assert str(info.value).count(path) == 1 and what in str(info.value), info.value
+    with pytest.raises(DemonstrationError) as info:  # a trailing slash: named once too
+        load_dataset(f"{tmp_path / 'empty'}/")
+    assert str(info.value).count(str(tmp_path / "empty")) == 1, info.value
     res = CliRunner().invoke(dataset_group, ["export", str(tmp_path / "empty"),
                                              str(tmp_path / "out")])
     assert res.exit_code == 2 and res.stderr.count(str(tmp_path / "empty")) == 1, res.stderr

@@ -65,6 +65,7 @@ __all__ = [
     "check_dataset",
     "dataset_path",
     "dataset_summary",
+    "headed",
     "load_dataset",
     "not_checked",
     "save_dataset",
@@ -916,7 +917,9 @@ def headed(path: str | Path, problem: Problem) -> str:
     """``PATH: problem``, without naming the path twice when the problem is the folder's own
     (``my_takes: my_takes: no annotations file`` read as a stutter)."""
     text = str(problem)
-    return text if text.startswith(f"{path}: ") else f"{path}: {text}"
+    # the path as given and as the problem may name it (``empty/`` is named ``empty``)
+    names = {str(path), str(Path(path))}
+    return text if any(text.startswith(f"{n}: ") for n in names) else f"{path}: {text}"
 
 
 # -------------------------------------------------------------------------------- writing
