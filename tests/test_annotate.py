@@ -337,3 +337,15 @@ def test_annotating_again_over_the_input_loses_no_recording(tmp_path: Path) -> N
     kept = load_document(takes / "annotations.recordings.json")
     assert len(kept["demonstrations"]) == 6  # every recording the user listed
     assert "twist" in {d.skill.name for d in load_dataset(takes).demonstrations}
+    assert "re-annotating 1 recording(s)" in res.stderr  # said, not done quietly
+    # a recording deleted since is left out with a note, not an error naming a file the
+    # input no longer lists
+    ann = load_document(takes / "annotations.json")
+    gone = ann["demonstrations"][0]["file"]
+    (takes / gone).unlink()
+    save_document({**ann, "demonstrations": ann["demonstrations"][1:]},
+                  takes / "annotations.json")
+    res = runner.invoke(main, args)
+    assert res.exit_code == 0, res.output
+    assert f"no longer in the folder and are left out: {gone}" in res.stderr
+    assert json.loads(res.stdout)["n_annotated"] == 5

@@ -27,17 +27,27 @@ __all__ = ["annotate_cmd"]
 _MM = number(0.0, 1000.0, low_open=True, unit="mm")
 
 
-def _with_kept_recordings(data: Any, kept: Any) -> Any:
+def _with_kept_recordings(data: Any, kept: Any, root: Path
+                          ) -> tuple[Any, list[str], list[str]]:
     """The annotations ``data`` (an earlier run's output) with the recordings of the kept
-    list ``kept`` that it does not name added back; ``data`` itself when either is not an
-    annotations document (the annotator then says what is wrong with it)."""
+    list ``kept`` that it does not name added back, and the files added back and those left
+    out because they are no longer in the folder ``root``; ``data`` itself when either is not
+    an annotations document (the annotator then says what is wrong with it)."""
     if not (isinstance(data, dict) and isinstance(data.get("demonstrations"), list)
             and isinstance(kept, dict) and isinstance(kept.get("demonstrations"), list)):
-        return data
+        return data, [], []
     named = {d.get("file") for d in data["demonstrations"] if isinstance(d, dict)}
-    extra = [d for d in kept["demonstrations"]
-             if isinstance(d, dict) and d.get("file") not in named]
-    return {**data, "demonstrations": [*data["demonstrations"], *extra]}
+    extra, gone = [], []
+    for d in kept["demonstrations"]:
+        if not isinstance(d, dict) or d.get("file") in named:
+            continue
+        f = d.get("file")
+        if isinstance(f, str) and not (root / f).is_file():
+            gone.append(f)  # (deleted since: not a recording to annotate any more)
+        else:
+            extra.append(d)
+    return ({**data, "demonstrations": [*data["demonstrations"], *extra]},
+            [str(d.get("file")) for d in extra], gone)
 
 
 @click.command("annotate")
@@ -110,7 +120,18 @@ def annotate_cmd(
         # an earlier run wrote over the input and kept the recordings list beside it: the
         # recordings that run left out (they fit no skill then) are annotated again, and the
         # kept list is never replaced by one that lacks them
-        recordings = _with_kept_recordings(load_document(source), load_document(keep))
+        recordings, added, gone = _with_kept_recordings(load_document(source),
+                                                        load_document(keep), source.parent)
+        if added:  # said: a recording removed from the input alone comes back from here
+            err.print(f"re-annotating {len(added)} recording(s) of {keep} that {source.name} "
+                      f"does not list: {', '.join(added[:10])}"
+                      + (" ..." if len(added) > 10 else "")
+                      + " (to drop one for good, remove it from both files)", markup=False,
+                      highlight=False)
+        if gone:
+            err.print(f"note: {len(gone)} recording(s) of {keep} are no longer in the folder "
+                      f"and are left out: {', '.join(gone[:10])}"
+                      + (" ..." if len(gone) > 10 else ""), markup=False, highlight=False)
     with progress_bar("annotating", as_json) as update:
         report = annotate_dataset(root, relative_to=dest.parent, params=params,
                                   progress=update, namer=namer,
