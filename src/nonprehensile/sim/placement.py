@@ -39,8 +39,8 @@ from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY
 from nonprehensile.sim.robot_scene import Arm, build_robot_scene
 from nonprehensile.sim.scene import DEFAULT_PARAMS, SimParams
 
-__all__ = ["JointTrajectory", "Placement", "joint_trajectory", "place_base", "plan_targets",
-           "transit_path", "write_joint_trajectories"]
+__all__ = ["SETTLE_S", "JointTrajectory", "Placement", "joint_trajectory", "place_base",
+           "plan_targets", "transit_path", "write_joint_trajectories"]
 
 FloatArray = NDArray[np.float64]
 
@@ -304,7 +304,37 @@ def joint_trajectory(
     at up to 1.5 rad/s on that jump. ``finger_direction="recorded"`` points each finger tool
     along its recorded finger (knuckle to tip, :func:`~nonprehensile.step_paths.
     step_directions`) where the references carry knuckle markers; ``"lean"`` (the default),
-    the IK's rule."""
+    the IK's rule.
+
+    Parameters
+    ----------
+    arms : sequence of Arm
+    poly : Polyhedron
+    scale : float
+        Metres per model unit.
+    plan : Plan
+    fingers : mapping of str to str
+        The dataset's finger markers (``R1`` ...).
+    params : SimParams
+        The scene's (its timestep sets the control period with ``control_every``).
+    ik_config : IKConfig, optional
+    control_every : int
+        Physics steps per control step (row).
+    finger_direction : {"lean", "recorded"}
+    config : ControlConfig, optional
+        The transits' clearance and bounds, through
+        :func:`~nonprehensile.sim.robot_run.robot_control` (default: its defaults).
+    settle_s : float
+        Longest hold on a part's last target for the joints to come to rest, s.
+
+    Returns
+    -------
+    list of JointTrajectory
+        ``step1``, ``transit2``, ``step2``, ..., then ``plan``. A step without a planned
+        start pose (a plan built by hand) has no transit before it: its IK starts from the
+        last step's end. Fingers the next step does not use move with the transit only where
+        their target changes; the executor sends them home instead.
+    """
     from nonprehensile.sim.robot_driver import REST_SPEED, check_finger_direction
     from nonprehensile.sim.robot_run import robot_control
     from nonprehensile.step_paths import step_directions
@@ -383,7 +413,7 @@ def joint_trajectory(
             ik.converge(x[0])
             placed = True
         run(f"step{i + 1}", x, dirs)
-        last = arr[-1]
+        last = x[-1]  # (the IK's last target: the reference resampled at the control rate)
     if out:
         out.append(JointTrajectory(
             "plan", np.concatenate([j.time for j in out]),
