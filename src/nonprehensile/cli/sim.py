@@ -520,16 +520,15 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
             out.print(f"re-planned after step {rp['after_step']} ({rp['reason']}): "
                       + ("; ".join(rp.get("steps", [])) or rp.get("error", "")))
         # a turn before a later step is onto that step's predicted state (or the
-        # re-planner's frame), not onto the goal: each push follows one transit
-        labels = [t.get("before", "") for t in doc["transits"]]
-        before_step = [next((x for x in labels[i + 1:] if x.startswith("step ")), None)
-                       for i, x in enumerate(labels) if x in ("turn", "correction")]
-        if len(before_step) != len(doc["corrections"]):
-            before_step = [None] * len(doc["corrections"])
-        for c, nxt in zip(doc["corrections"], before_step, strict=True):
+        # re-planner's frame), not onto the goal (the report's table reads it alike)
+        from nonprehensile.viz.physics import correction_times
+
+        whens = correction_times(doc["transits"], doc["corrections"])
+        for c, when in zip(doc["corrections"], whens, strict=True):
+            nxt = when if when.startswith("before ") else None
             if c["kind"] == "turn":
                 after = c["theta_error_after_deg"]
-                out.print(("" if nxt is None else f"before {nxt}: ")
+                out.print(("" if nxt is None else f"{nxt}: ")
                           + f"turned the object by pushing face {c['face']} off its centre: "
                           f"theta {c['theta_error_before_deg']:+.1f} -> "
                           + ("?" if after is None else f"{after:+.1f}")
