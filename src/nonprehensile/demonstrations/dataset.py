@@ -62,6 +62,7 @@ __all__ = [
     "Demonstration",
     "EventTime",
     "Problem",
+    "bundled_path",
     "check_dataset",
     "dataset_path",
     "dataset_summary",
@@ -280,6 +281,12 @@ class Dataset:
 # ------------------------------------------------------------------------------ locating
 
 
+def bundled_path(name: str) -> Path:
+    """The folder of the bundled dataset ``name`` (one of :data:`BUNDLED_DATASETS`)."""
+    # the package is installed as plain files (editable or wheel), so the folder exists
+    return Path(str(resources.files("nonprehensile").joinpath("data", f"{name}_demos")))
+
+
 def dataset_path(spec: str | Path) -> Path:
     """A dataset folder from a path, or a bundled dataset by name (``"cube"``).
 
@@ -292,8 +299,7 @@ def dataset_path(spec: str | Path) -> Path:
     if path.exists():
         return path
     if str(spec) in BUNDLED_DATASETS:
-        # the package is installed as plain files (editable or wheel), so the folder exists
-        return Path(str(resources.files("nonprehensile").joinpath("data", f"{spec}_demos")))
+        return bundled_path(str(spec))
     raise InputError(
         f"{spec}: no such dataset folder (bundled datasets: {', '.join(BUNDLED_DATASETS)})"
     )

@@ -125,15 +125,12 @@ def write_demo_report(
 
 def _whose(ctx: ReportContext) -> str:
     """Whose demonstrations the report is of: the bundled ones, or the dataset's folder."""
-    from importlib import resources
-
-    from nonprehensile.demonstrations.dataset import BUNDLED_DATASETS
+    from nonprehensile.demonstrations.dataset import BUNDLED_DATASETS, bundled_path
 
     root = ctx.ds.root
     if root is None:
         return "the bundled demonstrations"
-    data = Path(str(resources.files("nonprehensile").joinpath("data")))
-    bundled = {(data / f"{name}_demos").resolve() for name in BUNDLED_DATASETS}
+    bundled = {bundled_path(name).resolve() for name in BUNDLED_DATASETS}
     return ("the bundled demonstrations" if Path(root).resolve() in bundled
             else f"the demonstrations of {Path(root).name}")
 
