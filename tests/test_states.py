@@ -42,6 +42,14 @@ def test_bad_state_text(text: str) -> None:
         State.parse(text)
 
 
+@pytest.mark.parametrize("theta", ["1e300", "-1e7", "1000000"])
+def test_parse_refuses_an_angle_past_a_million_degrees(theta: str) -> None:
+    # reduced modulo 360 such an angle has lost its digits: State.parse("a:1e300") was a:0
+    with pytest.raises(StateError, match="below 1e\\+06"):
+        State.parse(f"a:{theta}")
+    assert State.parse("a:999999.5") == State("a", 999999.5)
+
+
 def test_bad_state_values() -> None:
     with pytest.raises(StateError, match="finite"):
         State("a", float("nan"))

@@ -136,7 +136,8 @@ class State:
         Raises
         ------
         StateError
-            If ``text`` is not of that form.
+            If ``text`` is not of that form, or its theta is not below
+            :data:`MAX_STATE_DEG` in magnitude.
         """
         m = _STATE_RE.match(text)
         if not m:
@@ -147,6 +148,10 @@ class State:
             raise StateError(
                 f"expected a state written FACE:THETA (e.g. a:90), got {text!r}"
             ) from None
+        if math.isfinite(theta) and abs(theta) >= MAX_STATE_DEG:
+            # reduced modulo 360 such an angle has lost its digits (1e300 degrees read as 0)
+            raise StateError(f"expected a state's theta in degrees below {MAX_STATE_DEG:g} in "
+                             f"magnitude (write it within one turn, 0 to 360), got {text!r}")
         return cls(m.group(1), theta)
 
     def to_dict(self) -> dict[str, object]:

@@ -207,16 +207,9 @@ states_option = click.option("--states", "states_file", type=click.Path(dir_okay
 
 
 def parse_state(ctx: click.Context, param: click.Parameter, value: str) -> State:
-    from nonprehensile.states import MAX_STATE_DEG, State
+    from nonprehensile.states import State
 
     try:
-        state = State.parse(value)
+        return State.parse(value)
     except InputError as exc:
         raise click.BadParameter(str(exc)) from None
-    theta = float(value.rsplit(":", 1)[1])
-    if abs(theta) >= MAX_STATE_DEG:
-        # reduced modulo 360 such an angle has lost its digits (1e300 degrees read as 0)
-        raise click.BadParameter(f"expected a state's theta in degrees below "
-                                 f"{MAX_STATE_DEG:g} in magnitude (write it within one turn, "
-                                 f"0 to 360), got {value!r}")
-    return state
