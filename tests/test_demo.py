@@ -231,6 +231,36 @@ def test_motion_library_is_built_once_and_rebuilt_when_a_file_changes(
     assert len(built) == 5
 
 
+def test_motion_library_is_kept_per_angle_tolerance(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A library built at one --angle-tol is not reused at another (the dataset's skills and
+    states were read at it); at the same tolerance it is."""
+    import nonprehensile.pipeline as pipeline
+    from nonprehensile.demonstrations.synth import synthesize
+    from nonprehensile.states import DEFAULT_ANGLE_TOL
+
+    root = tmp_path / "ds"
+    synthesize(root, seed=5, n_per_skill=2, mentors=2, dropouts=0.0)
+    built = []
+    real = pipeline.cluster_segments
+
+    def counting(*args: object, **kwargs: object) -> object:
+        built.append(1)
+        return real(*args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(pipeline, "cluster_segments", counting)
+    cache = tmp_path / "cache"
+    pipeline.motions_from_dataset(root, cache=cache)  # the default tolerance
+    assert len(built) == 1
+    pipeline.motions_from_dataset(root, cache=cache, angle_tol=0.5)  # another: rebuilt
+    assert len(built) == 2 and len(list(cache.glob("motions-*.pickle"))) == 2
+    pipeline.motions_from_dataset(root, cache=cache, angle_tol=0.5)  # the same: kept
+    pipeline.motions_from_dataset(root, cache=cache, angle_tol=DEFAULT_ANGLE_TOL)
+    assert len(built) == 2
+    assert pipeline._dataset_key(root, 0) != pipeline._dataset_key(root, 0, 0.5)
+
+
 def test_demo_report_has_the_robustness_and_robot_sections(
     demo_run: tuple[Path, dict[str, object]], demo_cache: Path,
 ) -> None:

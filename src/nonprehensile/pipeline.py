@@ -222,8 +222,9 @@ def motions_from_dataset(
 
     The result is built once per dataset and kept in a cache folder (``cache``: a folder,
     True for :func:`cache_dir`, False for none). It is keyed by the size and modification
-    time of every file in the dataset folder, the seed and the package version, so a changed,
-    added or removed file rebuilds it.
+    time of every file in the dataset folder, the seed, the package version and ``angle_tol``
+    (the dataset's skills and states are read at it), so a changed, added or removed file, or
+    another tolerance, rebuilds it.
 
     Raises
     ------
@@ -231,7 +232,7 @@ def motions_from_dataset(
         Another object, or a skill of the same name demonstrated differently.
     """
     folder = cache_dir() if cache is True else (Path(cache) if cache else None)
-    cached = _cached_motions(dataset, seed, folder)
+    cached = _cached_motions(dataset, seed, folder, angle_tol)
     if cached is not None:
         ds, motions = cached
         progress("loading", 1, 1)
@@ -243,7 +244,7 @@ def motions_from_dataset(
     _, segments = segment_dataset(ds)
     with one_thread():
         motions, _ = cluster_segments(segments, seed=seed, progress=progress)
-    _store_motions(dataset, seed, folder, (ds, motions))
+    _store_motions(dataset, seed, folder, (ds, motions), angle_tol)
     return ds, motions
 
 
@@ -266,9 +267,10 @@ def cache_dir() -> Path:
     return Path(base) / "nonprehensile"
 
 
-def _dataset_key(dataset: str | Path, seed: int) -> str | None:
-    """A digest of every file of the dataset folder (path, size, mtime), the seed and the
-    versions; None when the folder cannot be listed."""
+def _dataset_key(dataset: str | Path, seed: int,
+                 angle_tol: float = DEFAULT_ANGLE_TOL) -> str | None:
+    """A digest of every file of the dataset folder (path, size, mtime), the seed, the
+    versions and the angle tolerance it is read at; None when the folder cannot be listed."""
     from nonprehensile.demonstrations.dataset import dataset_path
 
     try:
@@ -279,16 +281,23 @@ def _dataset_key(dataset: str | Path, seed: int) -> str | None:
         )
     except (OSError, InputError):
         return None
-    h = hashlib.sha256(repr((_CACHE_FORMAT, _version(), str(root), seed, MIN_CLUSTERED,
-                             entries)).encode())
+    parts: tuple[Any, ...] = (_CACHE_FORMAT, _version(), str(root), seed, MIN_CLUSTERED,
+                              entries)
+    # the dataset's skills and states are checked (and a skill's maneuver classified) at this
+    # tolerance: a library read at another must not stand in for this one. Only a tolerance
+    # other than the default joins the key, so libraries kept at the default stay valid
+    if angle_tol != DEFAULT_ANGLE_TOL:
+        parts += (("angle_tol", float(angle_tol)),)
+    h = hashlib.sha256(repr(parts).encode())
     return h.hexdigest()[:32]
 
 
-def _cached_motions(dataset: str | Path, seed: int, folder: Path | None
+def _cached_motions(dataset: str | Path, seed: int, folder: Path | None,
+                    angle_tol: float = DEFAULT_ANGLE_TOL
                     ) -> tuple[Dataset, ClusteredMotions] | None:
     if folder is None:
         return None
-    key = _dataset_key(dataset, seed)
+    key = _dataset_key(dataset, seed, angle_tol)
     path = folder / f"motions-{key}.pickle"
     if key is None or not path.is_file():
         return None
@@ -305,8 +314,9 @@ def _cached_motions(dataset: str | Path, seed: int, folder: Path | None
 
 
 def _store_motions(dataset: str | Path, seed: int, folder: Path | None,
-                   value: tuple[Dataset, ClusteredMotions]) -> None:
-    key = _dataset_key(dataset, seed) if folder is not None else None
+                   value: tuple[Dataset, ClusteredMotions],
+                   angle_tol: float = DEFAULT_ANGLE_TOL) -> None:
+    key = _dataset_key(dataset, seed, angle_tol) if folder is not None else None
     if folder is None or key is None:
         return
     try:
