@@ -81,6 +81,25 @@ def test_the_sweep_is_kept_and_shipped_by_what_it_sweeps(main_job: dict[str, Any
     assert _sweep(main_job, samples=1, cache=None, shipped=ship)["source"] == "computed"
 
 
+def test_a_sweep_kept_at_one_angle_tol_is_not_used_at_another(main_job: dict[str, Any],
+                                                             tmp_path: Path) -> None:
+    """The closed loop re-plans over the expansion, whose states were matched at
+    ``--angle-tol``: a sweep kept at one tolerance is run again at another, and kept at
+    each."""
+    cache = tmp_path / "cache"
+    ds = main_job["ds"]
+    loose = expand(ds.poly, list(ds.skills), main_job["states"], angle_tol=0.5)
+    first = _sweep(main_job, samples=1, cache=cache, shipped=None)  # the default tolerance
+    assert first["source"] == "computed"
+    other = _sweep({**main_job, "exp": loose}, samples=1, cache=cache, shipped=None)
+    assert other["source"] == "computed" and other["key"] != first["key"]
+    assert len(list(cache.glob("sweep-*.json"))) == 2
+    assert _sweep({**main_job, "exp": loose}, samples=1, cache=cache,
+                  shipped=None)["source"] == "cache"
+    again = _sweep(main_job, samples=1, cache=cache, shipped=None)
+    assert again["source"] == "cache" and again["key"] == first["key"]
+
+
 def test_write_sweep_to_a_folder_one_cannot_write_is_one_line_and_exit_2(
         tmp_path: Path) -> None:
     from click.testing import CliRunner

@@ -7,8 +7,9 @@
   (``data/demo_sweep.json``, written by ``nonprehensile demo --write-sweep FILE``, with its
   command, commit, seed and sample count), and it is used only when it is for the same
   sweep: the same plan (steps, references), skills, motion clusters, distribution, seed,
-  samples, loops and tolerances (:func:`sweep_key`). Otherwise the sweep is run and kept in
-  the cache folder (:func:`nonprehensile.pipeline.cache_dir`), as the motion library is.
+  samples, loops and tolerances, the states' ``--angle-tol`` among them (:func:`sweep_key`).
+  Otherwise the sweep is run and kept in the cache folder
+  (:func:`nonprehensile.pipeline.cache_dir`), as the motion library is.
 * :func:`robot_execution`: the plan executed closed loop by the bundled Panda (the base
   searched, one continuous simulation with transits, as ``simulate plan --robot panda``),
   with the robot's per-control-step records and the arm's joint positions at a few
@@ -111,19 +112,30 @@ def _plan_identity(plan: Plan) -> dict[str, Any]:
 
 def sweep_key(poly: Polyhedron, scale: float, plan: Plan, skills: Sequence[Any],
               motions: Any, distribution: Any, *, seed: int, samples: int,
-              loops: Sequence[str], angle_tol: float, position_tol: float) -> str:
+              loops: Sequence[str], angle_tol: float, position_tol: float,
+              states_angle_tol: float = DEFAULT_ANGLE_TOL) -> str:
     """What a plan's sweep is for, as a digest: the object, the plan (its steps and
     reference motions), the skills, the motion library's clusters (the re-planner's
-    references), the distribution, seed, samples, loops and tolerances."""
+    references), the distribution, seed, samples, loops and tolerances.
+
+    ``angle_tol`` and ``position_tol`` are the executor's (when a step counts as done);
+    ``states_angle_tol`` is the tolerance the states were matched at (``--angle-tol``: the
+    dataset's skills and states, the expansion the closed loop re-plans over). It joins the
+    key only when it is not the default, so that sweeps kept or shipped at the default (the
+    package's ``data/demo_sweep.json``) keep their keys.
+    """
     labels = np.asarray(getattr(motions, "labels", ()), dtype=np.int64)
-    return _digest({
+    parts: dict[str, Any] = {
         "format": _FORMAT, "object": [poly.name, _array_digest(poly.vertices),
                                       sorted(poly.faces)], "scale": round(float(scale), 9),
         "plan": _plan_identity(plan), "skills": [repr(s) for s in skills],
         "clusters": hashlib.sha256(labels.tobytes()).hexdigest(),
         "segments": len(labels), "distribution": distribution.to_dict(), "seed": int(seed),
         "samples": int(samples), "loops": list(loops), "angle_tol": float(angle_tol),
-        "position_tol": float(position_tol)})[:32]
+        "position_tol": float(position_tol)}
+    if states_angle_tol != DEFAULT_ANGLE_TOL:
+        parts["states_angle_tol"] = float(states_angle_tol)
+    return _digest(parts)[:32]
 
 
 def executor_digest(root: Path | None = None, *, robot: bool = False) -> str:
@@ -305,7 +317,8 @@ def plan_sweep(
     distribution = DEFAULT_DISTRIBUTION.for_object(poly, scale)
     key = sweep_key(poly, scale, plan, skills, motions, distribution, seed=seed,
                     samples=samples, loops=DEMO_SWEEP_LOOPS, angle_tol=DEFAULT_ANGLE_TOL_DEG,
-                    position_tol=DEFAULT_POSITION_TOL)
+                    position_tol=DEFAULT_POSITION_TOL,
+                    states_angle_tol=expansion.angle_tol)
     current = executor_digest()
     candidates: list[tuple[str, Path]] = []
     if write is None:
