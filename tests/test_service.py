@@ -1,6 +1,6 @@
 """The demonstration service: tokens, uploads validated as `dataset show` validates,
 idempotency, mentors' data, size limit, background recalibration, listings, a schema fuzz, and
-one real uvicorn on 127.0.0.1."""
+real uvicorns on 127.0.0.1 and on localhost (each of its addresses)."""
 
 from __future__ import annotations
 
@@ -495,3 +495,140 @@ def test_serve_on_a_taken_port_or_unknown_host_is_bad_input(tmp_path: Path) -> N
                                   "--port", "0"])
     assert r.exit_code == 2 and "--host" in r.stderr and "999.1.1.1" in r.stderr, r.output
     assert len(r.stderr.strip().splitlines()) == 1 and not store.exists()
+
+
+#: ``python -c`` for a server on a machine whose ``localhost`` is ``::1`` first, then
+#: ``127.0.0.1`` (the hosts file of many Linux distributions, and macOS): ``localhost``
+#: resolves so, everything else as the system resolves it.
+_IPV6_FIRST = """
+import socket, sys
+real = socket.getaddrinfo
+def getaddrinfo(host, *args, **kwargs):
+    if host == "localhost":
+        return real("::1", *args, **kwargs) + real("127.0.0.1", *args, **kwargs)
+    return real(host, *args, **kwargs)
+socket.getaddrinfo = getaddrinfo
+from nonprehensile.cli import main
+sys.exit(main())
+"""
+
+
+def _ipv6_loopback() -> bool:
+    """Whether this machine can listen on ``::1``."""
+    try:
+        with socket.socket(socket.AF_INET6) as s:
+            s.bind(("::1", 0))
+    except OSError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("address", ["127.0.0.1", "::1"])
+def test_serve_on_localhost_listens_on_each_of_its_addresses(address: str,
+                                                             tmp_path: Path) -> None:
+    """``--host localhost`` where localhost is ``::1`` first: http://127.0.0.1:PORT/ and
+    http://localhost:PORT/ answer (only ``::1`` was bound: refused), and so does
+    http://[::1]:PORT/ where this machine has IPv6; Ctrl-C stops it with exit 0."""
+    import re
+    import threading
+
+    import httpx
+
+    if address == "::1" and not _ipv6_loopback():
+        pytest.skip("this machine cannot listen on ::1 (no IPv6 loopback): the IPv6 half of "
+                    "localhost is not checked here; the 127.0.0.1 case still is")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _IPV6_FIRST, "serve", "--store", str(tmp_path / "svc.db"),
+         "--host", "localhost", "--port", "0", "--recalibrate-every", "0"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+    said: list[str] = []
+    assert proc.stderr is not None
+    reader = threading.Thread(target=lambda: said.extend(proc.stderr or ()), daemon=True)
+    reader.start()
+    try:
+        port = None
+        for _ in range(600):  # --port 0: the port it chose is on its "serving" line
+            found = re.search(r"http://localhost:(\d+)", "".join(said))
+            if found or proc.poll() is not None:
+                port = found and int(found.group(1))
+                break
+            time.sleep(0.05)
+        assert port, "the server did not say where it serves: " + "".join(said)[:500]
+        host = f"[{address}]" if ":" in address else address
+        urls = [f"http://{host}:{port}/health"]
+        if address == "127.0.0.1":
+            urls.append(f"http://localhost:{port}/health")
+        for url in urls:
+            for _ in range(100):  # listening since before the line; the app may start late
+                try:
+                    r = httpx.get(url, timeout=2)
+                    break
+                except httpx.ConnectError:
+                    if proc.poll() is not None:
+                        break
+                    time.sleep(0.1)
+            else:
+                pytest.fail(f"{url}: refused")
+            assert proc.poll() is None, "".join(said)[:500]
+            assert r.status_code == 200, (url, r.text[:200])
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        reader.join(timeout=5)
+
+
+def test_listening_on_several_addresses(monkeypatch: pytest.MonkeyPatch,
+                                        tmp_path: Path) -> None:
+    """The sockets behind --host: an address this machine does not have is left out when
+    another is bound (localhost's ::1 on a machine without IPv6); a port taken on any of
+    them is exit 2, one line, every socket closed, no store made."""
+    from nonprehensile.cli import serve
+
+    # 192.0.2.1 (TEST-NET-1, RFC 5737) is nobody's address: EADDRNOTAVAIL, as ::1 without IPv6
+    socks = serve._bind_all([(socket.AF_INET, ("192.0.2.1", 0)),
+                             (socket.AF_INET, ("127.0.0.1", 0))])
+    try:
+        assert [s.getsockname()[0] for s in socks] == ["127.0.0.1"]
+    finally:
+        for s in socks:
+            s.close()
+    with pytest.raises(OSError):
+        serve._bind_all([(socket.AF_INET, ("192.0.2.1", 0))])
+
+    real = socket.getaddrinfo
+    # localhost as two addresses of which the second is taken (another program's server)
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        try:
+            with socket.socket() as probe:
+                probe.bind(("127.0.0.2", 0))
+        except OSError:
+            pytest.skip("no 127.0.0.2 on this machine (Linux answers on all of 127/8): the "
+                        "port taken on a second address is not checked; the rest was")
+
+        def two(host: str, *args: Any, **kwargs: Any) -> Any:
+            if host == "localhost":
+                return real("127.0.0.2", *args, **kwargs) + real("127.0.0.1", *args, **kwargs)
+            return real(host, *args, **kwargs)
+
+        def no_store(*args: Any, **kwargs: Any) -> Any:  # past the sockets: fail, not serve
+            raise AssertionError("it listened although the port is taken on 127.0.0.1")
+
+        monkeypatch.setattr(socket, "getaddrinfo", two)
+        monkeypatch.setattr("nonprehensile.service.make_pool", no_store)
+        store = tmp_path / "svc.db"
+        r = CliRunner().invoke(main, ["serve", "--store", str(store), "--host", "localhost",
+                                      "--port", str(port)])
+        monkeypatch.undo()
+        assert r.exit_code == 2, r.output
+        assert len(r.stderr.strip().splitlines()) == 1 and str(port) in r.stderr
+        assert not store.exists()
+        # the socket bound on 127.0.0.2 before the failure was closed: the port is free there
+        with socket.socket() as again:
+            again.bind(("127.0.0.2", port))

@@ -8,8 +8,10 @@ prints a new bearer token once (the database keeps only its hash). STORE is a
 
 from __future__ import annotations
 
+import errno
 import socket
 import sys
+from collections.abc import Sequence
 from typing import Any
 
 import click
@@ -42,7 +44,8 @@ store_option = click.option("--store", required=True, metavar="STORE", help=_STO
 @click.group("serve", cls=HelpGroup, invoke_without_command=True)
 @click.option("--store", default=None, metavar="STORE", help=_STORE_HELP)
 @click.option("--host", default="127.0.0.1", show_default=True,
-              help="Address to listen on (127.0.0.1: this machine only).")
+              help="Address to listen on (127.0.0.1: this machine only); a name such as "
+                   "localhost listens on each of its addresses (127.0.0.1 and ::1).")
 @click.option("--port", type=count(0, 65535), default=8000, show_default=True,
               help="TCP port to listen on.")
 @click.option("--dataset", default="cube", show_default=True,
@@ -83,21 +86,21 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
     template = load_template(dataset)
     # the listening socket first: an address in use or unknown is bad input (exit 2, one
     # line naming the option), not uvicorn's own exit 3 after the store was opened
-    sock = _listen(host, port)
+    socks = _listen(host, port)
     pool = None
     try:
         pool = make_pool(store, max_size=workers + 2)
         config = ServiceConfig(display_name(store), max_bytes=max_bytes,
                                recalibrate_every=recalibrate_every)
         app = create_app(pool, template, config)
-        port = int(sock.getsockname()[1])  # --port 0: the port the system chose
+        port = int(socks[0].getsockname()[1])  # --port 0: the port the system chose
         err.print(f"serving {display_name(store)} on http://{host}:{port} (OpenAPI at "
                   f"/openapi.json, docs at /docs); Ctrl-C stops")
         server = uvicorn.Server(uvicorn.Config(
             app, host=host, port=port, log_level="warning", workers=1,
             limit_concurrency=max(16, 4 * workers), timeout_keep_alive=30))
         try:
-            server.run(sockets=[sock])
+            server.run(sockets=socks)
         except KeyboardInterrupt:
             # Ctrl-C, the documented stop: uvicorn has shut down gracefully and re-raised
             # the interrupt (``uvicorn.run`` catches it likewise); exit 0, not click's
@@ -106,13 +109,23 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
         if not server.started:  # (uvicorn.run's rule: a server that never started is 3)
             sys.exit(3)
     finally:
-        sock.close()
+        for sock in socks:
+            sock.close()
         if pool is not None:
             pool.close()
 
 
-def _listen(host: str, port: int) -> socket.socket:
-    """A socket listening on ``host:port``, or an :class:`InputError` naming them."""
+def _listen(host: str, port: int) -> list[socket.socket]:
+    """Sockets listening on every address of ``host`` at ``port``, or an
+    :class:`InputError` naming them.
+
+    A name may have several addresses: ``localhost`` is ``::1`` and ``127.0.0.1`` on many
+    machines, ``::1`` first. Binding only the first would leave ``http://127.0.0.1:PORT``
+    refused, so every address gets its socket, as uvicorn's own ``--host localhost`` does
+    (asyncio's ``create_server``), all on one port (``--port 0``: the first one's). An
+    address this machine cannot have (``::1`` without IPv6) is left out when another is
+    bound; any other failure (a port in use on any of them) refuses the whole.
+    """
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
                                    flags=socket.AI_PASSIVE)
@@ -120,19 +133,63 @@ def _listen(host: str, port: int) -> socket.socket:
         raise InputError(f"--host {host!r}: not an address of this machine "
                          f"({getattr(exc, 'strerror', None) or exc}); give an IP address "
                          "such as 127.0.0.1 or 0.0.0.0") from None
-    family, _, _, _, address = infos[0]
-    sock = socket.socket(family, socket.SOCK_STREAM)
-    try:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        sock.bind(address)
-        sock.listen(2048)
-        sock.set_inheritable(True)
-    except OSError as exc:
-        sock.close()
-        raise InputError(f"--host {host} --port {port}: cannot listen there "
-                         f"({exc.strerror or exc}); give a free --port (0: any free one) "
-                         "and an address of this machine") from None
-    return sock
+    addresses = list(dict.fromkeys((info[0], info[4]) for info in infos))
+    # --port 0 on several addresses: the port the system chose for the first may be taken on
+    # another (by some other program); a few more tries find one free on all
+    tries = 5 if port == 0 and len(addresses) > 1 else 1
+    while True:
+        tries -= 1
+        try:
+            return _bind_all(addresses)
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE and tries > 0:
+                continue
+            raise InputError(f"--host {host} --port {port}: cannot listen there "
+                             f"({exc.strerror or exc}); give a free --port (0: any free one) "
+                             "and an address of this machine") from None
+
+
+def _bind_all(addresses: Sequence[tuple[Any, Any]]) -> list[socket.socket]:
+    """A listening socket on each ``(family, address)``, all on the first one's port.
+
+    Raises
+    ------
+    OSError
+        One could not be bound (none is left open), or none of them exists here.
+    """
+    several_families = len({family for family, _ in addresses}) > 1
+    socks: list[socket.socket] = []
+    unavailable: OSError | None = None
+    for family, address in addresses:
+        if socks:  # --port 0: the others on the port the system chose for the first
+            address = (address[0], socks[0].getsockname()[1], *address[2:])
+        try:
+            sock = socket.socket(family, socket.SOCK_STREAM)
+        except OSError as exc:  # no IPv6 in this kernel
+            unavailable = unavailable or exc
+            continue
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6 and several_families:
+                # beside its IPv4 socket, the IPv6 one takes IPv6 only: a dual-stack socket
+                # would claim the IPv4 port too and the second bind fail (asyncio does the
+                # same); alone (--host ::) it keeps the system's default
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            sock.bind(address)
+            sock.listen(2048)
+            sock.set_inheritable(True)
+        except OSError as exc:
+            sock.close()
+            if exc.errno in (errno.EADDRNOTAVAIL, errno.EAFNOSUPPORT):
+                unavailable = unavailable or exc  # this machine has no such address
+                continue
+            for s in socks:
+                s.close()
+            raise
+        socks.append(sock)
+    if not socks:
+        raise unavailable or OSError("no address to listen on")
+    return socks
 
 
 @serve_group.group("token")
