@@ -632,3 +632,24 @@ def test_listening_on_several_addresses(monkeypatch: pytest.MonkeyPatch,
         # the socket bound on 127.0.0.2 before the failure was closed: the port is free there
         with socket.socket() as again:
             again.bind(("127.0.0.2", port))
+
+
+def test_serve_writes_an_ipv6_address_as_a_url_does(monkeypatch: pytest.MonkeyPatch,
+                                                    tmp_path: Path) -> None:
+    """The "serving" line's URL, the one a user copies: ``http://[::1]:PORT``, not
+    ``http://::1:PORT`` (which no client reads)."""
+    import re
+
+    import uvicorn
+
+    if not _ipv6_loopback():
+        pytest.skip("this machine cannot listen on ::1 (no IPv6 loopback)")
+
+    def interrupted(self: Any, sockets: Any = None) -> None:  # Ctrl-C at once
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(uvicorn.Server, "run", interrupted)
+    r = CliRunner().invoke(main, ["serve", "--store", str(tmp_path / "svc.db"), "--host",
+                                  "::1", "--port", "0", "--recalibrate-every", "0"])
+    assert r.exit_code == 0, r.output
+    assert re.search(r"http://\[::1\]:\d+ ", r.stderr), r.stderr

@@ -94,7 +94,9 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
                                recalibrate_every=recalibrate_every)
         app = create_app(pool, template, config)
         port = int(socks[0].getsockname()[1])  # --port 0: the port the system chose
-        err.print(f"serving {display_name(store)} on http://{host}:{port} (OpenAPI at "
+        # an IPv6 address in brackets, as a URL writes it (http://[::1]:8000, not http://::1:8000)
+        shown = f"[{host}]" if ":" in host else host
+        err.print(f"serving {display_name(store)} on http://{shown}:{port} (OpenAPI at "
                   f"/openapi.json, docs at /docs); Ctrl-C stops")
         server = uvicorn.Server(uvicorn.Config(
             app, host=host, port=port, log_level="warning", workers=1,
