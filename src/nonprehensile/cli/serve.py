@@ -92,7 +92,14 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
         pool = make_pool(store, max_size=workers + 2)
         config = ServiceConfig(display_name(store), max_bytes=max_bytes,
                                recalibrate_every=recalibrate_every)
-        app = create_app(pool, template, config)
+        from nonprehensile.service.ingest import Registry
+
+        registry = Registry(pool, template)
+        adopted = registry.check_arcs()  # a store of another skills file: exit 2, one line
+        if adopted:
+            err.print(f"recorded the arc of {len(adopted)} arc store(s) written before stores "
+                      "recorded their arcs (their segments checked against this skills file)")
+        app = create_app(pool, template, config, registry=registry)
         port = int(socks[0].getsockname()[1])  # --port 0: the port the system chose
         # an IPv6 address in brackets, as a URL writes it (http://[::1]:8000, not http://::1:8000)
         shown = f"[{host}]" if ":" in host else host

@@ -5,7 +5,8 @@ Every POST and DELETE needs a mentor's bearer token (``Authorization: Bearer np_
 ``nonprehensile serve token create MENTOR``); GETs are open. Errors answer
 ``{"detail": "<one line>", "problems": [...]}`` with a 4xx status: 400 malformed request,
 401 no or unknown token, 403 another mentor's data, 404 unknown upload, 413 body too large,
-422 a demonstration that ``dataset show`` would reject (the same lines).
+422 a demonstration that ``dataset show`` would reject (the same lines), 409 an upload to an
+arc whose store holds another arc (a store written under another skills file).
 """
 
 
@@ -198,8 +199,18 @@ class Recalibrator:
 
 def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
                registry: Registry | None = None, background: bool = True) -> FastAPI:
-    """The FastAPI application (``background=False``: no recalibration thread, for tests)."""
+    """The FastAPI application (``background=False``: no recalibration thread, for tests).
+
+    Raises
+    ------
+    ArcMismatch
+        If an arc's store holds another arc than the skills file gives its name
+        (:meth:`Registry.check_arcs`): the service never starts on it.
+    """
     reg = registry or Registry(pool, template)
+    # before anything is served: a store written under another skills file is refused here,
+    # not found out by filing segments into another skill's arc
+    reg.check_arcs()
     recal = Recalibrator(reg, config.recalibrate_every)
 
     from contextlib import asynccontextmanager

@@ -17,7 +17,8 @@ from pathlib import Path
 import nonprehensile
 from nonprehensile.errors import InputError
 
-__all__ = ["TEMP_PREFIX", "Forbidden", "Rejected", "disk_error", "one_line", "public_text"]
+__all__ = ["TEMP_PREFIX", "ArcMismatch", "Forbidden", "Rejected", "disk_error", "one_line",
+           "public_text"]
 
 #: Prefix of the service's temporary folders (an upload is checked in one).
 TEMP_PREFIX = "np-svc-"
@@ -35,6 +36,15 @@ class Rejected(InputError):
 
 class Forbidden(InputError):
     """A mentor acting on another mentor's data: HTTP 403."""
+
+
+class ArcMismatch(Rejected):
+    """An arc's store holds another arc than the service's skills file gives its name (the
+    skills were reordered or edited since it was written): ``serve`` refuses to start (exit
+    2), and an upload that would add to it is refused with HTTP 409; nothing is written."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, status=409)
 
 
 def disk_error(exc: OSError, what: str) -> Rejected:

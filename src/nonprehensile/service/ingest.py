@@ -55,10 +55,17 @@ from nonprehensile.motion.tablestore import TableStore
 from nonprehensile.references import flatten_segments
 from nonprehensile.service.archive import MAX_ARCHIVE_FILES, unpack_archive
 from nonprehensile.service.db import Pool, arc_store, snapshot
-from nonprehensile.service.errors import TEMP_PREFIX, Forbidden, Rejected, disk_error
+from nonprehensile.service.errors import (
+    TEMP_PREFIX,
+    ArcMismatch,
+    Forbidden,
+    Rejected,
+    disk_error,
+)
+from nonprehensile.skills.contacts import format_event
 
-__all__ = ["MAX_ARCHIVE_FILES", "Forbidden", "Registry", "Rejected", "Template", "content_hash",
-           "extract_archive", "load_template"]
+__all__ = ["MAX_ARCHIVE_FILES", "ArcMismatch", "Forbidden", "Registry", "Rejected", "Template",
+           "arc_identity", "content_hash", "extract_archive", "load_template"]
 
 #: Name of an arc clusterer's state in its store's meta table.
 STATE = "hilbert_clusterer"
@@ -73,6 +80,10 @@ DEFAULT_CHECKPOINT = 64
 GENERATION = "service_generation"
 #: Samples the checkpointed model had seen (meta, decimal text).
 CHECKPOINT_N = "service_checkpoint_n"
+#: What the arc's store holds (meta, UTF-8 text of :func:`arc_identity`): written when the
+#: store gets its first sample, checked before any is added (the store's name is only the
+#: arc's place in the skill graphs, which another skills file gives to another arc).
+ARC_IDENTITY = "service_arc"
 _TRAJECTORY_SUFFIXES = (".c3d", ".csv")
 #: The value of each dataset-wide setting when the annotations leave it out (None: as the
 #: recordings declare); an archive's settings must be the service's, given or left out.
@@ -106,6 +117,10 @@ class Template:
     #: The skills file as read once (path, object, skills): every upload's check uses it
     #: instead of reading the file again (a third of a small upload's time).
     known: KnownSkills | None = None
+    #: Store name to the arc's identity (:func:`arc_identity`): what its samples are.
+    identities: dict[str, str] = field(default_factory=dict)
+    #: ``(skill, motion index)`` to the store name of its arc.
+    motion_arcs: dict[tuple[str, int], str] = field(default_factory=dict)
 
 
 def load_template(spec: str | Path) -> Template:
@@ -123,14 +138,45 @@ def load_template(spec: str | Path) -> Template:
     graphs = skill_graphs(poly, skills)
     arcs: dict[tuple[int, Any, Any], str] = {}
     arc_keys: dict[str, set[str]] = {}
+    motions: dict[str, list[tuple[str, int]]] = {}
+    motion_arcs: dict[tuple[str, int], str] = {}
     for g, graph in enumerate(graphs.graphs):
         names = {node: i for i, node in enumerate(graph.nodes)}
-        for u, v, key in graph.edges(keys=True):
+        skills_of = {s.name: s for s in graphs.groups[g]}
+        for u, v, key, data in graph.edges(keys=True, data=True):
             name = f"{graph.graph['maneuver']}-g{g}-n{names[u]}-n{names[v]}"
             arcs[(g, u, v)] = name
             arc_keys.setdefault(name, set()).add(str(key))
+            step = skills_of[str(key)].motions.index(data["motion"])
+            motions.setdefault(name, []).append((str(key), step))
+            motion_arcs[(str(key), step)] = name
+    identities = {}
+    for (g, u, v), name in arcs.items():
+        graph = graphs.graphs[g]
+        identities[name] = arc_identity(graph.graph["maneuver"], _node_text(graph, u),
+                                        _node_text(graph, v), motions[name])
     return Template(top, graphs, arcs, {n: len(k) for n, k in arc_keys.items()},
-                    (Path(top["skills"]), poly, tuple(skills)))
+                    (Path(top["skills"]), poly, tuple(skills)), identities, motion_arcs)
+
+
+def _node_text(graph: Any, node: Any) -> str:
+    """A skill graph's node as text: its contact event in the paper's canonical notation
+    (``(R1,f) ∧ (G,a)``, :func:`~nonprehensile.skills.contacts.format_event`), and which of
+    the chain's visits to those contacts it is when not the first (a rotation's last
+    ``(G,a)`` is ``(G,a) #2``)."""
+    text = format_event(graph.nodes[node]["event"], "paper")
+    return text if node[1] == 0 else f"{text} #{node[1] + 1}"
+
+
+def arc_identity(maneuver: str, source: str, target: str,
+                 motions: list[tuple[str, int]]) -> str:
+    """What an arc's store holds, as one line: the maneuver, the arc's source and target
+    contact events, and the skills' motions on it (``skill`` motion ``index``, 0-based).
+
+    e.g. ``rolling: (R1,f) ∧ (G,a) -> (R1,f) ∧ (G,E(a,d)) (push-roll motion 1)``.
+    """
+    on = ", ".join(f"{skill} motion {step}" for skill, step in sorted(motions))
+    return f"{maneuver}: {source} -> {target} ({on})"
 
 
 def content_hash(mentor: str, entry: Mapping[str, Any], data: bytes) -> str:
@@ -296,6 +342,80 @@ class Registry:
         # arc -> (generation, clusterer): the model this process left the arc in
         self._cache: dict[str, tuple[bytes, HilbertClusterer]] = {}
 
+    # ------------------------------------------------------------------ arcs' identities
+
+    def _mismatch(self, arc: str, what: str) -> ArcMismatch:
+        skills = Path(str(self.template.top.get("skills", "skills"))).name
+        return ArcMismatch(
+            f"the store's arc {arc!r} {what}, but the skills file {skills} makes it "
+            f"{self.template.identities[arc]}; serve this store with the skills file it was "
+            "written with (the same skills in the same order), or give --store a new database")
+
+    def check_arcs(self) -> list[str]:
+        """Refuse to serve a store whose arcs are not those of the skills file.
+
+        Every arc store the skills file names is compared with the identity it recorded when
+        it got its first sample (:data:`ARC_IDENTITY`). A store written before identities
+        were recorded (it has samples and none) is checked against its uploads instead: the
+        skill and motion of each of its segments must be filed under it by the skills file;
+        then the identity is recorded (the migration). Nothing else is written.
+
+        Returns
+        -------
+        list of str
+            The stores whose identity was recorded now (the migrated ones).
+
+        Raises
+        ------
+        ArcMismatch
+            One line naming the arc, what its store holds, what the skills file makes it,
+            and how to serve it.
+        """
+        with self.pool.connection() as conn, conn.transaction():
+            legacy = []
+            for arc in sorted(self.template.identities):
+                store = arc_store(conn, arc)
+                have = store.get_meta(ARC_IDENTITY)
+                if have is not None:
+                    if have.decode() != self.template.identities[arc]:
+                        raise self._mismatch(arc, f"holds {have.decode()}")
+                elif store.n_samples:
+                    legacy.append(store)
+            if not legacy:
+                return []
+            names = {s.name for s in legacy}
+            rows = conn.execute(
+                "SELECT DISTINCT p.skill, u.step, u.arc FROM np_upload_samples u "
+                "JOIN np_uploads p ON p.hash = u.hash ORDER BY 3, 1, 2").fetchall()
+            for skill, step, arc in rows:
+                want = self.template.motion_arcs.get((skill, int(step)))
+                if arc in names and want != arc:
+                    raise self._mismatch(arc, (
+                        f"(written before stores recorded their arcs) holds segments of {skill} "
+                        f"motion {step} ("
+                        + (f"filed under {want!r} by" if want else "a motion not in")
+                        + " this skills file)"))
+            for store in legacy:
+                store.put_meta(ARC_IDENTITY, self.template.identities[store.name].encode())
+        return sorted(names)
+
+    def _check_arc(self, store: TableStore) -> bool:
+        """Before adding to an arc's store (its lock held): it must hold the arc the skills
+        file gives its name. True: a new store, whose first sample records its arc."""
+        have = store.get_meta(ARC_IDENTITY)
+        if have is None:
+            if store.n_samples:
+                # (written by an earlier version, or another process, since this one started)
+                raise ArcMismatch(
+                    f"the store's arc {store.name!r} holds {store.n_samples} sample(s) written "
+                    "without a record of their arc (by an earlier version, since this server "
+                    "started); restart `nonprehensile serve` on the store: it checks them "
+                    "against their uploads' skills and records the arc")
+            return True
+        if have.decode() != self.template.identities[store.name]:
+            raise self._mismatch(store.name, f"holds {have.decode()}")
+        return False
+
     # ------------------------------------------------------------------ clusterers
 
     def _new_clusterer(self, arc: str, store: TableStore) -> HilbertClusterer:
@@ -396,14 +516,21 @@ class Registry:
                         "reinstated": back is not None}
             with contextlib.ExitStack() as stack:
                 stores = {}
+                fresh = set()
                 for arc in sorted(set(arcs)):  # one lock order: no deadlock between uploads
                     stores[arc] = arc_store(conn, arc)
                     stack.enter_context(stores[arc].transaction())
+                    if self._check_arc(stores[arc]):
+                        fresh.add(arc)
                 for step, (seg, arc) in enumerate(zip(segments, arcs, strict=True)):
                     store = stores[arc]
                     c = self._clusterer(arc, store)
                     c.partial_fit(vectors[step : step + 1])
                     self._save(store, c, self._checkpoint_due(store, c), pending)
+                    if arc in fresh:
+                        # (after the new clusterer: making one clears its store's blobs)
+                        store.put_meta(ARC_IDENTITY, self.template.identities[arc].encode())
+                        fresh.discard(arc)
                     conn.execute(
                         "INSERT INTO np_upload_samples (hash, step, arc, sample) "
                         "VALUES (%s, %s, %s, %s)", (digest, seg.step, arc, store.n_samples - 1))

@@ -1,0 +1,209 @@
+"""The service's stores know their arcs: a store served with the skills file reordered is
+refused (its arcs' names would stand for other arcs and file segments into another skill's
+arc), and stores written before arcs were recorded are checked and adopted."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+
+pytest.importorskip("fastapi", reason="the service extra (FastAPI) is not installed")
+pytest.importorskip("psycopg", reason="the pg extra (psycopg) is not installed")
+
+import httpx
+from fastapi.testclient import TestClient
+
+from nonprehensile.cli import main
+from nonprehensile.demonstrations.dataset import dataset_path
+from nonprehensile.service import ServiceConfig, create_app, create_token, load_template, make_pool
+from nonprehensile.service.errors import ArcMismatch
+from nonprehensile.service.ingest import ARC_IDENTITY, Registry, single_upload
+
+CUBE = dataset_path("cube")
+ANN = json.loads((CUBE / "annotations.json").read_text())
+SKILLS = json.loads((CUBE / ANN["skills"]).read_text())
+
+
+def _dataset(root: Path, order: list[str]) -> Path:
+    """A dataset folder of the cube's settings with its skills in ``order`` (no takes)."""
+    root.mkdir()
+    by_name = {s["name"]: s for s in SKILLS["skills"]}
+    (root / "skills.json").write_text(json.dumps(
+        {**SKILLS, "skills": [by_name[n] for n in order]}))
+    top = {k: v for k, v in ANN.items() if k != "demonstrations"}
+    (root / "annotations.json").write_text(json.dumps(
+        {**top, "skills": "skills.json", "demonstrations": []}))
+    return root
+
+
+ORIGINAL = [s["name"] for s in SKILLS["skills"]]
+#: roll-arc first: the rolling graph's nodes are numbered from its events, so the store
+#: names of push-roll's arcs now stand for roll-arc's and roll-pull's (and back)
+REORDERED = ["roll-arc", *[n for n in ORIGINAL if n != "roll-arc"]]
+
+
+def _take(skill: str, k: int = 0) -> tuple[dict[str, Any], bytes]:
+    e = [d for d in ANN["demonstrations"] if d["skill"] == skill and d["mentor"] == "ana"][k]
+    return ({k2: v for k2, v in e.items() if k2 not in ("file", "mentor")} | {"file": e["file"]},
+            (CUBE / e["file"]).read_bytes())
+
+
+def _upload(client: TestClient, token: str, skill: str, k: int = 0) -> Any:
+    entry, data = _take(skill, k)
+    ann = {key: v for key, v in entry.items() if key != "file"}
+    return client.post("/demonstrations", files={"file": (entry["file"], data, "x/y")},
+                       data={"annotation": json.dumps(ann)},
+                       headers={"Authorization": f"Bearer {token}"})
+
+
+def _register(registry: Registry, skill: str, k: int = 0) -> list[dict[str, Any]]:
+    """Register a take straight to ``registry`` (no application, hence no startup check)."""
+    entry, data = _take(skill, k)
+    ann = {key: v for key, v in entry.items() if key != "file"}
+    with single_upload(registry.template, "ana", entry["file"], data, ann) as (ds, hashes):
+        return registry.register("ana", ds, hashes, "recording")
+
+
+def _contents(store: str) -> list[Any]:
+    """Everything the database holds of the service (vectors by digest)."""
+    pool = make_pool(store, max_size=1)
+    try:
+        with pool.connection() as conn:
+            samples = [(s, int(i), int(k), int(lab), int(m), hashlib.sha256(bytes(v)).hexdigest())
+                       for s, i, k, lab, m, v in conn.execute(
+                           "SELECT store, id, key, label, micro, vector FROM np_samples "
+                           "ORDER BY store, id").fetchall()]
+            meta = [(s, n, bytes(v)) for s, n, v in conn.execute(
+                "SELECT store, name, value FROM np_meta ORDER BY store, name").fetchall()]
+            ups = [tuple(r) for r in conn.execute(
+                "SELECT hash, step, arc, sample FROM np_upload_samples ORDER BY 1, 2")]
+    finally:
+        pool.close()
+    return [samples, meta, ups]
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store(request: pytest.FixtureRequest, tmp_path: Path) -> str:
+    if request.param == "postgresql":
+        return str(request.getfixturevalue("pg_url"))
+    return str(tmp_path / "service.db")
+
+
+def test_a_reordered_skills_file_is_refused_and_the_store_left_as_it_was(
+        store: str, tmp_path: Path) -> None:
+    a = _dataset(tmp_path / "a", ORIGINAL)
+    b = _dataset(tmp_path / "b", REORDERED)
+    ta, tb = load_template(a), load_template(b)
+    pool = make_pool(store, max_size=2)
+    with pool.connection() as conn:
+        token = create_token(conn, "ana")
+    with TestClient(create_app(pool, ta, ServiceConfig("t"), background=False,
+                               registry=Registry(pool, ta, init_size=4))) as c:
+        first = _upload(c, token, "push-roll")
+        assert first.status_code == 201, first.text
+    # push-roll's first arc as the store recorded it
+    arc = first.json()["segments"][0]["arc"]
+    with pool.connection() as conn:
+        rows = conn.execute("SELECT value FROM np_meta WHERE store = %s AND name = %s",
+                            (arc, ARC_IDENTITY)).fetchall()
+    assert [bytes(v).decode() for (v,) in rows] == [ta.identities[arc]]
+    assert "push-roll motion 0" in ta.identities[arc] and "(G,a) ->" in ta.identities[arc]
+    before = _contents(store)
+
+    # the same store with the skills reordered: `serve` refuses, one line, exit 2
+    r = CliRunner().invoke(main, ["serve", "--store", store, "--dataset", str(b),
+                                  "--port", "0"])
+    assert r.exit_code == 2, r.output
+    line = r.stderr.strip()
+    assert len(line.splitlines()) == 1 and "Traceback" not in r.output, r.output
+    assert f"'{arc}'" in line and ta.identities[arc] in line and tb.identities[arc] in line
+    assert "the skills file it was written with" in line and "new database" in line
+    # ... so does the application (whoever builds one), and nothing was written
+    with pytest.raises(ArcMismatch, match=arc):
+        create_app(pool, tb, ServiceConfig("t"), background=False)
+    # an upload through a registry that skipped the check: 409, nothing stored
+    with pytest.raises(ArcMismatch) as exc:
+        _register(Registry(pool, tb, init_size=4), "roll-arc")
+    assert exc.value.status == 409
+    assert _contents(store) == before
+
+    # the original order: served, and the next take lands on push-roll's arcs again
+    with TestClient(create_app(pool, ta, ServiceConfig("t"), background=False,
+                               registry=Registry(pool, ta, init_size=4))) as c:
+        second = _upload(c, token, "push-roll", 1)
+        assert second.status_code == 201, second.text
+        assert [s["arc"] for s in second.json()["segments"]] == [
+            s["arc"] for s in first.json()["segments"]]
+    pool.close()
+
+
+def test_stores_written_before_arcs_were_recorded(store: str, tmp_path: Path) -> None:
+    """The migration: a store with samples and no recorded arc is checked against its
+    uploads' skills and motions; the skills file that files them there adopts it (recording
+    the arcs), another is refused as above."""
+    a = _dataset(tmp_path / "a", ORIGINAL)
+    b = _dataset(tmp_path / "b", REORDERED)
+    ta, tb = load_template(a), load_template(b)
+    pool = make_pool(store, max_size=2)
+    with pool.connection() as conn:
+        token = create_token(conn, "ana")
+    with TestClient(create_app(pool, ta, ServiceConfig("t"), background=False,
+                               registry=Registry(pool, ta, init_size=4))) as c:
+        arcs = [s["arc"] for s in _upload(c, token, "push-roll").json()["segments"]]
+    with pool.connection() as conn:  # as the previous version left it: no arc recorded
+        conn.execute("DELETE FROM np_meta WHERE name = %s", (ARC_IDENTITY,))
+    before = _contents(store)
+    with pytest.raises(ArcMismatch) as exc:
+        Registry(pool, tb).check_arcs()
+    assert "written before stores recorded their arcs" in str(exc.value)
+    assert "push-roll motion" in str(exc.value)
+    # a registry that skipped the check does not add to an unrecorded store either
+    with pytest.raises(ArcMismatch, match="restart `nonprehensile serve`"):
+        _register(Registry(pool, ta, init_size=4), "push-roll", 1)
+    assert _contents(store) == before
+    pool.close()
+
+    if store.startswith("postgresql"):
+        pool = make_pool(store, max_size=2)
+        assert Registry(pool, ta).check_arcs() == sorted(arcs)
+        assert Registry(pool, ta).check_arcs() == []  # recorded: nothing left to adopt
+        pool.close()
+        return
+    # the real server says so on stderr, in one line, and serves
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "nonprehensile.cli", "serve", "--store", store, "--dataset",
+         str(a), "--port", "0", "--recalibrate-every", "0"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+    try:
+        assert proc.stderr is not None
+        note = proc.stderr.readline()
+        assert note.startswith(f"recorded the arc of {len(arcs)} arc store(s) written before"
+                               ), note
+        serving = proc.stderr.readline()
+        url = re.search(r"http://127\.0\.0\.1:\d+", serving)
+        assert url, serving
+        for _ in range(300):  # up (Ctrl-C before uvicorn runs is not its graceful stop)
+            try:
+                if httpx.get(f"{url[0]}/health", timeout=1).status_code == 200:
+                    break
+            except httpx.TransportError:
+                time.sleep(0.1)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+    samples, meta, ups = _contents(store)
+    assert samples == before[0] and ups == before[2]
+    assert {(s, bytes(v).decode()) for s, n, v in meta if n == ARC_IDENTITY} == {
+        (arc, ta.identities[arc]) for arc in arcs}
