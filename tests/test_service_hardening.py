@@ -423,6 +423,78 @@ def test_a_withdrawn_take_uploaded_again_is_stored_again(backend: str, tmp_path:
         assert third.status_code == 200 and third.json()["duplicate"]
 
 
+# ------------------------------------------------------------------------ one take, one upload
+def _theta(entry: dict[str, Any], theta: Any, *, final: bool = False) -> str:
+    ann = {k: v for k, v in entry.items() if k not in ("file", "mentor")}
+    key = "final" if final else "initial"
+    ann[key] = {**ann[key], "theta": theta}
+    return json.dumps(ann)
+
+
+@pytest.mark.parametrize("backend", ["sqlite", "postgresql"])
+def test_the_same_take_with_theta_written_otherwise_is_one_upload(
+        backend: str, tmp_path: Path, template: Any, request: pytest.FixtureRequest) -> None:
+    """A state's theta is an angle: 0, 360, -0.0, 0.0 and 720 are one state (``State``
+    normalises them), so the same take annotated with any of them is one upload; a state
+    left out is the skill's, the same again."""
+    store = (request.getfixturevalue("pg_url") if backend == "postgresql"
+             else str(tmp_path / "service.db"))
+    for s in _client(store, template):
+        c, auth = s["client"], s["auth"]
+        e = _entry("push-roll", "ana")
+        assert e["initial"]["theta"] == 0.0 and e["final"]["theta"] == 0.0
+        first = _post_take(c, auth["ana"], e, _theta(e, 0))
+        assert first.status_code == 201, first.text
+        up = first.json()["upload"]
+        bare = {k: v for k, v in e.items() if k not in ("file", "mentor", "initial")}
+        for ann in (_theta(e, 360), "-0.0".join(_theta(e, 12345).split("12345")),
+                    _theta(e, 0.0), _theta(e, 720, final=True), _theta(e, -360.0),
+                    json.dumps(bare)):
+            r = _post_take(c, auth["ana"], e, ann)
+            assert r.status_code == 200, (ann, r.text)
+            assert r.json()["duplicate"] and r.json()["upload"] == up
+        # another state is another upload (refused here: not the skill's)
+        assert _post_take(c, auth["ana"], e, _theta(e, 90)).status_code == 422
+        assert c.get("/mentors/ana").json()["uploads"] == 1
+        assert sum(a["samples"] for a in c.get("/clusters").json()["arcs"]) == len(
+            first.json()["segments"])
+        # an archive holding the take twice (two files), as 0 and as 360, holds it twice
+        twice = [{**e, "file": "a.c3d"}, {**e, "file": "b.c3d",
+                                          "initial": {"face": "a", "theta": 360}}]
+        files = {f"t/{n}": (CUBE / e["file"]).read_bytes() for n in ("a.c3d", "b.c3d")}
+        files |= {"t/skills.json": (CUBE / ANN["skills"]).read_bytes(),
+                 "t/annotations.json": json.dumps({**TOP, "demonstrations": twice}).encode()}
+        assert "the same demonstration twice" in _refused(
+            _post_archive(c, auth["ana"], _zip(files)), 422)
+
+
+def test_uploads_stored_under_their_annotations_text_are_found(tmp_path: Path,
+                                                               template: Any) -> None:
+    """Versions before canonical annotations stored an upload under the hash of its
+    annotation's text: the same text sent again is a duplicate of that upload (its stored
+    hash is neither rewritten nor stored twice)."""
+    from nonprehensile.service.ingest import UploadKey, content_hash, single_upload
+
+    for s in _client(str(tmp_path / "service.db"), template):
+        c, auth = s["client"], s["auth"]
+        e = _entry("roll-pull", "ana")
+        text = _theta(e, 360)
+        data = (CUBE / e["file"]).read_bytes()
+        old = content_hash("ana", json.loads(text), data)
+        registry = c.app.state.registry
+        with single_upload(template, "ana", e["file"], data, json.loads(text)) as (ds, keys):
+            assert keys[0].given == old and keys[0].digest != old
+            # as the previous version registered it: under the text's hash
+            registry.register("ana", ds, [UploadKey(old, old)], "recording")
+        r = _post_take(c, auth["ana"], e, text)
+        assert r.status_code == 200 and r.json()["duplicate"] and r.json()["upload"] == old
+        # an annotation already canonical (the bundled ones) hashes as it always did
+        plain = {k: v for k, v in e.items() if k not in ("file", "mentor")}
+        with single_upload(template, "ana", e["file"], data, plain) as (ds, keys):
+            assert keys[0].digest == keys[0].given == content_hash("ana", plain, data)
+        assert c.get("/mentors/ana").json()["uploads"] == 1
+
+
 @pytest.mark.parametrize("mode", ["w:gz", "w:bz2", "w:xz", "w"])
 def test_tar_archives_of_a_folder_are_read(svc: dict[str, Any], tmp_path: Path,
                                            mode: str) -> None:

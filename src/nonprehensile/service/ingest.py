@@ -27,7 +27,7 @@ import uuid
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
 
@@ -65,7 +65,8 @@ from nonprehensile.service.errors import (
 from nonprehensile.skills.contacts import format_event
 
 __all__ = ["MAX_ARCHIVE_FILES", "ArcMismatch", "Forbidden", "Registry", "Rejected", "Template",
-           "arc_identity", "content_hash", "extract_archive", "load_template"]
+           "UploadKey", "arc_identity", "canonical_annotation", "content_hash", "extract_archive",
+           "load_template"]
 
 #: Name of an arc clusterer's state in its store's meta table.
 STATE = "hilbert_clusterer"
@@ -179,8 +180,47 @@ def arc_identity(maneuver: str, source: str, target: str,
     return f"{maneuver}: {source} -> {target} ({on})"
 
 
+class UploadKey(NamedTuple):
+    """The identity of an upload.
+
+    Attributes
+    ----------
+    digest : str
+        Its content hash, of the canonical annotation (:func:`canonical_annotation`).
+    given : str
+        The hash of the annotation's text as given, which versions before canonical
+        annotations stored uploads under: an upload stored so is found by it (it equals
+        ``digest`` for an annotation already in canonical form, as the bundled ones are).
+    """
+
+    digest: str
+    given: str
+
+
+def canonical_annotation(demo: Demonstration) -> dict[str, Any]:
+    """An upload's annotation as its identity reads it: as the checked demonstration has it.
+
+    Its states are :class:`~nonprehensile.states.State`'s, theta normalised to ``[0, 360)``
+    (``0``, ``360`` and ``-0.0`` are ``0.0``), the skill's where the annotation leaves them
+    out; its event times are floats (``1`` is ``1.0``, ``-0.0`` is ``0.0``). Written out
+    here, not by ``Demonstration.to_dict``, so that a change there moves no stored hash.
+    """
+    return {"skill": demo.skill.name, "initial": demo.initial.to_dict(),
+            "final": demo.final.to_dict(),
+            "events": [{"id": e.id, "time": float(e.time) + 0.0} for e in demo.events]}
+
+
+def upload_key(mentor: str, demo: Demonstration, entry: Mapping[str, Any],
+               data: bytes) -> UploadKey:
+    """The identity of the upload of ``demo`` (checked) from ``entry`` and ``data``."""
+    return UploadKey(content_hash(mentor, canonical_annotation(demo), data),
+                     content_hash(mentor, entry, data))
+
+
 def content_hash(mentor: str, entry: Mapping[str, Any], data: bytes) -> str:
-    """SHA-256 of an upload: the mentor, the annotation (without the file's name), the bytes."""
+    """SHA-256 of an upload: the mentor, the annotation (without the file's name), the bytes.
+
+    The identity of an upload is this hash of its :func:`canonical_annotation`."""
     ann = {k: v for k, v in entry.items() if k not in ("file", "mentor")}
     # through JSON once: keys of other types (YAML's 1:) become the strings JSON makes of
     # them, which sort (a str-keyed annotation comes out the same)
@@ -219,10 +259,10 @@ def _problems(problems: list[Problem], root: Path) -> Rejected:
 
 @contextlib.contextmanager
 def single_upload(template: Template, mentor: str, filename: str | None, data: bytes,
-                  annotation: Any) -> Iterator[tuple[Dataset, list[str]]]:
+                  annotation: Any) -> Iterator[tuple[Dataset, list[UploadKey]]]:
     """Check one recording and its annotation entry as ``dataset show`` would.
 
-    Yields the one-demonstration dataset and its content hash (as a list of one).
+    Yields the one-demonstration dataset and its identity (as a list of one).
     """
     if not isinstance(annotation, Mapping):
         raise Rejected("the annotation must be a JSON object: one entry of the annotations' "
@@ -244,7 +284,7 @@ def single_upload(template: Template, mentor: str, filename: str | None, data: b
         ds, problems = check_dataset(root, known_skills=template.known)
         if ds is None:
             raise _problems(problems, root)
-        yield ds, [content_hash(mentor, entry, data)]
+        yield ds, [upload_key(mentor, ds.demonstrations[0], entry, data)]
 
 
 def extract_archive(source: bytes | BinaryIO, dest: Path, max_bytes: int) -> Path:
@@ -264,8 +304,8 @@ def extract_archive(source: bytes | BinaryIO, dest: Path, max_bytes: int) -> Pat
 
 @contextlib.contextmanager
 def archive_upload(template: Template, mentor: str, source: bytes | BinaryIO,
-                   max_bytes: int) -> Iterator[tuple[Dataset, list[str]]]:
-    """Check a dataset archive as ``dataset show`` would; yields it and each demo's hash.
+                   max_bytes: int) -> Iterator[tuple[Dataset, list[UploadKey]]]:
+    """Check a dataset archive as ``dataset show`` would; yields it and each demo's identity.
 
     The archive's own skills file is not used: its demonstrations must be of the service's
     skills, and its dataset-wide settings must be the service's (given or left out); a key
@@ -307,8 +347,8 @@ def archive_upload(template: Template, mentor: str, source: bytes | BinaryIO,
             raise _problems(problems, root)
         hashes = []
         for d, item in zip(ds.demonstrations, doc["demonstrations"], strict=True):
-            hashes.append(content_hash(mentor, item, (root / d.file).read_bytes()))
-        if len(set(hashes)) != len(hashes):
+            hashes.append(upload_key(mentor, d, item, (root / d.file).read_bytes()))
+        if len({h.digest for h in hashes}) != len(hashes):
             raise Rejected("the archive holds the same demonstration twice")
         yield ds, hashes
 
@@ -472,13 +512,13 @@ class Registry:
 
     # ------------------------------------------------------------------ uploads
 
-    def register(self, mentor: str, dataset: Dataset, hashes: list[str],
+    def register(self, mentor: str, dataset: Dataset, hashes: list[UploadKey],
                  kind: str) -> list[dict[str, Any]]:
         """Register each demonstration (skipping those already stored); their replies."""
         return [self._register_one(mentor, d, h, kind)
                 for d, h in zip(dataset.demonstrations, hashes, strict=True)]
 
-    def _register_one(self, mentor: str, demo: Demonstration, digest: str,
+    def _register_one(self, mentor: str, demo: Demonstration, key: UploadKey,
                       kind: str) -> dict[str, Any]:
         segments = segment_demonstration(demo, self.template.graphs,
                                          max_gap=int(self.template.top.get("gap_limit", 12)))
@@ -486,7 +526,7 @@ class Registry:
         arcs = [self.template.arcs[(s.arc.group, s.arc.source, s.arc.target)] for s in segments]
         pending: dict[str, tuple[bytes, HilbertClusterer]] = {}
         try:
-            reply = self._register_tx(mentor, demo, digest, kind, segments, vectors, arcs,
+            reply = self._register_tx(mentor, demo, key, kind, segments, vectors, arcs,
                                       pending)
         except BaseException:
             # rolled back: what the clusterers registered in it is gone from the database
@@ -496,10 +536,19 @@ class Registry:
         self._cache.update(pending)
         return reply
 
-    def _register_tx(self, mentor: str, demo: Demonstration, digest: str, kind: str,
+    def _register_tx(self, mentor: str, demo: Demonstration, key: UploadKey, kind: str,
                      segments: list[Any], vectors: Any, arcs: list[str],
                      pending: dict[str, tuple[bytes, HilbertClusterer]]) -> dict[str, Any]:
         with self.pool.connection() as conn, conn.transaction():
+            digest = key.digest
+            if key.given != digest:
+                # stored by a version that hashed the annotation's text as given: the same
+                # upload, under that hash (no stored hash is rewritten)
+                stored = {h for (h,) in conn.execute(
+                    "SELECT hash FROM np_uploads WHERE hash IN (%s, %s)",
+                    (key.digest, key.given)).fetchall()}
+                if key.given in stored and key.digest not in stored:
+                    digest = key.given
             # claims the hash; an identical upload in flight waits here for this one's commit
             claimed = conn.execute(
                 "INSERT INTO np_uploads (hash, mentor, file, skill, kind, reply) "
