@@ -12,6 +12,7 @@ from sklearn.decomposition import PCA
 from sklearn.metrics import adjusted_rand_score
 from sklearn.mixture import GaussianMixture
 
+from nonprehensile.errors import InputError
 from nonprehensile.motion import microcluster
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.microcluster import (
@@ -168,6 +169,13 @@ def test_records_stay_and_current_labels_follow_the_summary() -> None:
     roots = m.roots(c.store.micro_ids())
     assert (m.slot_uid[m.uid_slot[roots]] == roots).all()
     np.testing.assert_array_equal(c.predict(x[:200]), c.labels_[:200])
+    # the map from micro-cluster ids to current clusters (the service's "cluster now"): the
+    # current labels from the stored ids alone, merged and compacted ids included
+    micro = c.store.micro_ids()
+    np.testing.assert_array_equal(c.micro_labels_[micro], c.labels_)
+    assert c.micro_labels_.size >= len(set(micro.tolist())) > m.n_live
+    with pytest.raises(InputError, match="method 'micro' only"):
+        _ = HilbertClusterer(2, method="runs").micro_labels_
     np.testing.assert_array_equal(c.transform(x[-50:]),
                                   np.array(c.store.keys()[-50:], dtype=np.uint64))
 

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -26,9 +27,17 @@ from fastapi.testclient import TestClient
 
 from nonprehensile.cli import main
 from nonprehensile.demonstrations.dataset import dataset_path
+from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.service import ServiceConfig, create_app, create_token, load_template, make_pool
 from nonprehensile.service.errors import ArcMismatch
-from nonprehensile.service.ingest import ARC_IDENTITY, Registry, single_upload
+from nonprehensile.service.ingest import (
+    ARC_IDENTITY,
+    CHECKPOINT_N,
+    CLUSTER_MAP,
+    STATE,
+    Registry,
+    single_upload,
+)
 
 CUBE = dataset_path("cube")
 ANN = json.loads((CUBE / "annotations.json").read_text())
@@ -53,14 +62,18 @@ ORIGINAL = [s["name"] for s in SKILLS["skills"]]
 REORDERED = ["roll-arc", *[n for n in ORIGINAL if n != "roll-arc"]]
 
 
-def _take(skill: str, k: int = 0) -> tuple[dict[str, Any], bytes]:
-    e = [d for d in ANN["demonstrations"] if d["skill"] == skill and d["mentor"] == "ana"][k]
+def _take(skill: str, k: int = 0, mentor: str | None = "ana"
+          ) -> tuple[dict[str, Any], bytes]:
+    """Take ``k`` of ``skill`` by ``mentor`` (None: anyone's)."""
+    e = [d for d in ANN["demonstrations"]
+         if d["skill"] == skill and mentor in (None, d["mentor"])][k]
     return ({k2: v for k2, v in e.items() if k2 not in ("file", "mentor")} | {"file": e["file"]},
             (CUBE / e["file"]).read_bytes())
 
 
-def _upload(client: TestClient, token: str, skill: str, k: int = 0) -> Any:
-    entry, data = _take(skill, k)
+def _upload(client: TestClient, token: str, skill: str, k: int = 0,
+            mentor: str | None = "ana") -> Any:
+    entry, data = _take(skill, k, mentor)
     ann = {key: v for key, v in entry.items() if key != "file"}
     return client.post("/demonstrations", files={"file": (entry["file"], data, "x/y")},
                        data={"annotation": json.dumps(ann)},
@@ -207,3 +220,94 @@ def test_stores_written_before_arcs_were_recorded(store: str, tmp_path: Path) ->
     assert samples == before[0] and ups == before[2]
     assert {(s, bytes(v).decode()) for s, n, v in meta if n == ARC_IDENTITY} == {
         (arc, ta.identities[arc]) for arc in arcs}
+
+
+# ------------------------------------------------------------------------ cluster now
+def _truth(pool: Any, arc: str) -> tuple[np.ndarray, np.ndarray]:
+    """The arc's model's own clusters of its samples, as `cluster show` reports a model's
+    (``labels_``: the model loaded from its checkpoint, the samples after it registered
+    again), and the ids the samples got when registered."""
+    from nonprehensile.motion.store import MemoryStore
+    from nonprehensile.service.db import arc_store
+
+    with pool.connection() as conn:
+        store = arc_store(conn, arc)
+        x, keys = store.vectors(0, store.n_samples), store.keys()
+        labels, micro = store.labels(), store.micro_ids()
+        state = store.get_meta(STATE)
+        n_seen = int(store.get_meta(CHECKPOINT_N) or b"0")
+    mem = MemoryStore()
+    mem.add(x[:n_seen], keys[:n_seen], labels[:n_seen], micro=micro[:n_seen])
+    c = HilbertClusterer.load_state(state, mem)
+    c.partial_fit(x[n_seen:])
+    assert mem.keys() == keys and np.array_equal(mem.micro_ids(), micro)
+    return c.labels_, labels
+
+
+def _listing_is_the_models(c: TestClient, pool: Any, ups: list[dict[str, Any]]) -> int:
+    """GET /clusters, /uploads and /mentors against the models' clusters; how many samples
+    are in another cluster now than the one they were registered to."""
+    moved = 0
+    listing = {a["arc"]: a for a in c.get("/clusters").json()["arcs"]}
+    truth = {}
+    for arc, doc in listing.items():
+        now, registered = _truth(pool, arc)
+        truth[arc] = now
+        moved += int(np.sum(now != registered))
+        sizes = {int(k): int(n) for k, n in zip(*np.unique(now, return_counts=True),
+                                                 strict=True)}
+        assert {cl["id"]: cl["size"] for cl in doc["clusters"]} == sizes, arc
+        assert doc["pending"] == 0 and doc["samples"] == len(now)
+    per_mentor: dict[tuple[str, str, int], int] = {}
+    for up in ups:
+        got = c.get(f"/uploads/{up['upload']}").json()
+        for seg in got["segments"]:
+            assert seg["cluster"] == int(truth[seg["arc"]][seg["sample"]]), seg
+            key = (got["mentor"], seg["arc"], seg["cluster"])
+            per_mentor[key] = per_mentor.get(key, 0) + 1
+    stats = {(m["mentor"], cl["arc"], cl["cluster"]): cl["segments"]
+             for m in c.get("/mentors").json()["mentors"] for cl in m["clusters"]}
+    assert stats == per_mentor
+    return moved
+
+
+def test_cluster_now_is_the_models_cluster_after_a_recalibration(store: str) -> None:
+    """``GET /clusters``, ``/uploads/{hash}`` and ``/mentors`` name each segment's cluster in
+    its arc's model now, not the micro-cluster's id at its registration, after a background
+    recalibration, more uploads, a restart, and for an arc written before the service kept
+    its cluster map."""
+    template = load_template("cube")
+    pool = make_pool(store, max_size=3)
+    with pool.connection() as conn:
+        tokens = {m: create_token(conn, m) for m in {d["mentor"] for d in ANN["demonstrations"]}}
+    reg = Registry(pool, template, init_size=4, checkpoint=3)
+    ups = []
+    with TestClient(create_app(pool, template, ServiceConfig("t"), registry=reg,
+                               background=False)) as c:
+        takes = [d for d in ANN["demonstrations"] if d["skill"] == "twist"]
+        for i, e in enumerate(takes[:8]):
+            r = _upload(c, tokens[e["mentor"]], "twist", i, mentor=None)
+            assert r.status_code == 201, r.text
+            ups.append(r.json())
+        due = reg.arcs_due()
+        assert due
+        for arc in due:
+            assert reg.recalibrate(arc)["recalibrated"]
+        for i, e in enumerate(takes[8:10], 8):  # registered to the recalibrated models
+            r = _upload(c, tokens[e["mentor"]], "twist", i, mentor=None)
+            assert r.status_code == 201, r.text
+            ups.append(r.json())
+        moved = _listing_is_the_models(c, pool, ups)
+    # not a vacuous check: the recalibration moved samples out of their registered ids
+    assert moved > 0
+    # a restarted server reads the maps the uploads stored
+    with TestClient(create_app(pool, template, ServiceConfig("t"), background=False,
+                               registry=Registry(pool, template, init_size=4))) as c:
+        assert _listing_is_the_models(c, pool, ups) == moved
+    # arcs last written by a version that kept no map: their models are rebuilt
+    with pool.connection() as conn:
+        conn.execute("DELETE FROM np_meta WHERE name = %s", (CLUSTER_MAP,))
+    with TestClient(create_app(pool, template, ServiceConfig("t"), background=False,
+                               registry=Registry(pool, template, init_size=4))) as c:
+        assert _listing_is_the_models(c, pool, ups) == moved
+    pool.close()

@@ -499,6 +499,25 @@ class HilbertClusterer:
         return self.store.labels()
 
     @property
+    def micro_labels_(self) -> IntArray:
+        """Current cluster id of every micro-cluster id given so far, shape (n_micro_ids,).
+
+        ``method="micro"`` only: a sample registered to micro-cluster ``u`` is in cluster
+        ``micro_labels_[u]`` now (what :attr:`labels_` computes for every stored sample), so a
+        store's samples are mapped to the current clusters from their micro-cluster ids alone,
+        without the model.
+
+        Raises
+        ------
+        InputError
+            For the other methods (their stored ids are rewritten at each recalibration).
+        """
+        if self.method != "micro":
+            raise InputError(f"micro_labels_ is of method 'micro' only, not {self.method!r}; "
+                             "the stored cluster ids are current")
+        return self._micro.current_labels(np.arange(self._micro.next_uid, dtype=np.int64))
+
+    @property
     def labels_registered_(self) -> IntArray:
         """Cluster id of every sample as it was registered, shape (n_samples_seen_,).
 

@@ -25,7 +25,7 @@ from fastapi.responses import JSONResponse
 import nonprehensile
 from nonprehensile.errors import InputError, NonprehensileError
 from nonprehensile.io import parse_document
-from nonprehensile.service.db import Pool, mentor_of
+from nonprehensile.service.db import Pool, mentor_of, snapshot
 from nonprehensile.service.errors import Forbidden, Rejected, public_text
 from nonprehensile.service.ingest import (
     Registry,
@@ -332,7 +332,7 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
     @app.get("/uploads/{digest}", operation_id="getUpload")
     def get_upload(digest: str) -> dict[str, Any]:
         """One upload: mentor, file, skill, and each segment's arc, sample and cluster."""
-        with pool.connection() as conn:
+        with pool.connection() as conn, snapshot(conn):  # samples and clusters of one state
             return reg.upload(conn, digest)
 
     @app.delete("/uploads/{digest}", operation_id="withdrawUpload",

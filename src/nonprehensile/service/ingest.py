@@ -30,6 +30,7 @@ from pathlib import Path, PurePosixPath
 from typing import Any, BinaryIO, NamedTuple
 
 import numpy as np
+from numpy.typing import NDArray
 
 from nonprehensile.demonstrations.dataset import (
     _TOP_KEYS,
@@ -81,6 +82,11 @@ DEFAULT_CHECKPOINT = 64
 GENERATION = "service_generation"
 #: Samples the checkpointed model had seen (meta, decimal text).
 CHECKPOINT_N = "service_checkpoint_n"
+#: The arc's model's current cluster of each micro-cluster id (meta, little-endian int64),
+#: written with every generation: "cluster now" maps each sample's micro-cluster id through
+#: it. (``np_samples.label`` is the id a sample got when registered; the model's clusters
+#: move at recalibrations, which rewrite no sample's id.)
+CLUSTER_MAP = "service_clusters"
 #: What the arc's store holds (meta, UTF-8 text of :func:`arc_identity`): written when the
 #: store gets its first sample, checked before any is added (the store's name is only the
 #: arc's place in the skill graphs, which another skills file gives to another arc).
@@ -381,6 +387,8 @@ class Registry:
         self.seed = seed
         # arc -> (generation, clusterer): the model this process left the arc in
         self._cache: dict[str, tuple[bytes, HilbertClusterer]] = {}
+        # arc -> (generation, cluster map) of arcs last written before maps were stored
+        self._rebuilt: dict[str, tuple[bytes, NDArray[np.int64]]] = {}
 
     # ------------------------------------------------------------------ arcs' identities
 
@@ -498,6 +506,8 @@ class Registry:
         if checkpoint:
             store.put_meta(STATE, c.save_state())
             store.put_meta(CHECKPOINT_N, str(c.n_samples_seen_).encode())
+        # (a few bytes a micro-cluster: far less than one sample's vector)
+        store.put_meta(CLUSTER_MAP, c.micro_labels_.astype("<i8").tobytes())
         gen = f"{c.n_samples_seen_}:{uuid.uuid4().hex}".encode()
         store.put_meta(GENERATION, gen)
         pending[store.name] = (gen, c)
@@ -589,16 +599,23 @@ class Registry:
         return {**reply, "duplicate": False, "reinstated": False}
 
     def upload(self, conn: Any, digest: str) -> dict[str, Any]:
-        """An upload's document: who, what, and each segment's arc, sample and cluster now."""
+        """An upload's document: who, what, and each segment's arc, sample and cluster now
+        (the arc's model's current cluster of the sample).
+
+        ``conn`` is in a transaction or a :func:`~nonprehensile.service.db.snapshot`: the
+        samples and the arcs' cluster maps are read from one state."""
         row = conn.execute("SELECT mentor, file, skill, kind, withdrawn FROM np_uploads "
                            "WHERE hash = %s", (digest,)).fetchone()
         if row is None:
             raise Rejected(f"no upload {digest}", status=404)
-        segs = conn.execute(
-            "SELECT u.step, u.arc, u.sample, s.label FROM np_upload_samples u "
+        rows = conn.execute(
+            "SELECT u.step, u.arc, u.sample, s.micro, s.label FROM np_upload_samples u "
             "JOIN np_samples s ON s.store = u.arc AND s.id = u.sample "
             "WHERE u.hash = %s ORDER BY u.step", (digest,)
         ).fetchall()
+        maps = self._cluster_maps(conn, {r[1] for r in rows})
+        segs = [(st, arc, sample, _cluster_now(maps, arc, micro, label))
+                for st, arc, sample, micro, label in rows]
         held = dict(conn.execute(
             "SELECT store, count(*) FROM np_samples GROUP BY store").fetchall()) if any(
             label < 0 for *_, label in segs) else {}
@@ -621,6 +638,41 @@ class Registry:
                          for st, arc, sample, label in segs],
         }
 
+    def _cluster_maps(self, conn: Any, arcs: set[str]) -> dict[str, NDArray[np.int64]]:
+        """Each arc's current cluster of every micro-cluster id (:data:`CLUSTER_MAP`), read
+        on ``conn`` (a transaction or a snapshot: with the samples it maps)."""
+        meta: dict[str, dict[str, bytes]] = {}
+        for store, name, value in conn.execute(
+                "SELECT store, name, value FROM np_meta WHERE name IN (%s, %s)",
+                (CLUSTER_MAP, GENERATION)).fetchall():
+            if store in arcs:
+                meta.setdefault(store, {})[name] = bytes(value)
+        out = {}
+        for arc in sorted(arcs):
+            have = meta.get(arc, {})
+            if CLUSTER_MAP in have:
+                out[arc] = np.frombuffer(have[CLUSTER_MAP], dtype="<i8").astype(np.int64)
+                continue
+            # last written before the maps were stored: the model rebuilt as an upload to
+            # the arc would rebuild it (once per generation of the arc)
+            gen = have.get(GENERATION)
+            kept = self._rebuilt.get(arc)
+            if kept is not None and gen is not None and kept[0] == gen:
+                out[arc] = kept[1]
+                continue
+            store = arc_store(conn, arc)
+            state = store.get_meta(STATE)
+            if state is None:  # nothing clustered yet: every sample pending
+                out[arc] = np.zeros(0, dtype=np.int64)
+                continue
+            n_seen = int((store.get_meta(CHECKPOINT_N) or b"0").decode())
+            c = _replayed(arc, state, n_seen, store.vectors(0, store.n_samples), store.keys(),
+                          store.labels())
+            out[arc] = c.micro_labels_
+            if gen is not None:
+                self._rebuilt[arc] = (gen, out[arc])
+        return out
+
     def withdraw(self, mentor: str, digest: str) -> dict[str, Any]:
         """Withdraw an upload of ``mentor``'s (another's: :class:`Forbidden`)."""
         with self.pool.connection() as conn, conn.transaction():
@@ -639,41 +691,53 @@ class Registry:
 
     def clusters(self) -> list[dict[str, Any]]:
         """Every arc with samples: its clusters and their sizes (withdrawn uploads left out)."""
-        with self.pool.connection() as conn:
+        with self.pool.connection() as conn, snapshot(conn):
             rows = conn.execute(
-                "SELECT s.store, s.label, count(*) FROM np_samples s "
+                "SELECT s.store, s.micro, s.label, count(*) FROM np_samples s "
                 "LEFT JOIN np_upload_samples u ON u.arc = s.store AND u.sample = s.id "
                 "LEFT JOIN np_uploads p ON p.hash = u.hash "
                 "WHERE p.withdrawn IS NOT TRUE "
-                "GROUP BY s.store, s.label ORDER BY s.store, s.label"
+                "GROUP BY s.store, s.micro, s.label ORDER BY s.store"
             ).fetchall()
             recal = {store: bytes(value).decode() for store, value in conn.execute(
                 "SELECT store, value FROM np_meta WHERE name = %s", (RECAL_N,)).fetchall()}
+            maps = self._cluster_maps(conn, {r[0] for r in rows})
         out: dict[str, dict[str, Any]] = {}
-        for store, label, n in rows:
+        sizes: dict[str, dict[int, int]] = {}
+        for store, micro, label, n in rows:
             arc = out.setdefault(store, {"arc": store, "samples": 0, "pending": 0,
                                          "clusters": [],
                                          "recalibrated_at": int(recal.get(store, 0))})
             arc["samples"] += int(n)
-            if label < 0:
+            now = _cluster_now(maps, store, micro, label)
+            if now < 0:
                 arc["pending"] += int(n)
             else:
-                arc["clusters"].append({"id": int(label), "size": int(n)})
+                sizes.setdefault(store, {})
+                sizes[store][now] = sizes[store].get(now, 0) + int(n)
+        for store, by_id in sizes.items():
+            out[store]["clusters"] = [{"id": k, "size": n} for k, n in sorted(by_id.items())]
         return list(out.values())
 
     def mentor_stats(self, mentor: str | None = None) -> list[dict[str, Any]]:
         """Per mentor: uploads, withdrawn, segments, and counts per skill and per cluster."""
-        with self.pool.connection() as conn:
+        with self.pool.connection() as conn, snapshot(conn):
             where, args = ("WHERE p.mentor = %s", (mentor,)) if mentor else ("", ())
             ups = conn.execute(
                 f"SELECT p.mentor, p.skill, p.withdrawn, count(*) FROM np_uploads p {where} "
                 "GROUP BY p.mentor, p.skill, p.withdrawn ORDER BY 1, 2", args).fetchall()
-            segs = conn.execute(
-                "SELECT p.mentor, u.arc, s.label, count(*) FROM np_uploads p "
+            rows = conn.execute(
+                "SELECT p.mentor, u.arc, s.micro, s.label, count(*) FROM np_uploads p "
                 "JOIN np_upload_samples u ON u.hash = p.hash "
                 "JOIN np_samples s ON s.store = u.arc AND s.id = u.sample "
                 f"{where}{' AND' if where else 'WHERE'} NOT p.withdrawn "
-                "GROUP BY 1, 2, 3 ORDER BY 1, 2, 3", args).fetchall()
+                "GROUP BY 1, 2, 3, 4 ORDER BY 1, 2", args).fetchall()
+            maps = self._cluster_maps(conn, {r[1] for r in rows})
+        counted: dict[tuple[str, str, int], int] = {}
+        for m, arc, micro, label, n in rows:
+            key = (m, arc, _cluster_now(maps, arc, micro, label))
+            counted[key] = counted.get(key, 0) + int(n)
+        segs = sorted(counted.items())
         out: dict[str, dict[str, Any]] = {}
         for m, skill, withdrawn, n in ups:
             doc = out.setdefault(m, {"mentor": m, "uploads": 0, "withdrawn": 0, "segments": 0,
@@ -683,11 +747,11 @@ class Registry:
             else:
                 doc["uploads"] += int(n)
                 doc["skills"][skill] = doc["skills"].get(skill, 0) + int(n)
-        for m, arc, label, n in segs:
+        for (m, arc, label), n in segs:
             doc = out[m]
-            doc["segments"] += int(n)
-            doc["clusters"].append({"arc": arc, "cluster": None if label < 0 else int(label),
-                                    "segments": int(n)})
+            doc["segments"] += n
+            doc["clusters"].append({"arc": arc, "cluster": None if label < 0 else label,
+                                    "segments": n})
         return list(out.values())
 
     # ------------------------------------------------------------------ recalibration
@@ -754,6 +818,21 @@ def _replayed(arc: str, state: bytes, n_seen: int, x: Any, keys: list[int],
                 f"arc {arc}: registering samples {n_seen}..{n - 1} again after the checkpoint "
                 "gave other keys than those stored; recalibrate the arc")
     return c
+
+
+def _cluster_now(maps: dict[str, NDArray[np.int64]], arc: str, micro: int, label: int) -> int:
+    """A sample's cluster in its arc's model now (-1: pending its arc's first clustering),
+    from its micro-cluster id and the arc's map."""
+    if label < 0:
+        return -1
+    if micro < 0:  # registered before samples kept their micro-cluster id: its id then
+        return int(label)
+    m = maps.get(arc)
+    if m is None or micro >= m.size:
+        raise NonprehensileError(
+            f"arc {arc}: a sample of micro-cluster {micro} is not in the arc's model "
+            f"({0 if m is None else m.size} micro-clusters); recalibrate the arc")
+    return int(m[micro])
 
 
 def registration_error(exc: Exception) -> NonprehensileError:
