@@ -459,3 +459,31 @@ def test_histogram_draws_what_matplotlibs_stairs_draws() -> None:
 
     assert [p.get_label() for p in ours.axes[0].patches] == ["a", "b", "c"]
     np.testing.assert_array_equal(pixels(ours), pixels(theirs))
+
+
+def test_cluster_add_of_other_markers_names_the_dataset_and_the_store(tmp_path: Path) -> None:
+    """A dataset whose recordings have other markers than the fitted store's: the message names
+    the dataset, the store and the markers (it said 'X has 9600 features per sample' and told
+    a command-line user to resample with a library function)."""
+    import json
+
+    from click.testing import CliRunner
+
+    from nonprehensile.cli.cluster import cluster_group
+    from nonprehensile.demonstrations.synth import synthesize
+
+    fingers, tracked = tmp_path / "fingers", tmp_path / "tracked"
+    synthesize(fingers, seed=1, n_per_skill=1, mentors=1)
+    synthesize(tracked, seed=2, n_per_skill=1, mentors=1, track_object=True)
+    db, run = str(tmp_path / "c.db"), CliRunner()
+    res = run.invoke(cluster_group, ["fit", db, "--dataset", str(fingers), "--json"])
+    assert res.exit_code == 0, res.output
+    n = json.loads(res.stdout)["n_samples"]
+    res = run.invoke(cluster_group, ["add", db, "--dataset", str(tracked)])
+    assert res.exit_code == 2, res.output
+    line = res.output.strip()
+    assert "\n" not in line and str(tracked) in line and "c.db" in line, line
+    assert "holds demonstrations of 4 marker(s)" in line and "'markers'" in line, line
+    assert "nonprehensile.motion.preprocess" not in line, line
+    res = run.invoke(cluster_group, ["show", db, "--json"])
+    assert json.loads(res.stdout)["n_samples"] == n  # nothing registered

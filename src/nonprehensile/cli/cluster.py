@@ -29,6 +29,7 @@ from nonprehensile.errors import InputError
 from nonprehensile.motion.clustering import HilbertClusterer
 from nonprehensile.motion.store import SampleStore
 from nonprehensile.motion.stores import display_name, is_postgres_url, open_store, store_exists
+from nonprehensile.motion.trajectory import DEFAULT_N_POINTS
 
 __all__ = ["cluster_group"]
 
@@ -155,6 +156,25 @@ def _samples(dataset: str | None, arrays: str | None, quiet: bool
         return _load_dataset(dataset, quiet)
     assert arrays is not None
     return _load_arrays(arrays)
+
+
+def _describe(dataset: str | None, arrays: str | None, store: str, fitted: int
+              ) -> tuple[str, str]:
+    """What the samples are and how to fix a width unlike the store's, for the message."""
+    name = display_name(store)
+    if dataset is not None:
+        per = DEFAULT_N_POINTS * 3  # one marker: its track resampled to the points, x y z
+        held = (f"demonstrations of {fitted // per} marker(s)" if fitted % per == 0 else
+                f"samples of {fitted} features")
+        return (f"{dataset} (the dataset's demonstrations, flattened: {DEFAULT_N_POINTS} "
+                "points x 3 coordinates per marker)",
+                f"the store {name} holds {held}: add demonstrations that record the markers "
+                "it was fitted on (the same 'fingers', 'markers' and 'object_markers' in the "
+                "annotations), or fit a new store")
+    return (f"{arrays}", f"the store {name} holds samples of {fitted} features: resample "
+                         "every trajectory to the same number of points "
+                         "(nonprehensile.motion.preprocess) with the same markers, or fit a "
+                         "new store")
 
 
 def _register(c: HilbertClusterer, x: NDArray[np.float64], quiet: bool) -> None:
@@ -308,6 +328,7 @@ def cluster_add(store: str, dataset: str | None, arrays: str | None, as_json: bo
         # them disagree in length (a crash, exit 1, after the add was stored)
         with db.transaction():
             c = _load(db, store)
+            c.check_samples(x, *_describe(dataset, arrays, store, c.n_features_in_))
             start = c.n_samples_seen_
             _register(c, x, as_json)
             db.put_meta(STATE, c.save_state())

@@ -546,7 +546,34 @@ class HilbertClusterer:
 
     # ------------------------------------------------------------------ input
 
-    def _check_X(self, X: ArrayLike, what: str = "X", *, fresh: bool = False) -> FloatArray:
+    def check_samples(self, X: ArrayLike, what: str = "X", fix: str | None = None
+                      ) -> FloatArray:
+        """Check samples as :meth:`partial_fit` checks them, without registering them.
+
+        Parameters
+        ----------
+        X : array_like, shape (n_samples, n_features)
+            The samples.
+        what : str
+            What the samples are, for the message (a file, a dataset).
+        fix : str, optional
+            How to fix samples whose width is not the fitted model's (default: resample the
+            trajectories to the same number of points).
+
+        Returns
+        -------
+        array, shape (n_samples, n_features)
+            ``X`` as float64.
+
+        Raises
+        ------
+        InputError
+            Not a 2-D array of finite numbers, or not as wide as the fitted model's samples.
+        """
+        return self._check_X(X, what, fix=fix)
+
+    def _check_X(self, X: ArrayLike, what: str = "X", *, fresh: bool = False,
+                 fix: str | None = None) -> FloatArray:
         try:
             x = np.asarray(X, dtype=np.float64)
         except (ValueError, TypeError) as exc:
@@ -580,8 +607,9 @@ class HilbertClusterer:
             kind = "shorter" if x.shape[1] < d else "longer"
             raise InputError(
                 f"{what} has {x.shape[1]} features per sample, {kind} than the {d} the model "
-                "was fitted on; resample every trajectory to the same number of points "
-                "(nonprehensile.motion.preprocess) before clustering"
+                "was fitted on; " + (fix or "resample every trajectory to the same number of "
+                                     "points (nonprehensile.motion.preprocess) before "
+                                     "clustering")
             )
         return x
 
