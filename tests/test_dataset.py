@@ -252,6 +252,22 @@ def test_missing_and_unreadable_files(ds_dir: Path) -> None:
     assert "(demonstration 1)" in probs[1] and "C3D" in probs[1]
 
 
+def test_a_folder_named_as_a_recording_is_said_to_be_a_folder(ds_dir: Path) -> None:
+    """A folder where a recording should be (not a rosbag2 folder) was 'no such trajectory
+    file', though the name is there: the problem says it is a folder and what a bag holds."""
+    doc = json.loads((ds_dir / "annotations.json").read_text())
+    take = ds_dir / doc["demonstrations"][0]["file"]
+    take.unlink()
+    take.mkdir()
+    (ds_dir / "take01").mkdir()
+    _edit(ds_dir, lambda d: d["demonstrations"][1].update(file="take01"))
+    probs = _problems(ds_dir)
+    assert len(probs) == 2, probs
+    for k, p in enumerate(probs):
+        assert f"(demonstration {k})" in p and "a folder, not a trajectory file" in p, p
+        assert "metadata.yaml" in p and "no such" not in p, p
+
+
 def test_state_that_is_not_the_skills(ds_dir: Path) -> None:
     _edit(ds_dir, lambda d: d["demonstrations"][9].update(final={"face": "b", "theta": 0}))
     _one(ds_dir, "(demonstration 9)", "final state b:0", "d:")

@@ -846,6 +846,11 @@ def _read(
         def reader(p: Path) -> MarkerTrajectory:
             return read_rosbag(p, ros, settings.rigid_body_name)
         suffix = ""  # ROS is z up (REP 103)
+    elif path.is_dir():
+        out.add(*where, "a folder, not a trajectory file: a C3D or Motive CSV recording is a "
+                        "file, and a rosbag2 folder holds the metadata.yaml that `ros2 bag "
+                        "record` writes (this one has none); name the recording's file")
+        return None
     elif reader is None:
         out.add(*where, f"unknown trajectory format {path.suffix!r}; use .c3d, a Motive .csv "
                         "or a rosbag2 folder")
