@@ -451,3 +451,30 @@ def test_a_folder_without_annotations_is_named_once(tmp_path: Path) -> None:
     res = CliRunner().invoke(dataset_group, ["export", str(tmp_path / "empty"),
                                              str(tmp_path / "out")])
     assert res.exit_code == 2 and res.stderr.count(str(tmp_path / "empty")) == 1, res.stderr
+
+
+def test_a_dataset_of_some_skills_draws_and_an_empty_one_is_refused_early(ds_dir: Path) -> None:
+    """A skills file names skills a dataset need not demonstrate: the default figure (the
+    demo report's) drew the tumbling pair because the skills file has it and failed with
+    'the dataset has no demonstration of [...]', naming no dataset; a dataset of no
+    demonstration ran the whole demo before failing at the figures."""
+    pytest.importorskip("matplotlib")
+    from nonprehensile.pipeline import run_demo
+    from nonprehensile.viz.trajectories import trajectory_figure
+
+    _edit(ds_dir, lambda d: d.update(demonstrations=[
+        e for e in d["demonstrations"] if e["skill"] == "push-roll"]))
+    ds = load_dataset(ds_dir)
+    assert {d.skill.name for d in ds.demonstrations} == {"push-roll"}
+    assert trajectory_figure(ds) is not None
+    with pytest.raises(InputError, match=r"no demonstration of \['twist'\]; it demonstrates "
+                                         r"\['push-roll'\]") as info:
+        trajectory_figure(ds, ["twist"])
+    assert str(ds_dir) in str(info.value)
+    _edit(ds_dir, lambda d: d.update(demonstrations=[]))
+    with pytest.raises(InputError, match="no demonstration, so there is no trajectory") as info:
+        trajectory_figure(load_dataset(ds_dir))
+    assert str(ds_dir) in str(info.value)
+    with pytest.raises(InputError, match="the dataset has no demonstration, and the main job"):
+        run_demo(ds_dir.parent / "report", dataset=ds_dir, robot=False, cache=False)
+    assert not (ds_dir.parent / "report").exists()

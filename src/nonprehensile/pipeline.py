@@ -501,6 +501,12 @@ def run_demo(
     Returns
     -------
     DemoResult
+
+    Raises
+    ------
+    InputError
+        A dataset that does not load, or holds no demonstration; a task or option out of
+        range.
     """
     if write_sweep is not None:  # before any work: the sweep is written at the end
         try:
@@ -520,6 +526,10 @@ def run_demo(
 
     ds: Dataset = load_dataset(dataset, progress=lambda d, n: progress("loading", d, n),
                                angle_tol=angle_tol)
+    if not ds.demonstrations:  # refused before the physics runs, not at the report's figures
+        raise InputError(f"{dataset}: the dataset has no demonstration, and the main job "
+                         "learns its motions from demonstrations; add recordings to its "
+                         "annotations (`nonprehensile dataset annotate` finds their events)")
     poly, skills = ds.poly, list(ds.skills)
     lap("load")
     states = states_by_step(poly, step)

@@ -210,7 +210,8 @@ def show_cmd(directory: str, arcs: bool, as_json: bool) -> None:
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Image file to write (PNG, SVG or PDF, by suffix).")
 @click.option("--skill", "skills", multiple=True,
-              help="Skill to draw (repeat; default: the tumbling pair of Fig. 12).")
+              help="Skill to draw (repeat; default: the tumbling pair of Fig. 12 where "
+                   "demonstrated, else the first demonstrated skill).")
 @click.option("--marker", default=None, help="Marker to draw (default: the R1 tip marker).")
 @click.option("--color-by", type=click.Choice(["skill", "mentor"]), default="skill",
               show_default=True, help="Colour each trajectory by its skill or its mentor.")

@@ -28,14 +28,21 @@ FIG12_SKILLS = ("tumble-lift", "tumble-twist")
 def _selection(
     dataset: Dataset, skills: Sequence[str] | None, marker: str | None
 ) -> tuple[list[Demonstration], str]:
+    where = f"{dataset.root}: " if dataset.root is not None else ""
+    shown = list(dict.fromkeys(d.skill.name for d in dataset.demonstrations))
+    if not shown:
+        raise InputError(f"{where}the dataset has no demonstration, so there is no trajectory "
+                         "to draw; add recordings to its annotations")
     if skills is None:
-        names = [s for s in FIG12_SKILLS if any(k.name == s for k in dataset.skills)]
-        skills = names or [dataset.skills[0].name]
+        # the tumbling pair of Fig. 12 where demonstrated, else the first demonstrated skill
+        # (a skills file names skills a dataset need not demonstrate)
+        skills = [s for s in FIG12_SKILLS if s in shown] or shown[:1]
     demos: list[Demonstration] = []
     for name in skills:
         demos.extend(dataset.of_skill(name))  # raises InputError naming the skills there are
     if not demos:
-        raise InputError(f"the dataset has no demonstration of {list(skills)}")
+        raise InputError(f"{where}the dataset has no demonstration of {list(skills)}; it "
+                         f"demonstrates {shown}")
     marker = marker or dataset.fingers.get("R1")
     have = demos[0].trajectory.marker_names
     if marker not in have:
@@ -62,7 +69,8 @@ def plot_trajectories(
     dataset : Dataset
         A loaded dataset.
     skills : sequence of str, optional
-        Skills to draw; by default the tumbling pair of Fig. 12 when the dataset has it.
+        Skills to draw; by default the tumbling pair of Fig. 12 where demonstrated, else the
+        first demonstrated skill.
     marker : str, optional
         The marker; by default the tip marker of finger R1 (the index finger).
     color_by : {"skill", "mentor"}
