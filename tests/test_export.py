@@ -195,6 +195,22 @@ def test_write_refuses_an_existing_folder_and_mixed_rates(tmp_path: Path,
     assert not (tmp_path / "y").exists()
 
 
+def test_a_dataset_of_no_demonstration_is_named_not_the_export_folder(tmp_path: Path,
+                                                                      tracked: Path) -> None:
+    """It was 'OUT: no episodes to export', naming the folder to write, not the dataset."""
+    import shutil
+
+    src = tmp_path / "takes"
+    shutil.copytree(tracked, src)
+    doc = json.loads((src / "annotations.json").read_text())
+    doc["demonstrations"] = []
+    (src / "annotations.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match="the dataset has no demonstration") as info:
+        export_dataset(src, tmp_path / "out")
+    assert str(info.value).startswith(f"{src}: "), info.value
+    assert not (tmp_path / "out").exists()
+
+
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "nonprehensile.cli", *args],
                           capture_output=True, text=True, check=False)

@@ -175,8 +175,12 @@ def dataset_episodes(
     Raises
     ------
     InputError
-        Recordings at several rates without ``fps``; the object asked for and not tracked.
+        No demonstration; recordings at several rates without ``fps``; the object asked for
+        and not tracked.
     """
+    if not dataset.demonstrations:  # said of the dataset, not of the export folder
+        raise InputError(f"{dataset.root or 'the dataset'}: the dataset has no demonstration, "
+                         "so there is no episode to export; add recordings to its annotations")
     if with_object is None:
         with_object = dataset.object_setup is not None
     rates = sorted({d.trajectory.rate for d in dataset.demonstrations})
