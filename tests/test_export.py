@@ -321,6 +321,46 @@ def test_cli_record_refuses_an_existing_folder_before_simulating(tmp_path: Path)
     assert len(lines) == 1 and "--record folder exists" in lines[0], r.stderr
 
 
+def test_cli_record_refuses_a_folder_it_cannot_create_before_simulating(tmp_path: Path) -> None:
+    """A --record folder under a file was found out only when the simulation was over."""
+    pytest.importorskip("mujoco", reason="simulation needs MuJoCo (extra 'sim')")
+    (tmp_path / "file").write_text("")
+    from importlib import resources
+
+    skills_file = str(resources.files("nonprehensile") / "data" / "cube_skills.json")
+    r = _cli("simulate", "plan", skills_file, "--from", "a:0", "--to", "d:0", "--step", "90",
+             "--record", str(tmp_path / "file" / "rec"))
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "cannot create the --record folder" in lines[0], r.stderr
+    assert "is a file, not a folder" in lines[0], r.stderr
+
+
+def test_an_export_that_fails_midway_leaves_no_folder(tmp_path: Path, tracked: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """A write that failed (a full disk) left a cut data file in the export folder, which the
+    next export then refused as existing; now the folder appears whole or not at all."""
+    import pyarrow.parquet as pq
+
+    eps = dataset_episodes(load_dataset(tracked))
+    real = pq.write_table
+
+    def full(table: object, where: object, **kw: object) -> None:
+        real(table, where, **kw)  # type: ignore[arg-type]
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pq, "write_table", full)
+    with pytest.raises(OSError, match="nothing was written") as info:
+        write_lerobot(eps, tmp_path / "out")
+    assert info.value.filename == str(tmp_path / "out")
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # no folder, no partial one
+    monkeypatch.undo()
+    write_lerobot(eps, tmp_path / "out")
+    assert read_lerobot(tmp_path / "out").info["total_episodes"] == len(eps)
+    with pytest.raises(InputError, match="is a file, not a folder"):
+        export_dataset(tracked, tmp_path / "out" / "meta" / "info.json" / "x")
+
+
 @st.composite
 def _episodes(draw: st.DrawFn) -> list[Episode]:
     n_fingers = draw(st.integers(1, 3))

@@ -559,11 +559,10 @@ def simulate_plan_cmd(skills_file: str, start: State, goal: State,
 
 def _check_record(record: str | None) -> None:
     """Refuse an existing ``--record`` folder before simulating (not after)."""
-    from pathlib import Path
+    from nonprehensile.export.episodes import check_new_folder
 
-    if record is not None and Path(record).exists():
-        raise InputError(f"{record}: the --record folder exists; give a new folder (a LeRobot "
-                         "dataset is written whole, never into or over another)")
+    if record is not None:
+        check_new_folder(record, "the --record folder")
 
 
 @simulate_group.command("record")

@@ -12,7 +12,7 @@ from typing import Any
 
 from nonprehensile.errors import InputError
 from nonprehensile.export.demonstrations import dataset_episodes, demonstration_episode
-from nonprehensile.export.episodes import Episode, check_fps
+from nonprehensile.export.episodes import Episode, check_fps, check_new_folder
 
 __all__ = ["FORMATS", "Episode", "dataset_episodes", "demonstration_episode", "export_dataset",
            "write_episodes"]
@@ -81,9 +81,7 @@ def export_dataset(
     root = Path(out_dir)
     if format not in FORMATS:
         raise InputError(f"unknown export format {format!r}; the formats are {list(FORMATS)}")
-    if root.exists():  # before the slow part
-        raise InputError(f"{root}: the export folder exists; give a new folder (a LeRobot "
-                         "dataset is written whole, never into or over another)")
+    check_new_folder(root)  # before the slow part
     ds = load_dataset(dataset_path(dataset), progress=progress)
     episodes = dataset_episodes(ds, fps=fps, with_object=with_object)
     info = {"source": "dataset", "dataset": str(dataset), "object": ds.poly.name,

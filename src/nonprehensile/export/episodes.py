@@ -26,8 +26,10 @@ executor's targets for a simulated execution.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -37,6 +39,7 @@ from nonprehensile.errors import InputError
 
 __all__ = [
     "Episode",
+    "check_new_folder",
     "continuous_quaternions",
     "resample_positions",
     "resample_quaternions",
@@ -228,3 +231,43 @@ def check_fps(fps: object) -> float | None:
             fps <= 0):
         raise InputError(f"fps must be a positive number of frames per second, got {fps!r}")
     return float(fps)
+
+
+def check_new_folder(out_dir: str | Path, what: str = "the export folder") -> Path:
+    """A folder an export may create: one that does not exist, in a folder that can be written.
+
+    Checked before the slow part (loading a dataset, simulating), so that a bad path costs
+    nothing.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The folder to create.
+    what : str
+        What the folder is, for the message (``"the --record folder"``).
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    InputError
+        The folder exists, or the nearest existing folder above it is a file or cannot be
+        written.
+    """
+    root = Path(out_dir)
+    if root.exists():
+        raise InputError(f"{root}: {what} exists; give a new folder (a LeRobot dataset is "
+                         "written whole, never into or over another)")
+    up = root.absolute().parent
+    while not up.exists() and up != up.parent:
+        up = up.parent
+    if not up.is_dir():
+        raise InputError(f"{root}: cannot create {what}: {up} is a file, not a folder; give a "
+                         "new folder inside a folder")
+    if not os.access(up, os.W_OK | os.X_OK):
+        raise InputError(f"{root}: cannot create {what}: the folder {up} is not writable; give "
+                         "a new folder inside a folder you can write to")
+    return root

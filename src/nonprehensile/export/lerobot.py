@@ -30,6 +30,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import shutil
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,7 +43,7 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from nonprehensile.errors import InputError
-from nonprehensile.export.episodes import Episode
+from nonprehensile.export.episodes import Episode, check_new_folder
 
 __all__ = [
     "CODEBASE_VERSION",
@@ -218,9 +220,7 @@ def write_lerobot(
     root = Path(out_dir)
     if not episodes:
         raise InputError(f"{root}: no episodes to export")
-    if root.exists():
-        raise InputError(f"{root}: the export folder exists; give a new folder (a LeRobot "
-                         "dataset is written whole, never into or over another)")
+    check_new_folder(root)
     rates = sorted({float(e.fps) for e in episodes})
     fps = rates[0]
     if len(rates) > 1 or not math.isclose(fps, round(fps), abs_tol=1e-9):
@@ -285,48 +285,67 @@ def write_lerobot(
         ep_rows.append(row)
         start += n
 
-    root.mkdir(parents=True)
-    (root / "meta").mkdir()
-    # frames: one row group per episode (LeRobot's layout: an episode reads as one group)
-    data_path = root / DATA_PATH.format(chunk_index=0, file_index=0)
-    data_path.parent.mkdir(parents=True)
-    arrays = {}
-    for k, ft in features.items():
-        dtype = pa.float32() if ft["dtype"] == "float32" else pa.int64()
-        stacked = np.concatenate(columns[k])
-        arrays[k] = _fixed(stacked, dtype) if ft["shape"] != [1] else pa.array(stacked, dtype)
-    table = pa.table(arrays)
-    with pq.ParquetWriter(data_path, table.schema, compression="snappy") as writer:
-        for row in ep_rows:
-            writer.write_table(table.slice(row["dataset_from_index"], row["length"]))
-    # episodes: every key of every row (null where an episode lacks it)
-    keys = list(dict.fromkeys(k for r in ep_rows for k in r))
-    ep_table = pa.table({k: [r.get(k) for r in ep_rows] for k in keys})
-    ep_path = root / EPISODES_PATH.format(chunk_index=0, file_index=0)
-    ep_path.parent.mkdir(parents=True)
-    pq.write_table(ep_table, ep_path, compression="snappy")
-    pq.write_table(_tasks_table(tasks), root / TASKS_PATH)
-    total = np.concatenate
-    stats = {k: _stats(total(columns[k])) for k in features}
-    info = {
-        "codebase_version": CODEBASE_VERSION,
-        "robot_type": robot_type,
-        "total_episodes": len(episodes),
-        "total_frames": start,
-        "total_tasks": len(tasks),
-        "chunks_size": CHUNKS_SIZE,
-        "data_files_size_in_mb": DATA_FILE_MB,
-        "video_files_size_in_mb": VIDEO_FILE_MB,
-        "fps": round(fps),
-        "splits": {"train": f"0:{len(episodes)}"},
-        "data_path": DATA_PATH,
-        "video_path": None,
-        "features": features,
-    }
-    _write_json(root / "meta" / "info.json", info)
-    _write_json(root / "meta" / "stats.json", stats)
-    if extra_info:
-        _write_json(root / "meta" / "nonprehensile.json", dict(extra_info))
+    # written beside the folder, then renamed: the export appears whole or not at all (a full
+    # disk left a cut data file in the folder, which the next export refused as existing)
+    tmp = root.parent / f".{root.name}.partial-{os.getpid()}"
+    try:
+        root.parent.mkdir(parents=True, exist_ok=True)
+        shutil.rmtree(tmp, ignore_errors=True)
+        tmp.mkdir()
+    except OSError as exc:
+        raise InputError(f"{root}: cannot create the export folder ({exc.filename}: "
+                         f"{exc.strerror or exc}); give a new folder inside a folder you can "
+                         "write to") from None
+    try:
+        (tmp / "meta").mkdir()
+        # frames: one row group per episode (LeRobot's layout: an episode reads as one group)
+        data_path = tmp / DATA_PATH.format(chunk_index=0, file_index=0)
+        data_path.parent.mkdir(parents=True)
+        arrays = {}
+        for k, ft in features.items():
+            dtype = pa.float32() if ft["dtype"] == "float32" else pa.int64()
+            stacked = np.concatenate(columns[k])
+            arrays[k] = _fixed(stacked, dtype) if ft["shape"] != [1] else pa.array(stacked, dtype)
+        table = pa.table(arrays)
+        with pq.ParquetWriter(data_path, table.schema, compression="snappy") as writer:
+            for row in ep_rows:
+                writer.write_table(table.slice(row["dataset_from_index"], row["length"]))
+        # episodes: every key of every row (null where an episode lacks it)
+        keys = list(dict.fromkeys(k for r in ep_rows for k in r))
+        ep_table = pa.table({k: [r.get(k) for r in ep_rows] for k in keys})
+        ep_path = tmp / EPISODES_PATH.format(chunk_index=0, file_index=0)
+        ep_path.parent.mkdir(parents=True)
+        pq.write_table(ep_table, ep_path, compression="snappy")
+        pq.write_table(_tasks_table(tasks), tmp / TASKS_PATH)
+        total = np.concatenate
+        stats = {k: _stats(total(columns[k])) for k in features}
+        info = {
+            "codebase_version": CODEBASE_VERSION,
+            "robot_type": robot_type,
+            "total_episodes": len(episodes),
+            "total_frames": start,
+            "total_tasks": len(tasks),
+            "chunks_size": CHUNKS_SIZE,
+            "data_files_size_in_mb": DATA_FILE_MB,
+            "video_files_size_in_mb": VIDEO_FILE_MB,
+            "fps": round(fps),
+            "splits": {"train": f"0:{len(episodes)}"},
+            "data_path": DATA_PATH,
+            "video_path": None,
+            "features": features,
+        }
+        _write_json(tmp / "meta" / "info.json", info)
+        _write_json(tmp / "meta" / "stats.json", stats)
+        if extra_info:
+            _write_json(tmp / "meta" / "nonprehensile.json", dict(extra_info))
+        tmp.rename(root)
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError):
+            raise OSError(exc.errno, f"cannot write the export ({exc.strerror or exc}); nothing "
+                          "was written: free space, or give a folder you can write to",
+                          str(root)) from None
+        raise
     return root
 
 
