@@ -445,3 +445,42 @@ def test_c3d_worker_answers_with_the_point_group_only() -> None:
                 full["parameters"]["POINT"][key]["value"])
         traj = read_c3d(REAL_C3D / name)
         assert traj.n_frames == full["data"]["points"].shape[2]
+
+
+@pytest.mark.skipif(not REAL_C3D.is_dir(), reason="../shared/realdata is not beside the repo")
+def test_a_c3d_file_cut_inside_a_frame_is_refused_and_overstated_counts_are_not(
+        tmp_path: Path) -> None:
+    """A copy of a Vicon take cut at 30,000 bytes read as a 4-frame recording, silently (ezc3d
+    reads the frames there are). A file that ends inside a frame was cut; the Optotrak sample,
+    whose header counts 1149 frames but which holds 29 whole ones, still reads."""
+    from nonprehensile.demonstrations.formats import read_c3d
+    from nonprehensile.errors import DemonstrationError
+
+    data = (REAL_C3D / "Vicon.c3d").read_bytes()
+    for n in (30000, len(data) // 2, len(data) - 1000):
+        cut = tmp_path / f"vicon_{n}.c3d"
+        cut.write_bytes(data[:n])
+        with pytest.raises(DemonstrationError, match=r"cut short: the header and POINT:FRAMES "
+                                                     r"count 580 frames") as info:
+            read_c3d(cut)
+        assert str(info.value).startswith(str(cut)) and "\n" not in str(info.value)
+    assert read_c3d(REAL_C3D / "Optotrak.c3d").n_frames == 29
+    for name in ("Vicon.c3d", "BTS.c3d", "Qualisys.c3d", "FP_Type1.c3d", "read_NOTworking2.c3d"):
+        assert read_c3d(REAL_C3D / name).n_frames > 0
+
+
+def test_a_written_c3d_file_cut_short_is_refused(tmp_path: Path) -> None:
+    """The same without the real files: a take the project wrote, cut inside a frame."""
+    pytest.importorskip("ezc3d")
+    from nonprehensile.demonstrations.formats import read_c3d, write_c3d
+    from nonprehensile.demonstrations.record import MarkerTrajectory
+    from nonprehensile.errors import DemonstrationError
+
+    pos = np.random.default_rng(0).normal(size=(300, 4, 3)) * 100
+    path = tmp_path / "take.c3d"
+    write_c3d(MarkerTrajectory.from_arrays(pos, ["a", "b", "c", "d"], 120.0, "mm"), path)
+    assert read_c3d(path).n_frames == 300
+    data = path.read_bytes()
+    (tmp_path / "cut.c3d").write_bytes(data[: len(data) // 2 + 7])
+    with pytest.raises(DemonstrationError, match="cut short"):
+        read_c3d(tmp_path / "cut.c3d")

@@ -102,26 +102,55 @@ def check_c3d_structure(path: str | Path) -> None:
                               f"runs past the end of the file ({size} bytes)")
         params += fh.read(_BLOCK * (nblocks - 1))
     end = ">" if proc == 86 else "<"
-    _walk_parameters(path, params, pstart, end)
+    point_frames = _walk_parameters(path, params, pstart, end)
 
     dstart = struct.unpack(end + "H", head[16:18])[0]
     if _BLOCK * (dstart - 1) > size:
         raise _fail(path, f"the data section starts at block {dstart}, past the end of the "
                           f"file ({size} bytes)")
-    # the header's counts are often stale in real files (readers use POINT:FRAMES and the
-    # file's size instead), so the data's extent is left to the isolated reader
+    _check_not_cut(path, head, proc, end, size, point_frames)
 
 
-def _walk_parameters(path: Path, params: bytes, pstart: int, end: str) -> None:
+def _check_not_cut(path: Path, head: bytes, proc: int, end: str, size: int,
+                   point_frames: int | None) -> None:
+    """Refuse a file cut short in its data: fewer whole frames than the header and
+    ``POINT:FRAMES`` both count, and a piece of a frame after the last whole one.
+
+    The counts alone are not enough: real files overstate them (the Optotrak sample of
+    ezc3d's test files counts 1149 frames and holds 29) and ezc3d then reads the frames there
+    are. A file that ends inside a frame, where no writer stops, was cut (a copy or a download
+    that did not finish); ezc3d read it as a shorter recording, silently.
+    """
+    n_points, n_analog, first, last = struct.unpack(end + "HHHH", head[2:10])
+    counted = last - first + 1
+    if n_points == 0 or counted <= 0 or point_frames != counted:
+        return  # no points, or the counts disagree: nothing certain to check against
+    # the scale factor's sign says float (4-byte) or integer (2-byte) data; its sign bit
+    # is in byte 3 (Intel), 1 (DEC: words swapped) or 0 (MIPS, big-endian)
+    sign = head[12 + {84: 3, 85: 1, 86: 0}[proc]] & 0x80
+    frame_bytes = (4 * n_points + n_analog) * (4 if sign else 2)
+    data_bytes = size - _BLOCK * (struct.unpack(end + "H", head[16:18])[0] - 1)
+    whole, rest = divmod(data_bytes, frame_bytes)
+    if whole < counted and rest:
+        raise _fail(path, f"the file is cut short: the header and POINT:FRAMES count "
+                          f"{counted} frames of {frame_bytes} bytes, and its {size} bytes hold "
+                          f"{whole} of them and a piece of the next; copy or export the take "
+                          "again")
+
+
+def _walk_parameters(path: Path, params: bytes, pstart: int, end: str) -> int | None:
     """Follow the parameter records' offsets: each must move forward inside the section and
-    each parameter's data must fit its record."""
+    each parameter's data must fit its record. Returns ``POINT:FRAMES`` (a scalar integer or
+    float parameter), or None."""
     pos, limit = 4, len(params)
     seen = 0
+    groups: dict[int, str] = {}
+    frames: list[tuple[int, float]] = []  # (group id, value) of each scalar FRAMES
     while pos + 2 <= limit:
         nchar = struct.unpack("b", params[pos : pos + 1])[0]
         gid = struct.unpack("b", params[pos + 1 : pos + 2])[0]
         if nchar == 0:
-            return
+            break
         n = abs(nchar)
         at = pstart + pos
         off_at = pos + 2 + n
@@ -152,10 +181,19 @@ def _walk_parameters(path: Path, params: bytes, pstart: int, end: str) -> None:
             if len(dims) != ndims or data_end > nxt:
                 raise _fail(path, f"the data of the parameter record at byte {at} "
                                   f"({count} values) runs past its record")
+            name = params[pos + 2 : pos + 2 + n].decode("latin-1").upper()
+            if name == "FRAMES" and ndims == 0 and dtype in (2, 4):
+                raw = params[body + 2 : body + 2 + dtype]
+                value = struct.unpack(end + ("h" if dtype == 2 else "f"), raw)[0]
+                frames.append((gid, value if dtype == 4 or value >= 0 else value + 65536))
+        else:
+            groups[-gid] = params[pos + 2 : pos + 2 + n].decode("latin-1").upper()
         seen += 1
         if not offset:
-            return
+            break
         pos = nxt
+    point = [v for g, v in frames if groups.get(g) == "POINT"]
+    return int(point[0]) if point and math.isfinite(point[0]) and point[0] >= 0 else None
 
 
 # ---------------------------------------------------------------------------------- worker
