@@ -257,6 +257,27 @@ def test_annotate_bad_input_exits_2(tmp_path: Path) -> None:
         annotate_dataset(takes, relative_to=tmp_path / "other")
 
 
+@pytest.mark.parametrize(("args", "needles"), [
+    (["--contact", "7", "4"], ["--contact: ON must be below OFF", "ON 7 and OFF 4"]),
+    (["--ground", "3", "3"], ["--ground: ON must be below OFF", "ON 3 and OFF 3"]),
+    (["--state-tol", "120"], ["--state-tol", "at most 90"]),
+])
+def test_annotate_threshold_options_are_named_in_their_units(
+        tmp_path: Path, args: list[str], needles: list[str]) -> None:
+    """Swapped thresholds were 'bad option: thresholds need contact_off > contact_on ...,
+    got contact 0.007/0.004' (the library's names, in metres, for options given in mm); a
+    --state-tol the option took (up to 180) was refused by the library past 90."""
+    takes = tmp_path / "takes"
+    takes.mkdir()
+    res = CliRunner().invoke(main, ["dataset", "annotate", str(takes), "-o",
+                                    str(takes / "a.json"), *args])
+    assert res.exit_code == 2, res.output
+    line = res.output.strip()
+    assert "\n" not in line and "bad option" not in line, line
+    for n in needles:
+        assert n in line, line
+
+
 def test_rigid_body_with_its_own_pivot(tmp_path: Path) -> None:
     """Motive puts a rigid body's pivot at its markers' centroid, axes along the world's:
     the annotations say where the model is in that frame, and the events come out the same."""

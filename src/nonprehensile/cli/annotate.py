@@ -14,7 +14,7 @@ import click
 from rich.table import Table
 
 from nonprehensile.cli.common import emit_json, err, handle_errors, out, progress_bar
-from nonprehensile.cli.options import ANGLE, number
+from nonprehensile.cli.options import number
 from nonprehensile.demonstrations.annotate import DetectionParams, annotate_dataset
 from nonprehensile.demonstrations.dataset import ANNOTATION_FILES, _annotations_file
 from nonprehensile.errors import InputError
@@ -63,7 +63,8 @@ def _with_kept_recordings(data: Any, kept: Any, root: Path
               show_default=True, help="Vertex-on-table thresholds ON OFF, mm (hysteresis).")
 @click.option("--min-duration", type=number(0.0, 10.0, unit="s"), default=0.05, show_default=True,
               help="Shortest contact state kept, s; shorter ones are flickers.")
-@click.option("--state-tol", type=ANGLE, default=5.0, show_default=True,
+@click.option("--state-tol", type=number(0.0, 90.0, low_open=True, unit="degrees"), default=5.0,
+              show_default=True,
               help="Tolerance of resting poses against the skills' states, degrees.")
 @click.option("--no-fit", is_flag=True,
               help="Time events at the threshold crossings, not by the smooth-onset fit.")
@@ -96,6 +97,12 @@ def annotate_cmd(
         data = load_document(source)
         if isinstance(data, dict) and isinstance(data.get("gap_limit"), int):
             gap = data["gap_limit"]
+    for opt, (on, off), usual in (("--contact", contact_mm, "4 7"),
+                                  ("--ground", ground_mm, "1.5 3")):
+        if not off > on:
+            raise InputError(f"{opt}: ON must be below OFF (hysteresis: a contact is made below "
+                             f"ON mm and broken above OFF mm), got ON {on:g} and OFF {off:g}; "
+                             f"for instance {opt} {usual}")
     try:
         params = DetectionParams(
             pad_radius=pad_radius / 1000, contact_on=contact_mm[0] / 1000,
