@@ -67,6 +67,30 @@ def test_states_file(tmp_path: Path) -> None:
         read_states(write(tmp_path, '[{"face": "a", "theta": 90}, {"face": "b"}]'))
 
 
+@pytest.mark.parametrize(("text", "needle"), [
+    ('[{"face": "z", "theta": 0}]', "names face 'z'"),
+    ('[{"face": "a", "theta": 0}, {"face": "a", "theta": 360}]', "listed twice"),
+    ("[]", "the state list is empty"),
+    ('{"states": []}', "the state list is empty"),
+])
+def test_a_state_set_file_is_named_in_its_problems(tmp_path: Path, text: str,
+                                                   needle: str) -> None:
+    """--states FILE with a face the object lacks or a state twice: the message named no
+    file; an empty list was an empty state set (states and infer printed nothing, exit 0)."""
+    from click.testing import CliRunner
+
+    from nonprehensile.cli import main
+
+    path = write(tmp_path, text, "states.json")
+    skills = Path(__file__).resolve().parents[1] / "src" / "nonprehensile" / "data" / \
+        "cube_skills.json"
+    for args in (["states", "cube"], ["infer", str(skills)]):
+        res = CliRunner().invoke(main, [*args, "--states", str(path)])
+        assert res.exit_code == 2, res.output
+        line = res.output.strip()
+        assert "\n" not in line and f"{path}: " in line and needle in line, line
+
+
 def test_the_states_commands_json_is_a_states_file(tmp_path: Path) -> None:
     """What `nonprehensile states MODEL --json` prints is read as a states file (its entries'
     other keys, `class`, ignored): the same states as the command's own set."""

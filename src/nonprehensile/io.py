@@ -27,7 +27,7 @@ from nonprehensile.errors import InputError, ModelError, SkillError, StateError
 from nonprehensile.geometry.polyhedron import DEFAULT_RTOL, Polyhedron
 from nonprehensile.geometry.units import check_units
 from nonprehensile.skills.skill import Skill, skill_from_dict, skill_to_dict
-from nonprehensile.states import DEFAULT_ANGLE_TOL, State
+from nonprehensile.states import DEFAULT_ANGLE_TOL, State, check_states
 
 __all__ = [
     "BUNDLED_MODELS",
@@ -39,6 +39,7 @@ __all__ = [
     "parse_document",
     "read_model",
     "read_skills",
+    "read_state_set",
     "read_states",
     "save_document",
     "skills_to_dict",
@@ -353,6 +354,41 @@ def read_states(path: str | Path) -> list[State]:
         except StateError as exc:
             raise StateError(f"{path}: entry {i}: {exc}") from None
     return out
+
+
+def read_state_set(
+    poly: Polyhedron, path: str | Path, *, angle_tol: float = DEFAULT_ANGLE_TOL
+) -> list[State]:
+    """Read a state list file (:func:`read_states`) and check it against the object.
+
+    Parameters
+    ----------
+    poly : Polyhedron
+        The object the states are of.
+    path : str or Path
+        The file.
+    angle_tol : float
+        Degrees within which two states of a face are the same (listed twice).
+
+    Returns
+    -------
+    list of State
+        The states, checked (:func:`~nonprehensile.states.check_states`).
+
+    Raises
+    ------
+    StateError
+        Naming the file: not a list, empty, an entry that is not a state, a face the object
+        lacks or cannot rest on, a state listed twice.
+    """
+    states = read_states(path)
+    if not states:
+        raise StateError(f'{path}: the state list is empty; list at least one {{"face": ..., '
+                         f'"theta": ...}} (or use --step)')
+    try:
+        return check_states(poly, states, angle_tol=angle_tol)
+    except StateError as exc:
+        raise StateError(f"{path}: {exc}") from None
 
 
 def read_skills(

@@ -188,15 +188,15 @@ def state_set(
     angle_tol: float = DEFAULT_ANGLE_TOL,
 ) -> list[State]:
     """The state set chosen on the command line (``--step`` or ``--states``)."""
-    from nonprehensile.io import read_states
-    from nonprehensile.states import check_states, states_by_step
+    from nonprehensile.io import read_state_set
+    from nonprehensile.states import states_by_step
 
     if (step is None) == (states_file is None):
         raise InputError("give exactly one of --step DEG or --states FILE")
     if step is not None:
         return states_by_step(poly, step)
     assert states_file is not None
-    return check_states(poly, read_states(states_file), angle_tol=angle_tol)
+    return read_state_set(poly, states_file, angle_tol=angle_tol)
 
 
 step_option = click.option("--step", type=STEP, default=None,
