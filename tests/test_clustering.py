@@ -487,3 +487,21 @@ def test_cluster_add_of_other_markers_names_the_dataset_and_the_store(tmp_path: 
     assert "nonprehensile.motion.preprocess" not in line, line
     res = run.invoke(cluster_group, ["show", db, "--json"])
     assert json.loads(res.stdout)["n_samples"] == n  # nothing registered
+
+
+def test_cluster_fit_of_too_few_samples_names_them_and_creates_no_store(tmp_path: Path) -> None:
+    """Too few samples for a first fit: the message was 'recalibration needs at least 6
+    samples, 3 are stored; add more first' (no file named), and an empty store file was left
+    behind, which `cluster show` then called a store without a clusterer."""
+    from click.testing import CliRunner
+
+    from nonprehensile.cli.cluster import cluster_group
+
+    np.save(tmp_path / "few.npy", np.random.default_rng(0).normal(size=(3, 5)))
+    db = tmp_path / "c.db"
+    res = CliRunner().invoke(cluster_group, ["fit", str(db), "--arrays",
+                                             str(tmp_path / "few.npy"), "--n-clusters", "5"])
+    assert res.exit_code == 2, res.output
+    line = res.output.strip()
+    assert "\n" not in line and "few.npy: 3 sample(s)" in line and "at least 6" in line, line
+    assert "--n-clusters" in line and not db.exists()

@@ -287,6 +287,12 @@ def cluster_fit(store: str, dataset: str | None, arrays: str | None, method: str
                 as_json: bool) -> None:
     """Create STORE (replacing its content) and cluster the given samples into it."""
     x, classes = _samples(dataset, arrays, as_json)
+    need = HilbertClusterer(n_clusters, method=method).min_fit_samples()  # type: ignore[arg-type]
+    if x.shape[0] < need:  # before the store is opened (created) or cleared
+        what = (f"{dataset}: {x.shape[0]} demonstration(s)" if dataset is not None else
+                f"{arrays}: {x.shape[0]} sample(s)")
+        raise InputError(f"{what}, and a fit needs at least {need} (n_clusters + 1, at least "
+                         f"3); give more{' or fewer --n-clusters' if n_clusters else ''}")
     db = open_store(store)
     try:
         with db.transaction():

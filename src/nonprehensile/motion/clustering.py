@@ -613,6 +613,15 @@ class HilbertClusterer:
             )
         return x
 
+    def min_fit_samples(self) -> int:
+        """The fewest samples the first batch takes: ``n_clusters + 1``, at least 3.
+
+        Returns
+        -------
+        int
+        """
+        return self._min_init()
+
     def _min_init(self) -> int:
         k = self.n_clusters or 2
         return max(3, k + 1, (self.n_components or 2) + 1)
