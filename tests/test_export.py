@@ -211,6 +211,18 @@ def test_a_dataset_of_no_demonstration_is_named_not_the_export_folder(tmp_path: 
     assert not (tmp_path / "out").exists()
 
 
+def test_an_episode_rate_below_one_hz_is_not_written_as_fps_0(tmp_path: Path,
+                                                               tracked: Path) -> None:
+    """A rate within 1e-9 of the whole number 0 passed the whole-number check, and info.json
+    said fps 0, which LeRobot divides by."""
+    import dataclasses
+
+    eps = [dataclasses.replace(e, fps=1e-30) for e in dataset_episodes(load_dataset(tracked))]
+    with pytest.raises(InputError, match="whole number of frames per second, at least 1"):
+        write_lerobot(eps, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+
+
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "nonprehensile.cli", *args],
                           capture_output=True, text=True, check=False)

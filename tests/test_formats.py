@@ -111,9 +111,11 @@ def test_equality_treats_nan_as_equal_and_hash_agrees() -> None:
         ({"marker_names": ("a", "a")}, "'a' appears more than once"),
         ({"marker_names": ("a", " ")}, "non-empty"),
         ({"marker_names": "ab"}, "sequence of strings"),
-        ({"rate": 0.0}, "positive"),
-        ({"rate": math.nan}, "positive"),
-        ({"rate": math.inf}, "positive"),
+        ({"rate": 0.0}, "from 0.01 to 100000"),
+        ({"rate": math.nan}, "from 0.01 to 100000"),
+        ({"rate": math.inf}, "from 0.01 to 100000"),
+        ({"rate": 1e-30}, "from 0.01 to 100000"),
+        ({"rate": 1e9}, "from 0.01 to 100000"),
         ({"rate": "120"}, "number of Hz"),
         ({"rate": True}, "number of Hz"),
         ({"units": "cm"}, "'cm'"),
@@ -194,9 +196,10 @@ def test_c3d_y_up_axes(tmp_path: Path) -> None:
     assert read_c3d(path, up="y") == t
 
 
-def _ezc3d_file(path: Path, *, units: str = "mm", labels: tuple[str, ...] = ("a", "b")) -> Path:
+def _ezc3d_file(path: Path, *, units: str = "mm", labels: tuple[str, ...] = ("a", "b"),
+                rate: float = 120.0) -> Path:
     c3d = ezc3d.c3d()
-    c3d["parameters"]["POINT"]["RATE"]["value"] = [120.0]
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [rate]
     c3d["parameters"]["POINT"]["LABELS"]["value"] = labels
     c3d["parameters"]["POINT"]["UNITS"]["value"] = [units]
     c3d["data"]["points"] = np.ones((4, len(labels), 3))
@@ -218,6 +221,9 @@ def test_c3d_centimetres_become_millimetres(tmp_path: Path) -> None:
         (lambda p: _ezc3d_file(p, units="in"), "POINT:UNITS is 'in'"),
         (lambda p: _ezc3d_file(p, labels=("a", "a")), "label 'a' names points 1 and 2"),
         (lambda p: _ezc3d_file(p, labels=("a", "")), "point 2 has a blank label"),
+        # a damaged rate read as it was: a recording of 1e31 s and a LeRobot export of fps 0
+        (lambda p: _ezc3d_file(p, rate=1e-30), "the point rate is 1e-30 Hz, outside 0.01"),
+        (lambda p: _ezc3d_file(p, rate=1e38), "the point rate is 1e[+]38 Hz, outside"),
     ],
 )
 def test_c3d_errors_name_file_and_culprit(tmp_path: Path, make: object, culprit: str) -> None:
@@ -484,7 +490,14 @@ def _drop(lines: list[str], row: int) -> list[str]:
                 ls[0].replace("Export Frame Rate,120.000000", "Export Frame Rate,0"),
                 *ls[1:],
             ],
-            r"positive number of Hz",
+            r"Export Frame Rate is '0'; expected a number of Hz from 0.01 to 100000",
+        ),
+        (
+            lambda ls: [
+                ls[0].replace("Export Frame Rate,120.000000", "Export Frame Rate,1e-30"),
+                *ls[1:8],  # one frame: no time to disagree with the rate
+            ],
+            r"Export Frame Rate is '1e-30'; expected a number of Hz from 0.01",
         ),
         (
             lambda ls: [

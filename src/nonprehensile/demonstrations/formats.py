@@ -36,7 +36,13 @@ from scipy.spatial.transform import Rotation
 
 from nonprehensile.bounds import check_path
 from nonprehensile.demonstrations.c3d_safe import parse_c3d
-from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
+from nonprehensile.demonstrations.record import (
+    MAX_RATE_HZ,
+    MIN_RATE_HZ,
+    MarkerTrajectory,
+    PoseTrajectory,
+    rate_in_range,
+)
 from nonprehensile.errors import DemonstrationError
 from nonprehensile.geometry.build import face_name
 
@@ -195,6 +201,12 @@ def read_c3d(path: str | Path, *, up: UpAxis = "z") -> MarkerTrajectory:
         raise DemonstrationError(
             f"{path}: no valid point rate (POINT:RATE is {rate_value!r}, the header's frame rate "
             "is missing); set POINT:RATE to the capture rate in Hz"
+        )
+    if not rate_in_range(rate):
+        raise DemonstrationError(
+            f"{path}: the point rate is {rate:g} Hz, outside {MIN_RATE_HZ:g} to "
+            f"{MAX_RATE_HZ:g} Hz (a damaged or wrong POINT:RATE); set POINT:RATE to the "
+            "capture rate in Hz"
         )
 
     units_value = _c3d_param(c3d, "UNITS")
@@ -504,9 +516,10 @@ def read_motive_csv(
         ) from None
     except ValueError:
         rate = math.nan
-    if not (math.isfinite(rate) and rate > 0):
+    if not rate_in_range(rate):
         raise DemonstrationError(
-            f"{path}: row 1: {rate_key} is {meta[rate_key]!r}; expected a positive number of Hz"
+            f"{path}: row 1: {rate_key} is {meta[rate_key]!r}; expected a number of Hz from "
+            f"{MIN_RATE_HZ:g} to {MAX_RATE_HZ:g}"
         )
 
     rotation_type = meta.get("Rotation Type", "Quaternion")

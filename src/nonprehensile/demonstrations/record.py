@@ -22,7 +22,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from nonprehensile.bounds import MAX_COORDINATE
 from nonprehensile.errors import DemonstrationError
 
-__all__ = ["UNITS", "LengthUnits", "MarkerTrajectory", "PoseTrajectory", "kabsch_poses"]
+__all__ = ["MAX_RATE_HZ", "MIN_RATE_HZ", "UNITS", "LengthUnits", "MarkerTrajectory",
+           "PoseTrajectory", "kabsch_poses", "rate_in_range"]
 
 FloatArray = NDArray[np.float64]
 
@@ -31,6 +32,18 @@ LengthUnits = Literal["m", "mm"]
 
 #: Metres per unit, for each accepted unit.
 UNITS: dict[str, float] = {"m": 1.0, "mm": 1e-3}
+
+#: The sampling rates a recording may have, Hz: far beyond what motion capture records (a
+#: tracker's 25 Hz to a few kHz) on both sides. A rate of 1e-30 Hz read from a damaged header
+#: made a recording of 1e31 seconds and a LeRobot export of fps 0.
+MIN_RATE_HZ = 0.01
+MAX_RATE_HZ = 100_000.0
+
+
+def rate_in_range(rate: float) -> bool:
+    """Whether ``rate`` is a finite number of Hz from :data:`MIN_RATE_HZ` to
+    :data:`MAX_RATE_HZ`."""
+    return math.isfinite(rate) and MIN_RATE_HZ <= rate <= MAX_RATE_HZ
 
 
 def _check_units(units: object, what: str) -> LengthUnits:
@@ -128,10 +141,10 @@ class PoseTrajectory:
         object.__setattr__(self, "quaternions", quat)
         rate = self.rate
         if isinstance(rate, bool) or not isinstance(rate, (int, float, np.integer, np.floating)) \
-                or not (math.isfinite(float(rate)) and float(rate) > 0):
+                or not rate_in_range(float(rate)):
             raise DemonstrationError(
-                f"pose trajectory {self.name!r}: rate must be a finite positive number of Hz, "
-                f"got {rate!r}"
+                f"pose trajectory {self.name!r}: rate must be a number of Hz from "
+                f"{MIN_RATE_HZ:g} to {MAX_RATE_HZ:g}, got {rate!r}"
             )
         object.__setattr__(self, "rate", float(rate))
         object.__setattr__(self, "units", _check_units(self.units, f"pose {self.name!r}"))
@@ -418,9 +431,10 @@ class MarkerTrajectory:
             raise DemonstrationError(
                 f"marker trajectory: rate must be a number of Hz, got {rate!r}"
             )
-        if not (math.isfinite(float(rate)) and float(rate) > 0):
+        if not rate_in_range(float(rate)):
             raise DemonstrationError(
-                f"marker trajectory: rate must be finite and positive (Hz), got {rate!r}"
+                f"marker trajectory: rate must be a number of Hz from {MIN_RATE_HZ:g} to "
+                f"{MAX_RATE_HZ:g}, got {rate!r}"
             )
         object.__setattr__(self, "rate", float(rate))
         object.__setattr__(self, "units", _check_units(self.units, "marker trajectory"))

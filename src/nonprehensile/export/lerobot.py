@@ -223,9 +223,10 @@ def write_lerobot(
     check_new_folder(root)
     rates = sorted({float(e.fps) for e in episodes})
     fps = rates[0]
-    if len(rates) > 1 or not math.isclose(fps, round(fps), abs_tol=1e-9):
-        raise InputError(f"{root}: LeRobot needs one whole number of frames per second; the "
-                         f"episodes have {rates} Hz: give --fps N")
+    if len(rates) > 1 or fps < 1 or not math.isclose(fps, round(fps), abs_tol=1e-9):
+        # (a rate of 1e-30 Hz is within 1e-9 of the whole number 0, which LeRobot divides by)
+        raise InputError(f"{root}: LeRobot needs one whole number of frames per second, at "
+                         f"least 1; the episodes have {rates} Hz: give --fps N")
     fingers = episodes[0].finger_names
     for e in episodes:
         if e.finger_names != fingers:
