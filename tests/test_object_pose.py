@@ -237,3 +237,19 @@ def test_short_gaps_are_slerped_and_long_ones_stay_invalid() -> None:
     assert np.abs(pose.positions[ok] - p[ok]).max() < 1e-9
     assert _angle_deg(pose.quaternions[ok], rots.as_quat()[ok]).max() < 1e-7
     assert pose.gaps() == [(0, 2), (20, 30)]
+
+
+def test_a_huge_quaternion_is_normalised_not_zeroed() -> None:
+    """A Motive cell of 1e300 in each rotation column: the quaternion's norm overflowed to inf
+    and it was divided down to (0, 0, 0, 0), silently; a dataset then failed with 'frame 13
+    has a quaternion of zero length', naming no file, when its axes were turned."""
+    q = np.array([[0.0, 0.0, 0.0, 1.0], [1e300, 1e300, 1e300, 1e300],
+                  [-1e308, 0.0, 0.0, 1e308], [np.nan, 0.0, 0.0, 1.0]])
+    pose = PoseTrajectory("Box", np.zeros((4, 3)), q, 120.0)
+    np.testing.assert_allclose(pose.quaternions[1], [0.5, 0.5, 0.5, 0.5])
+    np.testing.assert_allclose(pose.quaternions[2], np.array([-1.0, 0.0, 0.0, 1.0]) / 2**0.5)
+    assert np.isnan(pose.quaternions[3]).all() and not pose.valid[3]
+    turned = PoseTrajectory("Box", pose.positions, pose.quaternions, 120.0)
+    np.testing.assert_allclose(turned.quaternions[:3], pose.quaternions[:3])
+    with pytest.raises(DemonstrationError, match="frame 1 has a quaternion of zero length"):
+        PoseTrajectory("Box", np.zeros((2, 3)), [[0, 0, 0, 1], [1e-12, 0, 0, 0]], 120.0)

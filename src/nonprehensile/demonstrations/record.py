@@ -127,14 +127,20 @@ class PoseTrajectory:
         bad = np.isnan(pos).any(axis=1) | np.isnan(quat).any(axis=1)
         pos[bad] = np.nan
         quat[bad] = np.nan
-        norm = np.linalg.norm(quat, axis=1)
+        # scaled by the largest component first: the norm of (1e300, 1e300, 1e300, 1e300)
+        # overflowed to inf and the quaternion was divided down to (0, 0, 0, 0), silently
+        rows: NDArray[np.bool_] = np.asarray(bad, dtype=bool)
+        peak = np.abs(np.where(rows[:, None], 1.0, quat)).max(axis=1)
+        unit = quat / np.where(peak > 0, peak, 1.0)[:, None]  # components within [-1, 1]
+        length = np.linalg.norm(unit, axis=1)
+        norm = length * peak  # the quaternion's length
         if (norm[~bad] < 1e-9).any():
             i = int(np.flatnonzero(~bad & (norm < 1e-9))[0])
             raise DemonstrationError(
                 f"pose trajectory {self.name!r}: frame {i} has a quaternion of zero length; "
                 "mark an untracked frame with NaN (blank cells)"
             )
-        quat[~bad] /= norm[~bad, None]
+        quat[~bad] = unit[~bad] / length[~bad, None]
         pos.setflags(write=False)
         quat.setflags(write=False)
         object.__setattr__(self, "positions", pos)
