@@ -223,6 +223,24 @@ def test_an_episode_rate_below_one_hz_is_not_written_as_fps_0(tmp_path: Path,
     assert not (tmp_path / "out").exists()
 
 
+def test_an_fps_that_would_exhaust_memory_is_refused_before_resampling(
+        tracked: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`dataset export cube OUT --fps 100000` made 40 million frames of 48,064 recorded ones
+    (about 1 kB of memory each while writing): it ran until memory was exhausted."""
+    import nonprehensile.export.demonstrations as dem
+
+    ds = load_dataset(tracked)
+    recorded = sum(e.n_frames for e in dataset_episodes(ds))
+    monkeypatch.setattr(dem, "MAX_RESAMPLED_FRAMES", 5 * recorded)
+    assert sum(e.n_frames for e in dataset_episodes(ds, fps=480)) < 5 * recorded
+    called: list[object] = []
+    monkeypatch.setattr(dem, "demonstration_episode", lambda *a, **k: called.append(a))
+    with pytest.raises(InputError, match=r"--fps 100000 makes [\d,]+ frames of its "
+                                         rf"{recorded:,} recorded ones \(at 120 Hz\)"):
+        dataset_episodes(ds, fps=100000)
+    assert not called  # refused before any episode was made
+
+
 def _cli(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "nonprehensile.cli", *args],
                           capture_output=True, text=True, check=False)
