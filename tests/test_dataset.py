@@ -268,6 +268,13 @@ def test_a_folder_named_as_a_recording_is_said_to_be_a_folder(ds_dir: Path) -> N
         assert "metadata.yaml" in p and "no such" not in p, p
 
 
+def test_two_fingers_on_one_tip_marker_is_a_problem(ds_dir: Path) -> None:
+    """R1 and R2 mapped to the same marker loaded, exported and segmented: the thumb of every
+    pinch moved as the index did."""
+    _edit(ds_dir, lambda d: d.update(fingers={"R1": "index_tip", "R2": "index_tip"}))
+    _one(ds_dir, "annotations.json", "R1 and R2 both name the tip marker 'index_tip'")
+
+
 def test_state_that_is_not_the_skills(ds_dir: Path) -> None:
     _edit(ds_dir, lambda d: d["demonstrations"][9].update(final={"face": "b", "theta": 0}))
     _one(ds_dir, "(demonstration 9)", "final state b:0", "d:")

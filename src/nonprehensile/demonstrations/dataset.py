@@ -402,6 +402,13 @@ def _top_level(data: Any, ann: Path, root: Path, out: _Collector,
                     fingers[str(k)] = DEFAULT_FINGERS[str(k)]
             else:
                 fingers[str(k)] = str(v)
+        shared: dict[str, list[str]] = {}
+        for k, v in fingers.items():
+            shared.setdefault(v, []).append(k)
+        for marker, names in shared.items():
+            if len(names) > 1:  # two fingers would move as one: a copy-paste slip
+                out.add(name, None, f"'fingers': {' and '.join(names)} both name the tip marker "
+                                    f"{marker!r}; each finger has its own tip marker")
     markers_raw = data.get("markers", [])
     if not isinstance(markers_raw, list) or not all(isinstance(m, str) for m in markers_raw):
         out.add(name, None, f"'markers' must be a list of marker names, got {markers_raw!r}")
