@@ -275,6 +275,16 @@ def test_two_fingers_on_one_tip_marker_is_a_problem(ds_dir: Path) -> None:
     _one(ds_dir, "annotations.json", "R1 and R2 both name the tip marker 'index_tip'")
 
 
+@pytest.mark.parametrize("scale", [1e308, 1e-300])
+def test_a_scale_past_any_object_is_a_problem(ds_dir: Path, scale: float) -> None:
+    """'scale': 1e308 loaded (`dataset show`: no problems) and `plan --dataset` then failed
+    half-way, after writing references, with overflow warnings and 'coordinate -1e+308 is
+    beyond 1e+09'."""
+    _edit(ds_dir, lambda d: d.update(scale=scale))
+    _one(ds_dir, "annotations.json", "'scale' (metres per model unit) must be a number from "
+                                     "1e-06 to 100")
+
+
 def test_state_that_is_not_the_skills(ds_dir: Path) -> None:
     _edit(ds_dir, lambda d: d["demonstrations"][9].update(final={"face": "b", "theta": 0}))
     _one(ds_dir, "(demonstration 9)", "final state b:0", "d:")

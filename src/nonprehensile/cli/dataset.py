@@ -18,6 +18,7 @@ from nonprehensile.cli.common import emit_json, err, handle_errors, out, progres
 from nonprehensile.cli.options import count, number
 from nonprehensile.demonstrations.dataset import (
     DEFAULT_GAP_LIMIT,
+    SCALE_RANGE,
     Dataset,
     check_dataset,
     dataset_path,
@@ -34,7 +35,6 @@ from nonprehensile.demonstrations.synth import (
     MAX_RATE,
     MAX_SEED,
     MIN_RATE,
-    SCALE_RANGE,
     synthesize,
 )
 from nonprehensile.errors import DemonstrationError

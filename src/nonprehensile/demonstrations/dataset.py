@@ -58,6 +58,7 @@ __all__ = [
     "DEFAULT_GAP_LIMIT",
     "DEFAULT_MARKERS",
     "DEFAULT_TOLERANCE_MM",
+    "SCALE_RANGE",
     "Dataset",
     "Demonstration",
     "EventTime",
@@ -88,6 +89,9 @@ DEFAULT_FINGERS: Mapping[str, str] = {"R1": "index_tip", "R2": "thumb_tip"}
 #: Longest run of missing frames per marker that a loader accepts (0.1 s at 120 Hz); longer
 #: dropouts cannot be filled faithfully by interpolation.
 DEFAULT_GAP_LIMIT = 12
+#: Smallest and largest 'scale', metres per model unit: a model in micrometres to a model whose
+#: unit is 100 m (beyond them, positions scaled by it overflow or vanish).
+SCALE_RANGE = (1e-6, 100.0)
 #: How far (mm) a fingertip marker may dip below the table, or an object marker stray from
 #: where the model puts it, before the recording is reported: a marker's own radius and a
 #: careful calibration's error.
@@ -380,9 +384,10 @@ def _top_level(data: Any, ann: Path, root: Path, out: _Collector,
         except InputError as exc:
             out.add(skills_ref, None, f"cannot use the skills file: {exc}")
     scale = _number(data.get("scale", 1.0))
-    if scale is None or not math.isfinite(scale) or scale <= 0:
-        out.add(name, None, f"'scale' (metres per model unit) must be a finite positive number, "
-                            f"got {data.get('scale')!r}")
+    if scale is None or not math.isfinite(scale) or not SCALE_RANGE[0] <= scale <= SCALE_RANGE[1]:
+        out.add(name, None, f"'scale' (metres per model unit) must be a number from "
+                            f"{SCALE_RANGE[0]:g} to {SCALE_RANGE[1]:g}, got "
+                            f"{data.get('scale')!r}")
         scale = 1.0
     gap = data.get("gap_limit", DEFAULT_GAP_LIMIT)
     if isinstance(gap, bool) or not isinstance(gap, int) or gap < 0:

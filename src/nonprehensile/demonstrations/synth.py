@@ -62,6 +62,7 @@ from nonprehensile.demonstrations.dataset import (
     DEFAULT_FINGERS,
     DEFAULT_GAP_LIMIT,
     DEFAULT_MARKERS,
+    SCALE_RANGE,
     Dataset,
     Demonstration,
     EventTime,
@@ -117,8 +118,6 @@ MAX_DEMOS_X_RATE = 1_000_000.0
 MAX_NOISE_MM = 100.0
 #: Largest longest-dropout, frames.
 MAX_GAP_LIMIT = 100_000
-#: Smallest and largest scale, metres per model unit.
-SCALE_RANGE = (1e-6, 100.0)
 #: Largest seed (numpy seeds are non-negative integers; 64 bits is plenty).
 MAX_SEED = 2**64 - 1
 Progress = Callable[[int, int], None]
