@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -253,3 +254,10 @@ def test_a_huge_quaternion_is_normalised_not_zeroed() -> None:
     np.testing.assert_allclose(turned.quaternions[:3], pose.quaternions[:3])
     with pytest.raises(DemonstrationError, match="frame 1 has a quaternion of zero length"):
         PoseTrajectory("Box", np.zeros((2, 3)), [[0, 0, 0, 1], [1e-12, 0, 0, 0]], 120.0)
+    # components near the largest float: the length overflows (inf, not zero), and no
+    # RuntimeWarning reaches the user
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        big = PoseTrajectory("Box", np.zeros((1, 3)), [[1.7e308, 1.7e308, 1.7e308, 1.7e308]],
+                             120.0)
+    np.testing.assert_allclose(big.quaternions[0], [0.5, 0.5, 0.5, 0.5])

@@ -208,6 +208,12 @@ def test_bad_set_up_and_missing_topics_name_the_culprit(tmp_path: Path) -> None:
         parse_ros_setup({"topics": {"a": "/a"}, "clock": "wall"})
     with pytest.raises(InputError, match="'ros': 'b'"):
         parse_ros_setup({"topics": {"a": "/a", "b": 3}})
+    # every recording's rate range (it passed (0, 100000] and then failed in the trajectory,
+    # naming no 'ros' setting)
+    for rate in (0.001, 2e5):
+        with pytest.raises(InputError, match=r"'ros': 'rate' .* from 0\.01 to 100000"):
+            parse_ros_setup({"topics": {"a": "/a"}, "rate": rate})
+    assert parse_ros_setup({"topics": {"a": "/a"}, "rate": 0.01}).rate == 0.01
     traj = MarkerTrajectory(np.zeros((5, 2, 3)), ("tip", "pt"), 100.0, "m")
     write_bag(tmp_path / "bag", traj)  # tip: PoseStamped, pt: PointStamped
     with pytest.raises(InputError, match=r"no topic '/nothing'.*'/mocap/tip'"):

@@ -133,7 +133,8 @@ class PoseTrajectory:
         peak = np.abs(np.where(rows[:, None], 1.0, quat)).max(axis=1)
         unit = quat / np.where(peak > 0, peak, 1.0)[:, None]  # components within [-1, 1]
         length = np.linalg.norm(unit, axis=1)
-        norm = length * peak  # the quaternion's length
+        with np.errstate(over="ignore"):  # (1.7e308 components: inf, a length, not zero)
+            norm = length * peak  # the quaternion's length
         if (norm[~bad] < 1e-9).any():
             i = int(np.flatnonzero(~bad & (norm < 1e-9))[0])
             raise DemonstrationError(

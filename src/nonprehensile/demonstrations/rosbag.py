@@ -45,7 +45,13 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from nonprehensile.demonstrations.record import MarkerTrajectory, PoseTrajectory
+from nonprehensile.demonstrations.record import (
+    MAX_RATE_HZ,
+    MIN_RATE_HZ,
+    MarkerTrajectory,
+    PoseTrajectory,
+    rate_in_range,
+)
 from nonprehensile.errors import DemonstrationError, InputError
 
 __all__ = ["MESSAGE_TYPES", "RosSetup", "RosSource", "is_rosbag", "parse_ros_setup",
@@ -155,9 +161,9 @@ def parse_ros_setup(raw: object) -> RosSetup:
                 f"\"parent\": \"<frame>\"}}, got {spec!r:.80}")
     rate = raw.get("rate")
     if rate is not None and (isinstance(rate, bool) or not isinstance(rate, (int, float))
-                             or not math.isfinite(rate) or not 0 < rate <= 100_000):
-        raise DemonstrationError(f"'ros': 'rate' must be a number of Hz in (0, 100000], got "
-                                 f"{rate!r}")
+                             or not rate_in_range(rate)):
+        raise DemonstrationError(f"'ros': 'rate' must be a number of Hz from {MIN_RATE_HZ:g} "
+                                 f"to {MAX_RATE_HZ:g} (every recording's range), got {rate!r}")
     clock = raw.get("clock", "bag")
     if clock not in ("bag", "header"):
         raise DemonstrationError(f"'ros': 'clock' must be 'bag' (the bag's receive times) or "
