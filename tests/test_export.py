@@ -258,6 +258,12 @@ def test_cli_bad_input_is_one_line_and_exit_2(tmp_path: Path) -> None:
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "object is not tracked" in lines[0] and "cube_demos" in lines[0]
     assert not (tmp_path / "new").exists()
+    # LeRobot's fps is a whole number: a fraction is the option's error, before loading (it
+    # was refused after loading, saying "give --fps N" to a user who had)
+    r = _cli("dataset", "export", "cube", str(tmp_path / "new"), "--fps", "29.5")
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--fps" in lines[0] and "whole number" in lines[0], r.stderr
 
 
 def test_cli_exports_the_bundled_dataset(tmp_path: Path) -> None:
@@ -389,6 +395,44 @@ def test_an_export_that_fails_midway_leaves_no_folder(tmp_path: Path, tracked: P
     assert read_lerobot(tmp_path / "out").info["total_episodes"] == len(eps)
     with pytest.raises(InputError, match="is a file, not a folder"):
         export_dataset(tracked, tmp_path / "out" / "meta" / "info.json" / "x")
+
+
+@pytest.mark.parametrize("content", [None, "theirs.txt"])
+def test_an_export_never_lands_on_a_folder_that_appeared_while_it_was_written(
+        tmp_path: Path, tracked: Path, monkeypatch: pytest.MonkeyPatch,
+        content: str | None) -> None:
+    """POSIX ``rename`` replaces an empty folder silently: a folder made at the target while
+    the export was written was replaced (empty) or the error said 'free space' (not empty).
+    Two exports from one process also shared one scratch folder named by the process id, and
+    one published the other's frames under its own info.json."""
+    import nonprehensile.export.lerobot as lr
+
+    eps = dataset_episodes(load_dataset(tracked))
+    out = tmp_path / "out"
+    real = lr._write_json
+    scratch: list[Path] = []
+
+    def meanwhile(path: Path, doc: object) -> None:
+        real(path, doc)
+        if path.name == "info.json":
+            scratch.append(path.parent.parent)
+            out.mkdir()
+            if content:
+                (out / content).write_text("not the export's")
+
+    monkeypatch.setattr(lr, "_write_json", meanwhile)
+    with pytest.raises(InputError, match="appeared there while the export was written"):
+        write_lerobot(eps, out)
+    # the other folder is left as it was; no scratch folder is left
+    assert sorted(p.name for p in out.iterdir()) == ([content] if content else [])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    monkeypatch.undo()
+    # each export writes into a scratch folder of its own (not one named by the process id)
+    monkeypatch.setattr(lr, "_write_json", meanwhile)
+    out.rename(tmp_path / "kept")
+    with pytest.raises(InputError):
+        write_lerobot(eps, out)
+    assert len(scratch) == 2 and scratch[0] != scratch[1]
 
 
 @st.composite

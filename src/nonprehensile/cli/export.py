@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import click
 
-from nonprehensile.cli.common import bounded, emit_json, err, handle_errors, progress_bar
+from nonprehensile.cli.common import emit_json, err, handle_errors, progress_bar
+from nonprehensile.cli.options import count
 from nonprehensile.export import FORMATS, export_dataset
 from nonprehensile.export.episodes import summarize
 
@@ -19,9 +20,9 @@ __all__ = ["export_cmd"]
 @click.argument("out_dir", type=click.Path(file_okay=False))
 @click.option("--format", "fmt", type=click.Choice(list(FORMATS)), default="lerobot",
               show_default=True, help="Dataset format: LeRobot v3.0 (parquet).")
-@click.option("--fps", type=bounded(float, 1e-3, 1e5), default=None,
-              help="Frames per second (default: the recordings' rate); resampled linearly "
-                   "(orientations spherically). LeRobot needs a whole number.")
+@click.option("--fps", type=count(1, 100_000), default=None,
+              help="Frames per second, a whole number as LeRobot's (default: the recordings' "
+                   "rate); resampled linearly (orientations spherically).")
 @click.option("--object/--no-object", "with_object", default=None,
               help="Put the object's pose in observation.state (--object: required, an "
                    "untracked dataset is an error; --no-object: fingertips only). Default: "

@@ -28,10 +28,12 @@ task strings as the index, as LeRobot's loader expects) since pandas is not a de
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import math
-import os
 import shutil
+import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -288,11 +290,12 @@ def write_lerobot(
 
     # written beside the folder, then renamed: the export appears whole or not at all (a full
     # disk left a cut data file in the folder, which the next export refused as existing)
-    tmp = root.parent / f".{root.name}.partial-{os.getpid()}"
+    # (a fresh name per export, never one another export may be writing: a name made from
+    # the process id was shared by two threads, or by two containers' PID 1 on one volume,
+    # and one published the other's frames under its own info.json)
     try:
         root.parent.mkdir(parents=True, exist_ok=True)
-        shutil.rmtree(tmp, ignore_errors=True)
-        tmp.mkdir()
+        tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.partial-"))
     except OSError as exc:
         raise InputError(f"{root}: cannot create the export folder ({exc.filename}: "
                          f"{exc.strerror or exc}); give a new folder inside a folder you can "
@@ -339,7 +342,7 @@ def write_lerobot(
         _write_json(tmp / "meta" / "stats.json", stats)
         if extra_info:
             _write_json(tmp / "meta" / "nonprehensile.json", dict(extra_info))
-        tmp.rename(root)
+        _publish(tmp, root)
     except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
         if isinstance(exc, OSError):
@@ -348,6 +351,30 @@ def write_lerobot(
                           str(root)) from None
         raise
     return root
+
+
+def _publish(tmp: Path, root: Path) -> None:
+    """Rename the written folder ``tmp`` to ``root``, never onto a folder that appeared there
+    meanwhile (an :class:`InputError`; ``tmp`` is left to the caller).
+
+    POSIX ``rename`` replaces an empty folder silently, so ``root`` is claimed first with
+    ``mkdir``, which fails if anything is there; the rename then replaces only the empty
+    folder this call made."""
+    try:
+        root.mkdir()
+    except FileExistsError:
+        raise InputError(f"{root}: a file or folder appeared there while the export was "
+                         "written; nothing was written: give another folder, or move that one "
+                         "away and export again") from None
+    try:
+        tmp.rename(root)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            root.rmdir()  # (only ours, and only empty: a folder with anything in it stays)
+        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):  # (filled in between: not ours)
+            raise InputError(f"{root}: files appeared there while the export was written; "
+                             "nothing was written: give another folder") from None
+        raise
 
 
 def _write_json(path: Path, doc: Any) -> None:
