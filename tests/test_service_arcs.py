@@ -311,3 +311,30 @@ def test_cluster_now_is_the_models_cluster_after_a_recalibration(store: str) -> 
                                registry=Registry(pool, template, init_size=4))) as c:
         assert _listing_is_the_models(c, pool, ups) == moved
     pool.close()
+
+
+def _serve_once(monkeypatch: pytest.MonkeyPatch, store: str, dataset: Path) -> Any:
+    """`serve` on ``store`` with ``dataset``'s skills, interrupted as soon as it would serve."""
+    import uvicorn
+
+    def interrupted(self: Any, sockets: Any = None) -> None:  # Ctrl-C at once
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(uvicorn.Server, "run", interrupted)
+    return CliRunner().invoke(main, ["serve", "--store", store, "--dataset", str(dataset),
+                                     "--port", "0", "--recalibrate-every", "0"])
+
+
+def test_serve_checks_the_arcs_once(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    """`serve` checks the arcs, and the application built on its registry does not again."""
+    calls = []
+    check = Registry.check_arcs
+
+    def counted(self: Registry) -> Any:
+        calls.append(1)
+        return check(self)
+
+    monkeypatch.setattr(Registry, "check_arcs", counted)
+    r = _serve_once(monkeypatch, str(tmp_path / "svc.db"), _dataset(tmp_path / "a", ORIGINAL))
+    assert r.exit_code == 0, r.output
+    assert len(calls) == 1

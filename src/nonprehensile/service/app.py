@@ -205,12 +205,14 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
     ------
     ArcMismatch
         If an arc's store holds another arc than the skills file gives its name
-        (:meth:`Registry.check_arcs`): the service never starts on it.
+        (:meth:`Registry.check_arcs`, unless ``registry`` passed it already, as ``serve``'s
+        does): the service never starts on it.
     """
     reg = registry or Registry(pool, template)
     # before anything is served: a store written under another skills file is refused here,
-    # not found out by filing segments into another skill's arc
-    reg.check_arcs()
+    # not found out by filing segments into another skill's arc (once: `serve` checked already)
+    if not reg.arcs_checked:
+        reg.check_arcs()
     recal = Recalibrator(reg, config.recalibrate_every)
 
     from contextlib import asynccontextmanager

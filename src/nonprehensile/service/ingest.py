@@ -389,6 +389,9 @@ class Registry:
         self._cache: dict[str, tuple[bytes, HilbertClusterer]] = {}
         # arc -> (generation, cluster map) of arcs last written before maps were stored
         self._rebuilt: dict[str, tuple[bytes, NDArray[np.int64]]] = {}
+        #: True once :meth:`check_arcs` passed (an application built on this registry does
+        #: not check again)
+        self.arcs_checked = False
 
     # ------------------------------------------------------------------ arcs' identities
 
@@ -430,6 +433,7 @@ class Registry:
                 elif store.n_samples:
                     legacy.append(store)
             if not legacy:
+                self.arcs_checked = True
                 return []
             names = {s.name for s in legacy}
             rows = conn.execute(
@@ -445,6 +449,7 @@ class Registry:
                         + " this skills file)"))
             for store in legacy:
                 store.put_meta(ARC_IDENTITY, self.template.identities[store.name].encode())
+        self.arcs_checked = True
         return sorted(names)
 
     def _check_arc(self, store: TableStore) -> bool:
