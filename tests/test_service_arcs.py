@@ -189,8 +189,8 @@ def test_stores_written_before_arcs_were_recorded(store: str, tmp_path: Path) ->
 
     if store.startswith("postgresql"):
         pool = make_pool(store, max_size=2)
-        assert Registry(pool, ta).check_arcs() == sorted(arcs)
-        assert Registry(pool, ta).check_arcs() == []  # recorded: nothing left to adopt
+        assert Registry(pool, ta).check_arcs() == (sorted(arcs), [])
+        assert Registry(pool, ta).check_arcs() == ([], [])  # recorded: nothing left to adopt
         pool.close()
         return
     # the real server says so on stderr, in one line, and serves
@@ -338,3 +338,55 @@ def test_serve_checks_the_arcs_once(monkeypatch: pytest.MonkeyPatch, tmp_path: P
     r = _serve_once(monkeypatch, str(tmp_path / "svc.db"), _dataset(tmp_path / "a", ORIGINAL))
     assert r.exit_code == 0, r.output
     assert len(calls) == 1
+
+
+def test_a_skill_left_out_or_added_on_an_arc_is_served_when_its_segments_still_match(
+        store: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Only the skills' motions on an arc changed (roll-pull left out: it shares all its arcs
+    with roll-arc): `serve` checks the arc's segments against the skills file, rewrites the
+    arc's record and says so; nothing else changes. A segment of the skill left out is
+    refused, and so is a reordered skills file (other events under the same names)."""
+    ta = load_template(_dataset(tmp_path / "a", ORIGINAL))
+    c = _dataset(tmp_path / "c", [n for n in ORIGINAL if n != "roll-pull"])
+    tc = load_template(c)
+    pool = make_pool(store, max_size=2)
+    with pool.connection() as conn:
+        token = create_token(conn, "ana")
+    with TestClient(create_app(pool, ta, ServiceConfig("t"), background=False,
+                               registry=Registry(pool, ta, init_size=4))) as client:
+        shared = [s["arc"] for s in _upload(client, token, "roll-arc").json()["segments"]]
+        assert _upload(client, token, "push-roll").status_code == 201
+    assert all(ta.identities[a] != tc.identities[a] and ta.edges[a] == tc.edges[a]
+               for a in shared)
+    before = _contents(store)
+    # an upload (no start checked the store): refused, nothing stored
+    with pytest.raises(ArcMismatch, match="restart `nonprehensile serve` with this skills"):
+        _register(Registry(pool, tc, init_size=4), "roll-arc", 1)
+    assert _contents(store) == before
+
+    r = _serve_once(monkeypatch, store, c)
+    assert r.exit_code == 0, r.output
+    assert r.stderr.splitlines()[0] == (
+        f"rewrote the recorded arc of {len(shared)} arc store(s) whose skills' motions changed "
+        f"in the skills file (their segments checked against it): {', '.join(sorted(shared))}")
+    samples, meta, ups = _contents(store)
+    assert samples == before[0] and ups == before[2]
+    assert [m for m in meta if m[1] != ARC_IDENTITY] == [m for m in before[1]
+                                                          if m[1] != ARC_IDENTITY]
+    assert {(s, v.decode()) for s, n, v in meta if n == ARC_IDENTITY} == {
+        (a, tc.identities[a]) for a in {*shared, *(s for s, n, _ in before[1]
+                                                    if n == ARC_IDENTITY)}}
+    # reordered: still refused
+    r = _serve_once(monkeypatch, store, _dataset(tmp_path / "b", REORDERED))
+    assert r.exit_code == 2 and "the skills file it was written with" in r.stderr, r.output
+    # roll-pull added back: served again (the arcs' segments are roll-arc's)
+    r = _serve_once(monkeypatch, store, tmp_path / "a")
+    assert r.exit_code == 0 and "rewrote the recorded arc of 4" in r.stderr, r.output
+    with TestClient(create_app(pool, ta, ServiceConfig("t"), background=False,
+                               registry=Registry(pool, ta, init_size=4))) as client:
+        assert _upload(client, token, "roll-pull").status_code == 201
+    # ... and now the arcs hold roll-pull's segments: left out again, refused
+    r = _serve_once(monkeypatch, store, c)
+    assert r.exit_code == 2, r.output
+    assert "roll-pull motion 0 (a motion not in this skills file)" in r.stderr
+    pool.close()

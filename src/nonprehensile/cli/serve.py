@@ -95,10 +95,15 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
         from nonprehensile.service.ingest import Registry
 
         registry = Registry(pool, template)
-        adopted = registry.check_arcs()  # a store of another skills file: exit 2, one line
-        if adopted:
-            err.print(f"recorded the arc of {len(adopted)} arc store(s) written before stores "
-                      "recorded their arcs (their segments checked against this skills file)")
+        checked = registry.check_arcs()  # a store of another skills file: exit 2, one line
+        if checked.adopted:
+            err.print(f"recorded the arc of {len(checked.adopted)} arc store(s) written before "
+                      "stores recorded their arcs (their segments checked against this skills "
+                      "file)")
+        if checked.updated:
+            err.print(f"rewrote the recorded arc of {len(checked.updated)} arc store(s) whose "
+                      "skills' motions changed in the skills file (their segments checked "
+                      f"against it): {', '.join(checked.updated)}")
         app = create_app(pool, template, config, registry=registry)
         port = int(socks[0].getsockname()[1])  # --port 0: the port the system chose
         # an IPv6 address in brackets, as a URL writes it (http://[::1]:8000, not http://::1:8000)

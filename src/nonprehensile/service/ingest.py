@@ -65,9 +65,9 @@ from nonprehensile.service.errors import (
 )
 from nonprehensile.skills.contacts import format_event
 
-__all__ = ["MAX_ARCHIVE_FILES", "ArcMismatch", "Forbidden", "Registry", "Rejected", "Template",
-           "UploadKey", "arc_identity", "canonical_annotation", "content_hash", "extract_archive",
-           "load_template"]
+__all__ = ["MAX_ARCHIVE_FILES", "ArcCheck", "ArcMismatch", "Forbidden", "Registry", "Rejected",
+           "Template", "UploadKey", "arc_identity", "canonical_annotation", "content_hash",
+           "extract_archive", "load_template"]
 
 #: Name of an arc clusterer's state in its store's meta table.
 STATE = "hilbert_clusterer"
@@ -128,6 +128,9 @@ class Template:
     identities: dict[str, str] = field(default_factory=dict)
     #: ``(skill, motion index)`` to the store name of its arc.
     motion_arcs: dict[tuple[str, int], str] = field(default_factory=dict)
+    #: Store name to the part of its identity the skills' motions do not change: the maneuver
+    #: and the source and target contact events (``rolling: (G,a) -> (R1,f) ∧ (G,a)``).
+    edges: dict[str, str] = field(default_factory=dict)
 
 
 def load_template(spec: str | Path) -> Template:
@@ -157,13 +160,16 @@ def load_template(spec: str | Path) -> Template:
             step = skills_of[str(key)].motions.index(data["motion"])
             motions.setdefault(name, []).append((str(key), step))
             motion_arcs[(str(key), step)] = name
-    identities = {}
+    identities, edges = {}, {}
     for (g, u, v), name in arcs.items():
         graph = graphs.graphs[g]
         identities[name] = arc_identity(graph.graph["maneuver"], _node_text(graph, u),
                                         _node_text(graph, v), motions[name])
+        edges[name] = _edge_text(graph.graph["maneuver"], _node_text(graph, u),
+                                 _node_text(graph, v))
     return Template(top, graphs, arcs, {n: len(k) for n, k in arc_keys.items()},
-                    (Path(top["skills"]), poly, tuple(skills)), identities, motion_arcs)
+                    (Path(top["skills"]), poly, tuple(skills)), identities, motion_arcs,
+                    edges)
 
 
 def _node_text(graph: Any, node: Any) -> str:
@@ -183,7 +189,27 @@ def arc_identity(maneuver: str, source: str, target: str,
     e.g. ``rolling: (R1,f) ∧ (G,a) -> (R1,f) ∧ (G,E(a,d)) (push-roll motion 1)``.
     """
     on = ", ".join(f"{skill} motion {step}" for skill, step in sorted(motions))
-    return f"{maneuver}: {source} -> {target} ({on})"
+    return f"{_edge_text(maneuver, source, target)} ({on})"
+
+
+def _edge_text(maneuver: str, source: str, target: str) -> str:
+    return f"{maneuver}: {source} -> {target}"
+
+
+def _same_edge(recorded: str, edge: str) -> bool:
+    """Whether an arc's recorded identity is of the arc ``edge`` (:func:`_edge_text`), its
+    motion list aside. (An event's text is followed by `` ∧ ``, `` #`` or its end, never by
+    `` (``: the edge is the identity's text up to its motions' parenthesis.)"""
+    return recorded.startswith(edge + " (") and recorded.endswith(")")
+
+
+class ArcCheck(NamedTuple):
+    """What :meth:`Registry.check_arcs` recorded: the arc stores whose identity was recorded
+    for the first time (written before stores recorded their arcs: ``adopted``) and those
+    whose identity was rewritten (the skills' motions on the arc changed: ``updated``)."""
+
+    adopted: list[str]
+    updated: list[str]
 
 
 class UploadKey(NamedTuple):
@@ -402,19 +428,22 @@ class Registry:
             f"{self.template.identities[arc]}; serve this store with the skills file it was "
             "written with (the same skills in the same order), or give --store a new database")
 
-    def check_arcs(self) -> list[str]:
+    def check_arcs(self) -> ArcCheck:
         """Refuse to serve a store whose arcs are not those of the skills file.
 
         Every arc store the skills file names is compared with the identity it recorded when
-        it got its first sample (:data:`ARC_IDENTITY`). A store written before identities
-        were recorded (it has samples and none) is checked against its uploads instead: the
-        skill and motion of each of its segments must be filed under it by the skills file;
-        then the identity is recorded (the migration). Nothing else is written.
+        it got its first sample (:data:`ARC_IDENTITY`): its maneuver and source and target
+        contact events must be the same. When only the skills' motions on the arc differ (a
+        skill left out of the skills file, or one added whose motion shares the arc), and
+        for a store written before identities were recorded (it has samples and none), the
+        store is checked against its uploads instead: the skill and motion of each of its
+        segments must be filed under it by the skills file; then the identity is recorded
+        (rewritten, or recorded for the first time: the migration). Nothing else is written.
 
         Returns
         -------
-        list of str
-            The stores whose identity was recorded now (the migrated ones).
+        ArcCheck
+            The stores whose identity was recorded now (adopted) and rewritten (updated).
 
         Raises
         ------
@@ -423,18 +452,23 @@ class Registry:
             and how to serve it.
         """
         with self.pool.connection() as conn, conn.transaction():
-            legacy = []
+            legacy, changed = [], {}
             for arc in sorted(self.template.identities):
                 store = arc_store(conn, arc)
                 have = store.get_meta(ARC_IDENTITY)
                 if have is not None:
-                    if have.decode() != self.template.identities[arc]:
-                        raise self._mismatch(arc, f"holds {have.decode()}")
+                    text = have.decode()
+                    if text == self.template.identities[arc]:
+                        continue
+                    if not _same_edge(text, self.template.edges[arc]):
+                        raise self._mismatch(arc, f"holds {text}")
+                    changed[arc] = text  # other motions on the same arc: check its segments
+                    legacy.append(store)
                 elif store.n_samples:
                     legacy.append(store)
             if not legacy:
                 self.arcs_checked = True
-                return []
+                return ArcCheck([], [])
             names = {s.name for s in legacy}
             rows = conn.execute(
                 "SELECT DISTINCT p.skill, u.step, u.arc FROM np_upload_samples u "
@@ -442,19 +476,22 @@ class Registry:
             for skill, step, arc in rows:
                 want = self.template.motion_arcs.get((skill, int(step)))
                 if arc in names and want != arc:
+                    held = (f"holds {changed[arc]}, with" if arc in changed else
+                            "(written before stores recorded their arcs) holds")
                     raise self._mismatch(arc, (
-                        f"(written before stores recorded their arcs) holds segments of {skill} "
-                        f"motion {step} ("
+                        f"{held} segments of {skill} motion {step} ("
                         + (f"filed under {want!r} by" if want else "a motion not in")
                         + " this skills file)"))
             for store in legacy:
                 store.put_meta(ARC_IDENTITY, self.template.identities[store.name].encode())
         self.arcs_checked = True
-        return sorted(names)
+        return ArcCheck(sorted(names - set(changed)), sorted(changed))
 
     def _check_arc(self, store: TableStore) -> bool:
         """Before adding to an arc's store (its lock held): it must hold the arc the skills
-        file gives its name. True: a new store, whose first sample records its arc."""
+        file gives its name, with the same skills' motions (a store whose motions differ is
+        refused too: only :meth:`check_arcs`, at a start, checks its segments and rewrites
+        it). True: a new store, whose first sample records its arc."""
         have = store.get_meta(ARC_IDENTITY)
         if have is None:
             if store.n_samples:
@@ -465,8 +502,19 @@ class Registry:
                     "started); restart `nonprehensile serve` on the store: it checks them "
                     "against their uploads' skills and records the arc")
             return True
-        if have.decode() != self.template.identities[store.name]:
-            raise self._mismatch(store.name, f"holds {have.decode()}")
+        text = have.decode()
+        if text != self.template.identities[store.name]:
+            if _same_edge(text, self.template.edges[store.name]):
+                # the same arc, other skills' motions on it, recorded since this server
+                # started (another server's skills file): its segments are checked at a start
+                # only, never here, under the lock
+                raise ArcMismatch(
+                    f"the store's arc {store.name!r} holds {text} (recorded since this server "
+                    f"started), but the skills file makes it "
+                    f"{self.template.identities[store.name]}; restart `nonprehensile serve` "
+                    "with this skills file: it checks the arc's segments against it and "
+                    "records the arc's motions")
+            raise self._mismatch(store.name, f"holds {text}")
         return False
 
     # ------------------------------------------------------------------ clusterers
