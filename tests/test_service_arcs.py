@@ -390,3 +390,35 @@ def test_a_skill_left_out_or_added_on_an_arc_is_served_when_its_segments_still_m
     assert r.exit_code == 2, r.output
     assert "roll-pull motion 0 (a motion not in this skills file)" in r.stderr
     pool.close()
+
+
+def test_an_archive_with_an_arc_refused_stores_nothing(store: str, tmp_path: Path) -> None:
+    """An archive whose later demonstration's arc is refused (a registry that skipped the
+    start's check, serving a store of another skills file) is refused before its first
+    demonstration is registered: 409, nothing stored (it stored the ones before)."""
+    import io
+    import zipfile
+
+    from nonprehensile.service.ingest import archive_upload
+
+    ta = load_template(_dataset(tmp_path / "a", ORIGINAL))
+    tb = load_template(_dataset(tmp_path / "b", REORDERED))
+    pool = make_pool(store, max_size=2)
+    _register(Registry(pool, ta, init_size=4), "push-roll")
+    before = _contents(store)
+    # twist (arcs of its own, new stores) first, then roll-arc (push-roll's stores under tb)
+    takes = [_take("twist"), _take("roll-arc")]
+    top = {k: v for k, v in ANN.items() if k != "demonstrations"}
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as z:
+        z.writestr("annotations.json", json.dumps(
+            {**top, "demonstrations": [{**e, "mentor": "ana"} for e, _ in takes]}))
+        for e, data in takes:
+            z.writestr(e["file"], data)
+    buf.seek(0)
+    with archive_upload(tb, "ana", buf, 10**8) as (ds, hashes), \
+            pytest.raises(ArcMismatch) as exc:
+        Registry(pool, tb, init_size=4).register("ana", ds, hashes, "archive")
+    assert exc.value.status == 409
+    assert _contents(store) == before
+    pool.close()

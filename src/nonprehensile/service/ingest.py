@@ -577,16 +577,31 @@ class Registry:
 
     def register(self, mentor: str, dataset: Dataset, hashes: list[UploadKey],
                  kind: str) -> list[dict[str, Any]]:
-        """Register each demonstration (skipping those already stored); their replies."""
-        return [self._register_one(mentor, d, h, kind)
-                for d, h in zip(dataset.demonstrations, hashes, strict=True)]
+        """Register each demonstration (skipping those already stored); their replies.
 
-    def _register_one(self, mentor: str, demo: Demonstration, key: UploadKey,
-                      kind: str) -> dict[str, Any]:
+        Each is registered in its own transaction. Before the first, every demonstration is
+        segmented and every arc they touch is checked (:meth:`_check_arc`, read-only, no
+        lock): an archive one of whose arcs is refused stores nothing. (Each registration
+        checks its arcs again under their locks.)"""
+        cuts = [self._segments(d) for d in dataset.demonstrations]
+        if len(cuts) > 1:
+            with self.pool.connection() as conn, snapshot(conn):
+                for arc in sorted({a for _, _, arcs in cuts for a in arcs}):
+                    self._check_arc(arc_store(conn, arc))
+        return [self._register_one(mentor, d, h, kind, cut)
+                for d, h, cut in zip(dataset.demonstrations, hashes, cuts, strict=True)]
+
+    def _segments(self, demo: Demonstration) -> tuple[list[Any], Any, list[str]]:
+        """A demonstration's segments, their flattened vectors and each one's arc."""
         segments = segment_demonstration(demo, self.template.graphs,
                                          max_gap=int(self.template.top.get("gap_limit", 12)))
         vectors = flatten_segments(segments)
         arcs = [self.template.arcs[(s.arc.group, s.arc.source, s.arc.target)] for s in segments]
+        return segments, vectors, arcs
+
+    def _register_one(self, mentor: str, demo: Demonstration, key: UploadKey, kind: str,
+                      cut: tuple[list[Any], Any, list[str]]) -> dict[str, Any]:
+        segments, vectors, arcs = cut
         pending: dict[str, tuple[bytes, HilbertClusterer]] = {}
         try:
             reply = self._register_tx(mentor, demo, key, kind, segments, vectors, arcs,
