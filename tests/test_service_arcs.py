@@ -422,3 +422,32 @@ def test_an_archive_with_an_arc_refused_stores_nothing(store: str, tmp_path: Pat
     assert exc.value.status == 409
     assert _contents(store) == before
     pool.close()
+
+
+def test_a_rebuilt_model_is_checked_against_the_stored_micro_cluster_ids(store: str) -> None:
+    """Rebuilding an arc's model (its checkpoint, the samples after it registered again)
+    checks their micro-cluster ids too, which the listings map through: a store whose ids
+    differ is an error naming the arc, not listings from another model."""
+    from nonprehensile.errors import NonprehensileError
+
+    template = load_template("cube")
+    pool = make_pool(store, max_size=2)
+    reg = Registry(pool, template, init_size=4)
+    for k in range(6):
+        _register(reg, "twist", k)
+    arc = "rotating-g2-n0-n1"
+    with pool.connection() as conn:
+        n_seen = int(bytes(conn.execute(
+            "SELECT value FROM np_meta WHERE store = %s AND name = %s",
+            (arc, CHECKPOINT_N)).fetchone()[0]))
+        last = conn.execute("SELECT max(id) FROM np_samples WHERE store = %s",
+                            (arc,)).fetchone()[0]
+        assert last >= n_seen  # a sample after the checkpoint, registered again to rebuild
+        # another micro-cluster of the model (the listings would count it there, silently)
+        conn.execute("UPDATE np_samples SET micro = CASE WHEN micro = 0 THEN 1 ELSE 0 END "
+                     "WHERE store = %s AND id = %s",
+                     (arc, last))
+        conn.execute("DELETE FROM np_meta WHERE name = %s", (CLUSTER_MAP,))
+    with pytest.raises(NonprehensileError, match=f"arc {arc}: .* micro-cluster ids"):
+        Registry(pool, template, init_size=4).clusters()
+    pool.close()

@@ -549,7 +549,8 @@ class Registry:
                                          "the store was changed outside the service")
             return self._new_clusterer(arc, store)
         n_seen = int((store.get_meta(CHECKPOINT_N) or b"0").decode())
-        c = _replayed(arc, state, n_seen, store.vectors(0, n), store.keys(), store.labels())
+        c = _replayed(arc, state, n_seen, store.vectors(0, n), store.keys(), store.labels(),
+                      store.micro_ids())
         c.store = store
         return c
 
@@ -735,7 +736,7 @@ class Registry:
                 continue
             n_seen = int((store.get_meta(CHECKPOINT_N) or b"0").decode())
             c = _replayed(arc, state, n_seen, store.vectors(0, store.n_samples), store.keys(),
-                          store.labels())
+                          store.labels(), store.micro_ids())
             out[arc] = c.micro_labels_
             if gen is not None:
                 self._rebuilt[arc] = (gen, out[arc])
@@ -850,7 +851,7 @@ class Registry:
                     return {"arc": arc, "recalibrated": False, "samples": n0}
                 n_seen = int((store.get_meta(CHECKPOINT_N) or b"0").decode())
                 c = _replayed(arc, state, n_seen, store.vectors(0, n0), store.keys(),
-                              store.labels())
+                              store.labels(), store.micro_ids())
             snap = c.store
             c.recalibrate()  # the heavy part: no lock held
             with conn.transaction(), store.transaction():
@@ -869,10 +870,11 @@ class Registry:
 
 
 def _replayed(arc: str, state: bytes, n_seen: int, x: Any, keys: list[int],
-              labels: Any) -> HilbertClusterer:
+              labels: Any, micro: Any) -> HilbertClusterer:
     """The clusterer of a checkpoint (``n_seen`` samples) with the later samples of ``x``
-    registered again, on an in-memory store holding all of ``x``; checked against the keys
-    and ids stored for them."""
+    registered again, on an in-memory store holding all of ``x``; checked against the keys,
+    ids and micro-cluster ids stored for them (a stored micro id of -1, a sample registered
+    before samples kept theirs, is not compared)."""
     n = len(keys)
     mem = MemoryStore()
     if n_seen:
@@ -880,11 +882,14 @@ def _replayed(arc: str, state: bytes, n_seen: int, x: Any, keys: list[int],
     c = HilbertClusterer.load_state(state, mem)
     if n > n_seen:
         c.partial_fit(x[n_seen:])
+        kept = np.asarray(micro[n_seen:]) >= 0
         if mem.keys()[n_seen:] != keys[n_seen:] or not np.array_equal(
-                mem.labels()[n_seen:], labels[n_seen:]):
+                mem.labels()[n_seen:], labels[n_seen:]) or not np.array_equal(
+                mem.micro_ids()[n_seen:][kept], np.asarray(micro[n_seen:])[kept]):
             raise NonprehensileError(
                 f"arc {arc}: registering samples {n_seen}..{n - 1} again after the checkpoint "
-                "gave other keys than those stored; recalibrate the arc")
+                "gave other keys, ids or micro-cluster ids than those stored; recalibrate the "
+                "arc")
     return c
 
 
