@@ -550,3 +550,19 @@ def test_a_full_disk_while_checking_an_upload_is_one_line(svc: dict[str, Any],
     detail = _refused(_post_archive(svc["client"], svc["auth"]["ben"], _zip(_dataset_files())),
                       507)
     assert "disk is full" in detail
+
+
+def test_a_marker_label_that_is_not_utf8_is_a_4xx_not_a_500(svc: dict[str, Any]) -> None:
+    """A C3D whose marker label holds a byte that is not UTF-8 (read as a lone surrogate):
+    the refusal quoting it could not be encoded as JSON, and the reply was a 500."""
+    c, auth = svc["client"], svc["auth"]["ana"]
+    entry = _entry()
+    data = (CUBE / entry["file"]).read_bytes()
+    at = data.index(b"index_knuckle")
+    bad = data[:at] + b"\x9b" + data[at + 1:]
+    ann = json.dumps({k: v for k, v in entry.items() if k not in ("file", "mentor")})
+    r = c.post("/demonstrations",
+               files={"file": (entry["file"], bad, "application/octet-stream")},
+               data={"annotation": ann}, headers=auth)
+    detail = _refused(r, 400, 422)
+    assert "index_knuckle" in detail and "\\udc9bndex_knuckle" in detail, detail

@@ -83,4 +83,7 @@ def public_text(text: str, hidden: Iterable[str | Path] = ()) -> str:
         folders.add(str(Path(h).resolve()))
     for folder in sorted(folders, key=len, reverse=True):
         text = text.replace(folder.rstrip("/") + "/", "").replace(folder, ".")
-    return text
+    # a lone surrogate quoted from the input (a C3D label's byte that is not UTF-8, read with
+    # ``surrogateescape``) cannot be encoded as JSON: the reply was a 500; written as its
+    # escape (``\udc9b``) the detail still names it
+    return text.encode("utf-8", "backslashreplace").decode("utf-8")
