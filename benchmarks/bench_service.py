@@ -235,11 +235,11 @@ def load_test(kind: str = "postgresql") -> dict[str, Any]:
         states_ok = 0
         for arc in arcs:
             # the checkpointed model, with the samples after it registered again, gives the
-            # stored keys and ids exactly (_replayed raises otherwise)
+            # stored keys, ids and micro-cluster ids exactly (_replayed raises otherwise)
             st = arc_store(conn, arc)
             n_seen = int((st.get_meta(CHECKPOINT_N) or b"0").decode())
             _replayed(arc, st.get_meta(STATE) or b"", n_seen, st.vectors(0, st.n_samples),
-                      st.keys(), st.labels())
+                      st.keys(), st.labels(), st.micro_ids())
             states_ok += 1
     pool.close()
     steps = {}
