@@ -392,6 +392,68 @@ def test_a_skill_left_out_or_added_on_an_arc_is_served_when_its_segments_still_m
     pool.close()
 
 
+def test_a_skill_left_out_that_renumbers_the_arcs_is_refused(store: str,
+                                                              tmp_path: Path) -> None:
+    """push-roll left out (the only skill on its arcs) renumbers the rolling graph: roll-arc's
+    stores are no longer named by the skills file, and its new uploads went to new stores,
+    the arc's samples split between two models; now refused, nothing written."""
+    ta = load_template(_dataset(tmp_path / "a", ORIGINAL))
+    td = load_template(_dataset(tmp_path / "d", [n for n in ORIGINAL if n != "push-roll"]))
+    pool = make_pool(store, max_size=2)
+    Registry(pool, ta, init_size=4).check_arcs()
+    arcs = [s["arc"] for s in _register(Registry(pool, ta, init_size=4),
+                                        "roll-arc")[0]["segments"]]
+    moved = {a for (skill, _), a in td.motion_arcs.items() if skill == "roll-arc"}
+    assert moved.isdisjoint(arcs)  # the renumbering this test is about
+    before = _contents(store)
+    with pytest.raises(ArcMismatch, match=r"the store's arc 'rolling-g\d-n\d+-n\d+' holds "
+                       r"rolling: .* which the skills file skills\.json names"):
+        Registry(pool, td, init_size=4).check_arcs()
+    assert _contents(store) == before
+    assert Registry(pool, ta, init_size=4).check_arcs() == ([], [])
+    pool.close()
+
+
+def test_a_start_waits_for_an_upload_in_flight_before_reading_its_arcs_segments(
+        pg_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Server A (the whole skills file) registers a roll-pull take; server B starts with
+    roll-pull left out while A holds the arc's lock. B read the arcs' segments without the
+    locks (PostgreSQL: A's not yet committed), passed, and rewrote their record over A's
+    roll-pull segments; now it waits for A and refuses."""
+    import threading
+
+    ta = load_template(_dataset(tmp_path / "a", ORIGINAL))
+    tc = load_template(_dataset(tmp_path / "c", [n for n in ORIGINAL if n != "roll-pull"]))
+    pool = make_pool(pg_url, max_size=4)
+    ra = Registry(pool, ta, init_size=4)
+    ra.check_arcs()
+    _register(ra, "roll-arc")  # the shared arcs record their identity (ta's)
+    inside, go = threading.Event(), threading.Event()
+    real = Registry._check_arc
+
+    def paused(self: Registry, st: Any) -> bool:
+        out = real(self, st)
+        if threading.current_thread().name == "A":
+            inside.set()
+            go.wait(10)
+        return out
+
+    monkeypatch.setattr(Registry, "_check_arc", paused)
+    done: list[Any] = []
+    a = threading.Thread(target=lambda: done.append(_register(ra, "roll-pull")), name="A")
+    a.start()
+    assert inside.wait(10)
+    threading.Timer(0.5, go.set).start()
+    try:
+        with pytest.raises(ArcMismatch, match="roll-pull motion 0"):
+            Registry(pool, tc, init_size=4).check_arcs()
+    finally:
+        go.set()
+        a.join(10)
+    assert done and done[0][0]["segments"]  # A's take stored, under A's record
+    pool.close()
+
+
 def test_an_archive_with_an_arc_refused_stores_nothing(store: str, tmp_path: Path) -> None:
     """An archive whose later demonstration's arc is refused (a registry that skipped the
     start's check, serving a store of another skills file) is refused before its first

@@ -451,7 +451,9 @@ class Registry:
             One line naming the arc, what its store holds, what the skills file makes it,
             and how to serve it.
         """
-        with self.pool.connection() as conn, conn.transaction():
+        with self.pool.connection() as conn, conn.transaction(), \
+                contextlib.ExitStack() as locks:
+            self._check_unnamed(conn)
             legacy, changed = [], {}
             for arc in sorted(self.template.identities):
                 store = arc_store(conn, arc)
@@ -470,6 +472,12 @@ class Registry:
                 self.arcs_checked = True
                 return ArcCheck([], [])
             names = {s.name for s in legacy}
+            # each store's lock before its segments are read (in the uploads' order: sorted):
+            # an upload in flight under another skills file commits its segments first, and
+            # the check below sees them (read before, they were missed, and the record was
+            # rewritten over a segment of a skill it leaves out)
+            for store in legacy:
+                locks.enter_context(store.transaction())
             rows = conn.execute(
                 "SELECT DISTINCT p.skill, u.step, u.arc FROM np_upload_samples u "
                 "JOIN np_uploads p ON p.hash = u.hash ORDER BY 3, 1, 2").fetchall()
@@ -486,6 +494,29 @@ class Registry:
                 store.put_meta(ARC_IDENTITY, self.template.identities[store.name].encode())
         self.arcs_checked = True
         return ArcCheck(sorted(names - set(changed)), sorted(changed))
+
+    def _check_unnamed(self, conn: Any) -> None:
+        """Refuse a store whose arc stores the skills file no longer names hold an arc it
+        names otherwise: a skill left out renumbered the graph (``push-roll``, the only skill
+        on its arcs), and the arc's samples would be split between its old store and a new
+        one (the store then served whole by neither skills file)."""
+        named = self.template.identities
+        # (every store that recorded its arc: a store of an earlier version that is no
+        # longer named recorded none, and is left alone)
+        for name, value in conn.execute(
+                "SELECT store, value FROM np_meta WHERE name = %s ORDER BY 1",
+                (ARC_IDENTITY,)).fetchall():
+            if name in named:
+                continue
+            text = bytes(value).decode()
+            for arc, edge in sorted(self.template.edges.items()):
+                if _same_edge(text, edge):
+                    skills = Path(str(self.template.top.get("skills", "skills"))).name
+                    raise ArcMismatch(
+                        f"the store's arc {name!r} holds {text}, which the skills file {skills} "
+                        f"names {arc!r}; serve this store with the skills file it was written "
+                        "with (the same skills in the same order), or give --store a new "
+                        "database")
 
     def _check_arc(self, store: TableStore) -> bool:
         """Before adding to an arc's store (its lock held): it must hold the arc the skills
