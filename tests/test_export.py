@@ -433,6 +433,23 @@ def test_an_export_never_lands_on_a_folder_that_appeared_while_it_was_written(
     with pytest.raises(InputError):
         write_lerobot(eps, out)
     assert len(scratch) == 2 and scratch[0] != scratch[1]
+    monkeypatch.undo()
+    # published with the user's umask (a scratch folder of tempfile.mkdtemp's was 0700, and
+    # so was the dataset: no other account could read it)
+    import os
+    import shutil
+
+    shutil.rmtree(out)  # (the folder made meanwhile above)
+    mask = os.umask(0o022)
+    try:
+        write_lerobot(eps, out)
+    finally:
+        os.umask(mask)
+    assert out.stat().st_mode & 0o777 == 0o755
+    # a symbolic link at the path, even one to nothing, is there: refused before any work
+    (tmp_path / "link").symlink_to(tmp_path / "nothing")
+    with pytest.raises(InputError, match="link: the export folder exists"):
+        write_lerobot(eps, tmp_path / "link")
 
 
 @st.composite

@@ -258,7 +258,7 @@ def check_new_folder(out_dir: str | Path, what: str = "the export folder") -> Pa
         written.
     """
     root = Path(out_dir)
-    if root.exists():
+    if os.path.lexists(root):  # (a symbolic link too, even one to nothing)
         raise InputError(f"{root}: {what} exists; give a new folder (a LeRobot dataset is "
                          "written whole, never into or over another)")
     up = root.absolute().parent

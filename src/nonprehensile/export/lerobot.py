@@ -32,8 +32,8 @@ import contextlib
 import errno
 import json
 import math
+import secrets
 import shutil
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -295,7 +295,7 @@ def write_lerobot(
     # and one published the other's frames under its own info.json)
     try:
         root.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(dir=root.parent, prefix=f".{root.name}.partial-"))
+        tmp = _scratch(root)
     except OSError as exc:
         raise InputError(f"{root}: cannot create the export folder ({exc.filename}: "
                          f"{exc.strerror or exc}); give a new folder inside a folder you can "
@@ -353,6 +353,20 @@ def write_lerobot(
     return root
 
 
+def _scratch(root: Path) -> Path:
+    """A new, empty folder beside ``root`` (``.NAME.partial-XXXXXXXX``), made with the
+    user's umask (``tempfile.mkdtemp``'s mode 0700 became the published dataset's: another
+    user or a training job under another account could not read it)."""
+    for _ in range(100):
+        tmp = root.parent / f".{root.name}.partial-{secrets.token_hex(4)}"
+        try:
+            tmp.mkdir()
+        except FileExistsError:
+            continue
+        return tmp
+    raise FileExistsError(errno.EEXIST, "no free scratch folder name", str(root.parent))
+
+
 def _publish(tmp: Path, root: Path) -> None:
     """Rename the written folder ``tmp`` to ``root``, never onto a folder that appeared there
     meanwhile (an :class:`InputError`; ``tmp`` is left to the caller).
@@ -368,10 +382,11 @@ def _publish(tmp: Path, root: Path) -> None:
                          "away and export again") from None
     try:
         tmp.rename(root)
-    except OSError as exc:
+    except BaseException as exc:  # (Ctrl-C too: the claimed folder is not left behind)
         with contextlib.suppress(OSError):
             root.rmdir()  # (only ours, and only empty: a folder with anything in it stays)
-        if exc.errno in (errno.ENOTEMPTY, errno.EEXIST):  # (filled in between: not ours)
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOTEMPTY, errno.EEXIST):
+            # (filled in between: not ours)
             raise InputError(f"{root}: files appeared there while the export was written; "
                              "nothing was written: give another folder") from None
         raise
