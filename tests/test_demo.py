@@ -190,17 +190,16 @@ def test_plan_cli_with_dataset_and_out(tmp_path: Path) -> None:
     assert res.exit_code == 2 and "--dataset" in res.stderr
 
 
-def test_motion_library_is_built_once_and_rebuilt_when_a_file_changes(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    import os
-
+def _counted_builds(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                    ) -> tuple[Path, list[int], Path]:
+    """A small synthetic dataset, the list each motion-library build appends to, and a
+    cache folder."""
     import nonprehensile.pipeline as pipeline
     from nonprehensile.demonstrations.synth import synthesize
 
     root = tmp_path / "ds"
     synthesize(root, seed=5, n_per_skill=2, mentors=2, dropouts=0.0)
-    built = []
+    built: list[int] = []
     real = pipeline.cluster_segments
 
     def counting(*args: object, **kwargs: object) -> object:
@@ -208,7 +207,17 @@ def test_motion_library_is_built_once_and_rebuilt_when_a_file_changes(
         return real(*args, **kwargs)  # type: ignore[arg-type]
 
     monkeypatch.setattr(pipeline, "cluster_segments", counting)
-    cache = tmp_path / "cache"
+    return root, built, tmp_path / "cache"
+
+
+def test_motion_library_is_built_once_and_rebuilt_when_a_file_changes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import os
+
+    import nonprehensile.pipeline as pipeline
+
+    root, built, cache = _counted_builds(tmp_path, monkeypatch)
     ds1, m1 = pipeline.motions_from_dataset(root, cache=cache)
     ds2, m2 = pipeline.motions_from_dataset(root, cache=cache)
     assert len(built) == 1 and len(list(cache.glob("motions-*.pickle"))) == 1
@@ -237,20 +246,9 @@ def test_motion_library_is_kept_per_angle_tolerance(
     """A library built at one --angle-tol is not reused at another (the dataset's skills and
     states were read at it); at the same tolerance it is."""
     import nonprehensile.pipeline as pipeline
-    from nonprehensile.demonstrations.synth import synthesize
     from nonprehensile.states import DEFAULT_ANGLE_TOL
 
-    root = tmp_path / "ds"
-    synthesize(root, seed=5, n_per_skill=2, mentors=2, dropouts=0.0)
-    built = []
-    real = pipeline.cluster_segments
-
-    def counting(*args: object, **kwargs: object) -> object:
-        built.append(1)
-        return real(*args, **kwargs)  # type: ignore[arg-type]
-
-    monkeypatch.setattr(pipeline, "cluster_segments", counting)
-    cache = tmp_path / "cache"
+    root, built, cache = _counted_builds(tmp_path, monkeypatch)
     pipeline.motions_from_dataset(root, cache=cache)  # the default tolerance
     assert len(built) == 1
     pipeline.motions_from_dataset(root, cache=cache, angle_tol=0.5)  # another: rebuilt

@@ -106,6 +106,17 @@ def _contents(store: str) -> list[Any]:
     return [samples, meta, ups]
 
 
+def _both_orders(store: str, tmp_path: Path) -> tuple[Path, Path, Any, Any, Any, str]:
+    """The original and the reordered skills files' datasets and templates, a pool on
+    ``store`` and a mentor's token."""
+    a = _dataset(tmp_path / "a", ORIGINAL)
+    b = _dataset(tmp_path / "b", REORDERED)
+    pool = make_pool(store, max_size=2)
+    with pool.connection() as conn:
+        token = create_token(conn, "ana")
+    return a, b, load_template(a), load_template(b), pool, token
+
+
 @pytest.fixture(params=["sqlite", "postgresql"])
 def store(request: pytest.FixtureRequest, tmp_path: Path) -> str:
     if request.param == "postgresql":
@@ -115,12 +126,7 @@ def store(request: pytest.FixtureRequest, tmp_path: Path) -> str:
 
 def test_a_reordered_skills_file_is_refused_and_the_store_left_as_it_was(
         store: str, tmp_path: Path) -> None:
-    a = _dataset(tmp_path / "a", ORIGINAL)
-    b = _dataset(tmp_path / "b", REORDERED)
-    ta, tb = load_template(a), load_template(b)
-    pool = make_pool(store, max_size=2)
-    with pool.connection() as conn:
-        token = create_token(conn, "ana")
+    _, b, ta, tb, pool, token = _both_orders(store, tmp_path)
     with TestClient(create_app(pool, ta, ServiceConfig("t"), background=False,
                                registry=Registry(pool, ta, init_size=4))) as c:
         first = _upload(c, token, "push-roll")
@@ -165,12 +171,7 @@ def test_stores_written_before_arcs_were_recorded(store: str, tmp_path: Path) ->
     """The migration: a store with samples and no recorded arc is checked against its
     uploads' skills and motions; the skills file that files them there adopts it (recording
     the arcs), another is refused as above."""
-    a = _dataset(tmp_path / "a", ORIGINAL)
-    b = _dataset(tmp_path / "b", REORDERED)
-    ta, tb = load_template(a), load_template(b)
-    pool = make_pool(store, max_size=2)
-    with pool.connection() as conn:
-        token = create_token(conn, "ana")
+    a, _, ta, tb, pool, token = _both_orders(store, tmp_path)
     with TestClient(create_app(pool, ta, ServiceConfig("t"), background=False,
                                registry=Registry(pool, ta, init_size=4))) as c:
         arcs = [s["arc"] for s in _upload(c, token, "push-roll").json()["segments"]]
