@@ -92,6 +92,8 @@ def _drop_dbs() -> None:
 
 
 _TMP: list[str] = []
+#: The `serve` processes this run started (stopped at the end, whatever happened).
+_SERVES: list[subprocess.Popen[bytes]] = []
 
 
 def _sqlite_file() -> str:
@@ -108,10 +110,21 @@ def _port() -> int:
 
 def _start(db: str, port: int) -> subprocess.Popen[bytes]:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    return subprocess.Popen(
+    proc = subprocess.Popen(
         [sys.executable, "-m", "nonprehensile.cli", "serve", "--store", db, "--host",
          "127.0.0.1", "--port", str(port), "--recalibrate-every", "2"],
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    _SERVES.append(proc)
+    return proc
+
+
+def _stop_serves() -> None:
+    """Stop every `serve` this run started that is still running (a load test that failed
+    half-way left its server running past the benchmark)."""
+    for proc in _SERVES:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=30)
 
 
 def _wait_up(base: str, timeout: float = 120.0) -> None:
@@ -517,6 +530,7 @@ def main() -> None:
     try:
         _main()
     finally:
+        _stop_serves()
         _drop_dbs()
         _stop_server()
         for tmp in _TMP:
