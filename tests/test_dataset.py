@@ -285,6 +285,21 @@ def test_a_scale_past_any_object_is_a_problem(ds_dir: Path, scale: float) -> Non
                                      "1e-06 to 100")
 
 
+def test_recordings_read_in_the_wrong_unit_are_a_problem(ds_dir: Path) -> None:
+    """'units': 'm' over recordings in millimetres put the hand a kilometre from the table
+    (`dataset show`: no problems unless object markers were given)."""
+    _edit(ds_dir, lambda d: d.update(units="m"))
+    problems = _problems(ds_dir)
+    # (the synthetic takes' markers are 0.1-0.14 m from the origin: read as metres, all but
+    # one are past 100 m; a take whose every number is below 100 cannot be told this way)
+    n = len(json.loads((ds_dir / "annotations.json").read_text())["demonstrations"])
+    assert n - 1 <= len(problems) <= n and all(
+        "m from the recording's origin, farther than any capture volume (100 m): 'units': "
+        "'m' says m" in p for p in problems), problems[:2]
+    _edit(ds_dir, lambda d: d.update(units="mm"))
+    assert _problems(ds_dir) == []
+
+
 def test_state_that_is_not_the_skills(ds_dir: Path) -> None:
     _edit(ds_dir, lambda d: d["demonstrations"][9].update(final={"face": "b", "theta": 0}))
     _one(ds_dir, "(demonstration 9)", "final state b:0", "d:")

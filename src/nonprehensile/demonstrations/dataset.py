@@ -78,6 +78,9 @@ Progress = Callable[[int, int], None]
 
 #: The value of the annotations' ``format`` key.
 DATASET_FORMAT = "nonprehensile-demonstrations/1"
+#: Farthest a marker may be from the recording's origin, metres: beyond any motion-capture
+#: volume (a take read in metres where its numbers are millimetres lands a kilometre away).
+MAX_CAPTURE_M = 100.0
 #: Names the annotations file may have in a dataset folder, tried in this order.
 ANNOTATION_FILES = ("annotations.json", "annotations.yaml", "annotations.yml")
 #: Datasets shipped inside the package, by name (folder ``data/<name>_demos``).
@@ -879,6 +882,18 @@ def _read(
     axes = settings.axes or AXES_PRESETS[DEFAULT_AXES.get(suffix, "zup")]
     rot = axes_matrix(axes)
     units, factor = _UNITS[settings.units] if settings.units else (traj.units, 1.0)
+    # a recording read in the wrong unit ('units': 'm' over a file in millimetres) put the
+    # hand a kilometre from the table, and nothing said so unless object markers were given
+    seen = traj.positions[np.isfinite(traj.positions)]
+    far = float(np.abs(seen).max()) * factor * (0.001 if units == "mm" else 1.0) \
+        if seen.size else 0.0
+    if far > MAX_CAPTURE_M:
+        said = (f"'units': {settings.units!r} says" if settings.units
+                else "the file says")
+        out.add(*where, f"a marker {far:.3g} m from the recording's origin, farther than any "
+                        f"capture volume ({MAX_CAPTURE_M:g} m): {said} {units}; if the numbers "
+                        "are in another unit, give the annotations' 'units' (mm or m)")
+        return None
     if np.array_equal(rot, np.eye(3)) and factor == 1.0 and units == traj.units:
         return traj
     # a rigid body turns with the world: R -> M R M^T, whose quaternion has its vector part
