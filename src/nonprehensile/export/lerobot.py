@@ -354,9 +354,10 @@ def write_lerobot(
 
 
 def _scratch(root: Path) -> Path:
-    """A new, empty folder beside ``root`` (``.NAME.partial-XXXXXXXX``), made with the
-    user's umask (``tempfile.mkdtemp``'s mode 0700 became the published dataset's: another
-    user or a training job under another account could not read it)."""
+    """A new, empty folder beside ``root``, named ``.NAME.partial-`` and 8 random hex digits
+    (``.out.partial-3f9a0c12``), made with the user's umask (``tempfile.mkdtemp``'s mode 0700
+    became the published dataset's: another user or a training job under another account
+    could not read it)."""
     for _ in range(100):
         tmp = root.parent / f".{root.name}.partial-{secrets.token_hex(4)}"
         try:
