@@ -112,6 +112,10 @@ def test_constructors_raise_the_projects_errors(build: object, word: str) -> Non
 def test_detection_thresholds_are_the_projects_errors() -> None:
     with pytest.raises(DemonstrationError, match="state_tol"):
         DetectionParams(state_tol=1e9)
+    # 0 degrees matches no measured pose: refused, as ``annotate --state-tol 0`` is
+    with pytest.raises(DemonstrationError, match="state_tol: expected .*above 0"):
+        DetectionParams(state_tol=0.0)
+    assert DetectionParams(state_tol=1e-3).state_tol == 1e-3
 
 
 def test_a_big_prism_keeps_its_faces() -> None:

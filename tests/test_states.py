@@ -118,6 +118,11 @@ def test_states_by_step() -> None:
         states_by_step(c, 7)
     with pytest.raises(StateError, match="above 0 and at most 360"):
         states_by_step(c, 0)
+    # too fine to count, or past the state limit: both name the option and the coarsest fix
+    for step in (1e-300, 1e-9, 1e-4):
+        with pytest.raises(StateError, match=r"\(--step\) of .* use a coarser step \(at "
+                                             r"least 0\.00432 degrees for this object\)"):
+            states_by_step(c, step)
     with pytest.raises(StateError, match="does not have"):
         check_states(c, [State("z", 0)])
 

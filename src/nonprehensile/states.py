@@ -403,19 +403,23 @@ def states_by_step(
         Face-major, in model order then increasing ``theta``.
     """
     step = float(check_number(step, "the angle step", STEP_RANGE, StateError))
+    chosen = stable_faces(poly, margin) if faces is None else list(faces)
+    for f in chosen:
+        poly.loop(f)
+    # the finest step the state limit allows on these faces (the fix both refusals name)
+    finest = 360.0 / (MAX_STATES // max(len(chosen), 1))
     if 360.0 / step > 1e9:  # 360 / 1e-320 is infinite: no whole number of steps
-        raise StateError(f"the angle step {step!r} degrees is too small to step around 360")
+        raise StateError(
+            f"the angle step (--step) of {step!r} degrees is too small: over 1e9 orientations "
+            f"per face, more than the limit of {MAX_STATES} states; use a coarser step (at "
+            f"least {finest:.3g} degrees for this object)")
     n = round(360.0 / step)
     if abs(n * step - 360.0) > 1e-9 * 360:
         raise StateError(
             f"the angle step must divide 360 degrees evenly, got {step:g} (360/{step:g} = "
             f"{360 / step:.6g}); try one of 1, 5, 15, 30, 45, 60, 90, 120, 180"
         )
-    chosen = stable_faces(poly, margin) if faces is None else list(faces)
-    for f in chosen:
-        poly.loop(f)
     if n * len(chosen) > MAX_STATES:
-        finest = 360.0 / (MAX_STATES // max(len(chosen), 1))
         raise StateError(
             f"the angle step (--step) of {step:g} degrees gives {n * len(chosen)} states on "
             f"{len(chosen)} faces, more than the limit of {MAX_STATES}; use a coarser step "

@@ -139,8 +139,11 @@ class DetectionParams:
         for name, high in (("pad_radius", 1.0), ("contact_on", 1.0), ("contact_off", 1.0),
                            ("ground_on", 1.0), ("ground_off", 1.0), ("element_tol", 1.0),
                            ("min_duration", 60.0), ("state_tol", 90.0)):
+            # a state tolerance of 0 matches no measured pose: above 0, as the command
+            # line's ``--state-tol`` asks
             object.__setattr__(self, name, float(check_number(
-                getattr(self, name), name, Range(0.0, high), DemonstrationError)))
+                getattr(self, name), name,
+                Range(0.0, high, low_open=name == "state_tol"), DemonstrationError)))
         if not (self.contact_off > self.contact_on > 0 and self.ground_off > self.ground_on > 0):
             raise DemonstrationError(
                 "thresholds need contact_off > contact_on > 0 and ground_off > ground_on > 0 "
