@@ -59,10 +59,15 @@ store_option = click.option("--store", required=True, metavar="STORE", help=_STO
                    "on POST /recalibrate).")
 @click.option("--workers", type=count(1, 64), default=8, show_default=True,
               help="Database connections in the pool (PostgreSQL).")
+@click.option("--shutdown-timeout", type=count(0, 3600), default=5, show_default=True,
+              help="Seconds a stop (Ctrl-C, SIGTERM) waits for the requests in flight; then "
+                   "those still waiting on the database are cut (their transactions roll "
+                   "back) and the server exits.")
 @click.pass_context
 @handle_errors
 def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dataset: str,
-                max_bytes: int, recalibrate_every: float, workers: int) -> None:
+                max_bytes: int, recalibrate_every: float, workers: int,
+                shutdown_timeout: int) -> None:
     """Run the demonstration service: mentors upload demonstrations into a PostgreSQL
     or SQLite store.
 
@@ -91,7 +96,8 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
     try:
         pool = make_pool(store, max_size=workers + 2)
         config = ServiceConfig(display_name(store), max_bytes=max_bytes,
-                               recalibrate_every=recalibrate_every)
+                               recalibrate_every=recalibrate_every,
+                               shutdown_timeout=shutdown_timeout)
         from nonprehensile.service.ingest import Registry
 
         registry = Registry(pool, template)
@@ -110,9 +116,12 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
         shown = f"[{host}]" if ":" in host else host
         err.print(f"serving {display_name(store)} on http://{shown}:{port} (OpenAPI at "
                   f"/openapi.json, docs at /docs); Ctrl-C stops")
-        server = uvicorn.Server(uvicorn.Config(
+        server = _server(uvicorn.Config(
             app, host=host, port=port, log_level="warning", workers=1,
-            limit_concurrency=max(16, 4 * workers), timeout_keep_alive=30))
+            limit_concurrency=max(16, 4 * workers), timeout_keep_alive=30,
+            # uvicorn's own cancel, a 500 for a request still running, only when the cut
+            # did not end it
+            timeout_graceful_shutdown=shutdown_timeout + 2), pool, shutdown_timeout)
         try:
             server.run(sockets=socks)
         except KeyboardInterrupt:
@@ -127,6 +136,33 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
             sock.close()
         if pool is not None:
             pool.close()
+
+
+def _server(config: Any, pool: Any, timeout: float) -> Any:
+    """uvicorn's server that cuts ``pool``'s connections still in use ``timeout`` s into its
+    shutdown, and closes the pool at its end.
+
+    uvicorn's shutdown waits for the requests in flight, then (``config``'s
+    ``timeout_graceful_shutdown``, a little longer than ``timeout``) cancels them: each
+    answers a 500, and one blocked in a query (on a database that never answers) runs on in
+    its thread, which the process then waits for. Cut first (:meth:`PostgresPool.cut`), each
+    such request answers its 503 and ends, its transaction rolled back by the server: a stop
+    never waits much longer than ``timeout``.
+    """
+    import asyncio
+
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        async def shutdown(self, sockets: list[socket.socket] | None = None) -> None:
+            cut = asyncio.get_running_loop().call_later(timeout, pool.cut)
+            try:
+                await super().shutdown(sockets=sockets)
+            finally:
+                cut.cancel()
+                pool.abort()
+
+    return Server(config)
 
 
 def _listen(host: str, port: int) -> list[socket.socket]:

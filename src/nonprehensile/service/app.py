@@ -6,7 +6,10 @@ Every POST and DELETE needs a mentor's bearer token (``Authorization: Bearer np_
 ``{"detail": "<one line>", "problems": [...]}`` with a 4xx status: 400 malformed request,
 401 no or unknown token, 403 another mentor's data, 404 unknown upload, 413 body too large,
 422 a demonstration that ``dataset show`` would reject (the same lines), 409 an upload to an
-arc whose store holds another arc (a store written under another skills file).
+arc whose store holds another arc (a store written under another skills file). A database
+that does not answer (down, restarted, a connection lost, every connection busy) answers 503
+with one line and ``Retry-After``, never a wait: see :class:`~nonprehensile.service.db.
+PostgresPool`.
 """
 
 
@@ -26,7 +29,7 @@ import nonprehensile
 from nonprehensile.errors import InputError, NonprehensileError
 from nonprehensile.io import parse_document
 from nonprehensile.service.db import Pool, mentor_of, snapshot
-from nonprehensile.service.errors import Forbidden, Rejected, public_text
+from nonprehensile.service.errors import Forbidden, Rejected, Unavailable, one_line, public_text
 from nonprehensile.service.ingest import (
     Registry,
     Template,
@@ -62,11 +65,15 @@ class ServiceConfig:
     recalibrate_every : float
         Seconds between checks for arcs due a background recalibration (0: never by itself;
         ``POST /recalibrate`` still runs one).
+    shutdown_timeout : float
+        Seconds the application's shutdown waits for a background recalibration to end
+        (``serve`` waits as long for the requests in flight).
     """
 
     store: str
     max_bytes: int = DEFAULT_MAX_BYTES
     recalibrate_every: float = 5.0
+    shutdown_timeout: float = 5.0
 
 
 class BodyLimit:
@@ -142,8 +149,8 @@ class _TooLarge(Exception):
 def _error(status: int, detail: str, problems: list[str] | None = None,
            hidden: tuple[Path, ...] = ()) -> JSONResponse:
     """The one reply of every refusal: one line, and nothing of the server's folders."""
-    return JSONResponse({"detail": public_text(detail, hidden),
-                         "problems": [public_text(p, hidden) for p in problems or []]},
+    return JSONResponse({"detail": public_text(one_line(detail), hidden),
+                         "problems": [public_text(one_line(p), hidden) for p in problems or []]},
                         status_code=status)
 
 
@@ -164,11 +171,14 @@ class Recalibrator:
         self._thread = threading.Thread(target=self._loop, name="recalibrate", daemon=True)
         self._thread.start()
 
-    def stop(self) -> None:
+    def stop(self, timeout: float = 30.0) -> None:
+        """Stop the thread, waiting up to ``timeout`` s for a recalibration under way (one
+        blocked on the database is left: the thread is a daemon, and the connection it waits
+        on is cut when the server stops; its transaction rolls back)."""
         self._stop.set()
         self._wake.set()
         if self._thread is not None:
-            self._thread.join(timeout=30)
+            self._thread.join(timeout=timeout)
 
     def request(self) -> None:
         self._wake.set()
@@ -192,6 +202,10 @@ class Recalibrator:
                 return
             try:
                 self.run_once(force=forced)
+            except Unavailable as exc:
+                # the database is down: one line each time, not a traceback every few seconds
+                self.last_error = f"{type(exc).__name__}: {exc}"
+                log.warning("background recalibration: %s (%s)", exc, exc.reason)
             except Exception as exc:  # a failed recalibration must not kill the thread
                 self.last_error = f"{type(exc).__name__}: {exc}"
                 log.exception("background recalibration failed")
@@ -222,7 +236,7 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
         if background:
             recal.start()
         yield
-        recal.stop()
+        recal.stop(timeout=config.shutdown_timeout)
 
     app = FastAPI(
         title="nonprehensile demonstration service",
@@ -248,6 +262,14 @@ def create_app(pool: Pool, template: Template, config: ServiceConfig, *,
     @app.exception_handler(InputError)
     async def _input(request: Request, exc: InputError) -> JSONResponse:
         return _error(422, str(exc), hidden=hidden)
+
+    @app.exception_handler(Unavailable)
+    async def _unavailable(request: Request, exc: Unavailable) -> JSONResponse:
+        # the client's line names nothing of the server; the driver's words go to the log
+        log.warning("%s %s: 503: %s", request.method, request.url.path, one_line(exc.reason))
+        resp = _error(503, str(exc), hidden=hidden)
+        resp.headers["Retry-After"] = "5"
+        return resp
 
     @app.exception_handler(NonprehensileError)
     async def _other(request: Request, exc: NonprehensileError) -> JSONResponse:

@@ -5,6 +5,14 @@ The service talks to either through a pool (:func:`make_pool`) of connections th
 same SQL (psycopg's ``%s`` placeholders); :func:`arc_store` opens an arc's store on a pooled
 connection and :func:`snapshot` a consistent read of it.
 
+On PostgreSQL the pool (:class:`PostgresPool`) turns a database outage into
+:class:`~nonprehensile.service.errors.Unavailable` (a 503 with one line) instead of a wait: a
+connection lost in a request fails it at once, and a request that waits for a connection asks
+the server itself after ``probe_after`` seconds, failing at once when it does not answer
+(psycopg's pool would wait its whole timeout, reconnecting). :meth:`PostgresPool.cut` cuts
+the connections still in use when the server stops (a request blocked on a database that
+never answers would otherwise hold the process).
+
 Tokens are stored as SHA-256 hashes: a token is 32 random bytes (``secrets.token_urlsafe``),
 far beyond guessing, so a slow password hash adds nothing; the database never holds one a
 thief could replay. Uploads are keyed by the SHA-256 of their content (the recording's bytes
@@ -16,29 +24,233 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import logging
+import os
 import secrets
-from collections.abc import Iterator
+import socket
+import threading
+import time
+from collections.abc import Iterator, Mapping
 from contextlib import AbstractContextManager
+from types import MappingProxyType
 from typing import Any, Protocol
 
-from psycopg_pool import ConnectionPool, PoolTimeout
+import psycopg
+from psycopg.conninfo import conninfo_to_dict, make_conninfo
+from psycopg_pool import ConnectionPool, PoolClosed, PoolTimeout
 
 from nonprehensile.errors import InputError, StoreError
 from nonprehensile.motion.pgstore import PostgresStore, connect, ensure_schema
 from nonprehensile.motion.stores import display_name, is_postgres_url
 from nonprehensile.motion.tablestore import TableStore
+from nonprehensile.service.errors import Unavailable, one_line
 from nonprehensile.service.sqlite import SQLiteArcStore, SQLiteConnection, SQLitePool
 
-__all__ = ["SERVICE_SCHEMA_VERSION", "Pool", "arc_store", "create_token", "hash_token",
-           "list_tokens", "make_pool", "mentor_of", "service_schema", "snapshot"]
+__all__ = ["CONNECTION_SETTINGS", "SERVICE_SCHEMA_VERSION", "Pool", "PostgresPool",
+           "arc_store", "create_token", "hash_token", "list_tokens", "make_pool", "mentor_of",
+           "service_schema", "snapshot"]
+
+log = logging.getLogger("nonprehensile.service")
 
 
 class Pool(Protocol):
-    """What the service needs of a pool: a connection for a block, and closing."""
+    """What the service needs of a pool: a connection for a block, closing, and cutting the
+    connections in use when the server stops."""
 
     def connection(self) -> AbstractContextManager[Any]: ...
 
     def close(self) -> None: ...
+
+    def cut(self) -> None: ...
+
+    def abort(self) -> None: ...
+
+
+#: libpq settings of the service's PostgreSQL connections (a URL's own setting of one wins):
+#: a connection attempt gives up after 5 s; on TCP, a server that vanished without a reset (a
+#: crashed host, a cut network) is found out by keepalives within about 10 + 3 x 5 s while a
+#: reply is awaited, and data it does not acknowledge fails the connection after 30 s. A
+#: unix socket needs none of them (its server's end closes with its process); libpq ignores
+#: them there.
+CONNECTION_SETTINGS: Mapping[str, str] = MappingProxyType({
+    "connect_timeout": "5", "keepalives": "1", "keepalives_idle": "10",
+    "keepalives_interval": "5", "keepalives_count": "3", "tcp_user_timeout": "30000"})
+
+#: What a client is told after a database error: an upload is stored whole or not at all,
+#: and sending it again stores it once (uploads are keyed by their content).
+_RETRY = "try again later (each demonstration is stored whole or not at all, and once however " \
+         "often it is sent)"
+
+
+class PostgresPool:
+    """The service's connections to PostgreSQL: psycopg's pool, whose failures are
+    :class:`~nonprehensile.service.errors.Unavailable` (HTTP 503, one line), never a long wait
+    on a database that is down.
+
+    Parameters
+    ----------
+    pool : ConnectionPool
+        psycopg's pool, open, of autocommit connections made with ``settings``.
+    url : str
+        Its database (asked directly by the probe).
+    settings : Mapping[str, str]
+        The libpq settings of the pool's connections (the probe's too).
+    timeout : float
+        Seconds a request waits for a free connection while the database answers (every
+        connection busy), before a 503.
+    probe_after : float
+        Seconds of waiting for a connection after which the database is asked directly
+        (one connection attempt, shared by the requests waiting): one that does not answer
+        ends every wait at once with a 503, where psycopg's pool would wait ``timeout``
+        reconnecting.
+    """
+
+    def __init__(self, pool: ConnectionPool[Any], url: str, settings: Mapping[str, str], *,
+                 timeout: float = 30.0, probe_after: float = 1.0) -> None:
+        self._pool = pool
+        self._url = url
+        # the probe asks only whether the server answers: 2 s (libpq's least) for a new
+        # connection, whatever the pool's connections wait, so that a thread blocked in it
+        # notices a stop soon
+        self._probe_conninfo = make_conninfo(url, **{**settings, "connect_timeout": "2"})
+        self.timeout = float(timeout)
+        self.probe_after = float(probe_after)
+        self._guard = threading.Lock()
+        self._in_use: set[psycopg.Connection[Any]] = set()
+        self._probe_lock = threading.Lock()
+        self._probed: tuple[float, str | None] = (-float("inf"), None)
+        # set once, by cut() (a plain flag: read by the waiting threads between their waits)
+        self._stopping = False
+
+    def _down(self, reason: str) -> Unavailable:
+        return Unavailable("the service's database is unavailable (it does not answer or "
+                           f"dropped the connection): {_RETRY}", reason)
+
+    def _probe(self) -> str | None:
+        """Why the database does not answer a new connection, or None when it does (one
+        attempt at a time; a result less than ``probe_after`` / 2 old is reused)."""
+        with self._probe_lock:
+            when, why = self._probed
+            if time.monotonic() - when < self.probe_after / 2:
+                return why
+            try:
+                psycopg.connect(self._probe_conninfo, autocommit=True).close()
+                why = None
+            except psycopg.Error as exc:
+                why = one_line(exc)
+            self._probed = (time.monotonic(), why)
+            return why
+
+    def _getconn(self) -> psycopg.Connection[Any]:
+        deadline = time.monotonic() + self.timeout
+        try:
+            while True:
+                if self._stopping:
+                    raise PoolClosed("cut")
+                left = deadline - time.monotonic()
+                try:
+                    conn: psycopg.Connection[Any] = self._pool.getconn(
+                        timeout=max(0.01, min(self.probe_after, left)))
+                except PoolTimeout:
+                    if left <= self.probe_after:
+                        raise
+                else:
+                    if self._checked(conn):
+                        return conn
+                    continue  # one the database dropped while it was idle: the next one
+                why = self._probe()
+                if why is not None:
+                    raise self._down(f"{display_name(self._url)}: {why}") from None
+        except PoolTimeout:
+            raise Unavailable(f"no database connection came free within {self.timeout:g} s "
+                              f"(the service is overloaded): {_RETRY}") from None
+        except PoolClosed:
+            raise Unavailable(f"the service is stopping: {_RETRY}") from None
+
+    def _checked(self, conn: psycopg.Connection[Any]) -> bool:
+        """Whether a connection from the pool still works (an empty query), counted as in
+        use from here on; one that does not is given back (the pool drops it).
+
+        After the database restarted, the pool's idle connections are dead: each would fail
+        its next request with a 503. psycopg's pool can check them itself (``check=``), but
+        inside ``getconn``, where :meth:`cut` cannot reach one blocked on a database that
+        does not answer.
+        """
+        with self._guard:
+            self._in_use.add(conn)
+        try:
+            conn.execute("")
+        except BaseException as exc:
+            with self._guard:
+                self._in_use.discard(conn)
+            self._pool.putconn(conn)
+            if isinstance(exc, psycopg.Error):
+                return False
+            raise
+        return True
+
+    @contextlib.contextmanager
+    def connection(self) -> Iterator[psycopg.Connection[Any]]:
+        """A connection for a block (its transaction ended as psycopg's pool ends it).
+
+        Raises
+        ------
+        Unavailable
+            No connection (the database does not answer, every connection stayed busy for
+            ``timeout``, or the pool is closed), or the connection failed in the block.
+        """
+        conn = self._getconn()
+        try:
+            with conn:  # (a pooled connection: commits or rolls back, and stays open)
+                yield conn
+        except Exception as exc:
+            # a lost connection (the server killed, restarted, cut off) or an operational
+            # failure of a live one (shutting down, out of disk, a lock waited for too
+            # long); the store's own wrapping (StoreError) of one is recognised by the
+            # connection it left broken
+            if conn.broken:
+                raise self._down(one_line(exc)) from None
+            if isinstance(exc, psycopg.OperationalError):
+                raise Unavailable(f"the service's database could not serve the request now "
+                                  f"({type(exc).__name__}): {_RETRY}", one_line(exc)) from None
+            raise
+        finally:
+            with self._guard:
+                self._in_use.discard(conn)
+            self._pool.putconn(conn)
+
+    def close(self) -> None:
+        """Close the pool (waiting requests fail; connections in use close when returned)."""
+        self._pool.close(timeout=5.0)
+
+    def cut(self) -> None:
+        """Cut every connection in use, and refuse new ones: each request still blocked on
+        the database (one that never answers) fails at once with a 503, its transaction
+        rolled back by the server; one waiting for a connection fails within
+        ``probe_after`` s. Returns at once.
+
+        The connection's socket is shut down, not closed: the thread that reads it sees the
+        end of the stream (libpq: "server closed the connection") and the descriptor stays
+        its own until it returns it, which closing under it would not give.
+        """
+        self._stopping = True
+        with self._guard:
+            conns = list(self._in_use)
+        for conn in conns:
+            try:
+                fd = os.dup(conn.fileno())
+            except (OSError, psycopg.Error):
+                continue  # closed meanwhile: nothing to cut
+            with socket.socket(fileno=fd) as sock, contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+        if conns:
+            log.warning("stopping: cut %d database connection(s) still in use", len(conns))
+
+    def abort(self) -> None:
+        """:meth:`cut`, then close the pool (its threads, daemons, given half a second each:
+        one stuck in a connection attempt to a server that does not answer is left)."""
+        self.cut()
+        self._pool.close(timeout=0.5)
 
 #: Version of the service tables' layout.
 SERVICE_SCHEMA_VERSION = 1
@@ -80,16 +292,36 @@ def hash_token(token: str) -> str:
     return hashlib.sha256(token.encode()).hexdigest()
 
 
-def make_pool(url: str, *, max_size: int = 8, timeout: float = 30.0) -> Pool:
-    """A pool on the service's database, tables created: a psycopg pool of autocommit
-    connections for a ``postgresql://`` URL, a :class:`SQLitePool` for a file path."""
+def make_pool(url: str, *, max_size: int = 8, timeout: float = 30.0,
+              probe_after: float = 1.0,
+              settings: Mapping[str, str] = CONNECTION_SETTINGS) -> Pool:
+    """A pool on the service's database, tables created.
+
+    Parameters
+    ----------
+    url : str
+        A ``postgresql://`` URL (a :class:`PostgresPool` of autocommit connections) or a
+        SQLite file path (a :class:`SQLitePool`).
+    max_size : int
+        Most PostgreSQL connections at once.
+    timeout : float
+        Seconds a connection is waited for (SQLite: another process's write lock).
+    probe_after : float
+        PostgreSQL: seconds of waiting for a connection after which the database is asked
+        whether it answers (see :class:`PostgresPool`).
+    settings : Mapping[str, str]
+        PostgreSQL: libpq settings of every connection (:data:`CONNECTION_SETTINGS`); the
+        URL's own setting of one wins.
+    """
     if not is_postgres_url(url):
         return SQLitePool(url, timeout=timeout)
     # one plain connection first: an unreachable server is one clear error at once, not a
     # pool retrying in the background until its timeout
     connect(url, timeout=timeout).close()
+    given = conninfo_to_dict(url)
+    params = {k: v for k, v in settings.items() if k not in given}
     pool = ConnectionPool(url, min_size=1, max_size=max_size, timeout=timeout,
-                          kwargs={"autocommit": True}, open=False)
+                          kwargs={"autocommit": True, **params}, open=False)
     try:
         pool.open(wait=True, timeout=timeout)
     except PoolTimeout as exc:
@@ -99,7 +331,7 @@ def make_pool(url: str, *, max_size: int = 8, timeout: float = 30.0) -> Pool:
     with pool.connection() as conn:
         ensure_schema(conn)
         service_schema(conn)
-    return pool
+    return PostgresPool(pool, url, params, timeout=timeout, probe_after=probe_after)
 
 
 def arc_store(conn: Any, arc: str) -> TableStore:

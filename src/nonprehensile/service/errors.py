@@ -15,10 +15,10 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import nonprehensile
-from nonprehensile.errors import InputError
+from nonprehensile.errors import InputError, StoreError
 
-__all__ = ["TEMP_PREFIX", "ArcMismatch", "Forbidden", "Rejected", "disk_error", "one_line",
-           "public_text"]
+__all__ = ["TEMP_PREFIX", "ArcMismatch", "Forbidden", "Rejected", "Unavailable", "disk_error",
+           "one_line", "public_text"]
 
 #: Prefix of the service's temporary folders (an upload is checked in one).
 TEMP_PREFIX = "np-svc-"
@@ -47,6 +47,20 @@ class ArcMismatch(Rejected):
         super().__init__(message, status=409)
 
 
+class Unavailable(StoreError):
+    """The service's database cannot serve a request now (it is down, it dropped the
+    connection, every connection is busy, or the server is stopping): HTTP 503 with one line
+    and ``Retry-After``.
+
+    The message is the client's, and names nothing of the server; ``reason`` (the driver's
+    own words: a socket's path, a host) is for the server's log only.
+    """
+
+    def __init__(self, message: str, reason: str = "") -> None:
+        super().__init__(message)
+        self.reason = reason or message
+
+
 def disk_error(exc: OSError, what: str) -> Rejected:
     """A file-system error of the server while it handles an upload: 507 for a full disk
     (the server's state, not the upload's fault), else 400 naming ``what`` it wrote."""
@@ -57,9 +71,11 @@ def disk_error(exc: OSError, what: str) -> Rejected:
                     status=400)
 
 
-def one_line(exc: BaseException) -> str:
-    """An exception's message on one line (a library's own may span several)."""
+def one_line(exc: BaseException | str) -> str:
+    """An exception's message (or a text) on one line (a library's own may span several)."""
     text = " ".join(str(exc).split())
+    if isinstance(exc, str):
+        return text
     return text or type(exc).__name__
 
 

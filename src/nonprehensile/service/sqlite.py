@@ -210,6 +210,13 @@ class SQLitePool:
             with self._guard:
                 self._free.append(conn)
 
+    def cut(self) -> None:
+        """Nothing to cut when the server stops: SQLite's work never waits on a server, and a
+        write waits at most ``timeout`` for another process's lock."""
+
+    def abort(self) -> None:
+        """As :meth:`cut`: nothing to cut."""
+
     def close(self) -> None:
         with self._guard:
             for conn in self._free:
