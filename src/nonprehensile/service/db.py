@@ -103,10 +103,15 @@ class PostgresPool:
         (one connection attempt, shared by the requests waiting): one that does not answer
         ends every wait at once with a 503, where psycopg's pool would wait ``timeout``
         reconnecting.
+    check_timeout : float
+        Seconds the check of a connection taken from the pool (an empty query) may take
+        before the connection is cut: a server that stopped answering (frozen, its disk
+        hung) fails the request with a 503, where the query would wait for ever.
     """
 
     def __init__(self, pool: ConnectionPool[Any], url: str, settings: Mapping[str, str], *,
-                 timeout: float = 30.0, probe_after: float = 1.0) -> None:
+                 timeout: float = 30.0, probe_after: float = 1.0,
+                 check_timeout: float = 5.0) -> None:
         self._pool = pool
         self._url = url
         # the probe asks only whether the server answers: 2 s (libpq's least) for a new
@@ -115,6 +120,7 @@ class PostgresPool:
         self._probe_conninfo = make_conninfo(url, **{**settings, "connect_timeout": "2"})
         self.timeout = float(timeout)
         self.probe_after = float(probe_after)
+        self.check_timeout = float(check_timeout)
         self._guard = threading.Lock()
         self._in_use: set[psycopg.Connection[Any]] = set()
         self._probe_lock = threading.Lock()
@@ -178,8 +184,27 @@ class PostgresPool:
         """
         with self._guard:
             self._in_use.add(conn)
+        # psycopg has no client-side timeout of a query: a timer cuts the connection if the
+        # check has not ended in time (``answered``, under its lock, keeps a timer firing just
+        # as the check ends from cutting a connection that works)
+        answered = False
+        lock = threading.Lock()
+
+        def overdue() -> None:
+            with lock:
+                if not answered:
+                    _shut(conn)
+
+        timer = threading.Timer(self.check_timeout, overdue)
+        timer.daemon = True
+        timer.start()
         try:
-            conn.execute("")
+            try:
+                conn.execute("")
+            finally:
+                with lock:
+                    answered = True
+                timer.cancel()
         except BaseException as exc:
             with self._guard:
                 self._in_use.discard(conn)
@@ -227,22 +252,13 @@ class PostgresPool:
         """Cut every connection in use, and refuse new ones: each request still blocked on
         the database (one that never answers) fails at once with a 503, its transaction
         rolled back by the server; one waiting for a connection fails within
-        ``probe_after`` s. Returns at once.
-
-        The connection's socket is shut down, not closed: the thread that reads it sees the
-        end of the stream (libpq: "server closed the connection") and the descriptor stays
-        its own until it returns it, which closing under it would not give.
+        ``probe_after`` s. Returns at once (sockets shut down, not closed: :func:`_shut`).
         """
         self._stopping = True
         with self._guard:
             conns = list(self._in_use)
         for conn in conns:
-            try:
-                fd = os.dup(conn.fileno())
-            except (OSError, psycopg.Error):
-                continue  # closed meanwhile: nothing to cut
-            with socket.socket(fileno=fd) as sock, contextlib.suppress(OSError):
-                sock.shutdown(socket.SHUT_RDWR)
+            _shut(conn)
         if conns:
             log.warning("stopping: cut %d database connection(s) still in use", len(conns))
 
@@ -290,6 +306,19 @@ _DDL = (
 def hash_token(token: str) -> str:
     """SHA-256 of a token, hex."""
     return hashlib.sha256(token.encode()).hexdigest()
+
+
+def _shut(conn: psycopg.Connection[Any]) -> None:
+    """Shut a connection's socket down (both ways), from any thread: the thread reading it
+    sees the end of the stream (libpq: "server closed the connection"), the server rolls its
+    transaction back. Shut down, not closed: the descriptor stays the connection's until its
+    thread gives it back, which closing it under that thread would not give."""
+    try:
+        fd = os.dup(conn.fileno())
+    except (OSError, psycopg.Error):
+        return  # closed meanwhile: nothing to cut
+    with socket.socket(fileno=fd) as sock, contextlib.suppress(OSError):
+        sock.shutdown(socket.SHUT_RDWR)
 
 
 def make_pool(url: str, *, max_size: int = 8, timeout: float = 30.0,
