@@ -12,7 +12,7 @@ import errno
 import socket
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -20,6 +20,9 @@ from nonprehensile.cli import HelpGroup
 from nonprehensile.cli.common import emit_json, err, handle_errors, out
 from nonprehensile.cli.options import count, number
 from nonprehensile.errors import InputError
+
+if TYPE_CHECKING:
+    from nonprehensile.service.db import Pool
 
 __all__ = ["serve_group"]
 
@@ -138,7 +141,7 @@ def serve_group(ctx: click.Context, store: str | None, host: str, port: int, dat
             pool.close()
 
 
-def _server(config: Any, pool: Any, timeout: float) -> Any:
+def _server(config: Any, pool: Pool, timeout: float) -> Any:
     """uvicorn's server that cuts ``pool``'s connections still in use ``timeout`` s into its
     shutdown, and closes the pool at its end.
 
