@@ -40,6 +40,12 @@ __all__ = ["COMPLIANCE_DAMPING", "DEFAULT_CONTROL_EVERY", "GIVE_ACCEL", "LIMIT_B
 
 FloatArray = NDArray[np.float64]
 
+try:  # the clip ufunc: np.clip without its Python dispatch (the same values, a fifth of
+    # the time: every control period clips the feed-forwards' offsets)
+    from numpy._core.umath import clip as _clip  # type: ignore[attr-defined]
+except ImportError:  # pragma: no cover - other numpy layouts
+    _clip = np.clip
+
 #: Physics steps per IK solve by default: 10, a 100 Hz control rate over the 1 kHz physics
 #: (the servos get set points interpolated every physics step). The main plan at nominal
 #: physics meets the contact bars at it (closed loop: tracking in contact 2.8 mm, 8 ms at a
@@ -757,11 +763,16 @@ class RobotArms:
         self._torque_limits = [(i, lim) for i, lim in enumerate(
             np.asarray(scene.torque, dtype=np.float64).tolist()) if math.isfinite(lim)]
         self._fbuf = np.zeros(6)
+        self._f3 = self._fbuf[:3]  # (its force part, a view made once: _tip_force_rows)
         self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
         # the object's believed pose (body origin, (w, x, y, z)): see()
         self._seen: tuple[FloatArray, FloatArray] | None = None
         self._force_now = np.full(scene.n_fingers, math.nan)
         self._pinv_c: FloatArray | None = None
+        # the tips' Jacobian _pushed read at this solve, whose inverse the give takes only if
+        # it is needed (_give_pinv): most control periods that push have no give
+        self._jac_give: FloatArray | None = None
+        self._eye_damp = 1e-6 * np.eye(3 * scene.n_fingers)  # (_tip_pinv's damping)
         # the set points' position and velocity at the next period's start (_segment;
         # None: at rest on the IK's joints)
         self._state: tuple[FloatArray, FloatArray] | None = None
@@ -782,6 +793,9 @@ class RobotArms:
         self.accel_feedforward = True
         self._kp_joint = np.array([servo_stiffness(m, int(a)) for a in scene.pos_act])
         self._torque_max = np.where(np.isfinite(scene.torque), scene.torque, 1e30)
+        self._torque_min = -self._torque_max  # (negation is exact)
+        # the last kept ``v1`` of the torque budget and its ``(M + h D) a`` (_within_torque)
+        self._ma_last: tuple[FloatArray, FloatArray] | None = None
         # the contact force feed-forward's offset within each joint's torque limit, rad
         self._push_lim = self._torque_max / self._kp_joint
         self._damping_list: list[float] = self._damping.tolist()
@@ -1063,7 +1077,11 @@ class RobotArms:
             a, b, c = basis
             dv = v1 - v0
             if self.accel_feedforward and solved:  # (a hold at rest accelerates nothing)
-                ff = self._accel_offset(dv / h)
+                # (the torque budget's product where it kept ``v1``: ``dv / h`` is its
+                # acceleration, ``(v1 - v0) / h``, bit for bit)
+                got, self._ma_last = self._ma_last, None
+                ff = self._accel_offset(dv / h, got[1] if got is not None and got[0] is v1
+                                        else None)
             # (columns ``a``, ``b``, ``c`` broadcast against the rows: the same products)
             q = s0 + a * v0 + b * dv
             qd = v0 + c * dv
@@ -1106,7 +1124,7 @@ class RobotArms:
         log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times and solved else math.nan
         return _Segment(j, rows, q, qd)
 
-    def _accel_offset(self, acc: FloatArray) -> FloatArray:
+    def _accel_offset(self, acc: FloatArray, ma: FloatArray | None = None) -> FloatArray:
         """The acceleration feed-forward: the offset of the position set points (rad, shape
         (n_joints,)) whose servo force is the torque the set points' joint acceleration
         ``acc`` (rad/s^2, shape (n_joints,): the spline's, constant over a control period)
@@ -1131,13 +1149,19 @@ class RobotArms:
         dynamics, a gain that is not fixed: :func:`servo_stiffness`) gets none. The torque
         steps at each period's boundary as the spline's acceleration does (a ramp over the
         period, which delays it, was measured worse: an 11 ms torque limit in the two-arm
-        transitions against 10 ms)."""
-        d, m = self.data, self.scene.model
-        full = self._acc_full
-        full[self._dsl] = acc
-        mujoco.mj_mulM(m, d, self._ma_full, full)
-        lim = self._torque_max  # (no joint's offset torque past its limit)
-        need = np.clip(self._ma_full[self._dsl] + self._implicit * acc, -lim, lim)
+        transitions against 10 ms).
+
+        ``ma``: ``(M + h D) acc`` where :meth:`_within_torque` computed it for the same
+        ``acc`` at the same state (the same numbers: its mass matrix product not made
+        again)."""
+        if ma is None:
+            d, m = self.data, self.scene.model
+            full = self._acc_full
+            full[self._dsl] = acc
+            mujoco.mj_mulM(m, d, self._ma_full, full)
+            ma = self._ma_full[self._dsl] + self._implicit * acc
+        # (no joint's offset torque past its limit)
+        need = _clip(ma, self._torque_min, self._torque_max)
         return np.asarray(need / self._kp_joint, dtype=np.float64)
 
     def _within_torque(self, v0: FloatArray, v1: FloatArray, h: float,
@@ -1166,7 +1190,8 @@ class RobotArms:
         # calls on 7 numbers cost more than the arithmetic): the same IEEE operations in
         # the same order as the arrays' (``bias + damping qvel``, ``lim - bias``,
         # ``-lim - bias``, ``hi / need``), so the same numbers
-        need = (self._ma_full[self._dsl] + self._implicit * a).tolist()
+        ma = self._ma_full[self._dsl] + self._implicit * a
+        need = ma.tolist()
         views = self._bias_views
         if views is not None:
             fb, qv = views
@@ -1197,6 +1222,8 @@ class RobotArms:
             floor = max(floor, self._range_share(q0, v0, v1, h))
         scale = float(min(1.0, max(floor, s_min)))
         if scale >= 1.0:
+            # (the acceleration feed-forward's torque of this ``v1``: _segment hands it on)
+            self._ma_last = (v1, ma)
             return v1
         out = v0 + scale * (v1 - v0)
         knot = self.ik.q
@@ -1250,6 +1277,11 @@ class RobotArms:
     def _tip_pinv(self) -> FloatArray:
         """Damped least-squares inverse of the tip sites' position Jacobian now, shape
         (n_joints, 3 n_fingers)."""
+        return self._pinv_of(self._tip_jac())
+
+    def _tip_jac(self) -> FloatArray:
+        """The tip sites' position Jacobian now, shape (3 n_fingers, n_joints) (kept as
+        ``_jac_c``)."""
         sc = self.scene
         m, d = sc.model, self.data
         rows = []
@@ -1258,7 +1290,22 @@ class RobotArms:
             rows.append(self._jac[:, sc.dadr])
         jac = np.concatenate(rows)
         self._jac_c = jac
-        return np.asarray(jac.T @ np.linalg.inv(jac @ jac.T + 1e-6 * np.eye(len(jac))))
+        return jac
+
+    def _pinv_of(self, jac: FloatArray) -> FloatArray:
+        """Damped least-squares inverse of the tips' Jacobian ``jac`` (:meth:`_tip_jac`)."""
+        return np.asarray(jac.T @ np.linalg.inv(jac @ jac.T + self._eye_damp))
+
+    def _give_pinv(self) -> FloatArray:
+        """The give's inverse Jacobian (``_pinv_c``): the one of this control period, made
+        from the Jacobian :meth:`_pushed` read at its solve where it did (the same numbers
+        as its inverse made then), else from the Jacobian now."""
+        pinv = self._pinv_c
+        if pinv is None:
+            jac = self._jac_give
+            pinv = self._pinv_c = self._tip_pinv() if jac is None else self._pinv_of(jac)
+            self._jac_give = None
+        return pinv
 
     def solve(self, targets: FloatArray, *, last: bool = False,
               noise: FloatArray | None = None) -> FloatArray:
@@ -1569,6 +1616,7 @@ class RobotArms:
         out = self._correct(arr, now_, steps, noise)
         if self.compliance or self.force_cap is not None:
             self._pinv_c = None  # the give's Jacobian, at this solve's joints (_comply, _cap)
+            self._jac_give = None
         if self.compliance:
             return out  # (its force is logged every physics step: _comply)
         if self._touch:  # the stiff arm's force, for the records only
@@ -1654,7 +1702,7 @@ class RobotArms:
         runs held a torque limit over 10 ms while touching (docs/benchmarks.md)."""
         cap = self.force_cap
         assert cap is not None  # (called only with a cap)
-        fl = self._tip_forces().tolist()
+        fl = self._tip_force_rows()
         smooth = self.force_feedforward
         if smooth:  # (summed for the next solve's offset: _pushed)
             acc = self._push_sum
@@ -1766,13 +1814,14 @@ class RobotArms:
         f = np.array(acc) * (1.0 / max(steps, 1))
         acc[:] = [0.0] * len(acc)
         self._push_any = False
-        if self._pinv_c is None:
-            self._pinv_c = self._tip_pinv()
+        if self._pinv_c is None and self._jac_give is None:
+            # the Jacobian at this solve's joints; its inverse only if a give needs it
+            self._jac_give = self._tip_jac()
         jac = self._jac_c
         assert jac is not None
         d = -(jac.T @ f) / self._kp_joint
         lim = self._push_lim
-        return np.asarray(np.clip(d, -lim, lim), dtype=np.float64)
+        return np.asarray(_clip(d, -lim, lim), dtype=np.float64)
 
     def _given(self, row: FloatArray, on: bool, vel: FloatArray | None = None) -> FloatArray:
         """Row ``row`` with the give (``self._offset``) logged on the row just recorded and,
@@ -1784,13 +1833,12 @@ class RobotArms:
         self.log._give[self.log.n - 1] = g  # the row just recorded (record)
         if not on:
             return row
-        if self._pinv_c is None:
-            self._pinv_c = self._tip_pinv()
+        pinv = self._give_pinv()
         out = np.array(row)
-        out[self.scene.pos_act] += self._pinv_c @ g.ravel()
+        out[self.scene.pos_act] += pinv @ g.ravel()
         if vel is not None:
             vc = self.scene.vel_act
-            out[vc] = np.maximum(np.minimum(out[vc] + self._pinv_c @ vel.ravel(),
+            out[vc] = np.maximum(np.minimum(out[vc] + pinv @ vel.ravel(),
                                             self._vel_max), self._vel_min)
         return out
 
@@ -1937,28 +1985,42 @@ class RobotArms:
     def _tip_forces(self) -> FloatArray:
         """The contact force on each fingertip (world, N; from the object and the table),
         shape (n_fingers, 3)."""
-        d, m = self.data, self.scene.model
-        out = np.zeros((self.n_fingers, 3))
-        n = d.ncon
-        if n == 0:
+        return np.array(self._tip_force_rows(), dtype=np.float64)
+
+    def _tip_force_rows(self) -> list[list[float]]:
+        """:meth:`_tip_forces` as a list of ``[x, y, z]`` per fingertip (what :meth:`_cap`
+        reads every physics step while a fingertip touches: no array made and read back)."""
+        out = [[0.0, 0.0, 0.0] for _ in range(self.n_fingers)]
+        d = self.data
+        if d.ncon == 0:
             return out
         con = d.contact
         index = self._tip_index
-        buf = self._fbuf
+        m, buf, f3 = self.scene.model, self._fbuf, self._f3
         frames = None
         # plain Python over the handful of contacts, in their order (two np.isin over them
-        # cost more than the whole loop); the same sums in the same order
-        for i, (a, b) in enumerate(con.geom[:n].tolist()):
+        # cost more than the whole loop); the same sums in the same order. The force in the
+        # world frame is ``f3 @ frame`` (the frame's rows are its axes): the same BLAS
+        # product, bit for bit, as ``frame.T @ f3``, in two numpy calls fewer; the sums are
+        # plain floats, the same IEEE additions as the array's (``0.0 + x`` first)
+        for i, (a, b) in enumerate(con.geom.tolist()):
             on2 = b in index
             if not on2 and a not in index:
                 continue
-            k = index[b if on2 else a]
+            o = out[index[b if on2 else a]]
             mujoco.mj_contactForce(m, d, i, buf)
             if frames is None:
-                frames = con.frame
+                frames = con.frame.reshape(-1, 3, 3)
             # the force geom1 exerts on geom2, in the contact frame (normal: 1 -> 2)
-            fw = frames[i].reshape(3, 3).T @ buf[:3]
-            out[k] += fw if on2 else -fw
+            x, y, z = (f3 @ frames[i]).tolist()
+            if on2:
+                o[0] += x
+                o[1] += y
+                o[2] += z
+            else:
+                o[0] += -x
+                o[1] += -y
+                o[2] += -z
         return out
 
     def _contacts(self, d: Any) -> tuple[bool, bool, bool]:
