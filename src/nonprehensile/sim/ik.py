@@ -527,6 +527,11 @@ class FingertipIK:
         self._mocap = int(m.body_mocapid[self._obj])
         # the object's geoms with their poses in its body frame (set_object poses them)
         self._obj_rot = np.empty(9)
+        # the last set_object's arguments, data, position and the geoms' rows it wrote
+        # (set_object_kept)
+        self._posed: tuple[Any, Any, Any, FloatArray,
+                           list[tuple[FloatArray, FloatArray, FloatArray, FloatArray]]] | None
+        self._posed = None
         self._obj_r = self._obj_rot.reshape(3, 3)  # (a view: written by set_object)
         self._pose_data: Any = None  # the data whose views set_object writes (_pose_views)
         self._pose_rows: tuple[FloatArray, ...] = ()
@@ -639,10 +644,36 @@ class FingertipIK:
         xpos[:] = p
         xquat[:] = quat
         xmat[:] = rot
+        posed = []
         for gx, gm, gpos, gmat in self._pose_geoms:
-            gx[:] = p + r @ gpos
-            gm[:] = (r @ gmat).ravel()
+            gp = p + r @ gpos
+            gr = (r @ gmat).ravel()
+            gx[:] = gp
+            gm[:] = gr
+            posed.append((gx, gm, gp, gr))
+        self._posed = (position, quat, d, p, posed)
         self._pose_version += 1
+
+    def set_object_kept(self, position: FloatArray, quat: FloatArray) -> None:
+        """:meth:`set_object` for a caller that never changes ``position`` and ``quat`` in
+        place (a new pair of arrays for each new pose): given the very arrays of the last
+        :meth:`set_object`, the rows it wrote are written again as they were (the
+        kinematics of each step writes MuJoCo's own products over them), with no rotation
+        derived and no new pose counted (the pointing keeps the object's top). The same
+        numbers as :meth:`set_object`: the closed loop's solves between two observations
+        see the same pose (a third of the main plan's)."""
+        got = self._posed
+        d = self.configuration.data
+        if got is None or got[0] is not position or got[1] is not quat or got[2] is not d:
+            self.set_object(position, quat)
+            return
+        _, _, xpos, xquat, xmat = self._pose_rows
+        xpos[:] = got[3]
+        xquat[:] = quat
+        xmat[:] = self._obj_rot
+        for gx, gm, gp, gr in got[4]:
+            gx[:] = gp
+            gm[:] = gr
 
     def _pose_views(self, d: Any) -> None:
         """The rows :meth:`set_object` writes, as views into ``d`` (MjData's arrays never

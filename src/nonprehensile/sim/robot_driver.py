@@ -268,6 +268,10 @@ class RobotLog:
         self._touch = np.zeros(capacity, dtype=bool)
         self._other = np.zeros(capacity, dtype=bool)
         self._ik = np.full(capacity, math.nan)
+        # the rows below which ``_tool`` and ``_noise`` may hold anything but zeros (past
+        # them a control period with no offset or noise need not write its zeros again)
+        self._tool_to = 0
+        self._noise_to = 0
         self._flat()
 
     def _flat(self) -> None:
@@ -571,6 +575,13 @@ class _OnlineControls:
 
     def __getitem__(self, i: int) -> FloatArray:
         if i == self._i + 1 and self._row is not None:  # the step loop's next row
+            seg = self.seg
+            if seg is not None and seg.start <= i < seg.stop:
+                # (hold's row within the period, here: a Python call fewer every step)
+                row = self.driver._advance(seg, i)
+                self._i = i
+                self._row = row
+                return row
             return self.hold()
         if i < 0 or i >= len(self.targets):
             raise IndexError(i)
@@ -598,8 +609,7 @@ class _OnlineControls:
         i = self._i + 1
         seg = self.seg
         if seg is not None and seg.start <= i < seg.stop and self._row is not None:
-            self.driver.record(seg, i)
-            row = self.driver._with_give(seg, i, seg.rows[i - seg.start])
+            row = self.driver._advance(seg, i)
         else:
             row = self.driver.row(self, i)
         self._i = i
@@ -703,6 +713,9 @@ class RobotArms:
         self._ctrl: FloatArray = data.ctrl  # (float64, never moves: read as a view)
         self._pos_cols = _as_stride(scene.pos_act)
         self._vel_cols = _as_stride(scene.vel_act)
+        # both column sets slices: a row block's columns are views, written in place
+        self._cols_views = isinstance(self._pos_cols, slice) and isinstance(self._vel_cols,
+                                                                           slice)
         self._vel_max = scene.velocity
         self._servos_only = sorted([*scene.pos_act.tolist(), *scene.vel_act.tolist()]) == \
             list(range(m.nu))
@@ -969,8 +982,41 @@ class RobotArms:
         seg = ctl.seg
         if seg is None or not seg.start <= j < seg.stop:
             seg = ctl.seg = self._segment(ctl, j)
-        self.record(seg, j)
-        return self._with_give(seg, j, seg.rows[j - seg.start])
+        return self._advance(seg, j)
+
+    def _advance(self, seg: _Segment, j: int) -> FloatArray:
+        """Row ``j`` of ``seg``, recorded (:meth:`record`) and with the give of this physics
+        step (:meth:`_with_give`): what every physics step reads, in one Python call (the
+        record's usual path and the give's test written out here: each call and attribute
+        read of a physics step's path, a few hundred of them a control period, cost more in
+        place, among the physics' memory traffic, than back to back)."""
+        src = self._sources
+        if src is None:
+            self.record(seg, j)
+            return self._with_give(seg, j, seg.rows[j - seg.start])
+        d, log = self.data, self.log
+        nc = self._n
+        if nc % CONTACT_EVERY == 0:  # as often as the judge reads contacts
+            self._touch, self._other, self._tip_contact = self._contacts(d)
+        self._n = nc + 1
+        self._last = (seg, j)
+        n = log.n
+        if n >= len(log._time):
+            log.reserve(1)
+        t, q, qd, tau, tips, touch, other = log._mv
+        nj, nt = self._widths
+        a, b = n * nj, n * nt
+        q[a:a + nj], qd[a:a + nj], tau[a:a + nj], tips[b:b + nt] = src
+        t[n] = d.time
+        touch[n] = self._touch
+        other[n] = self._other
+        log.n = n + 1
+        row: FloatArray = seg.rows[j - seg.start]
+        if self.compliance:
+            return self._comply(seg, j, row)
+        if self.force_cap is not None and (self._tip_contact or self._cap_on):
+            return self._cap(row)
+        return row
 
     def _with_give(self, seg: _Segment, j: int, row: FloatArray) -> FloatArray:
         """Row ``j`` of ``seg`` (``row``, just recorded) with the fingertips' give of this
@@ -1092,9 +1138,14 @@ class RobotArms:
         # from ``ctrl`` then)
         rows = (np.empty((k, len(self._ctrl))) if self._servos_only
                 else np.repeat(self._ctrl[None, :], k, axis=0))
-        rows[:, self._pos_cols] = (qk if noise is None
-                                   else qk + self._noise_offset(noise[nidx]))
-        if ff is not None:  # the torque the period's acceleration takes (_accel_offset)
+        base = qk if noise is None else qk + self._noise_offset(noise[nidx])
+        if ff is None:
+            rows[:, self._pos_cols] = base
+        elif self._cols_views:  # the torque the period's acceleration takes (_accel_offset)
+            # (written into the rows' view at once: the same sum as the copy, then ``+=``)
+            np.add(base, ff, out=rows[:, self._pos_cols])
+        else:
+            rows[:, self._pos_cols] = base
             rows[:, self._pos_cols] += ff
         if self.force_feedforward:  # the contact force's (_pushed)
             push = self._pushed()
@@ -1106,19 +1157,35 @@ class RobotArms:
             if j + kk > nn:  # past the noise's end it is held: no velocity
                 nv = np.where((np.arange(j, j + kk) >= nn)[:, None, None], 0.0, nv)
             qdc = qdk + self._noise_offset(nv)
-        rows[:, self._vel_cols] = np.maximum(np.minimum(qdc, self._vel_max), self._vel_min)
+        if self._cols_views:  # (the same bounds, written into the rows' view)
+            vv = rows[:, self._vel_cols]
+            np.minimum(qdc, self._vel_max, out=vv)
+            np.maximum(vv, self._vel_min, out=vv)
+        else:
+            rows[:, self._vel_cols] = np.maximum(np.minimum(qdc, self._vel_max),
+                                                 self._vel_min)
         # the log's set points and targets of the period, written once (a period replaced
         # before its end is overwritten from where it stopped); the give, the force and the
         # IK time are left as the log made them (0, NaN, NaN) past the period's first row:
         # nothing writes those past the row recorded last (_comply writes that row, a solve
         # only its own row, the next to be recorded)
         log = self.log
-        log.reserve(k)
+        if log.n + k > len(log._time):
+            log.reserve(k)
         log._q_ref[t0:t0 + k] = qk
         log._qd_ref[t0:t0 + k] = qdk
         log._target[t0:t0 + k] = rows_t
-        log._tool[t0:t0 + k] = 0.0 if tool is None else tool[:k]
-        log._noise[t0:t0 + k] = 0.0 if noise is None else noise[nidx]
+        # (no offset or noise: zeros, written only over rows that may hold others)
+        if tool is not None:
+            log._tool[t0:t0 + k] = tool[:k]
+            log._tool_to = max(log._tool_to, t0 + k)
+        elif t0 < log._tool_to:
+            log._tool[t0:t0 + k] = 0.0
+        if noise is not None:
+            log._noise[t0:t0 + k] = noise[nidx]
+            log._noise_to = max(log._noise_to, t0 + k)
+        elif t0 < log._noise_to:
+            log._noise[t0:t0 + k] = 0.0
         if not self.compliance:  # the stiff arm's force, read at the solve (_yield)
             log._force[t0] = self._force_now
         log._ik[t0] = self.ik.solve_times[-1] if self.ik.solve_times and solved else math.nan
@@ -1580,7 +1647,8 @@ class RobotArms:
     def _set_object(self) -> None:
         """The IK's object at the believed pose (:meth:`see`)."""
         if self._seen is not None:
-            self.ik.set_object(*self._seen)
+            # (see makes a new pair of arrays for each pose, never changed in place)
+            self.ik.set_object_kept(*self._seen)
         else:
             d = self.data
             self.ik.set_object(d.xpos[self._obj], d.xquat[self._obj])
