@@ -257,6 +257,21 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
 
         def bounds(self, qpos: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
             """``(upper, lower)`` bounds on the step ``dq``, shape (nv,) each."""
+            up, down = self.steps(qpos, dt)
+            if self.identity:  # the IK scene's joints are its degrees of freedom, in order
+                return np.array(up), -np.array(down)
+            # (a degree of freedom that is not one of the robot's joints, the object's free
+            # joint in the physical scene, does not move: before, np.empty left whatever
+            # memory held; the IK's own scene has none such)
+            upper = np.zeros(self.n)
+            lower = np.zeros(self.n)
+            upper[self.dadr] = up
+            lower[self.dadr] = -np.array(down)
+            return upper, lower
+
+        def steps(self, qpos: FloatArray, dt: float) -> tuple[list[float], list[float]]:
+            """The bounds of :meth:`bounds` per robot joint (scene order), as lists: the
+            largest step up and the largest step down (positive down), rad."""
             q = (qpos if self.identity else qpos[self.qadr]).tolist()
             if dt != self._dt:  # the products with dt, once per control period
                 self._dt = dt
@@ -317,16 +332,7 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                     for i, (a, b) in enumerate(zip(au, ad, strict=True)):
                         if a + b >= 0.0:
                             up[i], down[i] = a, b
-            if self.identity:  # the IK scene's joints are its degrees of freedom, in order
-                return np.array(up), -np.array(down)
-            # (a degree of freedom that is not one of the robot's joints, the object's free
-            # joint in the physical scene, does not move: before, np.empty left whatever
-            # memory held; the IK's own scene has none such)
-            upper = np.zeros(self.n)
-            lower = np.zeros(self.n)
-            upper[self.dadr] = up
-            lower[self.dadr] = -np.array(down)
-            return upper, lower
+            return up, down
 
         def compute_qp_inequalities(self, configuration: Any, dt: float) -> Any:
             upper, lower = self.bounds(configuration.q, dt)
@@ -520,6 +526,7 @@ class FingertipIK:
         self._sense: dict[int, NDArray[np.intc]] = {}  # daqp's constraint kinds (all bounds)
         self._no_lower = np.full(len(self.limits[1].geom_id_pairs) if cfg.collisions else 0,
                                  -1e30)  # a collision row's lower bound: none
+        self._no_lower_list: list[float] = self._no_lower.tolist()
         self._jac1 = np.empty((3, m.nv))
         self._fromto, self._normal = np.empty(6), np.empty(3)
         self._jac2 = np.empty((3, m.nv))
@@ -952,15 +959,31 @@ class FingertipIK:
         qpos = self._qpos  # (read only: mink's ``q`` is a copy)
         h += self._post_diag
         c += self._post_lin * (qpos - post.target_q)
-        upper, lower = self._box.bounds(qpos, dt)
-        rows = self._collision_rows(conf, dt) if self._coll is not None else None
-        if rows is None:
-            a = self._no_rows
-            bu, bl = upper, lower
+        box = self._box
+        rows = None
+        if box.identity:
+            # the joints' bounds and the collision rows' as lists, made into daqp's two
+            # arrays at once (the same numbers as the arrays concatenated: ``-x`` is
+            # exact)
+            up, down = box.steps(qpos, dt)
+            rows = self._collision_rows(conf, dt) if self._coll is not None else None
+            if rows is None:
+                a = self._no_rows
+                bu, bl = np.array(up), -np.array(down)
+            else:
+                a, hl = rows
+                bu = np.array(up + hl)
+                bl = np.array([-x for x in down] + self._no_lower_list[:len(hl)])
         else:
-            a, hb = rows
-            bu = np.concatenate([upper, hb])
-            bl = np.concatenate([lower, self._no_lower[:len(hb)]])
+            upper, lower = box.bounds(qpos, dt)
+            rows = self._collision_rows(conf, dt) if self._coll is not None else None
+            if rows is None:
+                a = self._no_rows
+                bu, bl = upper, lower
+            else:
+                a, hl = rows
+                bu = np.concatenate([upper, hl])
+                bl = np.concatenate([lower, self._no_lower[:len(hl)]])
         sense = self._sense.get(len(bu))
         if sense is None:
             sense = self._sense[len(bu)] = np.zeros(len(bu), dtype=np.intc)
@@ -969,9 +992,10 @@ class FingertipIK:
             return None
         return x / dt  # type: ignore[no-any-return]  # (daqp's solution: a float64 array)
 
-    def _collision_rows(self, conf: Any, dt: float) -> tuple[FloatArray, FloatArray] | None:
+    def _collision_rows(self, conf: Any, dt: float) -> tuple[FloatArray, list[float]] | None:
         """mink's ``CollisionAvoidanceLimit`` rows of the pairs within its detection distance
-        (its broad phase, then ``mj_geomDistance``), shape (k, nv) and (k,); None if none."""
+        (its broad phase, then ``mj_geomDistance``), shape (k, nv), and their bounds (k
+        floats); None if none."""
         data = conf.data
         near = self._broad_phase(data)
         if not near:  # (most solves: nothing within reach of the detection distance)
@@ -1008,7 +1032,7 @@ class FingertipIK:
             g_rows.append(-row if dist >= 0 else row)
         if not g_rows:
             return None
-        return np.array(g_rows), np.array(h_rows)
+        return np.array(g_rows), h_rows
 
     def _init_broad_phase(self) -> None:
         """The collision pairs' broad phase, precomputed: mink's (bounding spheres for two

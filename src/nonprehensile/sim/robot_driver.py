@@ -1284,9 +1284,11 @@ class RobotArms:
                     s_min = s
         # at least ``min_accel_share`` of the IK's acceleration: the set points still turn
         # towards the IK's path (braking included), if more slowly
+        # (where no joint's torque asks for less than the whole acceleration, the scale is 1
+        # whatever the floor: the range's share, at most 1, is not worked out)
         floor = self.min_accel_share
-        if q0 is not None:  # and enough to stop short of a range's end (_range_share)
-            floor = max(floor, self._range_share(q0, v0, v1, h))
+        if q0 is not None and s_min < 1.0:  # and enough to stop short of a range's end
+            floor = max(floor, self._range_share(q0, v0, v1, h))  # (_range_share)
         scale = float(min(1.0, max(floor, s_min)))
         if scale >= 1.0:
             # (the acceleration feed-forward's torque of this ``v1``: _segment hands it on)
