@@ -1028,6 +1028,18 @@ class FingertipIK:
                 row = normal.dot(jac1)
                 g_rows.append(row if dist >= 0 else -row)
                 continue
+            body2 = self._pair_still1[idx]
+            if body2 >= 0:
+                # the first geom does not move (the table or the object: mink puts them
+                # first in every pair of the usual scene): its Jacobian is zero, and mink's
+                # ``jac2 -= jac1`` leaves ``jac2`` as it is, so its row is ``normal @ jac2``,
+                # one ``mj_jac`` and its subtraction fewer
+                np.subtract(fromto[3:], fromto[:3], out=normal)
+                mujoco.mju_normalize3(normal)
+                mujoco.mj_jac(model, data, jac2, None, fromto[3:], body2)
+                row = normal @ jac2
+                g_rows.append(-row if dist >= 0 else row)
+                continue
             row = self._contact_jacobian(model, data, g1, g2, fromto, normal, jac1, jac2)
             g_rows.append(-row if dist >= 0 else row)
         if not g_rows:
@@ -1051,6 +1063,12 @@ class FingertipIK:
 
         self._pair_still = [-1 if moves(int(m.geom_bodyid[g2])) else int(m.geom_bodyid[g1])
                             for g1, g2 in lim.geom_id_pairs]
+        # and the second geom's body when the first geom's does not move (and the second's
+        # does), else -1
+        self._pair_still1 = [int(m.geom_bodyid[g2]) if still < 0
+                             and not moves(int(m.geom_bodyid[g1])) else -1
+                             for (g1, g2), still in zip(lim.geom_id_pairs, self._pair_still,
+                                                        strict=True)]
         pairs = np.array(lim.geom_id_pairs, dtype=np.int64).reshape(-1, 2)
         g1, g2 = pairs[:, 0], pairs[:, 1]
         rb = m.geom_rbound
