@@ -46,6 +46,10 @@ try:  # the clip ufunc: np.clip without its Python dispatch (the same values, a 
 except ImportError:  # pragma: no cover - other numpy layouts
     _clip = np.clip
 
+# the reductions ``ndarray.sum``, ``.max`` and ``.any`` call, without their Python wrappers
+# (the same values: each control period in contact makes a handful of them)
+_SUM, _MAX, _ANY = np.add.reduce, np.maximum.reduce, np.logical_or.reduce
+
 #: Physics steps per IK solve by default: 10, a 100 Hz control rate over the 1 kHz physics
 #: (the servos get set points interpolated every physics step). The main plan at nominal
 #: physics meets the contact bars at it (closed loop: tracking in contact 2.8 mm, 8 ms at a
@@ -707,6 +711,8 @@ class RobotArms:
             if isinstance(self._qsl, slice) and isinstance(self._dsl, slice)
             and isinstance(tips, slice) else None)
         self._widths = (len(scene.joint_names), 3 * scene.n_fingers)
+        self._tips_view: FloatArray | None = (data.site_xpos[tips] if isinstance(tips, slice)
+                                              else None)
         # the actuator rows' columns (_segment): the position and velocity servos' as
         # strided slices where they are evenly spaced (the Panda's alternate), written as
         # views, not gathered; the velocity bounds negated once (``-v``: exact)
@@ -926,6 +932,8 @@ class RobotArms:
 
     def tips(self, data: Any) -> FloatArray:
         """The fingertip sites' positions now, shape (n_fingers, 3)."""
+        if data is self.data and self._tips_view is not None:
+            return self._tips_view.copy()  # (the sites in a row: a view made once, copied)
         # (an index array's gather is already a copy)
         return np.asarray(data.site_xpos[self._tip_sites], dtype=np.float64)
 
@@ -1519,10 +1527,10 @@ class RobotArms:
         blended by a softmax of those distances over ``tool_blend``, so that the normal
         turns smoothly round an edge; and each point's largest distance (shape (m,))."""
         assert self._planes is not None
-        top = dist.max(axis=1)
+        top = _MAX(dist, axis=1)
         w = np.exp((dist - top[:, None]) / self.tool_blend)
         nrm = (w @ self._planes[0]) @ rot.T
-        nrm /= np.sqrt((nrm * nrm).sum(axis=1))[:, None]
+        nrm /= np.sqrt(_SUM(nrm * nrm, axis=1))[:, None]
         return nrm, top
 
     def _press_limited(self, push: FloatArray) -> FloatArray:
@@ -1786,7 +1794,11 @@ class RobotArms:
                     self._push_any = True
         if not self._cap_on:  # no give: only a force past the cap starts one (most steps)
             c2 = cap * cap
-            if all(x * x + y * y + z * z <= c2 for x, y, z in fl):
+            # (``all(|f|^2 <= c2)`` as a loop, without a generator: NaN is not within)
+            for x, y, z in fl:
+                if not x * x + y * y + z * z <= c2:
+                    break
+            else:
                 return row
         h, b = self.dt, self.cap_damping
         v = self.give_speed * h
@@ -1982,9 +1994,9 @@ class RobotArms:
                     s = bound / n
                     cf[0], cf[1], cf[2] = x * s, y * s, z * s
             c[:] = cl
-        elif c.any():
+        elif _ANY(c, axis=None):
             c *= math.exp(-self.release_rate * dt)
-            if float(np.abs(c).max()) < 1e-7:
+            if float(_MAX(np.abs(c), axis=None)) < 1e-7:
                 c[:] = 0.0
         return targets + c
 
@@ -2038,15 +2050,15 @@ class RobotArms:
         dist = ((tips - t) @ rot) @ normals.T - offsets  # (n_fingers, faces), m
         nrm, _ = self._blended_normals(dist, rot)
         if self.tracking_tangential:
-            e -= (e * nrm).sum(axis=1)[:, None] * nrm
+            e -= _SUM(e * nrm, axis=1)[:, None] * nrm
         c = self._corr - g * e
         sb = self.tracking_surface_bound
         if sb < math.inf:  # the part along the surface within its bound, the normal kept
-            cn = (c * nrm).sum(axis=1)[:, None] * nrm
+            cn = _SUM(c * nrm, axis=1)[:, None] * nrm
             ct = c - cn
-            n = np.sqrt((ct * ct).sum(axis=1))
+            n = np.sqrt(_SUM(ct * ct, axis=1))
             big = n > sb
-            if big.any():
+            if _ANY(big):
                 ct[big] *= (sb / n[big])[:, None]
                 c = cn + ct
         out: list[list[float]] = c.tolist()
@@ -2070,8 +2082,9 @@ class RobotArms:
         frames = None
         # plain Python over the handful of contacts, in their order (two np.isin over them
         # cost more than the whole loop); the same sums in the same order. The force in the
-        # world frame is ``f3 @ frame`` (the frame's rows are its axes): the same BLAS
-        # product, bit for bit, as ``frame.T @ f3``, in two numpy calls fewer; the sums are
+        # world frame is ``f3 . frame`` (the frame's rows are its axes): the same BLAS
+        # product, bit for bit, as ``frame.T @ f3``, in two numpy calls fewer (``np.dot``:
+        # ``@``'s product with less dispatch); the sums are
         # plain floats, the same IEEE additions as the array's (``0.0 + x`` first)
         for i, (a, b) in enumerate(con.geom.tolist()):
             on2 = b in index
@@ -2082,7 +2095,7 @@ class RobotArms:
             if frames is None:
                 frames = con.frame.reshape(-1, 3, 3)
             # the force geom1 exerts on geom2, in the contact frame (normal: 1 -> 2)
-            x, y, z = (f3 @ frames[i]).tolist()
+            x, y, z = np.dot(f3, frames[i]).tolist()
             if on2:
                 o[0] += x
                 o[1] += y
