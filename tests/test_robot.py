@@ -759,7 +759,9 @@ def _held_against(force: np.ndarray, feedforward: bool,
     sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))],
                          scale=SCALE, force_feedforward=feedforward, control_every=every)
     drv, d, m = sim.robot_driver, sim.data, sim.model
-    drv._tip_forces = lambda: np.array([force], dtype=np.float64)  # type: ignore[method-assign]
+    # (the reading every force of the driver comes from: _tip_forces is its array)
+    row = np.asarray(force, dtype=np.float64).tolist()
+    drv._tip_force_rows = lambda: [row]  # type: ignore[method-assign]
     drv._contacts = lambda data: (False, False, True)  # type: ignore[method-assign]
     mujoco.mj_resetData(m, d)
     d.qpos[sim.judge.qadr:sim.judge.qadr + 3] = [2.0, 2.0, 0.5]  # the cube far away
@@ -796,7 +798,7 @@ def test_the_contact_force_feedforward_holds_the_fingertip_on_its_command() -> N
     assert on[-100:].max() < 3e-5 and fast[-100:].max() < 3e-5
     # a force over the cap is summed for the feed-forward as the cap's along it
     drv._push_sum = [0.0, 0.0, 0.0]
-    drv._tip_forces = lambda: np.array([2.0 * f])  # type: ignore[method-assign]
+    drv._tip_force_rows = lambda: [(2.0 * f).tolist()]  # type: ignore[method-assign]
     drv._cap(np.zeros(drv.scene.model.nu))
     np.testing.assert_allclose(drv._push_sum, f * (40.0 / np.linalg.norm(f)), rtol=1e-12)
     # whatever comes (here 100 kN, past the clip in _cap), no joint's offset torque passes
