@@ -317,9 +317,12 @@ def _joint_box_limit(mink: Any, scene: RobotScene, gain: float = 0.95,
                 down.append(w)
                 if finite:
                     # the acceleration bounds ``(prev + a dt) dt`` up and ``(a dt - prev)
-                    # dt`` down
-                    a = min(u, (p + adt) * dt)
-                    b = min(w, (-p + adt) * dt)
+                    # dt`` down (``min(u, t)`` written out: ``t`` only where ``t < u``, as
+                    # the builtin keeps its first argument, NaN included)
+                    a = (p + adt) * dt
+                    a = a if a < u else u
+                    b = (-p + adt) * dt
+                    b = b if b < w else w
                     au.append(a)
                     ad.append(b)
                     squeezed = squeezed or not a + b >= 0.0

@@ -1422,10 +1422,11 @@ class RobotArms:
             self._seen_rot = None
             return
         quat = np.empty(4)
-        rot = np.ascontiguousarray(pose.rotation, dtype=np.float64)
+        # (a contiguous copy of its own, as the believed rotation: one copy, not two)
+        rot = np.array(pose.rotation, dtype=np.float64, order="C")
         mujoco.mju_mat2Quat(quat, rot.ravel())
         self._seen = (np.array(pose.translation, dtype=np.float64), quat)
-        self._seen_rot = np.array(rot)
+        self._seen_rot = rot
 
     def point(self, directions: FloatArray | None) -> None:
         """The recorded finger directions where the reference being run is (shape
