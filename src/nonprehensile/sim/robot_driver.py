@@ -538,12 +538,15 @@ class _Segment:
     """The actuator rows of one control period, computed at its solve: rows ``start`` to
     ``start + len(rows)`` of a target trajectory."""
 
-    __slots__ = ("q", "qd", "rows", "start", "stop")
+    __slots__ = ("q", "qd", "row_list", "rows", "start", "stop")
 
     def __init__(self, start: int, rows: FloatArray, q: FloatArray, qd: FloatArray) -> None:
         self.start: int = start
         self.stop: int = start + len(rows)
         self.rows: FloatArray = rows  # (k, model.nu)
+        # its rows' views, made at once (each physics step reads one: a list index, not a
+        # numpy one)
+        self.row_list: list[FloatArray] = list(rows)
         # (k + 1, n_joints): the position set points (without the noise) and their velocity
         # feed-forward, row ``k`` where the set points go on after the period (the state a
         # new trajectory carries on from, :meth:`RobotArms.begin`)
@@ -782,6 +785,8 @@ class RobotArms:
         self._torque_limits = [(i, lim) for i, lim in enumerate(
             np.asarray(scene.torque, dtype=np.float64).tolist()) if math.isfinite(lim)]
         self._fbuf = np.zeros(6)
+        # the contact forces _yield read at a solve, for the cap of the same physics step
+        self._solve_forces: list[list[float]] | None = None
         self._f3 = self._fbuf[:3]  # (its force part, a view made once: _tip_force_rows)
         self._tip_index = {int(g): k for k, g in enumerate(self._tip_geoms)}
         # the object's believed pose (body origin, (w, x, y, z)): see()
@@ -990,6 +995,10 @@ class RobotArms:
         seg = ctl.seg
         if seg is None or not seg.start <= j < seg.stop:
             seg = ctl.seg = self._segment(ctl, j)
+            try:
+                return self._advance(seg, j)
+            finally:
+                self._solve_forces = None  # (the solve's reading: this physics step's only)
         return self._advance(seg, j)
 
     def _advance(self, seg: _Segment, j: int) -> FloatArray:
@@ -1019,7 +1028,7 @@ class RobotArms:
         touch[n] = self._touch
         other[n] = self._other
         log.n = n + 1
-        row: FloatArray = seg.rows[j - seg.start]
+        row = seg.row_list[j - seg.start]
         if self.compliance:
             return self._comply(seg, j, row)
         if self.force_cap is not None and (self._tip_contact or self._cap_on):
@@ -1137,8 +1146,14 @@ class RobotArms:
                 ff = self._accel_offset(dv / h, got[1] if got is not None and got[0] is v1
                                         else None)
             # (columns ``a``, ``b``, ``c`` broadcast against the rows: the same products)
-            q = s0 + a * v0 + b * dv
-            qd = v0 + c * dv
+            # (``s0 + a v0 + b dv`` and ``v0 + c dv``, each product and sum in the same
+            # order, into the new arrays themselves: no temporaries)
+            q = np.multiply(a, v0)
+            np.add(s0, q, out=q)
+            tmp = np.multiply(b, dv)
+            np.add(q, tmp, out=q)
+            qd = np.multiply(c, dv)
+            np.add(v0, qd, out=qd)
             self._state = (q[k], qd[k])
         self._pinv = None
         qk, qdk = q[:k], qd[:k]
@@ -1699,7 +1714,11 @@ class RobotArms:
         if self.compliance:
             return out  # (its force is logged every physics step: _comply)
         if self._touch:  # the stiff arm's force, for the records only
-            f = self._tip_forces()
+            rows = self._tip_force_rows()
+            # (the force cap reads the same contacts at this physics step: row hands these
+            # on to it)
+            self._solve_forces = rows
+            f = np.array(rows, dtype=np.float64)
             self._force_now = np.sqrt((f * f).sum(axis=1))
         else:
             self._force_now[:] = 0.0
@@ -1781,7 +1800,11 @@ class RobotArms:
         runs held a torque limit over 10 ms while touching (docs/benchmarks.md)."""
         cap = self.force_cap
         assert cap is not None  # (called only with a cap)
-        fl = self._tip_force_rows()
+        # (the contact forces the solve of this very physics step read, where it did: the
+        # same contacts, the same numbers)
+        fl = self._solve_forces
+        if fl is None:
+            fl = self._tip_force_rows()
         smooth = self.force_feedforward
         if smooth:  # (summed for the next solve's offset: _pushed)
             acc = self._push_sum
@@ -1995,7 +2018,7 @@ class RobotArms:
                     s = bound / n
                     cf[0], cf[1], cf[2] = x * s, y * s, z * s
             c[:] = cl
-        elif _ANY(c, axis=None):
+        elif np.count_nonzero(c):  # (``c.any()``: NaN counts, as there)
             c *= math.exp(-self.release_rate * dt)
             if float(_MAX(np.abs(c), axis=None)) < 1e-7:
                 c[:] = 0.0
@@ -2073,7 +2096,8 @@ class RobotArms:
     def _tip_force_rows(self) -> list[list[float]]:
         """:meth:`_tip_forces` as a list of ``[x, y, z]`` per fingertip (what :meth:`_cap`
         reads every physics step while a fingertip touches: no array made and read back)."""
-        out = [[0.0, 0.0, 0.0] for _ in range(self.n_fingers)]
+        nf = self.n_fingers
+        out = [[0.0, 0.0, 0.0]] if nf == 1 else [[0.0, 0.0, 0.0] for _ in range(nf)]
         d = self.data
         if d.ncon == 0:
             return out
