@@ -1174,7 +1174,10 @@ class FingertipIK:
             q_prev = self.q
             for _ in range(iterations):
                 self.step(targets)
-                err = float(np.linalg.norm(self.tips() - targets, axis=1).max())
+                # (np.linalg.norm's own sum for real rows, ``sqrt(sum(x x))``, without its
+                # Python dispatch: every iteration of a placement reads it)
+                e = self.tips() - targets
+                err = float(_MAX(np.sqrt(_SUM(e * e, axis=1))))
                 q = self.q
                 if err < tol and float(np.abs(q - q_prev).max()) < 1e-5:
                     break
