@@ -1110,6 +1110,10 @@ class FingertipIK:
         self._bp_up = bool(len(pl)) and bool(np.all(self._bp_pg_n == (0.0, 0.0, 1.0)))
         self._bp_gather = np.concatenate([others, self._bp_pg_other])
         self._bp_ns = ns
+        # (_broad_phase: the pairs' values, bounds and indices, sphere pairs first)
+        self._bp_v = np.empty(ns + len(self._bp_pg))
+        self._bp_bound = np.concatenate([self._bp_ss_bound2, self._bp_pg_c])
+        self._bp_idx = np.concatenate([self._bp_ss, self._bp_pg])
         self._bp_nothing: list[int] = self._bp_keep.tolist()
         self._bp_data: Any = None
         self._bp_xpos: FloatArray = np.zeros((0, 3))
@@ -1126,9 +1130,13 @@ class FingertipIK:
             ns = self._bp_ns
             xs = x[self._bp_gather]
             d = xs[:ns] - x[self._bp_one]
-            got: list[int] = self._bp_ss[_SUM(d * d, axis=1) <= self._bp_ss_bound2].tolist()
-            if len(self._bp_pg):
-                got += self._bp_pg[xs[ns:, 2] <= self._bp_pg_c].tolist()
+            # the sphere pairs' squared distances and the plane pairs' heights in one
+            # vector, against their bounds at once (the same numbers, the same order: the
+            # sphere pairs, then the plane pairs)
+            v = self._bp_v
+            _SUM(d * d, axis=1, out=v[:ns])
+            v[ns:] = xs[ns:, 2]
+            got: list[int] = self._bp_idx[v <= self._bp_bound].tolist()
             return got + self._bp_nothing if self._bp_nothing else got
         d = x[self._bp_ss1] - x[self._bp_ss2]
         out: list[int] = self._bp_ss[(d * d).sum(axis=1) <= self._bp_ss_bound2].tolist()
