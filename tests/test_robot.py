@@ -36,7 +36,11 @@ from nonprehensile.sim import panda  # noqa: E402
 from nonprehensile.sim.ik import FingertipIK, IKConfig  # noqa: E402
 from nonprehensile.sim.placement import place_base  # noqa: E402
 from nonprehensile.sim.robot import BasePose, Robot  # noqa: E402
-from nonprehensile.sim.robot_driver import DEFAULT_CONTROL_EVERY, GIVE_ACCEL  # noqa: E402
+from nonprehensile.sim.robot_driver import (  # noqa: E402
+    CONTACT_VELOCITY_FULL,
+    DEFAULT_CONTROL_EVERY,
+    GIVE_ACCEL,
+)
 from nonprehensile.sim.robot_run import (  # noqa: E402
     PINCH_PRESS_DEPTH,
     ROBOT_FORCE_CAP,
@@ -726,6 +730,59 @@ def test_the_stiff_arms_force_cap_holds_its_force_at_the_cap() -> None:
                               force_feedforward="auto")
     assert drv.force_feedforward
     assert abs(f_fed[1000:].mean() - 40.0) < 2.0 and drv.log.give[-1, 0, 2] > 0.0
+
+
+def test_pressed_past_the_cap_the_velocity_set_points_go_no_faster_into_the_object() -> None:
+    """One stiff arm's fingertip on the cube's top face, at rest, its velocity set points
+    driving it 10 cm/s down into the face and 2 cm/s along it: pressed past the force cap
+    their part into the object is taken down to the fingertip's own motion (none), in
+    proportion to the force's excess from the cap (40 N) to twice it, in full beyond; the
+    part along the face is kept. Set points leaving the object, a fingertip off the object
+    (the table's contact) and the switch off leave the row as it is."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))], scale=SCALE)
+    drv, d, m = sim.robot_driver, sim.data, sim.model
+    assert drv.contact_velocity == CONTACT_VELOCITY_FULL == 2.0 and drv.force_cap == 40.0
+    assert sim.describe()["finger_command"]["contact_velocity_full_caps"] == 2.0
+    mujoco.mj_resetData(m, d)
+    mujoco.mj_forward(m, d)
+    np.testing.assert_allclose(d.xmat[drv._obj].reshape(3, 3), np.eye(3), atol=1e-12)
+    # the fingertip on the top face's middle (the cube's body origin is a corner), normal +z
+    on_top = d.xpos[drv._obj] + np.array([0.5 * SCALE, 0.5 * SCALE, SCALE + drv.finger_radius])
+    drv.reset()
+    drv.place(d, on_top[None])
+    d.qvel[:] = 0.0  # the fingertip at rest
+    mujoco.mj_forward(m, d)
+    drv._touch = True  # (the judge's contact reading: on the object)
+    pinv = drv._tip_pinv()
+    jac = drv._jac_c
+    vc = drv.scene.vel_act
+
+    def tip_velocity(v: list[float], force: float) -> np.ndarray:
+        row = np.zeros(m.nu)
+        row[vc] = pinv @ np.array(v)
+        out = drv._velocity_in_contact(row, [(0, force)], 40.0)
+        return np.asarray(jac @ out[vc])
+
+    # (atol: the give's damped least-squares inverse, J J^+ within 2e-5 of the identity)
+    v = [0.02, 0.0, -0.1]
+    np.testing.assert_allclose(tip_velocity(v, 40.0), v, atol=1e-5)  # at the cap: as it was
+    np.testing.assert_allclose(tip_velocity(v, 60.0), [0.02, 0.0, -0.05], atol=1e-5)
+    for force in (80.0, 200.0):  # from twice the cap: no faster than the tip (at rest)
+        np.testing.assert_allclose(tip_velocity(v, force), [0.02, 0.0, 0.0], atol=1e-5)
+    np.testing.assert_allclose(tip_velocity([0.02, 0.0, 0.1], 200.0), [0.02, 0.0, 0.1],
+                               atol=1e-5)  # leaving the object
+    drv._touch = False  # a press on the table only
+    np.testing.assert_allclose(tip_velocity(v, 200.0), v, atol=1e-5)
+    # the switch: off, _cap leaves the velocity set points to the spline
+    drv._touch = True
+    drv._tip_forces = lambda: np.array([[0.0, 0.0, 200.0]])  # type: ignore[method-assign]
+    row = np.zeros(m.nu)
+    row[vc] = pinv @ np.array(v)
+    assert not np.allclose(drv._cap(row)[vc], row[vc])
+    drv.reset()
+    drv.contact_velocity = None
+    np.testing.assert_array_equal(drv._cap(row)[vc], row[vc])
+    assert sim.describe()["finger_command"]["contact_velocity_full_caps"] is None
 
 
 def test_the_force_caps_give_comes_back_after_the_contact() -> None:

@@ -97,6 +97,14 @@ COMPLIANCE_DAMPING = 300.0
 #: servos' steps small (2 mm/s a physics step at the fingertip).
 GIVE_ACCEL = 2.0
 
+#: One stiff arm pressed past its force cap: the contact force, in caps, from which the
+#: velocity set points go no faster into the object than the fingertip itself (in
+#: proportion from the cap up to it; :meth:`RobotArms._velocity_in_contact`). Across the
+#: physics distribution (the main plan, 100 samples, seeds 0-2) runs pressing past 100 N
+#: went from 53 to 11 of 300 and runs within 3 mm in contact from 281 to 286; from 1.5 caps
+#: to 2.5 (60-100 N) 21 and 286, with one more run over 10 ms at a limit (docs/benchmarks.md).
+CONTACT_VELOCITY_FULL = 2.0
+
 #: The time constant (s) of the critically damped smoothing (two first-order low-passes in
 #: series) of the physics distribution's fingertip noise (a Gauss-Markov process with no
 #: derivative, 50 ms) before an arm's servos realise it with its velocity fed forward
@@ -750,6 +758,10 @@ class RobotArms:
         self.force_cap: float | None = None
         self.cap_damping = COMPLIANCE_DAMPING
         self._cap_on = False  # the cap's give is not zero
+        # pressed past the cap, the velocity set points' part into the object no faster
+        # than the fingertip's own, in full from this many caps (None: off;
+        # _velocity_in_contact)
+        self.contact_velocity: float | None = CONTACT_VELOCITY_FULL
         # the contact force fed forward to the servos, clipped at the cap (_cap)
         self.force_feedforward = False
         # the give's acceleration bound where it comes back at full speed, and the rate its
@@ -1831,6 +1843,7 @@ class RobotArms:
         g = self._offset
         speeds, fed = self._give_speed_now, self._give_fed
         on = False
+        past: list[tuple[int, float]] = []  # the fingertips pressed past the cap, and how hard
         for i, gi in enumerate(g.tolist()):
             fx, fy, fz = fl[i]
             n = math.sqrt(fx * fx + fy * fy + fz * fz)
@@ -1838,6 +1851,7 @@ class RobotArms:
             ng = math.sqrt(gx * gx + gy * gy + gz * gz)
             fed[i] = False
             if n > cap:
+                past.append((i, n))
                 s_ = min(h * (n - cap) / b, v) / n
                 gx, gy, gz = gx + s_ * fx, gy + s_ * fy, gz + s_ * fz
                 ng = math.sqrt(gx * gx + gy * gy + gz * gz)
@@ -1864,7 +1878,66 @@ class RobotArms:
         vel = self._give_velocity(fed) if on and smooth else None
         if not on:
             self._give_vel[:] = 0.0  # (the return ended at rest: decelerated)
-        return self._given(row, on, vel)
+        out = self._given(row, on, vel)
+        if past and self.contact_velocity is not None:
+            out = self._velocity_in_contact(out, past, cap)
+        return out
+
+    def _velocity_in_contact(self, row: FloatArray, past: list[tuple[int, float]],
+                             cap: float) -> FloatArray:
+        """Row ``row`` with the velocity set points of each fingertip pressed past the force
+        cap (``past``: its index and contact force, N) no faster into the object than the
+        fingertip itself: the part of their fingertip velocity (``J qd_ref``, ``J`` the
+        give's Jacobian) along the object's outward normal there (the face normals blended
+        as for the radius offset, :meth:`_tool`; the object where the arm believes it) that
+        goes in faster than the fingertip moves (``J qd``, the joints' own velocities) is
+        taken out, as ``J^+`` of it on the velocity servos' set points: in proportion to
+        the force's excess over the cap, in full from ``contact_velocity`` times the cap.
+        Only while a fingertip touches the object (the table has no reference to follow
+        into it); the position set points, the give and the force fed forward are left as
+        they are.
+
+        Why: the velocity set points carry the references' motion, and where the object
+        does not move as they expect (a heavy, grippy cube rolling slower than its
+        reference) the fingertip cannot follow them into it: the velocity servos then
+        press with ``K_v`` times the difference (``K_v / K_p`` = 0.1 s on the Panda: 10
+        cm/s into a face is as much as 10 mm of position error), which the cap's give,
+        on the position set points only, does not take back. Across the physics
+        distribution the worst runs pressed 100-217 N on a rolling cube's top face (the
+        references 2-9 cm/s into it, the face rising at 1-10 cm/s) with the command's
+        normal position on the fingertip (its error along the normal under 1.2 mm): the
+        friction of that press (finger friction 0.92-1.15) held the fingertip while its
+        target slid along the face, 4-6 mm behind (docs/benchmarks.md). Only past the cap
+        and into the object: below it, and along the face, the servos' velocity feed-forward
+        is what makes them track."""
+        if self._planes is None or not self._touch:
+            return row
+        if self._pinv_c is None:
+            self._pinv_c = self._tip_pinv()
+        jac = self._jac_c
+        assert jac is not None
+        vc = self.scene.vel_act
+        qd_set = row[vc]
+        v_set = (jac @ qd_set).reshape(-1, 3)
+        v_tip = (jac @ self.data.qvel[self._dsl]).reshape(-1, 3)
+        normals, offsets = self._planes
+        t, rot = self._believed_pose()
+        tips = self.tips(self.data)
+        nrm, _ = self._blended_normals(((tips - t) @ rot) @ normals.T - offsets, rot)
+        full = self.contact_velocity
+        assert full is not None
+        dv = np.zeros((self.n_fingers, 3))
+        for i, f in past:
+            into = float((v_set[i] - v_tip[i]) @ nrm[i])  # < 0: faster into it than the tip
+            if into < 0.0:
+                share = 1.0 if full <= 1.0 else min(1.0, (f - cap) / ((full - 1.0) * cap))
+                dv[i] = (-into * share) * nrm[i]
+        if not dv.any():
+            return row
+        out = np.array(row)
+        out[vc] = np.maximum(np.minimum(qd_set + self._pinv_c @ dv.ravel(), self._vel_max),
+                             self._vel_min)
+        return out
 
     def _give_velocity(self, fed: list[bool]) -> FloatArray | None:
         """The give's velocity fed forward now (shape (n_fingers, 3), m/s; None: none):

@@ -587,6 +587,12 @@ class RobotSimulator(Simulator):
             # (None: the give's return is not a fed-forward motion, the switch off)
             "give_accel_m_per_s2": (float(drv.give_accel) if drv.force_feedforward
                                     else None),
+            # pressed past the cap, the force (in caps) from which the velocity set points go
+            # no faster into the object than the fingertip (None: off, or no cap;
+            # RobotArms._velocity_in_contact)
+            "contact_velocity_full_caps": (float(drv.contact_velocity)
+                                           if drv.force_cap is not None
+                                           and drv.contact_velocity is not None else None),
             # the bound of its part along the object's surface (None: none)
             "tracking_surface_bound_m": (float(drv.tracking_surface_bound)
                                          if math.isfinite(drv.tracking_surface_bound)
