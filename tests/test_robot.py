@@ -735,14 +735,15 @@ def test_the_stiff_arms_force_cap_holds_its_force_at_the_cap() -> None:
 def test_pressed_past_the_cap_the_velocity_set_points_go_no_faster_into_the_object() -> None:
     """One stiff arm's fingertip on the cube's top face, at rest, its velocity set points
     driving it 10 cm/s down into the face and 2 cm/s along it: pressed past the force cap
-    their part into the object is taken down to the fingertip's own motion (none), in
-    proportion to the force's excess from the cap (40 N) to twice it, in full beyond; the
-    part along the face is kept. Set points leaving the object, a fingertip off the object
-    (the table's contact) and the switch off leave the row as it is."""
+    (40 N) their part into the object is taken down to the fingertip's own motion (none),
+    the part along the face kept; ramped (``contact_velocity`` 2), in proportion to the
+    force's excess from the cap to twice it, in full beyond. Set points leaving the object,
+    a fingertip off the object (the table's contact) and the switch off leave the row as it
+    is."""
     sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0))], scale=SCALE)
     drv, d, m = sim.robot_driver, sim.data, sim.model
-    assert drv.contact_velocity == CONTACT_VELOCITY_FULL == 2.0 and drv.force_cap == 40.0
-    assert sim.describe()["finger_command"]["contact_velocity_full_caps"] == 2.0
+    assert drv.contact_velocity == CONTACT_VELOCITY_FULL == 1.0 and drv.force_cap == 40.0
+    assert sim.describe()["finger_command"]["contact_velocity_full_caps"] == 1.0
     mujoco.mj_resetData(m, d)
     mujoco.mj_forward(m, d)
     np.testing.assert_allclose(d.xmat[drv._obj].reshape(3, 3), np.eye(3), atol=1e-12)
@@ -765,10 +766,13 @@ def test_pressed_past_the_cap_the_velocity_set_points_go_no_faster_into_the_obje
 
     # (atol: the give's damped least-squares inverse, J J^+ within 2e-5 of the identity)
     v = [0.02, 0.0, -0.1]
-    np.testing.assert_allclose(tip_velocity(v, 40.0), v, atol=1e-5)  # at the cap: as it was
-    np.testing.assert_allclose(tip_velocity(v, 60.0), [0.02, 0.0, -0.05], atol=1e-5)
-    for force in (80.0, 200.0):  # from twice the cap: no faster than the tip (at rest)
+    for force in (40.5, 200.0):  # past the cap: no faster than the tip (at rest)
         np.testing.assert_allclose(tip_velocity(v, force), [0.02, 0.0, 0.0], atol=1e-5)
+    drv.contact_velocity = 2.0  # ramped: none at the cap, half at 1.5 caps, in full from 2
+    np.testing.assert_allclose(tip_velocity(v, 40.0), v, atol=1e-5)
+    np.testing.assert_allclose(tip_velocity(v, 60.0), [0.02, 0.0, -0.05], atol=1e-5)
+    np.testing.assert_allclose(tip_velocity(v, 80.0), [0.02, 0.0, 0.0], atol=1e-5)
+    drv.contact_velocity = CONTACT_VELOCITY_FULL
     np.testing.assert_allclose(tip_velocity([0.02, 0.0, 0.1], 200.0), [0.02, 0.0, 0.1],
                                atol=1e-5)  # leaving the object
     drv._touch = False  # a press on the table only

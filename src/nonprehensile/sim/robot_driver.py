@@ -99,11 +99,14 @@ GIVE_ACCEL = 2.0
 
 #: One stiff arm pressed past its force cap: the contact force, in caps, from which the
 #: velocity set points go no faster into the object than the fingertip itself (in
-#: proportion from the cap up to it; :meth:`RobotArms._velocity_in_contact`). Across the
-#: physics distribution (the main plan, 100 samples, seeds 0-2) runs pressing past 100 N
-#: went from 53 to 11 of 300 and runs within 3 mm in contact from 281 to 286; from 1.5 caps
-#: to 2.5 (60-100 N) 21 and 286, with one more run over 10 ms at a limit (docs/benchmarks.md).
-CONTACT_VELOCITY_FULL = 2.0
+#: proportion from the cap up to it; 1: in full as soon as the force passes the cap;
+#: :meth:`RobotArms._velocity_in_contact`). Across the physics distribution (the main
+#: plan, 100 samples, seeds 0-2, 300 runs; 281 reached, 281 within 3 mm in contact, 4 runs
+#: over 10 ms at a limit while touching, 1 with a rod on the cube or table without it) at 1:
+#: 282, 285, 2 and 0, runs pressing past 100 N 10 against 53; ramped to 2 caps: 283, 286, 3
+#: and 2 (seed 0's reached 96 against 97); from 1.5 to 2.5 caps: 283, 286, 5 and 2
+#: (docs/benchmarks.md).
+CONTACT_VELOCITY_FULL = 1.0
 
 #: The time constant (s) of the critically damped smoothing (two first-order low-passes in
 #: series) of the physics distribution's fingertip noise (a Gauss-Markov process with no
