@@ -113,7 +113,7 @@ def test_detection_thresholds_are_the_projects_errors() -> None:
     with pytest.raises(DemonstrationError, match="state_tol"):
         DetectionParams(state_tol=1e9)
     # 0 degrees matches no measured pose: refused, as ``annotate --state-tol 0`` is
-    with pytest.raises(DemonstrationError, match="state_tol: expected .*above 0"):
+    with pytest.raises(DemonstrationError, match=r"state_tol: expected .*above 0"):
         DetectionParams(state_tol=0.0)
     assert DetectionParams(state_tol=1e-3).state_tol == 1e-3
 

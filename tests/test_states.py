@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -12,7 +13,9 @@ from conftest import SOLIDS, random_hulls
 from nonprehensile.errors import GeometryError, StateError
 from nonprehensile.geometry import Polyhedron, convex_hull, cube
 from nonprehensile.states import (
+    MAX_STATES,
     State,
+    _coarser,
     angle_diff,
     check_states,
     is_stable,
@@ -118,13 +121,34 @@ def test_states_by_step() -> None:
         states_by_step(c, 7)
     with pytest.raises(StateError, match="above 0 and at most 360"):
         states_by_step(c, 0)
-    # too fine to count, or past the state limit: both name the option and the coarsest fix
+    # too fine to count, or past the state limit: both name the option and a fix that is
+    # itself accepted (360 / 83,333 = 0.00432... would be refused as not dividing 360)
     for step in (1e-300, 1e-9, 1e-4):
-        with pytest.raises(StateError, match=r"\(--step\) of .* use a coarser step \(at "
-                                             r"least 0\.00432 degrees for this object\)"):
+        with pytest.raises(StateError, match=r"\(--step\) of .* use a coarser step that "
+                                             r"divides 360 degrees, such as 0\.0045 \(the "
+                                             r"finest the limit allows on this object is "
+                                             r"0\.00432\)"):
             states_by_step(c, step)
+    assert len(states_by_step(c, 0.0045)) == 6 * 80_000
+    with pytest.raises(StateError, match="500001 faces are more than the limit even at one "
+                                         "orientation each: choose fewer faces"):
+        states_by_step(c, 90, faces=["a"] * 500_001)
     with pytest.raises(StateError, match="does not have"):
         check_states(c, [State("z", 0)])
+
+
+@given(st.integers(1, 500_000))
+def test_the_coarser_step_a_refusal_names_divides_360_and_fits_the_limit(n_faces: int) -> None:
+    text = _coarser(n_faces)
+    m = re.fullmatch(r"use a coarser step that divides 360 degrees, such as ([0-9.e+-]+) "
+                     r"\(the finest the limit allows on this object is ([0-9.e+-]+)\)", text)
+    assert m, text
+    step, finest = float(m.group(1)), 360.0 / (MAX_STATES // n_faces)
+    n = round(360.0 / step)
+    assert abs(n * step - 360.0) <= 1e-9 * 360 and n * n_faces <= MAX_STATES
+    # written with two significant digits where one divides 360 near enough
+    assert finest <= step <= 1.5 * finest
+    assert float(m.group(2)) == pytest.approx(finest, rel=5e-3)
 
 
 def test_theta_convention_edge_k_points_along_theta_plus_delta() -> None:

@@ -406,13 +406,10 @@ def states_by_step(
     chosen = stable_faces(poly, margin) if faces is None else list(faces)
     for f in chosen:
         poly.loop(f)
-    # the finest step the state limit allows on these faces (the fix both refusals name)
-    finest = 360.0 / (MAX_STATES // max(len(chosen), 1))
     if 360.0 / step > 1e9:  # 360 / 1e-320 is infinite: no whole number of steps
         raise StateError(
             f"the angle step (--step) of {step!r} degrees is too small: over 1e9 orientations "
-            f"per face, more than the limit of {MAX_STATES} states; use a coarser step (at "
-            f"least {finest:.3g} degrees for this object)")
+            f"per face, more than the limit of {MAX_STATES} states; {_coarser(len(chosen))}")
     n = round(360.0 / step)
     if abs(n * step - 360.0) > 1e-9 * 360:
         raise StateError(
@@ -422,10 +419,35 @@ def states_by_step(
     if n * len(chosen) > MAX_STATES:
         raise StateError(
             f"the angle step (--step) of {step:g} degrees gives {n * len(chosen)} states on "
-            f"{len(chosen)} faces, more than the limit of {MAX_STATES}; use a coarser step "
-            f"(at least {finest:.3g} degrees for this object)"
+            f"{len(chosen)} faces, more than the limit of {MAX_STATES}; {_coarser(len(chosen))}"
         )
     return [State(f, i * step) for f in chosen for i in range(n)]
+
+
+def _coarser(n_faces: int) -> str:
+    """The fix a refusal of a too-fine angle step names: a step written short that divides
+    360 degrees and keeps ``n_faces`` faces' states within :data:`MAX_STATES`, the first at or
+    above the finest the limit allows (``360 / n`` itself, 0.00432... for the cube's six
+    faces, would be refused as not dividing 360 once rounded for the message)."""
+    per_face = MAX_STATES // max(n_faces, 1)
+    if per_face < 1:
+        return (f"{n_faces} faces are more than the limit even at one orientation each: "
+                "choose fewer faces")
+    finest = 360.0 / per_face
+    # the first step at or above the finest, counting up in its second significant digit
+    # (then the third, ...), that divides 360: 0.0045 for the cube (80,000 a face)
+    for digits in (2, 3, 4, 6):
+        unit = 10.0 ** (math.floor(math.log10(finest)) - (digits - 1))
+        k = math.ceil(finest / unit - 1e-9)
+        for _ in range(100):
+            text = f"{k * unit:.{digits + 1}g}"
+            x = float(text)
+            if x >= finest and abs(round(360.0 / x) * x - 360.0) <= 1e-9 * 360:
+                return (f"use a coarser step that divides 360 degrees, such as {text} (the "
+                        f"finest the limit allows on this object is {finest:.3g})")
+            k += 1
+    return (f"use a coarser step that divides 360 degrees, such as {finest!r} (the finest the "
+            "limit allows on this object)")
 
 
 def check_states(
