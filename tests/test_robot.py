@@ -777,9 +777,18 @@ def test_pressed_past_the_cap_the_velocity_set_points_go_no_faster_into_the_obje
                                atol=1e-5)  # leaving the object
     drv._touch = False  # a press on the table only
     np.testing.assert_allclose(tip_velocity(v, 200.0), v, atol=1e-5)
-    # the switch: off, _cap leaves the velocity set points to the spline
     drv._touch = True
-    drv._tip_forces = lambda: np.array([[0.0, 0.0, 200.0]])  # type: ignore[method-assign]
+    # the fingertip moving 5 cm/s into the face: set points faster into it are taken down
+    # to its speed, slower ones and those leaving it are kept (a sign error, or the tip's
+    # own velocity left out, fails here)
+    d.qvel[drv._dsl] = pinv @ np.array([0.0, 0.0, -0.05])
+    for into, want in ((-0.1, -0.05), (-0.03, -0.03), (0.02, 0.02)):
+        np.testing.assert_allclose(tip_velocity([0.02, 0.0, into], 200.0), [0.02, 0.0, want],
+                                   atol=1e-5)
+    d.qvel[:] = 0.0
+    # the switch: off, _cap leaves the velocity set points to the spline (the force as
+    # _cap reads it: _tip_force_rows)
+    drv._tip_force_rows = lambda: [[0.0, 0.0, 200.0]]  # type: ignore[method-assign]
     row = np.zeros(m.nu)
     row[vc] = pinv @ np.array(v)
     assert not np.allclose(drv._cap(row)[vc], row[vc])
@@ -787,6 +796,47 @@ def test_pressed_past_the_cap_the_velocity_set_points_go_no_faster_into_the_obje
     drv.contact_velocity = None
     np.testing.assert_array_equal(drv._cap(row)[vc], row[vc])
     assert sim.describe()["finger_command"]["contact_velocity_full_caps"] is None
+
+
+def test_pressed_past_the_cap_on_the_table_a_fingertip_keeps_its_velocity_set_points(
+) -> None:
+    """Two arms with a force cap: fingertip 1 presses the table past the cap beside the cube
+    while fingertip 0 touches the cube (the driver's contact flag is any fingertip's): only
+    a fingertip touching the object has its set points into the object taken out; fingertip
+    1's motion towards the cube along the table is kept. Truth: the contacts MuJoCo reports
+    after placing the fingertips in (not the flag)."""
+    sim = RobotSimulator(CUBE, [Arm(Robot.builtin(), BasePose(0.0, -0.45, 90.0)),
+                                Arm(Robot.builtin(), BasePose(0.0, 0.45, -90.0))],
+                         scale=SCALE, force_cap=40.0)
+    drv, d, m = sim.robot_driver, sim.data, sim.model
+    assert drv.n_fingers == 2 and drv.force_cap == 40.0
+    mujoco.mj_resetData(m, d)
+    mujoco.mj_forward(m, d)
+    o = d.xpos[drv._obj].copy()
+    r = drv.finger_radius
+    # fingertip 0 a hair into the cube's top face, fingertip 1 a hair into the table 4 cm
+    # beside the cube's +x face
+    on_top = o + np.array([0.5 * SCALE, 0.5 * SCALE, SCALE + r - 2e-4])
+    on_table = o + np.array([SCALE + 0.04, 0.5 * SCALE, r - 2e-4])
+    drv.reset()
+    drv.place(d, np.array([on_top, on_table]))
+    d.qvel[:] = 0.0
+    mujoco.mj_forward(m, d)
+    assert drv._tips_on_object() == {0}
+    drv._touch = True  # (the flag: some fingertip on the object)
+    pinv = drv._tip_pinv()
+    jac = drv._jac_c
+    vc = drv.scene.vel_act
+    row = np.zeros(m.nu)
+    v = np.array([0.0, 0.0, 0.0, -0.1, 0.0, -0.02])  # fingertip 1 towards the cube, down
+    row[vc] = pinv @ v
+    out = drv._velocity_in_contact(row, [(1, 200.0)], 40.0)
+    np.testing.assert_array_equal(out, row)
+    # fingertip 0 pressed past the cap into the top: its part into the cube goes
+    v0 = np.array([0.02, 0.0, -0.1, 0.0, 0.0, 0.0])
+    row[vc] = pinv @ v0
+    got = jac @ drv._velocity_in_contact(row, [(0, 200.0), (1, 200.0)], 40.0)[vc]
+    np.testing.assert_allclose(got, [0.02, 0.0, 0.0, 0.0, 0.0, 0.0], atol=1e-4)
 
 
 def test_the_force_caps_give_comes_back_after_the_contact() -> None:

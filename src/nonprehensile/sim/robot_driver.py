@@ -1915,8 +1915,15 @@ class RobotArms:
         is what makes them track."""
         if self._planes is None or not self._touch:
             return row
-        if self._pinv_c is None:
-            self._pinv_c = self._tip_pinv()
+        if self.n_fingers > 1:
+            # the flag says that some fingertip touches the object: only those that do now
+            # are taken (a fingertip pressed past the cap on the table has no reference to
+            # follow into the object, and the object's normal there means nothing to it)
+            on = self._tips_on_object()
+            past = [(i, f) for i, f in past if i in on]
+            if not past:
+                return row
+        pinv = self._give_pinv()  # (the give's, made by _given this physics step)
         jac = self._jac_c
         assert jac is not None
         vc = self.scene.vel_act
@@ -1938,9 +1945,24 @@ class RobotArms:
         if not dv.any():
             return row
         out = np.array(row)
-        out[vc] = np.maximum(np.minimum(qd_set + self._pinv_c @ dv.ravel(), self._vel_max),
+        out[vc] = np.maximum(np.minimum(qd_set + pinv @ dv.ravel(), self._vel_max),
                              self._vel_min)
         return out
+
+    def _tips_on_object(self) -> set[int]:
+        """The fingertips (indices) touching the object now, by the judge's rule (contacts
+        within 0.1 mm)."""
+        con = self.data.contact
+        obj, index = self._obj_geom, self._tip_index
+        on: set[int] = set()
+        for (a, b), dd in zip(con.geom.tolist(), con.dist.tolist(), strict=True):
+            if dd > 1e-4:
+                continue
+            if a == obj and b in index:
+                on.add(index[b])
+            elif b == obj and a in index:
+                on.add(index[a])
+        return on
 
     def _give_velocity(self, fed: list[bool]) -> FloatArray | None:
         """The give's velocity fed forward now (shape (n_fingers, 3), m/s; None: none):
