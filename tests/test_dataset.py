@@ -296,8 +296,9 @@ def test_recordings_read_in_the_wrong_unit_are_a_problem(ds_dir: Path) -> None:
     n = len(json.loads((ds_dir / "annotations.json").read_text())["demonstrations"])
     far = [p for p in problems if "m from the recording's origin, farther than any capture "
            "volume (100 m): 'units': 'm' says m" in p]
-    fast = [p for p in problems if "m/s (the 90th percentile of their speeds between "
-            "frames), faster than any hand (50 m/s): 'units': 'm' says m at " in p]
+    fast = [p for p in problems if "m/s (the median over the markers of each one's 90th "
+            "percentile speed between frames), faster than any hand (50 m/s): 'units': 'm' "
+            "says m at " in p]
     assert len(problems) == n and len(far) + len(fast) == n and fast, problems[:2]
     _edit(ds_dir, lambda d: d.update(units="mm"))
     assert _problems(ds_dir) == []
