@@ -82,9 +82,9 @@ DATASET_FORMAT = "nonprehensile-demonstrations/1"
 #: volume (a take read in metres where its numbers are millimetres lands a kilometre away).
 MAX_CAPTURE_M = 100.0
 #: Fastest a take's markers may move, m/s: the median over its markers of each one's 90th
-#: percentile frame-to-frame speed. A hand's markers move at 0.1-3 m/s there (walking
-#: subjects' markers in the C3D files of five vendors: at most 2.8 m/s at the 90th
-#: percentile), read in metres where the numbers are millimetres at 100-3000 m/s. A
+#: percentile frame-to-frame speed. A hand's markers move at 0.1-3 m/s by it (walking
+#: subjects' markers in the C3D files of five vendors: at most 2.7 m/s), read in metres where
+#: the numbers are millimetres at 100-3000 m/s. A
 #: percentile, not the largest: a marker swapped for a ghost jumps a metre in one frame of a
 #: real take; the median over markers: one marker swapping in many frames does not count.
 MAX_MARKER_SPEED = 50.0
