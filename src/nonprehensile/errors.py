@@ -15,6 +15,7 @@ __all__ = [
     "DemonstrationError",
     "GeometryError",
     "InputError",
+    "LockTimeout",
     "ManeuverError",
     "MeshError",
     "ModelError",
@@ -82,6 +83,12 @@ class StateError(InputError):
 class StoreError(NonprehensileError):
     """A demonstration store cannot be written now (another process holds its write lock
     too long); retry later."""
+
+
+class LockTimeout(StoreError):
+    """A store's write lock was not taken within its timeout (another writer holds it): the
+    same line as any :class:`StoreError`, its kind told apart for the service, which answers
+    its client a 503 to retry instead of the command line's advice."""
 
 
 class GeometryError(NonprehensileError):

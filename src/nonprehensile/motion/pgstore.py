@@ -33,7 +33,7 @@ from typing import Any
 import psycopg
 from psycopg import errors as pg_errors, pq
 
-from nonprehensile.errors import InputError, StoreError
+from nonprehensile.errors import InputError, LockTimeout, StoreError
 from nonprehensile.motion.stores import display_name, is_postgres_url
 from nonprehensile.motion.tablestore import TableStore, check_store_name
 
@@ -212,7 +212,7 @@ class PostgresStore(TableStore):
         try:
             self._conn.execute("SELECT pg_advisory_xact_lock(%s)", (self._lock,))
         except pg_errors.LockNotAvailable:
-            raise StoreError(
+            raise LockTimeout(
                 f"{self.url}: could not take store {self.name!r}'s write lock in time; another "
                 "writer holds it for too long: retry, or raise timeout"
             ) from None

@@ -22,6 +22,7 @@ answers the same reply.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import hashlib
 import logging
@@ -33,13 +34,13 @@ import time
 from collections.abc import Iterator, Mapping
 from contextlib import AbstractContextManager
 from types import MappingProxyType
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import psycopg
 from psycopg.conninfo import conninfo_to_dict, make_conninfo
 from psycopg_pool import ConnectionPool, PoolClosed, PoolTimeout
 
-from nonprehensile.errors import InputError, StoreError
+from nonprehensile.errors import InputError, LockTimeout, StoreError
 from nonprehensile.motion.pgstore import PostgresStore, connect, ensure_schema
 from nonprehensile.motion.stores import display_name, is_postgres_url
 from nonprehensile.motion.tablestore import TableStore
@@ -82,6 +83,89 @@ _RETRY = "try again later (each demonstration is stored whole or not at all, and
          "often it is sent)"
 
 
+class _Watch:
+    """One check of a connection under :class:`_Watchdog`: its deadline, and whether the check
+    ended (``done``) or overran its deadline and had its connection cut (``fired``)."""
+
+    __slots__ = ("conn", "deadline", "done", "fired")
+
+    def __init__(self, conn: psycopg.Connection[Any], deadline: float) -> None:
+        self.conn = conn
+        self.deadline = deadline
+        self.done = False
+        self.fired = False
+
+
+class _Watchdog:
+    """One daemon thread that cuts (:func:`_shut`) the connection of a check that overran its
+    deadline: psycopg has no client-side timeout of a query.
+
+    A thread per check (``threading.Timer``) cost 0.6 ms a checkout, several times the
+    checkout and its query. Every check of a pool has the same timeout, so deadlines come in
+    the order the checks start: a queue, not a heap. A check that ended stays queued until it
+    reaches the head (dropped there unread), which bounds the queue by the checks of one
+    timeout's span. Cutting and ending a check take the same lock: a check that ended is
+    never cut, and one cut is known to be (``fired``), whatever its query returned.
+    """
+
+    def __init__(self, timeout: float) -> None:
+        self.timeout = timeout
+        self._cond = threading.Condition(threading.Lock())
+        self._queue: collections.deque[_Watch] = collections.deque()
+        self._thread: threading.Thread | None = None
+
+    def arm(self, conn: psycopg.Connection[Any]) -> _Watch:
+        """Watch a check of ``conn`` starting now (the thread started on first use)."""
+        with self._cond:
+            watch = _Watch(conn, time.monotonic() + self.timeout)
+            self._queue.append(watch)
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name="nonprehensile-db-watchdog",
+                                                daemon=True)
+                self._thread.start()
+            elif len(self._queue) == 1:
+                self._cond.notify()  # (the thread waits without a deadline on an empty queue)
+        return watch
+
+    def disarm(self, watch: _Watch) -> bool:
+        """End a check; whether it overran its deadline (its connection cut)."""
+        with self._cond:
+            watch.done = True
+            return watch.fired
+
+    def stop(self) -> None:
+        """Stop the thread (a later :meth:`arm` starts another)."""
+        with self._cond:
+            thread, self._thread = self._thread, None
+            self._cond.notify_all()
+        if thread is not None:
+            thread.join(timeout=1.0)
+
+    def _run(self) -> None:
+        me = threading.current_thread()
+        with self._cond:
+            while self._thread is me:
+                queue = self._queue
+                while queue and queue[0].done:
+                    queue.popleft()
+                if not queue:
+                    self._cond.wait()
+                    continue
+                left = queue[0].deadline - time.monotonic()
+                if left > 0:
+                    self._cond.wait(left)
+                    continue
+                watch = queue.popleft()
+                watch.fired = watch.done = True
+                # under the lock: the check's thread cannot have ended it (and given the
+                # connection back, its descriptor closed and perhaps reused) meanwhile
+                _shut(watch.conn)
+
+
+#: What :meth:`PostgresPool._checked` found of a connection from the pool.
+_Check = Literal["ok", "failed", "silent"]
+
+
 class PostgresPool:
     """The service's connections to PostgreSQL: psycopg's pool, whose failures are
     :class:`~nonprehensile.service.errors.Unavailable` (HTTP 503, one line), never a long wait
@@ -102,11 +186,14 @@ class PostgresPool:
         Seconds of waiting for a connection after which the database is asked directly
         (one connection attempt, shared by the requests waiting): one that does not answer
         ends every wait at once with a 503, where psycopg's pool would wait ``timeout``
-        reconnecting.
+        reconnecting. One that answers while fewer than the pool's ``max_size`` connections
+        are in use serves the request on a connection of its own (closed after it): the pool
+        is then between the attempts of its reconnection back-off, which after a long outage
+        are up to a minute apart.
     check_timeout : float
         Seconds the check of a connection taken from the pool (an empty query) may take
-        before the connection is cut: a server that stopped answering (frozen, its disk
-        hung) fails the request with a 503, where the query would wait for ever.
+        before the connection is cut and the request answered a 503: a server that stopped
+        answering (frozen, its disk hung), where the query would wait for ever.
     """
 
     def __init__(self, pool: ConnectionPool[Any], url: str, settings: Mapping[str, str], *,
@@ -116,13 +203,18 @@ class PostgresPool:
         self._url = url
         # the probe asks only whether the server answers: 2 s (libpq's least) for a new
         # connection, whatever the pool's connections wait, so that a thread blocked in it
-        # notices a stop soon
+        # notices a stop soon; a request's own connection (the pool reconnecting) is made
+        # the same way, the pool's settings otherwise
         self._probe_conninfo = make_conninfo(url, **{**settings, "connect_timeout": "2"})
         self.timeout = float(timeout)
         self.probe_after = float(probe_after)
         self.check_timeout = float(check_timeout)
+        self._watchdog = _Watchdog(self.check_timeout)
         self._guard = threading.Lock()
+        # connections given to requests (pooled or their own), and own ones being made: what
+        # cut() cuts, and the count that keeps own connections within the pool's max_size
         self._in_use: set[psycopg.Connection[Any]] = set()
+        self._dialing = 0
         self._probe_lock = threading.Lock()
         self._probed: tuple[float, str | None] = (-float("inf"), None)
         # set once, by cut() (a plain flag: read by the waiting threads between their waits)
@@ -147,35 +239,80 @@ class PostgresPool:
             self._probed = (time.monotonic(), why)
             return why
 
-    def _getconn(self) -> psycopg.Connection[Any]:
+    def _getconn(self) -> tuple[psycopg.Connection[Any], bool]:
+        """A checked connection for a request, and whether it is the pool's (else the
+        request's own, made while the pool reconnects)."""
         deadline = time.monotonic() + self.timeout
         try:
             while True:
+                # every pass: a pass can take a check's timeout or a probe's 2 s
                 if self._stopping:
                     raise PoolClosed("cut")
                 left = deadline - time.monotonic()
+                if left <= 0:
+                    raise PoolTimeout("deadline")
                 try:
                     conn: psycopg.Connection[Any] = self._pool.getconn(
                         timeout=max(0.01, min(self.probe_after, left)))
                 except PoolTimeout:
-                    if left <= self.probe_after:
-                        raise
+                    pass
                 else:
-                    if self._checked(conn):
-                        return conn
+                    state = self._checked(conn)
+                    if state == "ok":
+                        return conn, True
+                    if state == "silent":
+                        # a server that does not answer the check does not answer the next
+                        # idle connection's either: each would hold the request a timeout
+                        raise self._down(f"{display_name(self._url)}: no answer to a "
+                                         f"connection's check within {self.check_timeout:g} s")
                     continue  # one the database dropped while it was idle: the next one
                 why = self._probe()
                 if why is not None:
                     raise self._down(f"{display_name(self._url)}: {why}") from None
+                own = self._own_connection()
+                if own is not None:
+                    return own, False
         except PoolTimeout:
             raise Unavailable(f"no database connection came free within {self.timeout:g} s "
                               f"(the service is overloaded): {_RETRY}") from None
         except PoolClosed:
             raise Unavailable(f"the service is stopping: {_RETRY}") from None
 
-    def _checked(self, conn: psycopg.Connection[Any]) -> bool:
-        """Whether a connection from the pool still works (an empty query), counted as in
-        use from here on; one that does not is given back (the pool drops it).
+    def _own_connection(self) -> psycopg.Connection[Any] | None:
+        """A connection of the request's own when the database answers but the pool gave
+        none while fewer than its ``max_size`` connections are in use (its reconnection
+        waiting out a back-off); None when that many are (an overload: wait for one).
+
+        psycopg's pool retries a failed connection after 1, 2, 4 ... s: after an outage of
+        a minute or more its next attempt can come a minute after the database is back.
+        """
+        with self._guard:
+            if len(self._in_use) + self._dialing >= self._pool.max_size:
+                return None
+            self._dialing += 1
+        conn: psycopg.Connection[Any] | None = None
+        try:
+            conn = psycopg.connect(self._probe_conninfo, autocommit=True)
+        except psycopg.Error as exc:
+            raise self._down(f"{display_name(self._url)}: {one_line(exc)}") from None
+        finally:
+            with self._guard:
+                self._dialing -= 1
+                stopping = self._stopping
+                if conn is not None and not stopping:
+                    self._in_use.add(conn)
+        if stopping:
+            conn.close()
+            raise PoolClosed("cut")
+        log.info("the database answers but its pool gave no connection within %g s "
+                 "(reconnecting): a request served on a connection of its own", self.probe_after)
+        return conn
+
+    def _checked(self, conn: psycopg.Connection[Any]) -> _Check:
+        """Whether a connection from the pool still works (an empty query: ``"ok"``), counted
+        as in use from here on; one that does not is given back (the pool drops it): it
+        failed (``"failed"``), or the server did not answer it within ``check_timeout``
+        (``"silent"``: cut).
 
         After the database restarted, the pool's idle connections are dead: each would fail
         its next request with a 503. psycopg's pool can check them itself (``check=``), but
@@ -184,35 +321,32 @@ class PostgresPool:
         """
         with self._guard:
             self._in_use.add(conn)
-        # psycopg has no client-side timeout of a query: a timer cuts the connection if the
-        # check has not ended in time (``answered``, under its lock, keeps a timer firing just
-        # as the check ends from cutting a connection that works)
-        answered = False
-        lock = threading.Lock()
-
-        def overdue() -> None:
-            with lock:
-                if not answered:
-                    _shut(conn)
-
-        timer = threading.Timer(self.check_timeout, overdue)
-        timer.daemon = True
-        timer.start()
+        watch = self._watchdog.arm(conn)
         try:
             try:
                 conn.execute("")
             finally:
-                with lock:
-                    answered = True
-                timer.cancel()
+                overran = self._watchdog.disarm(watch)
         except BaseException as exc:
-            with self._guard:
-                self._in_use.discard(conn)
-            self._pool.putconn(conn)
+            self._give_back(conn, close=overran)
+            if overran:
+                return "silent"
             if isinstance(exc, psycopg.Error):
-                return False
+                return "failed"
             raise
-        return True
+        if overran:
+            # cut just as its answer came: the socket is shut down, the connection dead
+            self._give_back(conn, close=True)
+            return "silent"
+        return "ok"
+
+    def _give_back(self, conn: psycopg.Connection[Any], *, close: bool = False) -> None:
+        with self._guard:
+            self._in_use.discard(conn)
+        if close:
+            # (a shut socket the connection has not read yet: the pool would keep it)
+            conn.close()
+        self._pool.putconn(conn)
 
     @contextlib.contextmanager
     def connection(self) -> Iterator[psycopg.Connection[Any]]:
@@ -222,31 +356,43 @@ class PostgresPool:
         ------
         Unavailable
             No connection (the database does not answer, every connection stayed busy for
-            ``timeout``, or the pool is closed), or the connection failed in the block.
+            ``timeout``, or the pool is closed), or the connection failed in the block (a
+            lock waited for too long among them).
         """
-        conn = self._getconn()
+        conn, pooled = self._getconn()
         try:
-            with conn:  # (a pooled connection: commits or rolls back, and stays open)
+            # a pooled connection commits or rolls back and stays open; a request's own
+            # closes
+            with conn:
                 yield conn
         except Exception as exc:
             # a lost connection (the server killed, restarted, cut off) or an operational
             # failure of a live one (shutting down, out of disk, a lock waited for too
             # long); the store's own wrapping (StoreError) of one is recognised by the
-            # connection it left broken
+            # connection it left broken, or, for its write lock, by its kind
             if conn.broken:
                 raise self._down(one_line(exc)) from None
             if isinstance(exc, psycopg.OperationalError):
                 raise Unavailable(f"the service's database could not serve the request now "
                                   f"({type(exc).__name__}): {_RETRY}", one_line(exc)) from None
+            if isinstance(exc, LockTimeout):
+                # the store's line is advice to a command line's user ("raise timeout")
+                raise Unavailable("the service's database could not serve the request now "
+                                  f"(LockNotAvailable: another upload holds an arc's write "
+                                  f"lock): {_RETRY}", one_line(exc)) from None
             raise
         finally:
-            with self._guard:
-                self._in_use.discard(conn)
-            self._pool.putconn(conn)
+            if pooled:
+                self._give_back(conn)
+            else:
+                with self._guard:
+                    self._in_use.discard(conn)
+                conn.close()
 
     def close(self) -> None:
         """Close the pool (waiting requests fail; connections in use close when returned)."""
         self._pool.close(timeout=5.0)
+        self._watchdog.stop()
 
     def cut(self) -> None:
         """Cut every connection in use, and refuse new ones: each request still blocked on
@@ -256,17 +402,20 @@ class PostgresPool:
         """
         self._stopping = True
         with self._guard:
-            conns = list(self._in_use)
-        for conn in conns:
-            _shut(conn)
-        if conns:
-            log.warning("stopping: cut %d database connection(s) still in use", len(conns))
+            # under the lock: a request gives its connection back (and the pool may close
+            # it, its descriptor then reused by another socket) only after taking it
+            for conn in self._in_use:
+                _shut(conn)
+            n = len(self._in_use)
+        if n:
+            log.warning("stopping: cut %d database connection(s) still in use", n)
 
     def abort(self) -> None:
         """:meth:`cut`, then close the pool (its threads, daemons, given half a second each:
         one stuck in a connection attempt to a server that does not answer is left)."""
         self.cut()
         self._pool.close(timeout=0.5)
+        self._watchdog.stop()
 
 #: Version of the service tables' layout.
 SERVICE_SCHEMA_VERSION = 1
