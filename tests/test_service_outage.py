@@ -190,3 +190,187 @@ def test_serve_stops_promptly_with_a_request_blocked_on_the_database(pg_url: str
         proc.wait()
     with psycopg.connect(pg_url) as conn:
         assert conn.execute("SELECT count(*) FROM np_uploads").fetchone()[0] == 0
+
+
+# ---------------------------------------------------------------- the pool's own logic
+# Fakes of psycopg's pool and its connections: a connection's check waits for its server's
+# answer on a socket pair, so that a server that never answers is simulated without
+# stopping a PostgreSQL server (the test server is shared).
+
+_NOWHERE = "postgresql://nobody@/nowhere?host=/nonexistent-np-socket-folder"
+
+
+class _FakeConn:
+    """A pooled connection whose empty query the server answers at once (``"now"``), after
+    ``late`` s whatever happens to the socket (``"late"``), or never (``"never"``: the query
+    waits until the socket is shut down, then fails as libpq does)."""
+
+    def __init__(self, answer: str = "now", late: float = 0.0) -> None:
+        self.answer, self.late = answer, late
+        self.ours, self.server = socket.socketpair()
+        self.closed = self.broken = False
+        self.checks = 0
+
+    def fileno(self) -> int:
+        return self.ours.fileno()
+
+    def execute(self, query: str) -> None:
+        self.checks += 1
+        if self.answer == "late":
+            time.sleep(self.late)
+        elif self.answer == "never":
+            self.ours.recv(1)  # (b"" once the socket is shut down)
+            self.broken = True
+            raise psycopg.OperationalError("server closed the connection unexpectedly")
+
+    def __enter__(self) -> _FakeConn:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        pass  # (a pooled connection stays open)
+
+    def close(self) -> None:
+        self.closed = True
+        self.ours.close()
+        self.server.close()
+
+
+class _FakePool:
+    """psycopg's pool with these idle connections; none more (a wait times out)."""
+
+    def __init__(self, conns: list[_FakeConn], max_size: int = 4) -> None:
+        self.idle = list(conns)
+        self.max_size = max_size
+        self.returned: list[_FakeConn] = []
+
+    def getconn(self, timeout: float | None = None) -> _FakeConn:
+        from psycopg_pool import PoolTimeout
+
+        if self.idle:
+            return self.idle.pop(0)
+        time.sleep(timeout or 0.0)
+        raise PoolTimeout("no connection")
+
+    def putconn(self, conn: _FakeConn) -> None:
+        self.returned.append(conn)
+
+    def close(self, timeout: float | None = None) -> None:
+        pass
+
+
+def test_a_server_that_does_not_answer_a_check_fails_the_request_after_one_check() -> None:
+    """A frozen server (SIGSTOP): the check of the first idle connection is cut after
+    ``check_timeout`` and the request answers 503 at once (it held the request a timeout per
+    idle connection: 8 idle, 40 s, past the pool's 30 s, answered "overloaded")."""
+    from nonprehensile.service.db import PostgresPool
+    from nonprehensile.service.errors import Unavailable
+
+    conns = [_FakeConn("never") for _ in range(3)]
+    fake = _FakePool(conns)
+    pool = PostgresPool(fake, _NOWHERE, {}, timeout=5.0, probe_after=0.2,  # type: ignore[arg-type]
+                        check_timeout=0.3)
+    pool._probe = lambda: None  # type: ignore[method-assign]  # (as a server accepting)
+    try:
+        t0 = time.monotonic()
+        with pytest.raises(Unavailable, match="database is unavailable"), pool.connection():
+            pass
+        assert time.monotonic() - t0 < 0.55
+        assert [c.checks for c in conns] == [1, 0, 0]
+        assert fake.returned == [conns[0]] and conns[0].closed and not pool._in_use
+    finally:
+        pool.close()
+        for c in conns:
+            c.close()
+
+
+def test_a_check_cut_just_as_it_answered_is_not_used() -> None:
+    """The watchdog cuts a check that overran its timeout even if the answer comes right
+    then: the connection (its socket shut down) is dropped, not given to the request."""
+    from nonprehensile.service.db import PostgresPool
+    from nonprehensile.service.errors import Unavailable
+
+    conn = _FakeConn("late", late=0.3)
+    fake = _FakePool([conn])
+    pool = PostgresPool(fake, _NOWHERE, {}, timeout=5.0, check_timeout=0.05)  # type: ignore[arg-type]
+    try:
+        with pytest.raises(Unavailable, match="database is unavailable"), pool.connection():
+            pytest.fail("the request got a connection that was cut")
+        assert conn.closed and fake.returned == [conn] and not pool._in_use
+    finally:
+        pool.close()
+        conn.close()
+
+
+def test_checks_start_no_thread_per_checkout(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The checks share one watchdog thread (a ``threading.Timer`` per checkout cost 0.6 ms,
+    several times the checkout and its query); closing the pool stops it."""
+    from nonprehensile.service.db import PostgresPool
+
+    started: list[threading.Thread] = []
+    start = threading.Thread.start
+
+    def counted(self: threading.Thread) -> None:
+        started.append(self)
+        start(self)
+
+    monkeypatch.setattr(threading.Thread, "start", counted)
+    conns = [_FakeConn() for _ in range(50)]
+    fake = _FakePool(conns)
+    pool = PostgresPool(fake, _NOWHERE, {})  # type: ignore[arg-type]
+    for _ in range(50):
+        with pool.connection() as conn:
+            assert conn.checks == 1
+    assert len(started) == 1 and started[0].daemon and started[0].is_alive()
+    assert len(fake.returned) == 50 and not any(c.closed for c in conns)
+    pool.close()
+    assert not started[0].is_alive()
+    for c in conns:
+        c.close()
+
+
+def test_a_request_is_served_on_its_own_connection_while_the_pool_reconnects(
+        pg_url: str) -> None:
+    """The database answers but the pool gives no connection (psycopg's pool waits out its
+    reconnection back-off, up to a minute apart after a long outage): after ``probe_after``
+    the request is served on a connection of its own, closed after it; with the pool's
+    ``max_size`` connections in use, a request waits (an overload) and says so."""
+    from nonprehensile.service.db import PostgresPool
+    from nonprehensile.service.errors import Unavailable
+
+    fake = _FakePool([], max_size=1)
+    pool = PostgresPool(fake, pg_url, {}, timeout=3.0, probe_after=0.1)  # type: ignore[arg-type]
+    try:
+        t0 = time.monotonic()
+        with pool.connection() as conn:
+            assert conn.execute("SELECT 1").fetchone() == (1,)
+            assert conn.autocommit
+            assert time.monotonic() - t0 < 1.5  # (before: 3 s, then "overloaded")
+            pool.timeout = 0.5
+            with pytest.raises(Unavailable, match="overloaded"), pool.connection():
+                pass
+        assert conn.closed and not pool._in_use and fake.returned == []
+    finally:
+        pool.close()
+
+
+def test_an_arc_write_lock_waited_for_too_long_answers_503_to_retry(pg_url: str) -> None:
+    """The arc store's write lock not taken in time: a 503 to retry (Retry-After), not the
+    command line's advice ("raise timeout"), which the command line still gives."""
+    from nonprehensile.errors import StoreError
+    from nonprehensile.motion.pgstore import PostgresStore, _lock_id
+    from nonprehensile.service.errors import Unavailable
+
+    pool = make_pool(pg_url, max_size=2)
+    with psycopg.connect(pg_url, autocommit=True) as holder:
+        holder.execute("SELECT pg_advisory_lock(%s)", (_lock_id("a-b"),))
+        try:
+            with pytest.raises(Unavailable, match="LockNotAvailable") as err, \
+                    pool.connection() as conn, PostgresStore(conn, "a-b", timeout=0.2) as store, \
+                    store.transaction():
+                pass
+            assert "raise timeout" not in str(err.value) and "try again later" in str(err.value)
+            with pytest.raises(StoreError, match="retry, or raise timeout"), \
+                    PostgresStore(pg_url, "a-b", timeout=0.2) as store, store.transaction():
+                pass
+        finally:
+            pool.close()
