@@ -274,7 +274,7 @@ def test_a_server_that_does_not_answer_a_check_fails_the_request_after_one_check
         t0 = time.monotonic()
         with pytest.raises(Unavailable, match="database is unavailable"), pool.connection():
             pass
-        assert time.monotonic() - t0 < 0.55
+        assert time.monotonic() - t0 < 0.85  # (before: 0.3 s per idle connection, then more)
         assert [c.checks for c in conns] == [1, 0, 0]
         assert fake.returned == [conns[0]] and conns[0].closed and not pool._in_use
     finally:
