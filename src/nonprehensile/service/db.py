@@ -9,7 +9,8 @@ On PostgreSQL the pool (:class:`PostgresPool`) turns a database outage into
 :class:`~nonprehensile.service.errors.Unavailable` (a 503 with one line) instead of a wait: a
 connection lost in a request fails it at once, and a request that waits for a connection asks
 the server itself after ``probe_after`` seconds, failing at once when it does not answer
-(psycopg's pool would wait its whole timeout, reconnecting). :meth:`PostgresPool.cut` cuts
+(psycopg's pool would wait its whole timeout, reconnecting), and serving the request on a
+connection of its own when it answers while the pool reconnects. :meth:`PostgresPool.cut` cuts
 the connections still in use when the server stops (a request blocked on a database that
 never answers would otherwise hold the process).
 
