@@ -264,6 +264,17 @@ def test_the_arms_ik_avoids_the_object_where_it_is_observed_not_where_it_is() ->
         set_object(position, quat)
 
     ik.set_object = spy  # type: ignore[method-assign]
+    # the driver hands an unchanged observed pose again through set_object_kept (which
+    # writes the rows it wrote last): those solves are checked too, by the rows written
+    set_object_kept = ik.set_object_kept
+    written: list[tuple[np.ndarray, np.ndarray]] = []  # (IK data's object, pose handed)
+
+    def spy_kept(position, quat):  # type: ignore[no-untyped-def]
+        given.append((np.array(position), np.array(sim.data.xpos[sim.judge.body])))
+        set_object_kept(position, quat)
+        written.append((np.array(ik.configuration.data.xpos[ik._obj]), np.array(position)))
+
+    ik.set_object_kept = spy_kept  # type: ignore[method-assign]
     seen: list[np.ndarray] = [np.asarray(unit.plan.steps[0].start_pose.translation)]
     sample = closed_loop.SimObserver.sample
 
@@ -280,7 +291,9 @@ def test_the_arms_ik_avoids_the_object_where_it_is_observed_not_where_it_is() ->
                      config=ControlConfig(max_accel=ROBOT_MAX_ACCEL))
     finally:
         closed_loop.SimObserver.sample = sample  # type: ignore[method-assign]
-    assert len(given) > 100
+    assert len(given) > 100 and len(written) > 100
+    for row, pos in written:
+        np.testing.assert_array_equal(row, pos)
     known = np.array(seen)
     for pos, _ in given:
         assert np.abs(known - pos).max(axis=1).min() < 1e-12  # an observation's, exactly

@@ -1022,9 +1022,10 @@ class FingertipIK:
             h_rows.append(gain * (dist - min_dist) / dt + relax if dist > min_dist else relax)
             body2 = still[idx]
             if body2 >= 0:
-                # the second geom does not move with the joints (the object, a mocap body
-                # here, or the table): its Jacobian is zero and mink's row
-                # ``normal @ (jac2 - jac1)`` is ``-(normal @ jac1)``, one ``mj_jac`` fewer
+                # the second geom does not move with the joints (a user's scene whose pair
+                # lists the moving geom first; the usual scene's pairs take the branch below):
+                # its Jacobian is zero and mink's row ``normal @ (jac2 - jac1)`` is
+                # ``-(normal @ jac1)``, one ``mj_jac`` fewer
                 np.subtract(fromto[3:], fromto[:3], out=normal)
                 mujoco.mju_normalize3(normal)
                 mujoco.mj_jac(model, data, jac1, None, fromto[:3], body2)

@@ -774,7 +774,8 @@ class RobotArms:
         self._give_fed = [False] * scene.n_fingers  # a return at full speed (fed forward)
         self._give_last = np.zeros((scene.n_fingers, 3))  # the give one step before
         self._give_vel = np.zeros((scene.n_fingers, 3))  # its velocity fed forward, m/s
-        # the tips' Jacobian of the last _tip_pinv (the last solve's, or one within its period)
+        # the tips' Jacobian of the last _tip_jac (_tip_pinv's, or _pushed's at the last solve;
+        # or one within its period)
         self._jac_c: FloatArray | None = None
         # the contact forces (clipped at the cap) summed over the steps since the last
         # solve, and that solve's step count (_cap, _pushed)
@@ -1404,9 +1405,10 @@ class RobotArms:
         return np.asarray(jac.T @ np.linalg.inv(jac @ jac.T + self._eye_damp))
 
     def _give_pinv(self) -> FloatArray:
-        """The give's inverse Jacobian (``_pinv_c``): the one of this control period, made
-        from the Jacobian :meth:`_pushed` read at its solve where it did (the same numbers
-        as its inverse made then), else from the Jacobian now."""
+        """The give's inverse Jacobian (``_pinv_c``): the one of the last solve's period
+        (a hold at rest solves nothing: an earlier period's), made from the Jacobian
+        :meth:`_pushed` read at that solve where it did (the same numbers as its inverse made
+        then), else from the Jacobian now."""
         pinv = self._pinv_c
         if pinv is None:
             jac = self._jac_give
@@ -1993,7 +1995,7 @@ class RobotArms:
         F)``, ``F`` each fingertip's contact force clipped at the force cap and averaged
         over the physics steps since the last solve (:meth:`_cap` sums it every physics
         step while its gate is open: a fingertip's contact, read every ``CONTACT_EVERY``
-        steps, or a give), ``J`` the tip sites' position Jacobian (:meth:`_tip_pinv`'s, at
+        steps, or a give), ``J`` the tip sites' position Jacobian (:meth:`_tip_jac`'s, at
         this solve's joints or within the period before); each joint's torque within its
         limit on its own (the acceleration's offset is clipped on its own too, and the
         torque budget, :meth:`_within_torque`, does not count this one), none for a servo
