@@ -38,6 +38,7 @@ from nonprehensile.service import (
     make_pool,
 )
 from nonprehensile.service.ingest import CHECKPOINT_N, Registry
+from serving import free_port, serve, wait_up
 
 CUBE = dataset_path("cube")
 ANN = json.loads((CUBE / "annotations.json").read_text())
@@ -307,37 +308,6 @@ def test_schema_fuzz_never_500(service: dict[str, Any]) -> None:
     assert not failures, failures
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _serve(store: str, port: int) -> subprocess.Popen[bytes]:
-    return subprocess.Popen(
-        [sys.executable, "-m", "nonprehensile.cli", "serve", "--store", store, "--host",
-         "127.0.0.1", "--port", str(port), "--recalibrate-every", "0"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-        env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
-
-
-def _wait_up(url: str, proc: subprocess.Popen[bytes]) -> None:
-    import httpx
-
-    for _ in range(300):
-        if proc.poll() is not None:  # ours exited (its port taken?): say so, with its words
-            pytest.fail("the server exited: " + (proc.stderr.read().decode()[:500]
-                                                 if proc.stderr else ""))
-        try:
-            if httpx.get(f"{url}/health", timeout=1).status_code == 200:
-                return
-        except httpx.TransportError:
-            pass
-        time.sleep(0.1)  # (a refused connection and a non-200 reply wait alike)
-    pytest.fail("the server did not come up: " + (proc.stderr.read().decode()[:500]
-                                                  if proc.stderr else ""))
-
-
 @pytest.mark.parametrize("backend", ["postgresql", "sqlite"])
 def test_real_uvicorn_on_loopback(backend: str, request: pytest.FixtureRequest,
                                   tmp_path: Path) -> None:
@@ -354,7 +324,7 @@ def test_real_uvicorn_on_loopback(backend: str, request: pytest.FixtureRequest,
     r = runner.invoke(main, ["serve", "token", "list", "--store", store, "--json"])
     assert json.loads(r.stdout)["mentors"] == [
         {"mentor": "dana", "tokens": 1, "since": json.loads(r.stdout)["mentors"][0]["since"]}]
-    port = _free_port()
+    port = free_port()
     url = f"http://127.0.0.1:{port}"
     auth = {"Authorization": f"Bearer {token}"}
     takes = entries("roll-pull", "chen", 2)
@@ -365,9 +335,9 @@ def test_real_uvicorn_on_loopback(backend: str, request: pytest.FixtureRequest,
         return httpx.post(f"{url}/demonstrations", files=form(e)["files"],
                           data={"annotation": json.dumps(ann)}, headers=auth, timeout=60)
 
-    proc = _serve(store, port)
+    proc = serve(store, port)
     try:
-        _wait_up(url, proc)
+        wait_up(url, proc)
         e = takes[0]
         ann = {k: v for k, v in e.items() if k not in ("file", "mentor")}
         r = httpx.post(f"{url}/demonstrations", files=form(e)["files"],
@@ -383,8 +353,8 @@ def test_real_uvicorn_on_loopback(backend: str, request: pytest.FixtureRequest,
         assert replies[0].json()["mentor"] == "dana" and len(replies[0].json()["segments"]) >= 2
         proc.kill()  # SIGKILL: no shutdown of any kind
         proc.wait()
-        proc = _serve(store, port)
-        _wait_up(url, proc)
+        proc = serve(store, port)
+        wait_up(url, proc)
         again = [send(e) for e in takes]
         assert all(r.status_code == 200 and r.json()["duplicate"] for r in again), [
             (r.status_code, r.text[:300]) for r in again]

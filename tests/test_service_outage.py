@@ -13,11 +13,9 @@ answer.
 from __future__ import annotations
 
 import json
-import os
 import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -36,6 +34,7 @@ from psycopg.conninfo import conninfo_to_dict
 from nonprehensile.demonstrations.dataset import dataset_path
 from nonprehensile.service import ServiceConfig, create_app, create_token, load_template, make_pool
 from nonprehensile.service.ingest import Registry
+from serving import free_port, serve, wait_up
 
 CUBE = dataset_path("cube")
 ANN = json.loads((CUBE / "annotations.json").read_text())
@@ -121,12 +120,6 @@ def test_a_database_outage_answers_503_at_once_and_the_service_recovers(
     assert (n_uploads, orphans) == (2, 0)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def test_serve_stops_promptly_with_a_request_blocked_on_the_database(pg_url: str) -> None:
     """SIGTERM while a request waits on the database for ever (here: a lock the test holds,
     as a server that does not answer): the request is cut after --shutdown-timeout, answers
@@ -137,23 +130,12 @@ def test_serve_stops_promptly_with_a_request_blocked_on_the_database(pg_url: str
     with pool.connection() as conn:
         token = create_token(conn, "ana")
     pool.close()
-    port = _free_port()
+    port = free_port()
     base = f"http://127.0.0.1:{port}"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "nonprehensile.cli", "serve", "--store", pg_url, "--host",
-         "127.0.0.1", "--port", str(port), "--recalibrate-every", "0", "--shutdown-timeout",
-         "1"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-        env={**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"})
+    proc = serve(pg_url, port, "--shutdown-timeout", "1")
     locker = psycopg.connect(pg_url)
     try:
-        for _ in range(600):
-            assert proc.poll() is None, proc.stderr.read().decode()[:500] if proc.stderr else ""
-            try:
-                if httpx.get(f"{base}/health", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.1)
+        wait_up(base, proc)
         # the upload's first query (its token's mentor) waits for this lock
         locker.execute("LOCK TABLE np_tokens IN ACCESS EXCLUSIVE MODE")
         replies: list[Any] = []
